@@ -1,0 +1,14 @@
+//! Wire protocol shared by the stereo board, the autopilot and the host tools.
+//!
+//! * [`messages`]: one enum per direction, serde + postcard, SI units documented on every field.
+//! * [`framing`]: COBS frames carrying a version byte, the postcard payload and a CRC; an
+//!   encoder into a caller-provided buffer and a streaming [`Decoder`] with a bounded buffer
+//!   that never panics, resynchronises at the next delimiter and counts errors by kind.
+//!
+//! `no_std`, no heap. Enable the `defmt` feature for `defmt::Format` on every type.
+#![no_std]
+#![warn(missing_docs)]
+
+pub mod messages;
+
+pub use messages::*;

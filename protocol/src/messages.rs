@@ -1,0 +1,452 @@
+//! Every message that crosses a wire, one enum per direction.
+//!
+//! Units are SI at every boundary (m, m/s, rad, rad/s, m/s², s) in `f32`; timestamps are in
+//! microseconds of the sender's monotonic clock, carried as `u32` on the wire. A `u32`
+//! microsecond clock wraps after 71.6 minutes (longer than any flight of a 40 g drone); compare
+//! timestamps with [`elapsed_us`], never with `<`.
+//!
+//! Links and directions:
+//!
+//! | link | direction | enum |
+//! |---|---|---|
+//! | board-to-board UART | camera board -> autopilot | [`StereoToAutopilot`] |
+//! | board-to-board UART | autopilot -> camera board | [`AutopilotToStereo`] |
+//! | HIL serial / ground tool | host -> either board | [`HostToBoard`] |
+//! | HIL serial / ground tool | either board -> host | [`BoardToHost`] |
+//!
+//! Adding a variant at the end of an enum is backwards compatible for the decoder's "unknown
+//! message" check; changing or reordering fields is not: bump [`PROTOCOL_VERSION`].
+
+use serde::{Deserialize, Serialize};
+
+/// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
+/// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
+pub const PROTOCOL_VERSION: u8 = 1;
+
+/// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
+/// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
+pub const STEREO_FRAME_BYTES: usize = 128 * 96 * 2;
+
+/// Payload bytes in one [`FrameChunk`] (a full frame is 48 chunks).
+pub const FRAME_CHUNK_BYTES: usize = 512;
+
+/// Microseconds elapsed from `earlier` to `later` on a wrapping `u32` microsecond clock.
+#[inline]
+pub fn elapsed_us(later: u32, earlier: u32) -> u32 {
+    later.wrapping_sub(earlier)
+}
+
+/// A message type that travels in frames: one enum per direction.
+pub trait Message: Serialize + for<'de> Deserialize<'de> {
+    /// Number of variants of the enum. A frame whose tag is at least this is an unknown
+    /// message (newer peer, or corruption that survived the CRC).
+    const VARIANT_COUNT: u32;
+    /// Largest encoded frame of this type on the wire (COBS, CRC and delimiter included).
+    /// Receive buffers are sized from it.
+    const MAX_FRAME_BYTES: usize;
+}
+
+/// Which board (or host tool) sent a [`Heartbeat`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Node {
+    /// The stereo camera board running Edge-FS.
+    StereoBoard,
+    /// The autopilot.
+    Autopilot,
+    /// A host tool: simulator, HIL bridge or ground station.
+    Host,
+}
+
+/// Periodic liveness message (1 Hz). Lets each side detect a lost link and a peer built with
+/// another protocol version.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Heartbeat {
+    /// Sender.
+    pub node: Node,
+    /// The sender's [`PROTOCOL_VERSION`].
+    pub protocol_version: u8,
+    /// Sender uptime, milliseconds.
+    pub uptime_ms: u32,
+}
+
+impl Heartbeat {
+    /// A heartbeat of this build's protocol version.
+    pub fn new(node: Node, uptime_ms: u32) -> Self {
+        Self {
+            node,
+            protocol_version: PROTOCOL_VERSION,
+            uptime_ms,
+        }
+    }
+}
+
+/// Why an [`Estimate`] must not be used for control. A bit set means "invalid because ...";
+/// an estimate is valid when no bit is set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EstimateFlags(pub u8);
+
+impl EstimateFlags {
+    /// The image is too dark (or the camera is covered).
+    pub const TOO_DARK: Self = Self(1 << 0);
+    /// The image is saturated (too bright).
+    pub const TOO_BRIGHT: Self = Self(1 << 1);
+    /// Too few edges: a blank wall or a featureless scene.
+    pub const NO_TEXTURE: Self = Self(1 << 2);
+    /// Too few columns with a confident stereo match: no depth, so no metric velocity.
+    pub const NO_STEREO_MATCH: Self = Self(1 << 3);
+    /// Too few columns with a confident flow match to fit the flow field.
+    pub const NO_FLOW_MATCH: Self = Self(1 << 4);
+    /// The flow history is still filling (first frames after start or reset).
+    pub const HISTORY_FILLING: Self = Self(1 << 5);
+    /// The line fit is poor (residual too large for the estimate to be trusted).
+    pub const POOR_FIT: Self = Self(1 << 6);
+    /// No recent gyro sample from the autopilot: rotation could not be removed.
+    pub const NO_GYRO: Self = Self(1 << 7);
+    /// No reason: a valid estimate.
+    pub const NONE: Self = Self(0);
+
+    /// True when no invalidity bit is set.
+    #[inline]
+    pub fn is_valid(self) -> bool {
+        self.0 == 0
+    }
+    /// True when every bit of `other` is set in `self`.
+    #[inline]
+    pub fn contains(self, other: Self) -> bool {
+        self.0 & other.0 == other.0
+    }
+    /// Sets the bits of `other`.
+    #[inline]
+    pub fn insert(&mut self, other: Self) {
+        self.0 |= other.0;
+    }
+}
+
+impl core::ops::BitOr for EstimateFlags {
+    type Output = Self;
+    fn bitor(self, rhs: Self) -> Self {
+        Self(self.0 | rhs.0)
+    }
+}
+
+/// Edge-FS result for one processed stereo frame (camera board -> autopilot, at the frame rate).
+///
+/// Body axes of the camera: forward along the optical axis, sideways positive to the right.
+/// Worst case 32 bytes on the wire (tested).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Estimate {
+    /// Frame sequence number, wrapping; a gap means frames were dropped.
+    pub seq: u16,
+    /// Exposure time of the frame, µs (camera board clock, wrapping `u32`).
+    pub capture_us: u32,
+    /// Forward velocity, m/s (positive: moving towards the scene).
+    pub forward_mps: f32,
+    /// Sideways velocity, m/s (positive: moving to the right).
+    pub sideways_mps: f32,
+    /// Distance to the nearest obstacle in view, m; `None` when nothing is within range.
+    pub obstacle_m: Option<f32>,
+    /// Confidence of the velocity estimate, 0 (none) ..= 255 (best); see the Edge-FS docs for
+    /// how it is computed.
+    pub quality: u8,
+    /// Why the estimate is invalid (empty: valid).
+    pub flags: EstimateFlags,
+    /// Time from frame capture to this estimate, µs (saturates at 65,535).
+    pub processing_us: u16,
+}
+
+impl Estimate {
+    /// True when the estimate may be used for control.
+    pub fn is_valid(&self) -> bool {
+        self.flags.is_valid()
+    }
+}
+
+/// Counters of link errors seen by a decoder, by kind (see [`crate::Decoder`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkErrorCounts {
+    /// Frames whose CRC did not match.
+    pub crc: u32,
+    /// Frames that were not valid COBS.
+    pub cobs: u32,
+    /// Frames longer than the receive buffer.
+    pub too_long: u32,
+    /// Frames too short to hold a header and CRC, including empty frames.
+    pub too_short: u32,
+    /// Frames with an unknown message tag.
+    pub unknown_message: u32,
+    /// Frames whose payload did not decode as the message type.
+    pub malformed: u32,
+    /// Frames from a peer speaking another protocol version.
+    pub version_mismatch: u32,
+}
+
+/// Camera-board health, sent once per second.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StereoStatus {
+    /// Uptime, ms.
+    pub uptime_ms: u32,
+    /// Processed frames per second over the last interval, Hz.
+    pub frame_rate_hz: f32,
+    /// Frames processed since boot.
+    pub frames_processed: u32,
+    /// Frames dropped since boot (camera overrun or processing too slow).
+    pub frames_dropped: u32,
+    /// Errors decoding messages from the autopilot since boot.
+    pub link_errors: LinkErrorCounts,
+    /// Worst processing time per frame over the last interval, µs.
+    pub max_processing_us: u32,
+}
+
+/// Result of a [`AutopilotToStereo::Config`] request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigResult {
+    /// The configuration was valid and is in use from the next frame on.
+    Applied,
+    /// The configuration was rejected; the previous one stays in use.
+    Rejected(ConfigError),
+}
+
+/// Messages from the camera board to the autopilot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StereoToAutopilot {
+    /// Liveness and version.
+    Heartbeat(Heartbeat),
+    /// Edge-FS result of one frame.
+    Estimate(Estimate),
+    /// Periodic health report.
+    Status(StereoStatus),
+    /// Answer to a configuration request.
+    ConfigAck(ConfigResult),
+}
+
+impl Message for StereoToAutopilot {
+    const VARIANT_COUNT: u32 = 4;
+    const MAX_FRAME_BYTES: usize = 96;
+}
+
+/// Gyro and attitude sample for derotation (autopilot -> camera board, at 100 Hz or more).
+///
+/// Body frame: x forward, y right, z down (the camera looks along x).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GyroAttitude {
+    /// Sample time, µs (autopilot clock, wrapping `u32`).
+    pub timestamp_us: u32,
+    /// Body rates p, q, r (roll, pitch, yaw rate), rad/s.
+    pub rates_radps: [f32; 3],
+    /// Attitude roll, pitch, yaw (ZYX Euler angles), rad.
+    pub attitude_rad: [f32; 3],
+}
+
+/// Edge-FS parameters that can be changed at run time.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EdgeFsConfig {
+    /// SAD half-window W, px (the window is 2W+1 columns wide). 1..=12.
+    pub half_window: u8,
+    /// Search range D, px: flow is searched over -D..=D, disparity over 0..=D. 1..=20.
+    pub search_range: u8,
+    /// Longest time horizon of the flow history, frames. 1..=9.
+    pub max_horizon: u8,
+    /// Horizontal stereo misalignment of the camera pair, px (calibration): at infinity a
+    /// feature sits this much further left in the left image. -20..=20.
+    pub stereo_shift: i8,
+}
+
+/// Why an [`EdgeFsConfig`] was rejected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// `half_window` outside 1..=12.
+    HalfWindow,
+    /// `search_range` outside 1..=20.
+    SearchRange,
+    /// `max_horizon` outside 1..=9.
+    MaxHorizon,
+    /// `stereo_shift` outside -20..=20.
+    StereoShift,
+    /// Window and search range leave no column to measure in a 128-px image.
+    NoColumnsLeft,
+}
+
+impl EdgeFsConfig {
+    /// Largest accepted half-window, px.
+    pub const MAX_HALF_WINDOW: u8 = 12;
+    /// Largest accepted search range, px.
+    pub const MAX_SEARCH_RANGE: u8 = 20;
+    /// Largest accepted flow horizon, frames.
+    pub const MAX_HORIZON: u8 = 9;
+    /// Largest accepted stereo shift magnitude, px.
+    pub const MAX_STEREO_SHIFT: i8 = 20;
+
+    /// Checks every field's range and that at least 16 columns remain measurable.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if !(1..=Self::MAX_HALF_WINDOW).contains(&self.half_window) {
+            return Err(ConfigError::HalfWindow);
+        }
+        if !(1..=Self::MAX_SEARCH_RANGE).contains(&self.search_range) {
+            return Err(ConfigError::SearchRange);
+        }
+        if !(1..=Self::MAX_HORIZON).contains(&self.max_horizon) {
+            return Err(ConfigError::MaxHorizon);
+        }
+        if !(-Self::MAX_STEREO_SHIFT..=Self::MAX_STEREO_SHIFT).contains(&self.stereo_shift) {
+            return Err(ConfigError::StereoShift);
+        }
+        let border = 2 * (self.half_window as i32 + self.search_range as i32)
+            + self.stereo_shift.unsigned_abs() as i32;
+        if 128 - border < 16 {
+            return Err(ConfigError::NoColumnsLeft);
+        }
+        Ok(())
+    }
+}
+
+/// Messages from the autopilot to the camera board.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AutopilotToStereo {
+    /// Liveness and version.
+    Heartbeat(Heartbeat),
+    /// Latest gyro and attitude, for derotation.
+    GyroAttitude(GyroAttitude),
+    /// Change Edge-FS parameters (answered with [`StereoToAutopilot::ConfigAck`]).
+    Config(EdgeFsConfig),
+}
+
+impl Message for AutopilotToStereo {
+    const VARIANT_COUNT: u32 = 3;
+    const MAX_FRAME_BYTES: usize = 64;
+}
+
+/// One piece of a stereo frame streamed to the camera board in HIL (host -> camera board).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameChunk {
+    /// Frame number, wrapping; all chunks of one frame carry the same number.
+    pub frame_id: u16,
+    /// Exposure time of the frame, µs (host simulation clock, wrapping `u32`).
+    pub capture_us: u32,
+    /// Byte offset of `data` inside the [`STEREO_FRAME_BYTES`]-byte interleaved frame.
+    pub offset: u16,
+    /// Interleaved pixel bytes, at most [`FRAME_CHUNK_BYTES`].
+    pub data: heapless::Vec<u8, FRAME_CHUNK_BYTES>,
+}
+
+/// One IMU sample (host -> autopilot in HIL; also logged by the autopilot).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImuSample {
+    /// Sample time, µs (wrapping `u32`).
+    pub timestamp_us: u32,
+    /// Body rates p, q, r, rad/s (body frame x forward, y right, z down).
+    pub gyro_radps: [f32; 3],
+    /// Specific force, m/s² (body frame; about [0, 0, -9.81] at rest, level).
+    pub accel_mps2: [f32; 3],
+}
+
+/// External position fix (host -> autopilot): motion capture in the paper's flights, the
+/// simulator's truth plus noise here. The autopilot uses the height only.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ExternalPosition {
+    /// Measurement time, µs (wrapping `u32`).
+    pub timestamp_us: u32,
+    /// Position in the room frame (x north, y east, z down), m. Height above the floor is `-z`.
+    pub position_m: [f32; 3],
+}
+
+/// Pilot command from a ground tool or the HIL host (the RC equivalent). A kill always wins.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PilotCommand {
+    /// Arm the motors and start the autonomous flight.
+    Arm,
+    /// Land, then disarm.
+    Land,
+    /// Motors off immediately.
+    Kill,
+}
+
+/// Messages from a host (HIL bridge, simulator, ground tool) to a board.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HostToBoard {
+    /// Liveness and version.
+    Heartbeat(Heartbeat),
+    /// A piece of a stereo frame (camera board, HIL).
+    FrameChunk(FrameChunk),
+    /// An IMU sample (autopilot, HIL).
+    Imu(ImuSample),
+    /// An external position / height fix (autopilot).
+    ExternalPosition(ExternalPosition),
+    /// Arm, land or kill (autopilot).
+    Command(PilotCommand),
+}
+
+impl Message for HostToBoard {
+    const VARIANT_COUNT: u32 = 5;
+    const MAX_FRAME_BYTES: usize = 560;
+}
+
+/// Motor commands (autopilot -> host in HIL).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MotorCommand {
+    /// Time of the control step that produced the command, µs (wrapping `u32`).
+    pub timestamp_us: u32,
+    /// Throttle of motors 1..4 (front-right, rear-right, rear-left, front-left), each 0..=1.
+    pub throttle: [f32; 4],
+}
+
+/// Autopilot telemetry for a ground tool (autopilot -> host, about 10 Hz).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Telemetry {
+    /// Autopilot time, µs (wrapping `u32`).
+    pub timestamp_us: u32,
+    /// Avoidance state machine state (autopilot's numbering, see its docs).
+    pub fsm_state: u8,
+    /// Failsafe state (autopilot's numbering, see its docs).
+    pub failsafe: u8,
+    /// Attitude roll, pitch, yaw, rad.
+    pub attitude_rad: [f32; 3],
+    /// Median-filtered velocity estimate, forward and sideways, m/s.
+    pub velocity_mps: [f32; 2],
+    /// Velocity setpoint, forward and sideways, m/s.
+    pub velocity_setpoint_mps: [f32; 2],
+    /// Nearest obstacle from the camera board, m (`None`: nothing in range).
+    pub obstacle_m: Option<f32>,
+    /// Height above the floor, m.
+    pub height_m: f32,
+    /// Errors decoding messages from the camera board since boot.
+    pub link_errors: LinkErrorCounts,
+}
+
+/// Messages from a board to a host (HIL bridge, ground tool).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BoardToHost {
+    /// Liveness and version.
+    Heartbeat(Heartbeat),
+    /// Motor commands (autopilot, HIL).
+    Motors(MotorCommand),
+    /// Autopilot telemetry.
+    Telemetry(Telemetry),
+    /// An Edge-FS estimate (camera board in HIL, mirrored to the host).
+    Estimate(Estimate),
+}
+
+impl Message for BoardToHost {
+    const VARIANT_COUNT: u32 = 4;
+    const MAX_FRAME_BYTES: usize = 128;
+}

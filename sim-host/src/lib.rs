@@ -1,0 +1,6 @@
+//! Host tools for the pocket drone: the closed-loop simulator (`fly`), the Edge-FS evaluation on
+//! recorded stereo data (`eval`) and the hardware-in-the-loop bridge (`hil`).
+#![warn(missing_docs)]
+
+pub mod eval;
+pub mod fly;

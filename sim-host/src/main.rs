@@ -1,0 +1,27 @@
+//! `sim-host`: command-line front end of the host tools.
+
+use clap::{Parser, Subcommand};
+
+/// Host tools for the pocket drone: simulator, Edge-FS evaluation, hardware-in-the-loop bridge.
+#[derive(Debug, Parser)]
+#[command(name = "sim-host", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Fly the simulated pocket drone in a textured room with both boards' task graphs in the loop.
+    Fly(sim_host::fly::FlyArgs),
+    /// Evaluate Edge-FS on a recorded stereo data set against motion-capture ground truth.
+    Eval(sim_host::eval::EvalArgs),
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match &cli.command {
+        Command::Fly(args) => sim_host::fly::run(args),
+        Command::Eval(args) => sim_host::eval::run(args),
+    }
+}
