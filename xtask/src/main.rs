@@ -1,5 +1,27 @@
-//! `cargo xtask`: project orchestration (CI test run, firmware builds and sizes, QEMU, instruction counts).
+//! `cargo xtask`: project orchestration.
+//!
+//! * `cargo xtask test`: the CI test command (installs what a fresh machine lacks, then runs
+//!   fmt, clippy on host and thumbv7em, all host tests, firmware builds, a bounded fuzz run).
+//! * `cargo xtask size`: static flash/RAM/CCM use of each firmware.
+//! * `cargo xtask qemu`: build a firmware flavour and run it in QEMU.
+
+mod ci;
+mod qemu;
+mod size;
 
 fn main() -> anyhow::Result<()> {
-    anyhow::bail!("no xtask commands yet")
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (command, rest) = args
+        .split_first()
+        .map(|(c, r)| (c.as_str(), r))
+        .unwrap_or(("help", &[]));
+    match command {
+        "test" => ci::run(rest),
+        "size" => size::run(rest),
+        "qemu" => qemu::run(rest),
+        _ => {
+            eprintln!("usage: cargo xtask <test|size|qemu> [ARGS]");
+            std::process::exit(2)
+        }
+    }
 }
