@@ -12,3 +12,9 @@
 pub mod messages;
 
 pub use messages::*;
+pub mod framing;
+
+pub use framing::{
+    decode_frame, encode, encode_to_vec, AutopilotToStereoDecoder, BoardToHostDecoder, Decoder,
+    EncodeError, FrameError, HostToBoardDecoder, StereoToAutopilotDecoder, DELIMITER,
+};
