@@ -378,6 +378,9 @@ pub enum PilotCommand {
 }
 
 /// Messages from a host (HIL bridge, simulator, ground tool) to a board.
+// The frame chunk dominates the size; boxing is not an option without a heap, and a receiver
+// holds one decoded message at a time.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum HostToBoard {
