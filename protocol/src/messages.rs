@@ -274,8 +274,6 @@ pub enum ConfigError {
     MaxHorizon,
     /// `stereo_shift` outside -20..=20.
     StereoShift,
-    /// Window and search range leave no column to measure in a 128-px image.
-    NoColumnsLeft,
 }
 
 impl EdgeFsConfig {
@@ -288,7 +286,8 @@ impl EdgeFsConfig {
     /// Largest accepted stereo shift magnitude, px.
     pub const MAX_STEREO_SHIFT: i8 = 20;
 
-    /// Checks every field's range and that at least 16 columns remain measurable.
+    /// Checks every field's range. Within these ranges at least 64 of the 128 columns remain
+    /// measurable (128 - 2W - D - |shift| >= 64), so no combination needs a separate check.
     pub fn validate(&self) -> Result<(), ConfigError> {
         if !(1..=Self::MAX_HALF_WINDOW).contains(&self.half_window) {
             return Err(ConfigError::HalfWindow);
@@ -301,11 +300,6 @@ impl EdgeFsConfig {
         }
         if !(-Self::MAX_STEREO_SHIFT..=Self::MAX_STEREO_SHIFT).contains(&self.stereo_shift) {
             return Err(ConfigError::StereoShift);
-        }
-        let border = 2 * (self.half_window as i32 + self.search_range as i32)
-            + self.stereo_shift.unsigned_abs() as i32;
-        if 128 - border < 16 {
-            return Err(ConfigError::NoColumnsLeft);
         }
         Ok(())
     }
