@@ -1,6 +1,246 @@
-//! `cargo xtask test`: the CI test command.
+//! `cargo xtask test`: the CI test command, runnable on a fresh machine.
+//!
+//! 1. Installs what a fresh machine lacks: the `thumbv7em-none-eabihf` target (rustup), a
+//!    nightly toolchain and `cargo-fuzz` (for the bounded fuzz run), and `qemu-system-arm` from
+//!    Debian's main archive (apt-get).
+//! 2. Checks formatting, runs clippy with warnings denied on the host and on thumbv7em, runs all
+//!    host tests, builds both firmwares in release, and fuzzes the protocol decoder briefly.
+//! 3. Prints a one-line summary and a closing `N passed, N failed` line.
+//!
+//! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
+
+use anyhow::{bail, Context, Result};
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+/// The firmware target.
+pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
 
 /// Runs `cargo xtask test`.
-pub fn run(_args: &[String]) -> anyhow::Result<()> {
-    anyhow::bail!("cargo xtask test is not implemented yet")
+pub fn run(args: &[String]) -> Result<()> {
+    let mut fuzz_seconds: u64 = 60;
+    let mut it = args.iter();
+    while let Some(arg) = it.next() {
+        match arg.as_str() {
+            "--fuzz-seconds" => {
+                fuzz_seconds = it
+                    .next()
+                    .context("--fuzz-seconds needs a value")?
+                    .parse()
+                    .context("--fuzz-seconds must be a number")?
+            }
+            other => bail!("unknown option {other} (expected --fuzz-seconds N)"),
+        }
+    }
+    let started = Instant::now();
+    let mut steps: Vec<String> = Vec::new();
+
+    install_prerequisites(fuzz_seconds > 0)?;
+    steps.push("install".into());
+
+    cargo(&["fmt", "--all", "--", "--check"]).context("cargo fmt --check failed: run cargo fmt")?;
+    steps.push("fmt".into());
+
+    cargo(&[
+        "clippy",
+        "--workspace",
+        "--all-targets",
+        "--",
+        "-D",
+        "warnings",
+    ])?;
+    steps.push("clippy(host)".into());
+    for features in [
+        "",
+        "stereo-board/qemu,autopilot/qemu",
+        "stereo-board/hil,autopilot/hil",
+    ] {
+        let mut clippy = vec![
+            "clippy",
+            "--target",
+            FIRMWARE_TARGET,
+            "-p",
+            "protocol",
+            "-p",
+            "stereo-board",
+            "-p",
+            "autopilot",
+        ];
+        if !features.is_empty() {
+            clippy.extend(["--features", features]);
+        }
+        clippy.extend(["--", "-D", "warnings"]);
+        cargo(&clippy)?;
+    }
+    steps.push("clippy(thumbv7em: real, qemu, hil)".into());
+
+    let (passed, failed) = cargo_test(&["test", "--workspace"])?;
+    steps.push(format!("tests({passed} passed)"));
+
+    cargo(&["fw"]).context("firmware build (cargo fw) failed")?;
+    steps.push("firmware(stereo-board, autopilot)".into());
+
+    if fuzz_seconds > 0 {
+        for (target, seconds) in [("decoder", fuzz_seconds), ("encoder", fuzz_seconds / 2)] {
+            let max_time = format!("-max_total_time={seconds}");
+            run_checked(Command::new("cargo").args([
+                "+nightly",
+                "fuzz",
+                "run",
+                target,
+                "--",
+                &max_time,
+                "-max_len=4096",
+            ]))
+            .with_context(|| format!("fuzz target {target} failed"))?;
+        }
+        steps.push(format!(
+            "fuzz(decoder {fuzz_seconds} s, encoder {} s)",
+            fuzz_seconds / 2
+        ));
+    }
+
+    println!(
+        "xtask test: OK in {:.0} s: {}",
+        started.elapsed().as_secs_f64(),
+        steps.join(", ")
+    );
+    println!("{passed} passed, {failed} failed");
+    Ok(())
+}
+
+fn install_prerequisites(need_fuzz: bool) -> Result<()> {
+    run_checked(Command::new("rustup").args(["target", "add", FIRMWARE_TARGET]))
+        .context("rustup target add thumbv7em-none-eabihf")?;
+    if !succeeds(Command::new("qemu-system-arm").arg("--version")) {
+        eprintln!("xtask: installing qemu-system-arm from Debian's main archive");
+        let sudo = if is_root() { None } else { Some("sudo") };
+        let apt = |args: &[&str]| -> Result<()> {
+            let mut cmd = match sudo {
+                Some(s) => {
+                    let mut c = Command::new(s);
+                    c.arg("apt-get");
+                    c
+                }
+                None => Command::new("apt-get"),
+            };
+            cmd.args(args).env("DEBIAN_FRONTEND", "noninteractive");
+            run_checked(&mut cmd)
+        };
+        apt(&["update"])?;
+        apt(&[
+            "install",
+            "-y",
+            "--no-install-recommends",
+            "qemu-system-arm",
+        ])?;
+    }
+    if need_fuzz {
+        if !succeeds(Command::new("cargo").args(["+nightly", "--version"])) {
+            run_checked(Command::new("rustup").args([
+                "toolchain",
+                "install",
+                "nightly",
+                "--profile",
+                "minimal",
+            ]))?;
+        }
+        if !succeeds(Command::new("cargo").args(["fuzz", "--version"])) {
+            run_checked(Command::new("cargo").args(["install", "cargo-fuzz", "--locked"]))?;
+        }
+    }
+    Ok(())
+}
+
+fn is_root() -> bool {
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false)
+}
+
+fn succeeds(cmd: &mut Command) -> bool {
+    cmd.stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false)
+}
+
+fn run_checked(cmd: &mut Command) -> Result<()> {
+    eprintln!("xtask: running {cmd:?}");
+    let status = cmd
+        .status()
+        .with_context(|| format!("could not start {cmd:?}"))?;
+    if !status.success() {
+        bail!("{cmd:?} failed with {status}");
+    }
+    Ok(())
+}
+
+fn cargo(args: &[&str]) -> Result<()> {
+    run_checked(Command::new("cargo").args(args))
+}
+
+/// Runs a `cargo test` command, streaming its output, and sums the `test result:` lines.
+fn cargo_test(args: &[&str]) -> Result<(u64, u64)> {
+    eprintln!("xtask: running cargo {}", args.join(" "));
+    let mut child = Command::new("cargo")
+        .args(args)
+        .stdout(Stdio::piped())
+        .spawn()
+        .context("could not start cargo test")?;
+    let (mut passed, mut failed) = (0u64, 0u64);
+    if let Some(stdout) = child.stdout.take() {
+        for line in BufReader::new(stdout).lines() {
+            let line = line?;
+            println!("{line}");
+            if let Some(rest) = line.strip_prefix("test result: ") {
+                passed += count_before(rest, " passed");
+                failed += count_before(rest, " failed");
+            }
+        }
+    }
+    let status = child.wait()?;
+    if !status.success() || failed > 0 {
+        println!("{passed} passed, {failed} failed");
+        bail!("cargo test failed ({failed} failed)");
+    }
+    if passed == 0 {
+        bail!("cargo test ran no test");
+    }
+    Ok((passed, failed))
+}
+
+/// In `ok. 12 passed; 0 failed; ...`, the number before `word`.
+fn count_before(text: &str, word: &str) -> u64 {
+    text.split(';')
+        .find_map(|part| {
+            part.trim()
+                .trim_start_matches("ok. ")
+                .trim_start_matches("FAILED. ")
+                .strip_suffix(word.trim_start())
+                .map(str::trim)
+        })
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::count_before;
+
+    #[test]
+    fn parses_cargo_test_summaries() {
+        let line =
+            "ok. 12 passed; 3 failed; 1 ignored; 0 measured; 0 filtered out; finished in 0.1s";
+        assert_eq!(count_before(line, " passed"), 12);
+        assert_eq!(count_before(line, " failed"), 3);
+        assert_eq!(
+            count_before("FAILED. 2 passed; 1 failed; 0 ignored", " failed"),
+            1
+        );
+    }
 }
