@@ -4,3 +4,4 @@
 
 pub mod eval;
 pub mod fly;
+pub mod sim;
