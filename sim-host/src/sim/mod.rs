@@ -5,9 +5,13 @@
 //! * [`imu`]: MPU-6000-class IMU at 512 Hz.
 //! * [`scene`]: rooms, obstacles, procedural textures, ray intersection, clearance.
 //! * [`camera`]: the stereo camera renderer (interleaved 128x96 frames).
+//! * [`uart`]: the simulated UART with fault injection.
+//! * [`sched`]: the virtual-clock scheduler over the boards' task tables.
 
 pub mod camera;
 pub mod dynamics;
 pub mod imu;
 pub mod math;
 pub mod scene;
+pub mod sched;
+pub mod uart;
