@@ -1,0 +1,45 @@
+//! Pin map and clock tree of the autopilot (Lisa-MX-class STM32F405), per flavour.
+//!
+//! | function | peripheral | pins |
+//! |---|---|---|
+//! | link to the camera board (protocol, 921,600 Bd 8N1) | USART1 | PA9 TX, PA10 RX |
+//! | telemetry / HIL host link (IMU in, motors out) | USART2 | PA2 TX, PA3 RX |
+//! | status LED (active high) | GPIO | PC13 |
+//!
+//! Wiring between the boards: autopilot PA9 (TX) -> camera PA10 (RX), autopilot PA10 (RX) <-
+//! camera PA9 (TX), common ground. In QEMU (`-M netduinoplus2`) USART1 is the first `-serial` and USART2 the
+//! second.
+
+use stm32f4xx_hal::rcc::Config;
+use stm32f4xx_hal::time::Hertz;
+
+/// Baud rate of the board-to-board link and of the host link.
+pub const LINK_BAUD: u32 = 921_600;
+
+/// Crystal of the autopilot, Hz (12 MHz on the Lisa/MX).
+#[cfg(not(feature = "qemu"))]
+pub const HSE_HZ: u32 = 12_000_000;
+
+/// Core clock, Hz: 168 MHz from the PLL on hardware; the 16 MHz HSI in QEMU (QEMU 7.2 has no
+/// RCC model, so the HSE and PLL ready bits never come up).
+#[cfg(not(feature = "qemu"))]
+pub const SYSCLK_HZ: u32 = 168_000_000;
+/// Core clock, Hz (see the hardware flavour).
+#[cfg(feature = "qemu")]
+pub const SYSCLK_HZ: u32 = 16_000_000;
+
+/// Clock of the SysTick (the RTIC monotonic), Hz: the core clock on hardware. QEMU 7.2 drives
+/// the emulated SysTick from a fixed 168 MHz whatever the RCC says.
+pub const SYSTICK_HZ: u32 = 168_000_000;
+
+/// Clock configuration of this flavour.
+pub fn clocks() -> Config {
+    #[cfg(not(feature = "qemu"))]
+    {
+        Config::hse(Hertz::from_raw(HSE_HZ)).sysclk(Hertz::from_raw(SYSCLK_HZ))
+    }
+    #[cfg(feature = "qemu")]
+    {
+        Config::hsi().sysclk(Hertz::from_raw(SYSCLK_HZ))
+    }
+}

@@ -1,0 +1,49 @@
+//! Logging and fatal-stop helpers: defmt over RTT always; in the `qemu` flavour the same lines
+//! also go to the host's stdout through semihosting, and a panic or [`fatal`] ends QEMU with a
+//! failing exit code.
+
+/// Logs an info line (defmt over RTT; semihosting too in the `qemu` flavour).
+///
+/// The arguments must be valid for both `defmt` and `core::fmt` (plain `{}` placeholders).
+macro_rules! info {
+    ($($arg:tt)*) => {{
+        defmt::info!($($arg)*);
+        #[cfg(feature = "qemu")]
+        cortex_m_semihosting::hprintln!($($arg)*);
+    }};
+}
+pub(crate) use info;
+
+/// Stops the firmware after an unrecoverable set-up error (never called on bad input).
+pub fn fatal(what: &str) -> ! {
+    defmt::error!("fatal: {}", what);
+    #[cfg(feature = "qemu")]
+    {
+        cortex_m_semihosting::hprintln!("fatal: {}", what);
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    }
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// In QEMU a panic prints through semihosting and exits QEMU with a failure code.
+#[cfg(feature = "qemu")]
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    cortex_m_semihosting::hprintln!("panic: {}", info);
+    cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// Ends a QEMU run successfully (semihosting exit 0).
+#[cfg(feature = "qemu")]
+#[allow(dead_code)]
+pub fn exit_success() -> ! {
+    cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+    loop {
+        cortex_m::asm::nop();
+    }
+}
