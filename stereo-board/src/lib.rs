@@ -3,3 +3,5 @@
 //! this code.
 #![no_std]
 #![warn(missing_docs)]
+
+pub mod edge_fs;

@@ -1,0 +1,184 @@
+//! Synthetic-scene tests of the whole pipeline: a textured fronto-parallel wall seen by the
+//! stereo pair, with known depth and camera motion.
+
+use super::*;
+
+/// Smooth random texture along the wall: values every 3 cm, linearly interpolated.
+fn texture(x_m: f32) -> f32 {
+    let k = libm::floorf(x_m / 0.03);
+    let t = x_m / 0.03 - k;
+    let hash = |i: i64| {
+        let mut v = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        v ^= v >> 29;
+        v = v.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        ((v >> 40) % 200) as f32 + 25.0
+    };
+    hash(k as i64) * (1.0 - t) + hash(k as i64 + 1) * t
+}
+
+/// Renders the wall at depth `z` with the left camera at lateral position `pos` (m, positive
+/// right) and the right camera `baseline` to its right; `shift` px of calibration error moves
+/// the left image's content left.
+fn render(z: f32, pos: f32, yaw_px: f32, params: &EdgeFsParams) -> [u8; STEREO_FRAME_BYTES] {
+    let f = params.focal_px();
+    let mut frame = [0u8; STEREO_FRAME_BYTES];
+    for c in 0..IMG_W {
+        let x = c as f32 - 63.5;
+        let xl = x + params.stereo_shift_px as f32 + yaw_px;
+        let (wl, wr) = (
+            pos + xl * z / f,
+            pos + params.baseline_m + (x + yaw_px) * z / f,
+        );
+        let (l, r) = (texture(wl) as u8, texture(wr) as u8);
+        for row in 0..IMG_H {
+            frame[2 * (row * IMG_W + c)] = l;
+            frame[2 * (row * IMG_W + c) + 1] = r;
+        }
+    }
+    frame
+}
+
+fn gyro(yaw: f32) -> GyroAttitude {
+    GyroAttitude {
+        timestamp_us: 0,
+        rates_radps: [0.0; 3],
+        attitude_rad: [0.0, 0.0, yaw],
+    }
+}
+
+/// Flies `frames` frames at `fps` with forward/sideways velocity and yaw rate from a wall at
+/// `z0`; returns the last output and the estimator.
+fn fly(
+    params: EdgeFsParams,
+    z0: f32,
+    vf: f32,
+    vs: f32,
+    yaw_rate: f32,
+    frames: u32,
+) -> (EdgeFsOutput, EdgeFs) {
+    let mut fs = EdgeFs::new(params);
+    let fps = 25.0;
+    let f = params.focal_px();
+    let mut out = EdgeFsOutput::EMPTY;
+    for i in 0..frames {
+        let t = i as f32 / fps;
+        let yaw = yaw_rate * t;
+        // Body yaw to the right moves the scene left: the camera looks at +yaw·f px.
+        let frame = render(z0 - vf * t, vs * t, yaw * f, &params);
+        out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(yaw)));
+    }
+    (out, fs)
+}
+
+#[test]
+fn stereo_depth_of_a_wall_is_recovered_per_column() {
+    let mut params = EdgeFsParams::default_config();
+    params.stereo_shift_px = 3;
+    let (out, fs) = fly(params, 1.2, 0.0, 0.0, 0.0, 2);
+    let diag = fs.diagnostics();
+    let valid: heapless::Vec<f32, 128> =
+        diag.depth_m.iter().copied().filter(|&z| z > 0.0).collect();
+    assert!(valid.len() > 60, "only {} columns with depth", valid.len());
+    let mean = valid.iter().sum::<f32>() / valid.len() as f32;
+    assert!((mean - 1.2).abs() < 0.06, "mean depth {mean}");
+    let obstacle = out.obstacle_m.expect("wall at 1.2 m is an obstacle");
+    assert!((obstacle - 1.2).abs() < 0.1, "{obstacle}");
+}
+
+#[test]
+fn forward_motion_towards_a_wall() {
+    let (out, _) = fly(EdgeFsParams::default_config(), 1.5, 0.5, 0.0, 0.0, 12);
+    assert!(out.flags.is_valid(), "{:?}", out.flags);
+    assert!(
+        (out.forward_mps - 0.5).abs() < 0.08,
+        "forward {}",
+        out.forward_mps
+    );
+    assert!(
+        out.sideways_mps.abs() < 0.08,
+        "sideways {}",
+        out.sideways_mps
+    );
+    assert!(out.quality > 100, "quality {}", out.quality);
+}
+
+#[test]
+fn sideways_motion_to_the_right_is_positive() {
+    let (out, _) = fly(EdgeFsParams::default_config(), 1.5, 0.0, 0.3, 0.0, 12);
+    assert!(
+        (out.sideways_mps - 0.3).abs() < 0.05,
+        "sideways {}",
+        out.sideways_mps
+    );
+    assert!(out.forward_mps.abs() < 0.1, "forward {}", out.forward_mps);
+}
+
+#[test]
+fn yaw_rotation_is_removed_with_the_gyro_and_flagged_without() {
+    // 0.5 rad/s yaw while hovering: 2.6 px/frame of pure rotational flow.
+    let (out, _) = fly(EdgeFsParams::default_config(), 1.5, 0.0, 0.0, 0.5, 12);
+    assert!(
+        out.sideways_mps.abs() < 0.05,
+        "sideways {}",
+        out.sideways_mps
+    );
+    assert!(out.forward_mps.abs() < 0.1, "forward {}", out.forward_mps);
+
+    let mut fs = EdgeFs::new(EdgeFsParams::default_config());
+    let frame = render(1.5, 0.0, 0.0, fs.params());
+    let out = fs.process(&frame, 0, None);
+    assert!(out.flags.contains(EstimateFlags::NO_GYRO));
+    assert!(out.flags.contains(EstimateFlags::HISTORY_FILLING));
+}
+
+#[test]
+fn blank_and_dark_frames_are_flagged_not_panicking() {
+    let mut fs = EdgeFs::new(EdgeFsParams::default_config());
+    for (i, v) in [0u8, 0, 255, 255].into_iter().enumerate() {
+        let out = fs.process(
+            &[v; STEREO_FRAME_BYTES],
+            i as u64 * 40_000,
+            Some(&gyro(f32::NAN)),
+        );
+        assert!(out.flags.contains(EstimateFlags::NO_TEXTURE));
+        assert!(!out.flags.is_valid());
+        assert!(out.forward_mps.is_finite() && out.sideways_mps.is_finite());
+    }
+}
+
+#[test]
+fn paper_mode_fills_history_for_h_plus_one_frames() {
+    let mut params = EdgeFsParams::paper();
+    params.stereo_shift_px = 5;
+    let mut fs = EdgeFs::new(params);
+    for i in 0..7u64 {
+        let frame = render(1.5 - 0.02 * i as f32, 0.0, 0.0, &params);
+        let out = fs.process(&frame, i * 140_000, Some(&gyro(0.0)));
+        if i < 6 {
+            assert!(out.flags.contains(EstimateFlags::HISTORY_FILLING));
+            assert_eq!(out.forward_mps, 0.0);
+        } else {
+            assert!(!out.flags.contains(EstimateFlags::HISTORY_FILLING));
+            assert_eq!(fs.diagnostics().horizon, 2);
+        }
+    }
+}
+
+#[test]
+fn config_roundtrip_and_rejection() {
+    let mut p = EdgeFsParams::default_config();
+    let mut cfg = p.to_config();
+    cfg.half_window = 4;
+    cfg.stereo_shift = -2;
+    p.apply(&cfg).unwrap();
+    assert_eq!(p.to_config(), cfg);
+    cfg.search_range = 0;
+    assert_eq!(p.apply(&cfg), Err(ConfigError::SearchRange));
+    assert_eq!(p.half_window, 4);
+}
+
+#[test]
+fn estimator_is_small_and_const_constructible() {
+    static _FS: EdgeFs = EdgeFs::new(EdgeFsParams::default_config());
+    assert!(core::mem::size_of::<EdgeFs>() < 16 * 1024);
+}
