@@ -1,5 +1,33 @@
 //! The autopilot: adaptive INDI attitude control, height control, velocity guidance, median-5
 //! filter, wall force field, avoidance FSM and failsafes. `no_std`, no heap, time passed in: the
 //! firmware and `sim-host` run exactly this code.
+//!
+//! Modules, bottom up:
+//!
+//! * [`attitude`]: gyro + accelerometer complementary filter, quaternion helpers.
+//! * [`indi`]: adaptive INDI rate/attitude control at 512 Hz.
+//! * [`mixer`]: X-quad mixer for four brushed motors, attitude before thrust.
+//! * [`height`]: vertical loop from a height measurement.
+//! * [`median`]: median-5 over the Edge-FS velocities.
+//! * [`guidance`]: velocity PI to roll/pitch setpoints.
+//! * [`force_field`]: backward velocity near walls.
+//! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
+//! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
+//! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
 #![no_std]
 #![warn(missing_docs)]
+
+pub mod app;
+pub mod attitude;
+pub mod failsafe;
+pub mod force_field;
+pub mod fsm;
+pub mod guidance;
+pub mod height;
+pub mod indi;
+pub mod median;
+pub mod mixer;
+
+pub use app::{Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
+pub use failsafe::FlightMode;
+pub use fsm::{FsmState, FsmVariant};

@@ -1,0 +1,603 @@
+//! The autopilot board's task logic: every firmware task body (and the simulator) calls one
+//! method of [`Autopilot`], and the task graph is the data in [`TASKS`].
+//!
+//! Data flow: IMU (512 Hz) -> attitude estimate -> INDI -> mixer -> motors;
+//! Edge-FS estimates -> median-5 -> velocity guidance (with the avoidance FSM and the wall force
+//! field making the setpoint) -> roll/pitch setpoints; external height -> height loop -> thrust;
+//! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
+//! library never reads a clock.
+
+use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat};
+use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
+use crate::force_field::{backward_velocity, ForceFieldConfig};
+use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
+use crate::guidance::{GuidanceConfig, TiltSetpoint, VelocityGuidance};
+use crate::height::{tilt_compensate, HeightConfig, HeightController};
+use crate::indi::{Indi, IndiConfig};
+use crate::median::VelocityMedian;
+use crate::mixer::{self, MOTORS_OFF};
+use protocol::{
+    Estimate, EstimateFlags, ExternalPosition, GyroAttitude, ImuSample, LinkErrorCounts,
+    PilotCommand, Telemetry,
+};
+
+/// What starts a task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Trigger {
+    /// Runs every `period_us` µs.
+    Periodic {
+        /// Period, µs.
+        period_us: u32,
+    },
+    /// Runs on the named hardware event.
+    Event(&'static str),
+}
+
+/// One entry of the board's task table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TaskSpec {
+    /// Task name (the RTIC task and the simulator's scheduler use the same).
+    pub name: &'static str,
+    /// Priority, higher preempts lower (RTIC priority).
+    pub priority: u8,
+    /// What starts it.
+    pub trigger: Trigger,
+    /// Deadline from release to completion, µs.
+    pub deadline_us: u32,
+}
+
+/// IMU / INDI period: 512 Hz, µs (rounded down).
+pub const IMU_PERIOD_US: u32 = 1_953;
+/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz, µs.
+pub const GUIDANCE_PERIOD_US: u32 = 20_000;
+/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample), µs.
+pub const GYRO_TX_PERIOD_US: u32 = 7_812;
+/// Telemetry period: 10 Hz, µs.
+pub const TELEMETRY_PERIOD_US: u32 = 100_000;
+/// Heartbeat period: 1 Hz, µs.
+pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
+
+/// The autopilot's task table. The firmware's RTIC app mirrors it; `sim-host` schedules from it.
+///
+/// | task | calls |
+/// |---|---|
+/// | `imu_indi` | [`Autopilot::on_imu`], motors written from its result |
+/// | `stereo_rx` | [`Autopilot::on_estimate`] for each decoded estimate |
+/// | `host_rx` | [`Autopilot::on_external_position`], [`Autopilot::on_command`] (HIL: also `on_imu`) |
+/// | `guidance` | [`Autopilot::guidance_step`], then [`Autopilot::motor_safety`] |
+/// | `gyro_tx` | [`Autopilot::gyro_attitude`] encoded to the camera board |
+/// | `telemetry` | [`Autopilot::telemetry`] encoded to the host |
+/// | `heartbeat` | a `protocol::Heartbeat` to both links |
+pub const TASKS: &[TaskSpec] = &[
+    TaskSpec {
+        name: "imu_indi",
+        priority: 5,
+        trigger: Trigger::Periodic {
+            period_us: IMU_PERIOD_US,
+        },
+        deadline_us: 500,
+    },
+    TaskSpec {
+        name: "stereo_rx",
+        priority: 4,
+        trigger: Trigger::Event("camera-board UART RX idle line (DMA)"),
+        deadline_us: 1_000,
+    },
+    TaskSpec {
+        name: "host_rx",
+        priority: 4,
+        trigger: Trigger::Event("host UART RX idle line (DMA)"),
+        deadline_us: 1_000,
+    },
+    TaskSpec {
+        name: "guidance",
+        priority: 3,
+        trigger: Trigger::Periodic {
+            period_us: GUIDANCE_PERIOD_US,
+        },
+        deadline_us: 5_000,
+    },
+    TaskSpec {
+        name: "gyro_tx",
+        priority: 2,
+        trigger: Trigger::Periodic {
+            period_us: GYRO_TX_PERIOD_US,
+        },
+        deadline_us: GYRO_TX_PERIOD_US,
+    },
+    TaskSpec {
+        name: "telemetry",
+        priority: 1,
+        trigger: Trigger::Periodic {
+            period_us: TELEMETRY_PERIOD_US,
+        },
+        deadline_us: TELEMETRY_PERIOD_US,
+    },
+    TaskSpec {
+        name: "heartbeat",
+        priority: 1,
+        trigger: Trigger::Periodic {
+            period_us: HEARTBEAT_PERIOD_US,
+        },
+        deadline_us: HEARTBEAT_PERIOD_US,
+    },
+];
+
+/// Every tunable of the autopilot, with pocket-drone defaults. Units are on each field (and in
+/// each module's config).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AutopilotConfig {
+    /// Attitude estimator.
+    pub attitude: AttitudeConfig,
+    /// INDI attitude control.
+    pub indi: IndiConfig,
+    /// Height loop.
+    pub height: HeightConfig,
+    /// Velocity guidance.
+    pub guidance: GuidanceConfig,
+    /// Wall force field.
+    pub force_field: ForceFieldConfig,
+    /// Avoidance FSM.
+    pub fsm: FsmConfig,
+    /// Failsafe timings.
+    pub failsafe: FailsafeConfig,
+    /// Flight height after take-off, m above the floor.
+    pub target_height_m: f32,
+    /// Height-setpoint climb rate during take-off, m/s.
+    pub climb_rate_mps: f32,
+    /// Height-setpoint descent rate when landing, m/s.
+    pub land_rate_mps: f32,
+    /// Below this height the drone counts as on the floor, m (height integrator off, touchdown).
+    pub landed_height_m: f32,
+    /// Touchdown confirmed after this long below `landed_height_m` while landing, µs.
+    pub landed_time_us: u64,
+    /// The avoidance FSM starts once the height is within this of the target, m.
+    pub fsm_start_height_tolerance_m: f32,
+    /// Level-flight thrust when landing without a height measurement (0..=1, below hover).
+    pub blind_land_thrust: f32,
+    /// Landing without a height measurement: motors off after this long, µs.
+    pub blind_land_time_us: u64,
+    /// Estimates with a lower quality are treated as invalid (0..=255).
+    pub min_quality: u8,
+    /// A gap between valid estimates longer than this empties the median filter, µs.
+    pub median_reset_gap_us: u64,
+    /// Largest accepted velocity estimate magnitude per axis, m/s (bigger is treated as invalid).
+    pub max_estimate_mps: f32,
+}
+
+impl Default for AutopilotConfig {
+    fn default() -> Self {
+        Self {
+            attitude: AttitudeConfig::default(),
+            indi: IndiConfig::default(),
+            height: HeightConfig::default(),
+            guidance: GuidanceConfig::default(),
+            force_field: ForceFieldConfig::default(),
+            fsm: FsmConfig::default(),
+            failsafe: FailsafeConfig::default(),
+            target_height_m: 1.0,
+            climb_rate_mps: 0.5,
+            land_rate_mps: 0.3,
+            landed_height_m: 0.06,
+            landed_time_us: 500_000,
+            fsm_start_height_tolerance_m: 0.15,
+            blind_land_thrust: 0.5,
+            blind_land_time_us: 3_000_000,
+            min_quality: 0,
+            median_reset_gap_us: 500_000,
+            max_estimate_mps: 5.0,
+        }
+    }
+}
+
+/// Flags that make an estimate's obstacle distance unusable (the velocity may still be invalid
+/// for flow reasons while the stereo distance is fine).
+const OBSTACLE_INVALID: EstimateFlags = EstimateFlags(
+    EstimateFlags::TOO_DARK.0
+        | EstimateFlags::TOO_BRIGHT.0
+        | EstimateFlags::NO_TEXTURE.0
+        | EstimateFlags::NO_STEREO_MATCH.0,
+);
+
+/// Setpoints the guidance layer hands to the 512 Hz loop (and to telemetry).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Setpoints {
+    /// Roll, pitch, yaw setpoint, rad.
+    pub attitude_rad: [f32; 3],
+    /// Level-flight collective thrust, 0..=1 (tilt-compensated in the 512 Hz loop).
+    pub thrust: f32,
+    /// Height setpoint, m.
+    pub height_m: f32,
+    /// Forward and sideways velocity setpoint, m/s.
+    pub velocity_mps: [f32; 2],
+}
+
+/// The whole autopilot state (fixed size, no heap).
+#[derive(Debug, Clone)]
+pub struct Autopilot {
+    cfg: AutopilotConfig,
+    att: AttitudeEstimator,
+    indi: Indi,
+    height: HeightController,
+    guidance: VelocityGuidance,
+    median: VelocityMedian,
+    fsm: AvoidanceFsm,
+    fsm_active: bool,
+    failsafe: Failsafe,
+    sp: Setpoints,
+    last_imu_us: Option<u64>,
+    gyro: [f32; 3],
+    last_valid_estimate_us: Option<u64>,
+    velocity: Option<[f32; 2]>,
+    obstacle: Option<ObstacleReading>,
+    last_guidance_us: Option<u64>,
+    below_landed_since_us: Option<u64>,
+    motors: [f32; 4],
+    link_errors: LinkErrorCounts,
+    estimates_received: u32,
+}
+
+fn finite3(v: &[f32; 3], max_abs: f32) -> bool {
+    v.iter().all(|x| x.is_finite() && x.abs() <= max_abs)
+}
+
+impl Autopilot {
+    /// A disarmed autopilot.
+    pub fn new(config: AutopilotConfig) -> Self {
+        Self {
+            att: AttitudeEstimator::new(config.attitude),
+            indi: Indi::new(config.indi),
+            height: HeightController::new(config.height),
+            guidance: VelocityGuidance::new(config.guidance),
+            median: VelocityMedian::default(),
+            fsm: AvoidanceFsm::new(config.fsm, 0, 0.0),
+            fsm_active: false,
+            failsafe: Failsafe::new(config.failsafe),
+            sp: Setpoints {
+                attitude_rad: [0.0; 3],
+                thrust: 0.0,
+                height_m: 0.0,
+                velocity_mps: [0.0; 2],
+            },
+            last_imu_us: None,
+            gyro: [0.0; 3],
+            last_valid_estimate_us: None,
+            velocity: None,
+            obstacle: None,
+            last_guidance_us: None,
+            below_landed_since_us: None,
+            motors: MOTORS_OFF,
+            link_errors: LinkErrorCounts::default(),
+            estimates_received: 0,
+            cfg: config,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &AutopilotConfig {
+        &self.cfg
+    }
+
+    /// Current flight mode (failsafe state).
+    pub fn mode(&self) -> FlightMode {
+        self.failsafe.mode()
+    }
+
+    /// Current avoidance state (meaningful while [`Autopilot::fsm_active`]).
+    pub fn fsm_state(&self) -> FsmState {
+        self.fsm.state()
+    }
+
+    /// True while the avoidance FSM drives the setpoints.
+    pub fn fsm_active(&self) -> bool {
+        self.fsm_active
+    }
+
+    /// The avoidance FSM (state, time in state, transition count).
+    pub fn fsm(&self) -> &AvoidanceFsm {
+        &self.fsm
+    }
+
+    /// Current setpoints.
+    pub fn setpoints(&self) -> Setpoints {
+        self.sp
+    }
+
+    /// Estimated attitude roll, pitch, yaw, rad.
+    pub fn attitude(&self) -> [f32; 3] {
+        self.att.euler()
+    }
+
+    /// Median-filtered `[forward, sideways]` velocity, m/s (`None` before the first valid one).
+    pub fn velocity(&self) -> Option<[f32; 2]> {
+        self.velocity
+    }
+
+    /// INDI state (G1/G2 estimates etc.).
+    pub fn indi(&self) -> &Indi {
+        &self.indi
+    }
+
+    /// Last motor throttles (FR, RR, RL, FL), 0..=1.
+    pub fn motors(&self) -> [f32; 4] {
+        self.motors
+    }
+
+    /// Errors decoding camera-board bytes since boot.
+    pub fn link_errors(&self) -> LinkErrorCounts {
+        self.link_errors
+    }
+
+    fn freshness(&self) -> Freshness {
+        Freshness {
+            last_valid_estimate_us: self.last_valid_estimate_us,
+            last_imu_us: self.last_imu_us,
+            last_height_us: self.height.last_measurement_us(),
+        }
+    }
+
+    /// 512 Hz: one IMU sample (body frame x forward, y right, z down; gyro rad/s, accel m/s²)
+    /// -> attitude estimate -> INDI -> mixer. Returns the motor throttles (FR, RR, RL, FL) in
+    /// [0, 1]: all zero unless armed and flying. A sample with non-finite or absurd values
+    /// (|gyro| > 35 rad/s, |accel| > 160 m/s²) is dropped; if no usable sample arrives for the
+    /// IMU timeout the motors go off (see [`crate::failsafe`]).
+    pub fn on_imu(&mut self, imu: &ImuSample, now_us: u64) -> [f32; 4] {
+        let ok = finite3(&imu.gyro_radps, 35.0) && finite3(&imu.accel_mps2, 160.0);
+        // A gap before this sample trips the IMU failsafe even if guidance did not run.
+        let f = self.freshness();
+        self.failsafe.update(&f, now_us);
+        if !ok {
+            if !self.failsafe.imu_fresh(&f, now_us) || !self.failsafe.mode().motors_enabled() {
+                self.motors = MOTORS_OFF;
+            }
+            return self.motors;
+        }
+        let dt = match self.last_imu_us {
+            Some(t) if now_us > t => ((now_us - t) as f32 * 1e-6).min(0.02),
+            Some(_) => 0.0,
+            None => 1.0 / self.cfg.indi.rate_hz.max(1.0),
+        };
+        self.last_imu_us = Some(now_us);
+        self.gyro = imu.gyro_radps;
+        self.att.update(imu.gyro_radps, imu.accel_mps2, dt);
+
+        let q = self.att.quat();
+        let [roll, pitch, _] = q.to_euler();
+        let thrust = if self.failsafe.mode().motors_enabled() {
+            tilt_compensate(self.sp.thrust, roll, pitch, self.cfg.height.max_tilt_factor)
+        } else {
+            0.0
+        };
+        let [r_sp, p_sp, y_sp] = self.sp.attitude_rad;
+        let err = attitude_error(q, Quat::from_euler(r_sp, p_sp, y_sp));
+        let u = self.indi.control(err, imu.gyro_radps, thrust);
+        if thrust <= 0.0 {
+            self.indi.actuator_update([0.0; 3], imu.gyro_radps);
+            self.motors = MOTORS_OFF;
+            return self.motors;
+        }
+        let m = mixer::mix(thrust, u[0], u[1], u[2]);
+        self.indi.actuator_update(m.achieved, imu.gyro_radps);
+        self.motors = m.throttle;
+        self.motors
+    }
+
+    /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities go
+    /// through the median-5 filter; the obstacle distance is kept when the stereo part is usable.
+    pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
+        self.estimates_received = self.estimates_received.wrapping_add(1);
+        if est.flags.0 & OBSTACLE_INVALID.0 == 0 {
+            let d = match est.obstacle_m {
+                Some(d) if d.is_finite() && d >= 0.0 => Some(Some(d)),
+                Some(_) => None, // garbage: no reading
+                None => Some(None),
+            };
+            if let Some(distance_m) = d {
+                self.obstacle = Some(ObstacleReading {
+                    received_us: now_us,
+                    distance_m,
+                });
+            }
+        }
+        let lim = self.cfg.max_estimate_mps;
+        let v_ok = est.forward_mps.is_finite()
+            && est.sideways_mps.is_finite()
+            && est.forward_mps.abs() <= lim
+            && est.sideways_mps.abs() <= lim;
+        if est.is_valid() && est.quality >= self.cfg.min_quality && v_ok {
+            let gap = match self.last_valid_estimate_us {
+                Some(t) => now_us.saturating_sub(t) > self.cfg.median_reset_gap_us,
+                None => true,
+            };
+            if gap {
+                self.median.reset();
+            }
+            self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
+            self.last_valid_estimate_us = Some(now_us);
+        }
+    }
+
+    /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
+    pub fn on_external_position(&mut self, pos: &ExternalPosition, now_us: u64) {
+        self.height.on_measurement(-pos.position_m[2], now_us);
+    }
+
+    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height.
+    pub fn on_command(&mut self, cmd: PilotCommand, now_us: u64) {
+        let before = self.failsafe.mode();
+        let f = self.freshness();
+        let after = self.failsafe.command(cmd, &f, now_us);
+        if after == FlightMode::Flying && before != FlightMode::Flying {
+            // Take-off: climb from where we are, hold the current heading.
+            self.height.reset_integral();
+            self.guidance.reset();
+            self.sp.height_m = self.height.height_m();
+            self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
+            self.sp.velocity_mps = [0.0; 2];
+            self.fsm_active = false;
+            self.below_landed_since_us = None;
+        }
+        if !after.motors_enabled() {
+            self.motors = MOTORS_OFF;
+            self.sp.thrust = 0.0;
+        }
+    }
+
+    /// Guidance step (e.g. 50 Hz): failsafes, avoidance FSM, force field, velocity guidance and
+    /// the height loop update the setpoints the 512 Hz loop flies.
+    pub fn guidance_step(&mut self, now_us: u64) {
+        let dt = match self.last_guidance_us {
+            Some(t) if now_us > t => ((now_us - t) as f32 * 1e-6).min(0.1),
+            Some(_) => 0.0,
+            None => GUIDANCE_PERIOD_US as f32 * 1e-6,
+        };
+        self.last_guidance_us = Some(now_us);
+        let f = self.freshness();
+        let mode = self.failsafe.update(&f, now_us);
+        if !mode.motors_enabled() {
+            self.height.reset_integral();
+            self.guidance.reset();
+            self.fsm_active = false;
+            self.sp.thrust = 0.0;
+            self.sp.velocity_mps = [0.0; 2];
+            self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
+            self.motors = MOTORS_OFF;
+            return;
+        }
+        let yaw = self.att.euler()[2];
+        let est_fresh = matches!(self.last_valid_estimate_us,
+            Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.estimate_timeout_us);
+        let velocity = if est_fresh { self.velocity } else { None };
+        let obstacle = self.obstacle.filter(|o| {
+            now_us.saturating_sub(o.received_us) <= self.cfg.failsafe.estimate_timeout_us
+        });
+        let height_fresh = matches!(self.height.last_measurement_us(),
+            Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.height_timeout_us);
+        let h = self.height.height_m();
+        let target = self.cfg.target_height_m;
+
+        // Height setpoint.
+        let mut sp_rate = 0.0;
+        match mode {
+            FlightMode::Landing => {
+                sp_rate = -self.cfg.land_rate_mps.abs();
+                self.sp.height_m = (self.sp.height_m + sp_rate * dt).max(-0.2);
+            }
+            _ => {
+                let step = self.cfg.climb_rate_mps.abs() * dt;
+                if self.sp.height_m < target - step {
+                    self.sp.height_m += step;
+                    sp_rate = self.cfg.climb_rate_mps.abs();
+                } else if self.sp.height_m > target + step {
+                    self.sp.height_m -= step;
+                    sp_rate = -self.cfg.climb_rate_mps.abs();
+                } else {
+                    self.sp.height_m = target;
+                }
+            }
+        }
+
+        // Avoidance FSM (only in normal flight at height).
+        let mut v_sp = [0.0f32; 2];
+        let mut yaw_sp = self.sp.attitude_rad[2];
+        if mode == FlightMode::Flying {
+            if !self.fsm_active
+                && self.sp.height_m == target
+                && (h - target).abs() <= self.cfg.fsm_start_height_tolerance_m
+            {
+                self.fsm.reset(now_us, yaw_sp);
+                self.fsm_active = true;
+            }
+            if self.fsm_active {
+                let out = self.fsm.step(now_us, yaw, obstacle);
+                v_sp[0] = out.forward_mps;
+                yaw_sp = out.yaw_sp_rad;
+            }
+        } else {
+            self.fsm_active = false;
+        }
+        v_sp[0] += backward_velocity(&self.cfg.force_field, obstacle.and_then(|o| o.distance_m));
+        self.sp.velocity_mps = v_sp;
+
+        // Velocity guidance.
+        let tilt: TiltSetpoint = match velocity {
+            Some(v) if mode != FlightMode::HoverNoEstimate => self.guidance.step(v_sp, v, dt),
+            _ => self.guidance.hold(),
+        };
+        self.sp.attitude_rad = [tilt.roll_rad, tilt.pitch_rad, wrap_pi(yaw_sp)];
+
+        // Height loop.
+        let airborne = h > self.cfg.landed_height_m;
+        if height_fresh {
+            self.sp.thrust = self.height.step(self.sp.height_m, sp_rate, dt, airborne);
+        } else {
+            // Blind landing (the failsafe switched to Landing): reduced thrust, then off.
+            self.sp.thrust = self.cfg.blind_land_thrust.clamp(0.0, 1.0);
+            if now_us.saturating_sub(self.failsafe.since_us()) >= self.cfg.blind_land_time_us {
+                self.failsafe.landed(now_us);
+                self.touchdown();
+            }
+            return;
+        }
+
+        // Touchdown detection while landing.
+        if mode == FlightMode::Landing && h <= self.cfg.landed_height_m {
+            let since = *self.below_landed_since_us.get_or_insert(now_us);
+            if now_us.saturating_sub(since) >= self.cfg.landed_time_us {
+                self.failsafe.landed(now_us);
+                self.touchdown();
+            }
+        } else {
+            self.below_landed_since_us = None;
+        }
+    }
+
+    fn touchdown(&mut self) {
+        self.sp.thrust = 0.0;
+        self.motors = MOTORS_OFF;
+        self.height.reset_integral();
+        self.guidance.reset();
+        self.below_landed_since_us = None;
+        self.fsm_active = false;
+    }
+
+    /// Motor override for the firmware's lower-priority tasks: `Some(all off)` when the motors
+    /// must be off now (not armed, killed, or the IMU stale so `on_imu` is not running), `None`
+    /// when the 512 Hz loop's output stands.
+    pub fn motor_safety(&self, now_us: u64) -> Option<[f32; 4]> {
+        let f = self.freshness();
+        if !self.failsafe.mode().motors_enabled() || !self.failsafe.imu_fresh(&f, now_us) {
+            Some(MOTORS_OFF)
+        } else {
+            None
+        }
+    }
+
+    /// Gyro and attitude for the camera board's derotation.
+    pub fn gyro_attitude(&self, now_us: u64) -> GyroAttitude {
+        GyroAttitude {
+            timestamp_us: now_us as u32,
+            rates_radps: self.gyro,
+            attitude_rad: self.att.euler(),
+        }
+    }
+
+    /// Telemetry snapshot.
+    pub fn telemetry(&self, now_us: u64) -> Telemetry {
+        Telemetry {
+            timestamp_us: now_us as u32,
+            fsm_state: if self.fsm_active {
+                self.fsm.state() as u8
+            } else {
+                u8::MAX
+            },
+            failsafe: self.failsafe.mode() as u8,
+            attitude_rad: self.att.euler(),
+            velocity_mps: self.velocity.unwrap_or([0.0; 2]),
+            velocity_setpoint_mps: self.sp.velocity_mps,
+            obstacle_m: self.obstacle.and_then(|o| o.distance_m),
+            height_m: self.height.height_m(),
+            link_errors: self.link_errors,
+        }
+    }
+}

@@ -1,0 +1,200 @@
+//! Flight mode and failsafes.
+//!
+//! * A kill (RC or command) always wins: motors off at once, from any mode, until the next arm.
+//! * Arming needs a fresh IMU sample and a fresh height measurement.
+//! * No valid velocity estimate for [`FailsafeConfig::estimate_timeout_us`] (link lost, camera
+//!   blind, quality low) -> [`FlightMode::HoverNoEstimate`]: level hover on the guidance trim at
+//!   the current height setpoint. A valid estimate within
+//!   [`FailsafeConfig::hover_before_land_us`] resumes the flight; otherwise -> `Landing`.
+//! * Height measurement stale for [`FailsafeConfig::height_timeout_us`] in flight -> `Landing`
+//!   (the caller descends open-loop on reduced thrust).
+//! * IMU stale for [`FailsafeConfig::imu_timeout_us`] while armed -> [`FlightMode::ImuFault`]:
+//!   motors off (nothing can stabilise the drone without rates).
+//! * `Landing` ends in `Disarmed` when the caller reports touchdown.
+//!
+//! The `u8` value of [`FlightMode`] is the telemetry "failsafe" number.
+
+use protocol::PilotCommand;
+
+/// Flight mode. `as u8` is the telemetry number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum FlightMode {
+    /// On the ground, motors off.
+    Disarmed = 0,
+    /// Armed and flying normally (take-off, avoidance).
+    Flying = 1,
+    /// Valid velocity estimates lost: hovering level, waiting for them to come back.
+    HoverNoEstimate = 2,
+    /// Descending to land (commanded or failsafe), then disarm.
+    Landing = 3,
+    /// Killed by command: motors off until the next arm.
+    Killed = 4,
+    /// IMU data stale: motors off until the next arm.
+    ImuFault = 5,
+}
+
+impl FlightMode {
+    /// True when the motors may run.
+    pub fn motors_enabled(self) -> bool {
+        matches!(
+            self,
+            FlightMode::Flying | FlightMode::HoverNoEstimate | FlightMode::Landing
+        )
+    }
+}
+
+/// Failsafe timings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FailsafeConfig {
+    /// No valid estimate for this long -> hover, µs.
+    pub estimate_timeout_us: u64,
+    /// Hover without estimate for this long -> land, µs.
+    pub hover_before_land_us: u64,
+    /// No IMU sample for this long while armed -> motors off, µs.
+    pub imu_timeout_us: u64,
+    /// No height measurement for this long in flight -> land, µs.
+    pub height_timeout_us: u64,
+}
+
+impl Default for FailsafeConfig {
+    fn default() -> Self {
+        Self {
+            estimate_timeout_us: 500_000,
+            hover_before_land_us: 3_000_000,
+            imu_timeout_us: 20_000,
+            height_timeout_us: 500_000,
+        }
+    }
+}
+
+/// Freshness of the inputs at one instant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Freshness {
+    /// Time of the last valid velocity estimate, µs.
+    pub last_valid_estimate_us: Option<u64>,
+    /// Time of the last usable IMU sample, µs.
+    pub last_imu_us: Option<u64>,
+    /// Time of the last usable height measurement, µs.
+    pub last_height_us: Option<u64>,
+}
+
+fn fresh(t: Option<u64>, now: u64, timeout: u64) -> bool {
+    matches!(t, Some(t) if now.saturating_sub(t) <= timeout)
+}
+
+/// Mode logic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Failsafe {
+    cfg: FailsafeConfig,
+    mode: FlightMode,
+    since_us: u64,
+    armed_us: u64,
+}
+
+impl Failsafe {
+    /// Disarmed at time 0.
+    pub fn new(cfg: FailsafeConfig) -> Self {
+        Self {
+            cfg,
+            mode: FlightMode::Disarmed,
+            since_us: 0,
+            armed_us: 0,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &FailsafeConfig {
+        &self.cfg
+    }
+
+    /// Current mode.
+    pub fn mode(&self) -> FlightMode {
+        self.mode
+    }
+
+    /// When the current mode began, µs.
+    pub fn since_us(&self) -> u64 {
+        self.since_us
+    }
+
+    fn set(&mut self, m: FlightMode, now: u64) {
+        if m != self.mode {
+            self.mode = m;
+            self.since_us = now;
+        }
+    }
+
+    /// True when the IMU is fresh at `now_us`.
+    pub fn imu_fresh(&self, f: &Freshness, now_us: u64) -> bool {
+        fresh(f.last_imu_us, now_us, self.cfg.imu_timeout_us)
+    }
+
+    /// Applies a pilot command. Returns the new mode. `Arm` is refused (mode unchanged) unless
+    /// disarmed/killed/faulted with a fresh IMU and height.
+    pub fn command(&mut self, cmd: PilotCommand, f: &Freshness, now_us: u64) -> FlightMode {
+        match cmd {
+            PilotCommand::Kill => self.set(FlightMode::Killed, now_us),
+            PilotCommand::Land => {
+                if self.mode.motors_enabled() {
+                    self.set(FlightMode::Landing, now_us);
+                }
+            }
+            PilotCommand::Arm => {
+                let grounded = matches!(
+                    self.mode,
+                    FlightMode::Disarmed | FlightMode::Killed | FlightMode::ImuFault
+                );
+                if grounded
+                    && self.imu_fresh(f, now_us)
+                    && fresh(f.last_height_us, now_us, self.cfg.height_timeout_us)
+                {
+                    self.set(FlightMode::Flying, now_us);
+                    self.armed_us = now_us;
+                }
+            }
+        }
+        self.mode
+    }
+
+    /// Reports touchdown while landing: disarms.
+    pub fn landed(&mut self, now_us: u64) {
+        if self.mode == FlightMode::Landing {
+            self.set(FlightMode::Disarmed, now_us);
+        }
+    }
+
+    /// Re-evaluates the timeouts at `now_us`. Returns the new mode.
+    pub fn update(&mut self, f: &Freshness, now_us: u64) -> FlightMode {
+        if !self.mode.motors_enabled() {
+            return self.mode;
+        }
+        if !self.imu_fresh(f, now_us) {
+            self.set(FlightMode::ImuFault, now_us);
+            return self.mode;
+        }
+        if !fresh(f.last_height_us, now_us, self.cfg.height_timeout_us) {
+            self.set(FlightMode::Landing, now_us);
+            return self.mode;
+        }
+        // The estimate clock starts at arming: a drone armed without estimates gets the same
+        // grace period as one that lost them.
+        let last_est = match f.last_valid_estimate_us {
+            Some(t) => t.max(self.armed_us),
+            None => self.armed_us,
+        };
+        let est_ok = now_us.saturating_sub(last_est) <= self.cfg.estimate_timeout_us;
+        match self.mode {
+            FlightMode::Flying if !est_ok => self.set(FlightMode::HoverNoEstimate, now_us),
+            FlightMode::HoverNoEstimate => {
+                if est_ok {
+                    self.set(FlightMode::Flying, now_us);
+                } else if now_us.saturating_sub(self.since_us) >= self.cfg.hover_before_land_us {
+                    self.set(FlightMode::Landing, now_us);
+                }
+            }
+            _ => {}
+        }
+        self.mode
+    }
+}

@@ -1,0 +1,290 @@
+//! Obstacle-avoidance state machine (paper, section "Autonomous Obstacle Avoidance").
+//!
+//! Four states:
+//!
+//! * [`FsmState::Check`]: wait for a fresh obstacle reading (one received after entering the
+//!   state), holding zero velocity. Obstacle within [`FsmConfig::obstacle_distance_m`] (1 m) ->
+//!   `Hover`; clear -> `Forward`.
+//! * [`FsmState::Forward`]: fly forward at [`FsmConfig::forward_speed_mps`] (0.3 m/s), guided by
+//!   the Edge-FS velocity. Obstacle within 1 m -> `Hover`.
+//! * [`FsmState::Hover`]: hold zero velocity for [`FsmConfig::hover_time_us`] (1 s) -> `Turn`.
+//! * [`FsmState::Turn`]: depends on the [`FsmVariant`]:
+//!   * [`FsmVariant::Paper`]: the yaw setpoint ramps by [`FsmConfig::turn_angle_rad`] (60 deg)
+//!     at [`FsmConfig::turn_rate_radps`]; once the ramp is done and the heading is within
+//!     [`FsmConfig::turn_tolerance_rad`] (or [`FsmConfig::turn_timeout_us`] after the ramp)
+//!     -> `Check`.
+//!   * [`FsmVariant::TurnUntilClear`] (the improvement the paper proposes: check and turn
+//!     merged): the yaw setpoint keeps turning at the turn rate until
+//!     [`FsmConfig::clear_confirm`] consecutive fresh readings show nothing closer than
+//!     [`FsmConfig::clear_distance_m`]; then the heading is held where it is -> `Forward`.
+//!
+//! A reading is "blocked" when its distance is finite and below the threshold; `None` (nothing in
+//! range) is clear. The numbering of the states (their `u8` value) is what telemetry carries.
+
+use crate::attitude::wrap_pi;
+
+/// Avoidance state. `as u8` is the telemetry number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum FsmState {
+    /// Evaluate whether the way ahead is clear.
+    Check = 0,
+    /// Fly forward at constant speed.
+    Forward = 1,
+    /// Hold zero velocity before turning.
+    Hover = 2,
+    /// Turn (by a fixed angle, or until clear).
+    Turn = 3,
+}
+
+/// Which avoidance logic to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FsmVariant {
+    /// The paper's: hover, turn a fixed angle, check.
+    Paper,
+    /// Check and turn merged: keep turning until a clear path is seen.
+    TurnUntilClear,
+}
+
+/// FSM tunables (defaults: the paper's values).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FsmConfig {
+    /// Which logic.
+    pub variant: FsmVariant,
+    /// An obstacle closer than this blocks the way, m (paper: 1 m).
+    pub obstacle_distance_m: f32,
+    /// Forward speed in `Forward`, m/s (paper: 0.3).
+    pub forward_speed_mps: f32,
+    /// Time in `Hover`, µs (paper: 1 s).
+    pub hover_time_us: u64,
+    /// Turn angle of the paper variant, rad (paper: 60 deg; positive: to the right).
+    pub turn_angle_rad: f32,
+    /// Yaw setpoint rate while turning, rad/s (sign ignored; the turn direction follows
+    /// `turn_angle_rad`).
+    pub turn_rate_radps: f32,
+    /// Heading error that counts as "turned", rad.
+    pub turn_tolerance_rad: f32,
+    /// Leave `Turn` this long after the ramp ended even if the heading lags, µs.
+    pub turn_timeout_us: u64,
+    /// Turn-until-clear: a reading farther than this (or nothing in range) is clear, m.
+    pub clear_distance_m: f32,
+    /// Turn-until-clear: consecutive clear readings needed to stop turning.
+    pub clear_confirm: u8,
+}
+
+impl Default for FsmConfig {
+    fn default() -> Self {
+        Self {
+            variant: FsmVariant::Paper,
+            obstacle_distance_m: 1.0,
+            forward_speed_mps: 0.3,
+            hover_time_us: 1_000_000,
+            turn_angle_rad: 60.0_f32.to_radians(),
+            turn_rate_radps: 1.5,
+            turn_tolerance_rad: 8.0_f32.to_radians(),
+            turn_timeout_us: 2_000_000,
+            clear_distance_m: 1.5,
+            clear_confirm: 3,
+        }
+    }
+}
+
+/// The latest obstacle reading from the camera board.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObstacleReading {
+    /// When the autopilot received it, µs.
+    pub received_us: u64,
+    /// Nearest obstacle, m; `None`: nothing within range.
+    pub distance_m: Option<f32>,
+}
+
+/// What the FSM asks of guidance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FsmOutput {
+    /// Forward body velocity setpoint, m/s (sideways is always 0).
+    pub forward_mps: f32,
+    /// Heading setpoint, rad (wrapped to (-pi, pi]).
+    pub yaw_sp_rad: f32,
+}
+
+/// Avoidance state machine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AvoidanceFsm {
+    cfg: FsmConfig,
+    state: FsmState,
+    entered_us: u64,
+    yaw_sp: f32,
+    turn_start_yaw: f32,
+    /// Time the yaw ramp of the paper variant finished.
+    ramp_done_us: Option<u64>,
+    last_reading_us: Option<u64>,
+    clear_count: u8,
+    last_step_us: u64,
+    transitions: u32,
+}
+
+impl AvoidanceFsm {
+    /// Starts in `Check` at `now_us`, holding heading `yaw_rad`.
+    pub fn new(cfg: FsmConfig, now_us: u64, yaw_rad: f32) -> Self {
+        let yaw = wrap_pi(yaw_rad);
+        Self {
+            cfg,
+            state: FsmState::Check,
+            entered_us: now_us,
+            yaw_sp: yaw,
+            turn_start_yaw: yaw,
+            ramp_done_us: None,
+            last_reading_us: None,
+            clear_count: 0,
+            last_step_us: now_us,
+            transitions: 0,
+        }
+    }
+
+    /// Restarts in `Check` (e.g. after a failsafe), keeping the configuration.
+    pub fn reset(&mut self, now_us: u64, yaw_rad: f32) {
+        let transitions = self.transitions;
+        *self = Self::new(self.cfg, now_us, yaw_rad);
+        self.transitions = transitions;
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &FsmConfig {
+        &self.cfg
+    }
+
+    /// Current state.
+    pub fn state(&self) -> FsmState {
+        self.state
+    }
+
+    /// When the current state was entered, µs.
+    pub fn entered_us(&self) -> u64 {
+        self.entered_us
+    }
+
+    /// Number of state changes since creation.
+    pub fn transitions(&self) -> u32 {
+        self.transitions
+    }
+
+    /// Current output without stepping.
+    pub fn output(&self) -> FsmOutput {
+        FsmOutput {
+            forward_mps: if self.state == FsmState::Forward {
+                self.cfg.forward_speed_mps
+            } else {
+                0.0
+            },
+            yaw_sp_rad: self.yaw_sp,
+        }
+    }
+
+    fn enter(&mut self, s: FsmState, now_us: u64) {
+        self.state = s;
+        self.entered_us = now_us;
+        self.clear_count = 0;
+        self.ramp_done_us = None;
+        self.transitions = self.transitions.wrapping_add(1);
+    }
+
+    fn blocked(&self, d: Option<f32>, threshold: f32) -> bool {
+        matches!(d, Some(x) if x.is_finite() && x < threshold)
+    }
+
+    /// One step at `now_us` with the current heading `yaw_rad` and the latest obstacle reading.
+    pub fn step(
+        &mut self,
+        now_us: u64,
+        yaw_rad: f32,
+        reading: Option<ObstacleReading>,
+    ) -> FsmOutput {
+        let dt = now_us.saturating_sub(self.last_step_us) as f32 * 1e-6;
+        let dt = dt.min(0.5);
+        self.last_step_us = now_us;
+        let yaw = if yaw_rad.is_finite() {
+            wrap_pi(yaw_rad)
+        } else {
+            self.yaw_sp
+        };
+        // A reading counts as fresh once, and only if it arrived after the current state began.
+        let fresh = match reading {
+            Some(r) if Some(r.received_us) != self.last_reading_us => {
+                self.last_reading_us = Some(r.received_us);
+                if r.received_us >= self.entered_us {
+                    Some(r)
+                } else {
+                    None
+                }
+            }
+            _ => None,
+        };
+        let rate = self.cfg.turn_rate_radps.abs();
+        match self.state {
+            FsmState::Check => {
+                if let Some(r) = fresh {
+                    if self.blocked(r.distance_m, self.cfg.obstacle_distance_m) {
+                        self.enter(FsmState::Hover, now_us);
+                    } else {
+                        self.enter(FsmState::Forward, now_us);
+                    }
+                }
+            }
+            FsmState::Forward => {
+                if let Some(r) = fresh {
+                    if self.blocked(r.distance_m, self.cfg.obstacle_distance_m) {
+                        self.enter(FsmState::Hover, now_us);
+                    }
+                }
+            }
+            FsmState::Hover => {
+                if now_us.saturating_sub(self.entered_us) >= self.cfg.hover_time_us {
+                    self.turn_start_yaw = self.yaw_sp;
+                    self.enter(FsmState::Turn, now_us);
+                }
+            }
+            FsmState::Turn => match self.cfg.variant {
+                FsmVariant::Paper => {
+                    let angle = self.cfg.turn_angle_rad;
+                    let target = wrap_pi(self.turn_start_yaw + angle);
+                    let elapsed = now_us.saturating_sub(self.entered_us) as f32 * 1e-6;
+                    let turned = (rate * elapsed).min(angle.abs());
+                    self.yaw_sp = wrap_pi(self.turn_start_yaw + turned * angle.signum());
+                    if turned >= angle.abs() {
+                        let done = *self.ramp_done_us.get_or_insert(now_us);
+                        let on_heading = wrap_pi(target - yaw).abs() <= self.cfg.turn_tolerance_rad;
+                        if on_heading || now_us.saturating_sub(done) >= self.cfg.turn_timeout_us {
+                            self.yaw_sp = target;
+                            self.enter(FsmState::Check, now_us);
+                        }
+                    }
+                }
+                FsmVariant::TurnUntilClear => {
+                    let dir = if self.cfg.turn_angle_rad < 0.0 {
+                        -1.0
+                    } else {
+                        1.0
+                    };
+                    // Lead the heading by a bounded amount so the setpoint does not run away
+                    // from a drone that turns slower than asked.
+                    let lead = wrap_pi(self.yaw_sp + dir * rate * dt - yaw);
+                    if lead.abs() <= 0.5 {
+                        self.yaw_sp = wrap_pi(self.yaw_sp + dir * rate * dt);
+                    }
+                    if let Some(r) = fresh {
+                        if self.blocked(r.distance_m, self.cfg.clear_distance_m) {
+                            self.clear_count = 0;
+                        } else {
+                            self.clear_count = self.clear_count.saturating_add(1);
+                        }
+                        if self.clear_count >= self.cfg.clear_confirm.max(1) {
+                            self.yaw_sp = yaw;
+                            self.enter(FsmState::Forward, now_us);
+                        }
+                    }
+                }
+            },
+        }
+        self.output()
+    }
+}

@@ -1,0 +1,357 @@
+//! Adaptive INDI attitude control (incremental nonlinear dynamic inversion), as flown on the
+//! pocket drone in Paparazzi's "simple" INDI (Smeur, Chu, de Croon 2016).
+//!
+//! Each step (512 Hz):
+//!
+//! 1. The gyro rates go through a second-order low-pass ([`SecondOrderFilter`]); its derivative
+//!    state is the measured angular acceleration.
+//! 2. A virtual control (desired angular acceleration) comes from the attitude error and the
+//!    body rates: `accel_ref = kp * err - kd * rate`.
+//! 3. The increment `du = (accel_ref - accel_measured) / G1` is added to the *filtered actuator
+//!    model* `u_f`: a first-order model of the motors (`u_act += alpha * (u_cmd - u_act)`),
+//!    passed through the very same second-order filter so that the measured acceleration and the
+//!    actuator state it is compared with carry the same delay. For yaw the propeller spin-up
+//!    term G2 acts on the change of the command: `du_r = (accel_ref - accel + G2 * du_r,prev) /
+//!    (G1_r + G2)`.
+//! 4. The command is bounded ([`IndiConfig::max_cmd`]).
+//! 5. While the thrust is below [`IndiConfig::arming_thrust`] (on the ground) the command, the
+//!    actuator model and its filter are held at zero, and nothing adapts: nothing can wind up.
+//! 6. Adaptation (switchable): a normalised least-mean-squares update of G1 (and G2) on signals
+//!    through a second, slower second-order filter: the model `d(accel)/dt = G1 * du/dt` is
+//!    fitted sample by sample. The estimates are clamped to a positive range.
+//!
+//! # Units and conversions
+//!
+//! Commands are the mixer's normalised differentials (see [`crate::mixer`]): 1.0 is one motor's
+//! whole throttle range. Paparazzi's commands run to `MAX_PPRZ` = 9600, so a Paparazzi G1 in
+//! rad/s² per command unit converts as `G1 = G1_pprz * 9600` rad/s² per unit command here. The
+//! pocket-drone values 0.038 / 0.064 / 0.0028 become 364.8 / 614.4 / 26.88 rad/s². G2 has the
+//! same unit (rad/s² per unit of command change within one sample). The actuator pole 0.03 is the
+//! per-sample coefficient at 512 Hz (a 15.6 rad/s first-order lag: `-ln(1-0.03)*512`). The
+//! filter is 50 rad/s with damping 0.55, discretised with semi-implicit Euler at the loop rate.
+
+/// Second-order low-pass `x'' = w²(in - x) - 2ζw x'`, semi-implicit Euler at a fixed step.
+///
+/// Outputs the filtered value `x`, its derivative `xd` and second derivative `xdd`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SecondOrderFilter {
+    /// Filtered value.
+    pub x: f32,
+    /// First derivative of the filtered value, per second.
+    pub xd: f32,
+    /// Second derivative of the filtered value, per second².
+    pub xdd: f32,
+    omega: f32,
+    zeta: f32,
+    dt: f32,
+}
+
+impl SecondOrderFilter {
+    /// A filter at rest with natural frequency `omega` (rad/s), damping `zeta` and step `dt` (s).
+    pub fn new(omega: f32, zeta: f32, dt: f32) -> Self {
+        Self {
+            x: 0.0,
+            xd: 0.0,
+            xdd: 0.0,
+            omega,
+            zeta,
+            dt,
+        }
+    }
+
+    /// Resets the state to `x` at rest.
+    pub fn reset(&mut self, x: f32) {
+        self.x = x;
+        self.xd = 0.0;
+        self.xdd = 0.0;
+    }
+
+    /// One step with input `input`; returns the filtered value.
+    pub fn update(&mut self, input: f32) -> f32 {
+        let w = self.omega;
+        self.xdd = w * w * (input - self.x) - 2.0 * self.zeta * w * self.xd;
+        self.xd += self.xdd * self.dt;
+        self.x += self.xd * self.dt;
+        if !(self.x.is_finite() && self.xd.is_finite() && self.xdd.is_finite()) {
+            self.reset(0.0);
+        }
+        self.x
+    }
+}
+
+/// INDI tunables. Defaults: the pocket-drone airframe (see module docs for the units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IndiConfig {
+    /// Loop rate, Hz (512).
+    pub rate_hz: f32,
+    /// Control effectiveness p, q, r: rad/s² per unit normalised command (start values when
+    /// adapting).
+    pub g1: [f32; 3],
+    /// Yaw propeller spin-up effectiveness, rad/s² per unit command change within one sample.
+    pub g2: f32,
+    /// Natural frequency of the rate/actuator second-order filter, rad/s.
+    pub filter_omega: f32,
+    /// Damping of that filter.
+    pub filter_zeta: f32,
+    /// First-order actuator model coefficient per sample at `rate_hz` (0..1).
+    pub actuator_alpha: f32,
+    /// Attitude gain p, q, r: rad/s² of desired angular acceleration per rad of attitude error.
+    pub kp: [f32; 3],
+    /// Rate damping p, q, r: rad/s² per rad/s of body rate.
+    pub kd: [f32; 3],
+    /// Largest desired angular acceleration magnitude per axis, rad/s².
+    pub max_accel_ref: [f32; 3],
+    /// Command bound per axis (normalised, see [`crate::mixer`]).
+    pub max_cmd: [f32; 3],
+    /// Collective thrust (0..=1) below which the drone counts as on the ground: commands and
+    /// actuator state held at zero, no adaptation.
+    pub arming_thrust: f32,
+    /// Adapt G1/G2 online.
+    pub adapt: bool,
+    /// Normalised LMS step for G1 p, q, r (per sample, 0..1).
+    pub mu_g1: [f32; 3],
+    /// Normalised LMS step for G2 (per sample, 0..1).
+    pub mu_g2: f32,
+    /// Regulariser of the normalised LMS, (1/s)²: excitation below `sqrt(eps)` adapts slowly.
+    pub adapt_eps: f32,
+    /// Natural frequency of the (stronger) adaptation filter, rad/s.
+    pub adapt_omega: f32,
+    /// Damping of the adaptation filter.
+    pub adapt_zeta: f32,
+    /// Lower clamp of every G1 estimate, rad/s² per unit (positive).
+    pub g1_min: f32,
+    /// Upper clamp of every G1 estimate, rad/s² per unit.
+    pub g1_max: f32,
+    /// Upper clamp of the G2 estimate (lower clamp is 0).
+    pub g2_max: f32,
+}
+
+/// Paparazzi command full scale (`MAX_PPRZ`): a Paparazzi G1 times this is our G1.
+pub const PPRZ_FULL_SCALE: f32 = 9600.0;
+
+impl Default for IndiConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 512.0,
+            g1: [
+                0.038 * PPRZ_FULL_SCALE,
+                0.064 * PPRZ_FULL_SCALE,
+                0.0028 * PPRZ_FULL_SCALE,
+            ],
+            g2: 0.0,
+            filter_omega: 50.0,
+            filter_zeta: 0.55,
+            actuator_alpha: 0.03,
+            kp: [100.0, 100.0, 30.0],
+            kd: [18.0, 18.0, 10.0],
+            max_accel_ref: [200.0, 200.0, 50.0],
+            max_cmd: [0.5, 0.5, 0.5],
+            arming_thrust: 0.1,
+            adapt: true,
+            mu_g1: [0.002, 0.002, 0.002],
+            mu_g2: 0.0005,
+            adapt_eps: 0.01,
+            adapt_omega: 25.0,
+            adapt_zeta: 0.55,
+            g1_min: 5.0,
+            g1_max: 5000.0,
+            g2_max: 500.0,
+        }
+    }
+}
+
+fn finite_or(x: f32, d: f32) -> f32 {
+    if x.is_finite() {
+        x
+    } else {
+        d
+    }
+}
+
+/// Adaptive INDI state for the three body axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Indi {
+    cfg: IndiConfig,
+    dt: f32,
+    rate_filt: [SecondOrderFilter; 3],
+    /// First-order actuator model state.
+    u_act: [f32; 3],
+    /// Actuator model through the same filter as the rates.
+    u_act_filt: [SecondOrderFilter; 3],
+    /// Last command.
+    u_cmd: [f32; 3],
+    /// Last yaw increment (for the G2 term).
+    du_r_prev: f32,
+    /// Adaptation filters: gyro rates and actuator model.
+    est_rate: [SecondOrderFilter; 3],
+    est_u: [SecondOrderFilter; 3],
+    g1: [f32; 3],
+    g2: f32,
+    airborne: bool,
+}
+
+impl Indi {
+    /// Controller at rest with the configured starting G1/G2.
+    pub fn new(cfg: IndiConfig) -> Self {
+        let rate_hz = if cfg.rate_hz.is_finite() && cfg.rate_hz > 1.0 {
+            cfg.rate_hz
+        } else {
+            512.0
+        };
+        let dt = 1.0 / rate_hz;
+        let f = SecondOrderFilter::new(cfg.filter_omega, cfg.filter_zeta, dt);
+        let e = SecondOrderFilter::new(cfg.adapt_omega, cfg.adapt_zeta, dt);
+        let mut g1 = cfg.g1;
+        for g in g1.iter_mut() {
+            *g = finite_or(*g, cfg.g1_min).clamp(cfg.g1_min, cfg.g1_max);
+        }
+        Self {
+            cfg,
+            dt,
+            rate_filt: [f; 3],
+            u_act: [0.0; 3],
+            u_act_filt: [f; 3],
+            u_cmd: [0.0; 3],
+            du_r_prev: 0.0,
+            est_rate: [e; 3],
+            est_u: [e; 3],
+            g1,
+            g2: finite_or(cfg.g2, 0.0).clamp(0.0, cfg.g2_max),
+            airborne: false,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &IndiConfig {
+        &self.cfg
+    }
+
+    /// Current G1 estimate p, q, r, rad/s² per unit command.
+    pub fn g1(&self) -> [f32; 3] {
+        self.g1
+    }
+
+    /// Current G2 estimate, rad/s² per unit command change.
+    pub fn g2(&self) -> f32 {
+        self.g2
+    }
+
+    /// Filtered angular acceleration p, q, r, rad/s².
+    pub fn angular_accel(&self) -> [f32; 3] {
+        [
+            self.rate_filt[0].xd,
+            self.rate_filt[1].xd,
+            self.rate_filt[2].xd,
+        ]
+    }
+
+    /// Actuator model state (normalised commands).
+    pub fn actuator_state(&self) -> [f32; 3] {
+        self.u_act
+    }
+
+    /// Last command (normalised roll, pitch, yaw differentials).
+    pub fn command(&self) -> [f32; 3] {
+        self.u_cmd
+    }
+
+    /// Computes the roll/pitch/yaw command from the attitude error (rad, body axes: the rotation
+    /// that takes the current attitude to the setpoint, small-angle vector), the gyro rates
+    /// (rad/s) and the collective thrust (0..=1). Call [`Indi::actuator_update`] with what the
+    /// mixer really applied afterwards.
+    pub fn control(&mut self, att_err: [f32; 3], gyro: [f32; 3], thrust: f32) -> [f32; 3] {
+        let thrust = finite_or(thrust, 0.0);
+        self.airborne = thrust >= self.cfg.arming_thrust;
+        for (i, f) in self.rate_filt.iter_mut().enumerate() {
+            f.update(finite_or(gyro[i], 0.0));
+        }
+        if !self.airborne {
+            self.hold_on_ground();
+            return self.u_cmd;
+        }
+        for i in 0..3 {
+            let err = finite_or(att_err[i], 0.0);
+            let rate = finite_or(gyro[i], 0.0);
+            let lim = self.cfg.max_accel_ref[i].abs();
+            let accel_ref = (self.cfg.kp[i] * err - self.cfg.kd[i] * rate).clamp(-lim, lim);
+            let accel_ref = finite_or(accel_ref, 0.0);
+            let accel = self.rate_filt[i].xd;
+            let du = if i == 2 {
+                let denom = self.g1[2] + self.g2;
+                (accel_ref - accel + self.g2 * self.du_r_prev) / denom
+            } else {
+                (accel_ref - accel) / self.g1[i]
+            };
+            let du = finite_or(du, 0.0);
+            let lim = self.cfg.max_cmd[i].abs();
+            let u = (self.u_act_filt[i].x + du).clamp(-lim, lim);
+            if i == 2 {
+                self.du_r_prev = u - self.u_cmd[2];
+            }
+            self.u_cmd[i] = finite_or(u, 0.0);
+        }
+        self.u_cmd
+    }
+
+    /// Advances the actuator model with the command the motors really received (after mixer
+    /// saturation) and, when enabled and airborne, adapts G1/G2.
+    pub fn actuator_update(&mut self, applied: [f32; 3], gyro: [f32; 3]) {
+        if !self.airborne {
+            self.hold_on_ground();
+            for (i, f) in self.est_rate.iter_mut().enumerate() {
+                f.update(finite_or(gyro[i], 0.0));
+            }
+            return;
+        }
+        let a = self.cfg.actuator_alpha.clamp(0.0, 1.0);
+        for i in 0..3 {
+            let lim = self.cfg.max_cmd[i].abs();
+            let u = finite_or(applied[i], self.u_cmd[i]).clamp(-lim, lim);
+            self.u_act[i] += a * (u - self.u_act[i]);
+            self.u_act_filt[i].update(self.u_act[i]);
+            self.est_rate[i].update(finite_or(gyro[i], 0.0));
+            self.est_u[i].update(self.u_act[i]);
+        }
+        if self.cfg.adapt {
+            self.adapt();
+        }
+    }
+
+    fn adapt(&mut self) {
+        let eps = self.cfg.adapt_eps.max(1e-9);
+        for i in 0..3 {
+            let ud = self.est_u[i].xd;
+            let udd = self.est_u[i].xdd;
+            // Angular acceleration change rate (rad/s³) predicted vs measured.
+            let measured = self.est_rate[i].xdd;
+            if i == 2 {
+                let ud2 = udd * self.dt;
+                let err = self.g1[2] * ud + self.g2 * ud2 - measured;
+                let norm = eps + ud * ud + ud2 * ud2;
+                let g1 = self.g1[2] - self.cfg.mu_g1[2] * err * ud / norm;
+                let g2 = self.g2 - self.cfg.mu_g2 * err * ud2 / norm;
+                self.g1[2] = finite_or(g1, self.g1[2]).clamp(self.cfg.g1_min, self.cfg.g1_max);
+                self.g2 = finite_or(g2, self.g2).clamp(0.0, self.cfg.g2_max);
+            } else {
+                let err = self.g1[i] * ud - measured;
+                let norm = eps + ud * ud;
+                let g = self.g1[i] - self.cfg.mu_g1[i] * err * ud / norm;
+                self.g1[i] = finite_or(g, self.g1[i]).clamp(self.cfg.g1_min, self.cfg.g1_max);
+            }
+        }
+    }
+
+    fn hold_on_ground(&mut self) {
+        self.u_cmd = [0.0; 3];
+        self.u_act = [0.0; 3];
+        self.du_r_prev = 0.0;
+        for f in self.u_act_filt.iter_mut().chain(self.est_u.iter_mut()) {
+            f.reset(0.0);
+        }
+    }
+
+    /// True when the last step ran with thrust at or above the arming threshold.
+    pub fn airborne(&self) -> bool {
+        self.airborne
+    }
+}
