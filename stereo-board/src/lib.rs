@@ -4,4 +4,5 @@
 #![no_std]
 #![warn(missing_docs)]
 
+pub mod app;
 pub mod edge_fs;

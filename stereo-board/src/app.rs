@@ -1,0 +1,567 @@
+//! The camera board's task logic and task table, hardware-free.
+//!
+//! The RTIC firmware and `sim-host` call exactly these functions; every task body of the
+//! firmware is one call in here. Time is passed in (µs of the board's monotonic clock); bytes go
+//! out through a caller-provided `tx` closure that receives whole encoded frames.
+//!
+//! | task | trigger | priority | body |
+//! |---|---|---|---|
+//! | `uart_rx` | autopilot UART IDLE / DMA half | 3 | [`StereoBoardApp::on_rx_bytes`] |
+//! | `host_rx` | host UART IDLE (HIL and QEMU flavours) | 3 | [`StereoBoardApp::on_host_bytes`] |
+//! | `frame` | camera frame complete (DCMI + DMA2) or a HIL frame assembled | 2 | [`StereoBoardApp::on_frame`] |
+//! | `status` | every [`STATUS_PERIOD_US`] | 1 | [`StereoBoardApp::status_tick`] |
+//!
+//! The receive tasks run above the frame task: they are short, and the autopilot's gyro
+//! samples must keep flowing while Edge-FS runs for tens of milliseconds.
+
+use crate::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
+use protocol::{
+    encode, AutopilotToStereo, BoardToHost, ConfigResult, Decoder, Estimate, FrameChunk,
+    GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
+    StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
+};
+
+/// What starts a task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Trigger {
+    /// Runs every `period_us` µs.
+    Periodic {
+        /// Period, µs.
+        period_us: u32,
+    },
+    /// Runs on the named hardware event.
+    Event(&'static str),
+}
+
+/// One entry of the board's task table (same shape as `autopilot::app::TaskSpec`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TaskSpec {
+    /// Task name (the RTIC task and the simulator's scheduler use the same).
+    pub name: &'static str,
+    /// Priority, higher preempts lower (RTIC priority).
+    pub priority: u8,
+    /// What starts it.
+    pub trigger: Trigger,
+    /// Deadline from release to completion, µs.
+    pub deadline_us: u32,
+}
+
+/// Period of the status task (Status + Heartbeat to the autopilot), µs.
+pub const STATUS_PERIOD_US: u32 = 1_000_000;
+/// Frame period at the camera's 25 Hz, µs: the frame task's deadline.
+pub const FRAME_PERIOD_US: u32 = 40_000;
+/// A gyro/attitude sample older than this is not used for derotation, µs.
+pub const GYRO_TIMEOUT_US: u64 = 100_000;
+
+/// Name of the frame task.
+pub const TASK_FRAME: &str = "frame";
+/// Name of the autopilot-link receive task.
+pub const TASK_UART_RX: &str = "uart_rx";
+/// Name of the host-link receive task (HIL and QEMU flavours).
+pub const TASK_HOST_RX: &str = "host_rx";
+/// Name of the status task.
+pub const TASK_STATUS: &str = "status";
+
+/// The camera board's tasks; the RTIC app in `src/firmware` mirrors this table.
+pub const TASKS: &[TaskSpec] = &[
+    TaskSpec {
+        name: TASK_UART_RX,
+        priority: 3,
+        trigger: Trigger::Event("autopilot UART (USART1) IDLE line"),
+        deadline_us: 2_000,
+    },
+    TaskSpec {
+        name: TASK_HOST_RX,
+        priority: 3,
+        trigger: Trigger::Event("host UART (USART2) IDLE line, HIL/QEMU flavours"),
+        deadline_us: 2_000,
+    },
+    TaskSpec {
+        name: TASK_FRAME,
+        priority: 2,
+        trigger: Trigger::Event("frame complete: DCMI + DMA2 stream 1, or HIL frame assembled"),
+        deadline_us: FRAME_PERIOD_US,
+    },
+    TaskSpec {
+        name: TASK_STATUS,
+        priority: 1,
+        trigger: Trigger::Periodic {
+            period_us: STATUS_PERIOD_US,
+        },
+        deadline_us: 100_000,
+    },
+];
+
+/// Looks a task up by name.
+pub fn task(name: &str) -> Option<&'static TaskSpec> {
+    TASKS.iter().find(|t| t.name == name)
+}
+
+/// Receive buffer of the autopilot link decoder, bytes.
+const A2S_N: usize = AutopilotToStereo::MAX_FRAME_BYTES;
+/// Receive buffer of the host link decoder, bytes.
+const H2B_N: usize = HostToBoard::MAX_FRAME_BYTES;
+/// Chunks in one frame.
+const CHUNKS_PER_FRAME: usize = STEREO_FRAME_BYTES.div_ceil(FRAME_CHUNK_BYTES);
+
+/// Encodes `msg` into one frame and hands it to `tx`; returns false when it did not fit (never
+/// for the message types of this crate: their buffers are sized from `MAX_FRAME_BYTES`).
+fn send<M: Message, const N: usize>(msg: &M, tx: &mut impl FnMut(&[u8])) -> bool {
+    let mut buf = [0u8; N];
+    match encode(msg, &mut buf) {
+        Ok(n) => match buf.get(..n) {
+            Some(bytes) => {
+                tx(bytes);
+                true
+            }
+            None => false,
+        },
+        Err(_) => false,
+    }
+}
+
+/// Encodes a message to the autopilot and hands the frame to `tx`.
+pub fn send_to_autopilot(msg: &StereoToAutopilot, tx: &mut impl FnMut(&[u8])) -> bool {
+    send::<_, { StereoToAutopilot::MAX_FRAME_BYTES }>(msg, tx)
+}
+
+/// Encodes a message to the host (HIL bridge, ground tool) and hands the frame to `tx`.
+pub fn send_to_host(msg: &BoardToHost, tx: &mut impl FnMut(&[u8])) -> bool {
+    send::<_, { BoardToHost::MAX_FRAME_BYTES }>(msg, tx)
+}
+
+/// Extends a wrapping `u32` µs clock to `u64` (for frame times stamped by a HIL host).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ClockExtender {
+    last: Option<u32>,
+    high: u64,
+}
+
+impl ClockExtender {
+    /// A fresh extender (the first sample maps to itself).
+    pub const fn new() -> Self {
+        Self {
+            last: None,
+            high: 0,
+        }
+    }
+
+    /// Maps `t` onto the `u64` timeline: a decrease of more than half the range is a wrap; a
+    /// small decrease (out-of-order sample) is kept as is.
+    pub fn extend(&mut self, t: u32) -> u64 {
+        if let Some(last) = self.last {
+            if t < last && last - t > u32::MAX / 2 {
+                self.high = self.high.saturating_add(1 << 32);
+            }
+        }
+        self.last = Some(t);
+        self.high | u64::from(t)
+    }
+}
+
+/// Assembles a stereo frame from [`FrameChunk`]s (HIL: frames arrive over the serial link).
+///
+/// Chunks must start at a multiple of [`FRAME_CHUNK_BYTES`] and fill their slot exactly (the
+/// frame is 48 full chunks); anything else is rejected and counted. A chunk of another frame
+/// abandons an incomplete frame, which is counted as dropped. Bounded, never panics.
+#[derive(Clone)]
+pub struct FrameAssembler {
+    buf: [u8; STEREO_FRAME_BYTES],
+    frame_id: u16,
+    capture_us: u32,
+    /// Bit i: chunk i received.
+    have: u64,
+    active: bool,
+    complete: u32,
+    incomplete: u32,
+    bad_chunks: u32,
+}
+
+impl Default for FrameAssembler {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl core::fmt::Debug for FrameAssembler {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("FrameAssembler")
+            .field("frame_id", &self.frame_id)
+            .field("have", &self.have)
+            .field("active", &self.active)
+            .field("complete", &self.complete)
+            .field("incomplete", &self.incomplete)
+            .field("bad_chunks", &self.bad_chunks)
+            .finish()
+    }
+}
+
+impl FrameAssembler {
+    const ALL: u64 = if CHUNKS_PER_FRAME >= 64 {
+        u64::MAX
+    } else {
+        (1u64 << CHUNKS_PER_FRAME) - 1
+    };
+
+    /// An empty assembler (`const`, so it can be a `static`).
+    pub const fn new() -> Self {
+        Self {
+            buf: [0; STEREO_FRAME_BYTES],
+            frame_id: 0,
+            capture_us: 0,
+            have: 0,
+            active: false,
+            complete: 0,
+            incomplete: 0,
+            bad_chunks: 0,
+        }
+    }
+
+    /// Takes one chunk. Returns `Some(capture_us)` (the host's exposure time) when it completes
+    /// the frame; the frame is then in [`FrameAssembler::frame`] until the next chunk arrives.
+    pub fn push(&mut self, chunk: &FrameChunk) -> Option<u32> {
+        let offset = usize::from(chunk.offset);
+        let index = offset / FRAME_CHUNK_BYTES;
+        let expected_len = STEREO_FRAME_BYTES
+            .saturating_sub(offset)
+            .min(FRAME_CHUNK_BYTES);
+        if offset % FRAME_CHUNK_BYTES != 0
+            || index >= CHUNKS_PER_FRAME
+            || chunk.data.len() != expected_len
+        {
+            self.bad_chunks = self.bad_chunks.saturating_add(1);
+            return None;
+        }
+        if self.active && chunk.frame_id != self.frame_id {
+            self.incomplete = self.incomplete.saturating_add(1);
+            self.active = false;
+        }
+        if !self.active {
+            self.active = true;
+            self.frame_id = chunk.frame_id;
+            self.capture_us = chunk.capture_us;
+            self.have = 0;
+        }
+        let slot = self.buf.get_mut(offset..offset + expected_len)?;
+        slot.copy_from_slice(&chunk.data);
+        self.have |= 1 << index;
+        if self.have == Self::ALL {
+            self.active = false;
+            self.complete = self.complete.saturating_add(1);
+            Some(self.capture_us)
+        } else {
+            None
+        }
+    }
+
+    /// The frame buffer (complete right after [`FrameAssembler::push`] returned `Some`).
+    pub fn frame(&self) -> &[u8; STEREO_FRAME_BYTES] {
+        &self.buf
+    }
+
+    /// Frame number of the frame being (or last) assembled.
+    pub fn frame_id(&self) -> u16 {
+        self.frame_id
+    }
+
+    /// Frames completed since creation.
+    pub fn frames_complete(&self) -> u32 {
+        self.complete
+    }
+
+    /// Frames abandoned incomplete since creation.
+    pub fn frames_incomplete(&self) -> u32 {
+        self.incomplete
+    }
+
+    /// Chunks rejected (bad offset or length) since creation.
+    pub fn bad_chunks(&self) -> u32 {
+        self.bad_chunks
+    }
+}
+
+/// Counters of the camera board, as reported in [`StereoStatus`] (and a few more).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Frames processed since boot.
+    pub frames_processed: u32,
+    /// Frames dropped since boot: camera overruns, frames arriving while busy, incomplete HIL
+    /// frames.
+    pub frames_dropped: u32,
+    /// Gyro samples ignored because a value was NaN or infinite.
+    pub gyro_rejected: u32,
+    /// Configuration requests rejected.
+    pub config_rejected: u32,
+    /// Configuration requests applied.
+    pub config_applied: u32,
+}
+
+/// The whole camera-board state: Edge-FS, link decoders, latest gyro sample, counters.
+///
+/// Fixed size, no heap (about 10 kB); `const fn new`, so the firmware keeps it in a `static`
+/// in CCM. Frame buffers are not in here (DMA targets live in SRAM).
+pub struct StereoBoardApp {
+    edge_fs: EdgeFs,
+    params: EdgeFsParams,
+    rx: Decoder<AutopilotToStereo, A2S_N>,
+    host_rx: Decoder<HostToBoard, H2B_N>,
+    host_clock: ClockExtender,
+    gyro: Option<(GyroAttitude, u64)>,
+    peer_uptime_ms: Option<u32>,
+    seq: u16,
+    counters: Counters,
+    last_status_us: u64,
+    last_status_frames: u32,
+    max_processing_us: u32,
+}
+
+impl StereoBoardApp {
+    /// A board running Edge-FS with `params`.
+    pub const fn new(params: EdgeFsParams) -> Self {
+        Self {
+            edge_fs: EdgeFs::new(params),
+            params,
+            rx: Decoder::new(),
+            host_rx: Decoder::new(),
+            host_clock: ClockExtender::new(),
+            gyro: None,
+            peer_uptime_ms: None,
+            seq: 0,
+            counters: Counters {
+                frames_processed: 0,
+                frames_dropped: 0,
+                gyro_rejected: 0,
+                config_rejected: 0,
+                config_applied: 0,
+            },
+            last_status_us: 0,
+            last_status_frames: 0,
+            max_processing_us: 0,
+        }
+    }
+
+    /// The Edge-FS parameters in use.
+    pub fn params(&self) -> &EdgeFsParams {
+        &self.params
+    }
+
+    /// The estimator (for diagnostics).
+    pub fn edge_fs(&self) -> &EdgeFs {
+        &self.edge_fs
+    }
+
+    /// Counters since boot.
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// Errors decoding autopilot messages since boot.
+    pub fn link_errors(&self) -> LinkErrorCounts {
+        self.rx.errors()
+    }
+
+    /// Errors decoding host messages since boot.
+    pub fn host_link_errors(&self) -> LinkErrorCounts {
+        self.host_rx.errors()
+    }
+
+    /// Valid messages received from the autopilot since boot (wrapping).
+    pub fn link_frames_ok(&self) -> u32 {
+        self.rx.frames_ok()
+    }
+
+    /// The autopilot's uptime in its last heartbeat, ms.
+    pub fn peer_uptime_ms(&self) -> Option<u32> {
+        self.peer_uptime_ms
+    }
+
+    /// The gyro sample used for a frame processed at `now_us`: the latest one, if it arrived
+    /// within [`GYRO_TIMEOUT_US`].
+    pub fn current_gyro(&self, now_us: u64) -> Option<&GyroAttitude> {
+        match &self.gyro {
+            Some((g, at)) if now_us.saturating_sub(*at) <= GYRO_TIMEOUT_US => Some(g),
+            _ => None,
+        }
+    }
+
+    /// Frame task, first half: runs Edge-FS on one interleaved frame exposed at `capture_us`
+    /// (`now_us`: when processing starts, to pick the gyro sample).
+    pub fn process_frame(
+        &mut self,
+        frame: &[u8; STEREO_FRAME_BYTES],
+        capture_us: u64,
+        now_us: u64,
+    ) -> EdgeFsOutput {
+        let gyro = self.current_gyro(now_us).copied();
+        self.edge_fs.process(frame, capture_us, gyro.as_ref())
+    }
+
+    /// Frame task, second half: wraps `out` into the next [`Estimate`] (processing time =
+    /// `done_us - capture_us`, saturating) and sends it to the autopilot.
+    pub fn send_estimate(
+        &mut self,
+        out: &EdgeFsOutput,
+        capture_us: u64,
+        done_us: u64,
+        tx: &mut impl FnMut(&[u8]),
+    ) -> Estimate {
+        let processing = done_us.saturating_sub(capture_us);
+        let processing_us = u16::try_from(processing).unwrap_or(u16::MAX);
+        self.max_processing_us = self
+            .max_processing_us
+            .max(u32::try_from(processing).unwrap_or(u32::MAX));
+        let est = Estimate {
+            seq: self.seq,
+            // The wire carries the wrapping low 32 bits.
+            capture_us: capture_us as u32,
+            forward_mps: out.forward_mps,
+            sideways_mps: out.sideways_mps,
+            obstacle_m: out.obstacle_m,
+            quality: out.quality,
+            flags: out.flags,
+            processing_us,
+        };
+        self.seq = self.seq.wrapping_add(1);
+        self.counters.frames_processed = self.counters.frames_processed.wrapping_add(1);
+        send_to_autopilot(&StereoToAutopilot::Estimate(est), tx);
+        est
+    }
+
+    /// Frame task in one call (the simulator's form): process the frame and send the estimate,
+    /// with `now_us` taken as both the start and the completion time.
+    pub fn on_frame(
+        &mut self,
+        frame: &[u8; STEREO_FRAME_BYTES],
+        capture_us: u64,
+        now_us: u64,
+        tx: &mut impl FnMut(&[u8]),
+    ) -> Estimate {
+        let out = self.process_frame(frame, capture_us, now_us);
+        self.send_estimate(&out, capture_us, now_us, tx)
+    }
+
+    /// A frame the board could not process (camera overrun, still busy with the previous one).
+    pub fn frame_dropped(&mut self) {
+        self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(1);
+    }
+
+    /// `uart_rx` task: bytes from the autopilot, as they arrive. Gyro/attitude samples are kept
+    /// for derotation (non-finite ones are rejected and counted); a `Config` is validated,
+    /// applied from the next frame on (clearing the flow history) and answered with a
+    /// `ConfigAck` through `tx`; heartbeats record the peer's uptime.
+    pub fn on_rx_bytes(&mut self, bytes: &[u8], now_us: u64, tx: &mut impl FnMut(&[u8])) {
+        for &byte in bytes {
+            if let Some(msg) = self.rx.push(byte) {
+                self.handle_autopilot(msg, now_us, tx);
+            }
+        }
+    }
+
+    fn handle_autopilot(
+        &mut self,
+        msg: AutopilotToStereo,
+        now_us: u64,
+        tx: &mut impl FnMut(&[u8]),
+    ) {
+        match msg {
+            AutopilotToStereo::Heartbeat(hb) => self.peer_uptime_ms = Some(hb.uptime_ms),
+            AutopilotToStereo::GyroAttitude(g) => {
+                let finite = g
+                    .rates_radps
+                    .iter()
+                    .chain(g.attitude_rad.iter())
+                    .all(|v| v.is_finite());
+                if finite {
+                    self.gyro = Some((g, now_us));
+                } else {
+                    self.counters.gyro_rejected = self.counters.gyro_rejected.saturating_add(1);
+                }
+            }
+            AutopilotToStereo::Config(cfg) => {
+                let mut params = self.params;
+                let result = match params.apply(&cfg) {
+                    Ok(()) => {
+                        self.params = params;
+                        self.edge_fs.set_params(params);
+                        self.counters.config_applied =
+                            self.counters.config_applied.saturating_add(1);
+                        ConfigResult::Applied
+                    }
+                    Err(e) => {
+                        self.counters.config_rejected =
+                            self.counters.config_rejected.saturating_add(1);
+                        ConfigResult::Rejected(e)
+                    }
+                };
+                send_to_autopilot(&StereoToAutopilot::ConfigAck(result), tx);
+            }
+        }
+    }
+
+    /// `host_rx` task (HIL and QEMU flavours): bytes from the host. Frame chunks are assembled
+    /// in `frames`; each completed frame is handed to `on_frame_ready` with its exposure time on
+    /// the board's `u64` timeline (the host's wrapping `u32` clock, unwrapped). Frames abandoned
+    /// incomplete are counted as dropped. Other host messages are ignored by the camera board.
+    pub fn on_host_bytes(
+        &mut self,
+        bytes: &[u8],
+        frames: &mut FrameAssembler,
+        mut on_frame_ready: impl FnMut(&[u8; STEREO_FRAME_BYTES], u64),
+    ) {
+        for &byte in bytes {
+            if let Some(HostToBoard::FrameChunk(chunk)) = self.host_rx.push(byte) {
+                let before = frames.frames_incomplete();
+                let done = frames.push(&chunk);
+                let lost = frames.frames_incomplete().wrapping_sub(before);
+                self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(lost);
+                if let Some(capture) = done {
+                    let capture_us = self.host_clock.extend(capture);
+                    on_frame_ready(frames.frame(), capture_us);
+                }
+            }
+        }
+    }
+
+    /// `status` task: sends [`StereoStatus`] and a [`Heartbeat`] to the autopilot. The frame
+    /// rate is over the time since the previous call (or since boot); the worst processing time
+    /// restarts with each interval.
+    pub fn status_tick(&mut self, now_us: u64, tx: &mut impl FnMut(&[u8])) -> StereoStatus {
+        let interval_us = now_us.saturating_sub(self.last_status_us);
+        let frames = self
+            .counters
+            .frames_processed
+            .wrapping_sub(self.last_status_frames);
+        let frame_rate_hz = if interval_us > 0 {
+            (f64::from(frames) * 1e6 / interval_us as f64) as f32
+        } else {
+            0.0
+        };
+        self.last_status_us = now_us;
+        self.last_status_frames = self.counters.frames_processed;
+        // Uptime in ms wraps with the u32 on the wire (after 49 days).
+        let uptime_ms = (now_us / 1000) as u32;
+        let status = StereoStatus {
+            uptime_ms,
+            frame_rate_hz,
+            frames_processed: self.counters.frames_processed,
+            frames_dropped: self.counters.frames_dropped,
+            link_errors: self.rx.errors(),
+            max_processing_us: self.max_processing_us,
+        };
+        self.max_processing_us = 0;
+        send_to_autopilot(&StereoToAutopilot::Status(status), tx);
+        send_to_autopilot(
+            &StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, uptime_ms)),
+            tx,
+        );
+        status
+    }
+
+    /// Microseconds since the last gyro sample arrived, if any (for status displays).
+    pub fn gyro_age_us(&self, now_us: u64) -> Option<u64> {
+        self.gyro.as_ref().map(|(_, at)| now_us.saturating_sub(*at))
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,464 @@
+//! Host tests of the camera board's task logic.
+
+extern crate std;
+
+use super::*;
+use protocol::{
+    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, StereoToAutopilotDecoder,
+};
+use std::{boxed::Box, vec, vec::Vec};
+
+/// A textured synthetic stereo frame: vertical bars, the right image shifted by `disp` px.
+fn frame(phase: usize, disp: usize) -> Box<[u8; STEREO_FRAME_BYTES]> {
+    let mut f = Box::new([0u8; STEREO_FRAME_BYTES]);
+    for y in 0..96 {
+        for x in 0..128 {
+            let l = ((x + phase) * 37 % 101) as u8;
+            let r = ((x + phase + disp) * 37 % 101) as u8;
+            let i = 2 * (y * 128 + x);
+            f[i] = l.wrapping_mul(2);
+            f[i + 1] = r.wrapping_mul(2);
+        }
+    }
+    f
+}
+
+fn app() -> Box<StereoBoardApp> {
+    Box::new(StereoBoardApp::new(EdgeFsParams::default_config()))
+}
+
+/// Collects every frame sent through `tx` and decodes them as the autopilot would.
+fn decode_out(bytes: &[u8]) -> (Vec<StereoToAutopilot>, LinkErrorCounts) {
+    let mut dec = StereoToAutopilotDecoder::new();
+    let mut out = Vec::new();
+    dec.feed(bytes, |m| out.push(m));
+    (out, dec.errors())
+}
+
+fn enc<M: Message>(msg: &M) -> Vec<u8> {
+    let mut buf = vec![0u8; M::MAX_FRAME_BYTES];
+    let n = encode(msg, &mut buf).expect("fits");
+    buf.truncate(n);
+    buf
+}
+
+fn gyro(t: u32, yaw: f32) -> GyroAttitude {
+    GyroAttitude {
+        timestamp_us: t,
+        rates_radps: [0.01, -0.02, 0.3],
+        attitude_rad: [0.0, 0.05, yaw],
+    }
+}
+
+#[test]
+fn task_table_is_consistent() {
+    let mut names: Vec<_> = TASKS.iter().map(|t| t.name).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), TASKS.len(), "task names are unique");
+    for name in [TASK_FRAME, TASK_UART_RX, TASK_HOST_RX, TASK_STATUS] {
+        assert!(task(name).is_some(), "{name} declared");
+    }
+    let prio = |n| task(n).unwrap().priority;
+    assert!(
+        prio(TASK_UART_RX) > prio(TASK_FRAME),
+        "gyro keeps flowing during Edge-FS"
+    );
+    assert!(prio(TASK_FRAME) > prio(TASK_STATUS));
+    assert_eq!(
+        task(TASK_STATUS).unwrap().trigger,
+        Trigger::Periodic {
+            period_us: STATUS_PERIOD_US
+        }
+    );
+    assert!(TASKS.iter().all(|t| t.deadline_us > 0 && t.priority >= 1));
+}
+
+#[test]
+fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
+    let mut board = app();
+    let mut reference = Box::new(EdgeFs::new(EdgeFsParams::default_config()));
+    let mut wire = Vec::new();
+    let mut sent = Vec::new();
+    for i in 0..8u64 {
+        let f = frame(i as usize, 3);
+        let capture = (1u64 << 32) + 40_000 * i;
+        let expected = reference.process(&f, capture, None);
+        let est = board.on_frame(&f, capture, capture + 12_345, &mut |b| {
+            wire.extend_from_slice(b)
+        });
+        assert_eq!(est.seq, i as u16);
+        assert_eq!(
+            est.capture_us, capture as u32,
+            "wire carries the low 32 bits"
+        );
+        assert_eq!(est.forward_mps.to_bits(), expected.forward_mps.to_bits());
+        assert_eq!(est.sideways_mps.to_bits(), expected.sideways_mps.to_bits());
+        assert_eq!(est.obstacle_m, expected.obstacle_m);
+        assert_eq!(est.quality, expected.quality);
+        assert_eq!(est.flags, expected.flags);
+        assert!(
+            est.flags.contains(EstimateFlags::NO_GYRO),
+            "no gyro received yet"
+        );
+        assert_eq!(est.processing_us, 12_345);
+        sent.push(est);
+    }
+    let (msgs, errors) = decode_out(&wire);
+    assert_eq!(errors.total(), 0);
+    let decoded: Vec<_> = msgs
+        .into_iter()
+        .map(|m| match m {
+            StereoToAutopilot::Estimate(e) => e,
+            other => panic!("unexpected {other:?}"),
+        })
+        .collect();
+    assert_eq!(decoded, sent);
+    assert_eq!(board.counters().frames_processed, 8);
+}
+
+#[test]
+fn processing_time_saturates() {
+    let mut board = app();
+    let f = frame(0, 2);
+    let est = board.on_frame(&f, 0, 10_000_000, &mut |_| {});
+    assert_eq!(est.processing_us, u16::MAX);
+    let out = board.process_frame(&f, 100, 50);
+    let est = board.send_estimate(&out, 100, 50, &mut |_| {});
+    assert_eq!(
+        est.processing_us, 0,
+        "a clock going backwards saturates at 0"
+    );
+}
+
+#[test]
+fn gyro_from_the_link_is_used_for_derotation_until_stale() {
+    let mut board = app();
+    let mut reference = Box::new(EdgeFs::new(EdgeFsParams::default_config()));
+    let g = gyro(7, 0.4);
+    board.on_rx_bytes(
+        &enc(&AutopilotToStereo::GyroAttitude(g)),
+        1_000,
+        &mut |_| panic!("a gyro sample is not answered"),
+    );
+    assert_eq!(board.current_gyro(1_000 + GYRO_TIMEOUT_US), Some(&g));
+    assert_eq!(board.current_gyro(1_001 + GYRO_TIMEOUT_US), None);
+    assert_eq!(board.gyro_age_us(5_000), Some(4_000));
+    for i in 0..6u64 {
+        let f = frame(2 * i as usize, 4);
+        let now = 1_000 + 10_000 * i;
+        let expected = reference.process(&f, now, Some(&g));
+        let est = board.on_frame(&f, now, now, &mut |_| {});
+        assert_eq!(est.forward_mps.to_bits(), expected.forward_mps.to_bits());
+        assert_eq!(est.flags, expected.flags);
+        assert!(!est.flags.contains(EstimateFlags::NO_GYRO));
+    }
+    let est = board.on_frame(&frame(20, 4), 500_000, 500_000, &mut |_| {});
+    assert!(
+        est.flags.contains(EstimateFlags::NO_GYRO),
+        "stale sample not used"
+    );
+}
+
+#[test]
+fn non_finite_gyro_is_rejected_and_counted() {
+    let mut board = app();
+    let mut g = gyro(1, 0.0);
+    g.rates_radps[1] = f32::NAN;
+    board.on_rx_bytes(&enc(&AutopilotToStereo::GyroAttitude(g)), 10, &mut |_| {});
+    g.rates_radps[1] = 0.0;
+    g.attitude_rad[0] = f32::INFINITY;
+    board.on_rx_bytes(&enc(&AutopilotToStereo::GyroAttitude(g)), 10, &mut |_| {});
+    assert_eq!(board.current_gyro(10), None);
+    assert_eq!(board.counters().gyro_rejected, 2);
+}
+
+#[test]
+fn config_is_validated_applied_and_acknowledged() {
+    let mut board = app();
+    let good = EdgeFsConfig {
+        half_window: 5,
+        search_range: 10,
+        max_horizon: 3,
+        stereo_shift: -2,
+    };
+    let mut wire = Vec::new();
+    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(good)), 0, &mut |b| {
+        wire.extend_from_slice(b)
+    });
+    assert_eq!(board.params().to_config(), good);
+    assert_eq!(board.edge_fs().params().to_config(), good);
+
+    let bad = EdgeFsConfig {
+        half_window: 0,
+        ..good
+    };
+    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(bad)), 0, &mut |b| {
+        wire.extend_from_slice(b)
+    });
+    assert_eq!(
+        board.params().to_config(),
+        good,
+        "rejected config changes nothing"
+    );
+    let (msgs, errors) = decode_out(&wire);
+    assert_eq!(errors.total(), 0);
+    assert_eq!(
+        msgs,
+        vec![
+            StereoToAutopilot::ConfigAck(ConfigResult::Applied),
+            StereoToAutopilot::ConfigAck(ConfigResult::Rejected(ConfigError::HalfWindow)),
+        ]
+    );
+    assert_eq!(board.counters().config_applied, 1);
+    assert_eq!(board.counters().config_rejected, 1);
+}
+
+#[test]
+fn link_errors_are_counted_and_the_next_frame_still_decodes() {
+    let mut board = app();
+    let mut bytes = vec![0x13, 0x77, 0x42, 0x00, 0xff, 0x01, 0x00];
+    let mut corrupt = enc(&AutopilotToStereo::Heartbeat(Heartbeat::new(
+        Node::Autopilot,
+        5,
+    )));
+    corrupt[2] ^= 0x10;
+    bytes.extend_from_slice(&corrupt);
+    bytes.extend_from_slice(&enc(&AutopilotToStereo::Heartbeat(Heartbeat::new(
+        Node::Autopilot,
+        1234,
+    ))));
+    board.on_rx_bytes(&bytes, 0, &mut |_| {});
+    assert!(
+        board.link_errors().total() >= 3,
+        "{:?}",
+        board.link_errors()
+    );
+    assert_eq!(board.peer_uptime_ms(), Some(1234));
+    assert_eq!(board.link_frames_ok(), 1);
+}
+
+#[test]
+fn status_tick_reports_rate_counters_and_heartbeat() {
+    let mut board = app();
+    board.status_tick(0, &mut |_| {});
+    for i in 0..25u64 {
+        let t = 40_000 * i;
+        board.on_frame(&frame(i as usize, 2), t, t + 5_000 + i, &mut |_| {});
+    }
+    board.frame_dropped();
+    board.on_rx_bytes(&[1, 2, 3, 0], 0, &mut |_| {});
+    let mut wire = Vec::new();
+    let status = board.status_tick(1_000_000, &mut |b| wire.extend_from_slice(b));
+    assert!(
+        (status.frame_rate_hz - 25.0).abs() < 1e-4,
+        "{}",
+        status.frame_rate_hz
+    );
+    assert_eq!(status.frames_processed, 25);
+    assert_eq!(status.frames_dropped, 1);
+    assert_eq!(status.max_processing_us, 5_024);
+    assert_eq!(status.uptime_ms, 1_000);
+    assert_eq!(status.link_errors.total(), 1);
+    let (msgs, errors) = decode_out(&wire);
+    assert_eq!(errors.total(), 0);
+    assert_eq!(
+        msgs,
+        vec![
+            StereoToAutopilot::Status(status),
+            StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, 1_000)),
+        ]
+    );
+    let next = board.status_tick(2_000_000, &mut |_| {});
+    assert_eq!(next.frame_rate_hz, 0.0);
+    assert_eq!(
+        next.max_processing_us, 0,
+        "worst time restarts each interval"
+    );
+}
+
+fn chunks(f: &[u8; STEREO_FRAME_BYTES], frame_id: u16, capture_us: u32) -> Vec<FrameChunk> {
+    f.chunks(FRAME_CHUNK_BYTES)
+        .enumerate()
+        .map(|(i, data)| FrameChunk {
+            frame_id,
+            capture_us,
+            offset: (i * FRAME_CHUNK_BYTES) as u16,
+            data: heapless::Vec::from_slice(data).unwrap(),
+        })
+        .collect()
+}
+
+#[test]
+fn assembler_rebuilds_a_frame_from_chunks_in_any_order() {
+    let f = frame(5, 3);
+    let mut cs = chunks(&f, 9, 777);
+    assert_eq!(cs.len(), 48);
+    cs.reverse();
+    cs.swap(3, 30);
+    let mut asm = Box::new(FrameAssembler::new());
+    let last = cs.pop().unwrap();
+    for c in &cs {
+        assert_eq!(asm.push(c), None);
+    }
+    assert_eq!(
+        asm.push(&cs[0]),
+        None,
+        "a duplicate does not complete the frame"
+    );
+    assert_eq!(asm.push(&last), Some(777));
+    assert_eq!(&asm.frame()[..], &f[..]);
+    assert_eq!(asm.frames_complete(), 1);
+    assert_eq!(asm.frames_incomplete(), 0);
+}
+
+#[test]
+fn assembler_drops_incomplete_frames_and_rejects_bad_chunks() {
+    let a = frame(1, 1);
+    let b = frame(2, 1);
+    let mut asm = Box::new(FrameAssembler::new());
+    let ca = chunks(&a, 1, 100);
+    for c in ca.iter().take(47) {
+        assert_eq!(asm.push(c), None);
+    }
+    let mut done = None;
+    for c in chunks(&b, 2, 200) {
+        done = asm.push(&c).or(done);
+    }
+    assert_eq!(done, Some(200));
+    assert_eq!(&asm.frame()[..], &b[..]);
+    assert_eq!(asm.frames_incomplete(), 1);
+
+    let mut odd = ca[0].clone();
+    odd.offset = 3;
+    assert_eq!(asm.push(&odd), None);
+    let mut short = ca[1].clone();
+    short.data.truncate(100);
+    assert_eq!(asm.push(&short), None);
+    let mut beyond = ca[2].clone();
+    beyond.offset = STEREO_FRAME_BYTES as u16;
+    assert_eq!(asm.push(&beyond), None);
+    assert_eq!(asm.bad_chunks(), 3);
+}
+
+#[test]
+fn host_link_frames_reach_the_frame_task() {
+    let mut board = app();
+    let mut asm = Box::new(FrameAssembler::new());
+    let f0 = frame(3, 2);
+    let f1 = frame(4, 2);
+    let mut wire = Vec::new();
+    // Frame 0 near the end of the host's u32 clock, frame 1 after it wrapped.
+    for c in chunks(&f0, 0, u32::MAX - 10) {
+        wire.extend(enc(&HostToBoard::FrameChunk(c)));
+    }
+    wire.extend(enc(&HostToBoard::Heartbeat(Heartbeat::new(Node::Host, 1))));
+    for c in chunks(&f1, 1, 30) {
+        wire.extend(enc(&HostToBoard::FrameChunk(c)));
+    }
+    let mut got: Vec<(Box<[u8; STEREO_FRAME_BYTES]>, u64)> = Vec::new();
+    // Arbitrary split points, as DMA/IDLE delivers them.
+    for piece in wire.chunks(333) {
+        board.on_host_bytes(piece, &mut asm, |fr, t| got.push((Box::new(*fr), t)));
+    }
+    assert_eq!(got.len(), 2);
+    assert_eq!(&got[0].0[..], &f0[..]);
+    assert_eq!(&got[1].0[..], &f1[..]);
+    assert_eq!(got[0].1, u64::from(u32::MAX - 10));
+    assert_eq!(got[1].1, (1u64 << 32) + 30, "host clock unwrapped");
+    assert_eq!(board.host_link_errors().total(), 0);
+    assert_eq!(board.counters().frames_dropped, 0);
+}
+
+#[test]
+fn incomplete_host_frames_count_as_dropped() {
+    let mut board = app();
+    let mut asm = Box::new(FrameAssembler::new());
+    let mut wire = Vec::new();
+    for c in chunks(&frame(0, 0), 0, 0).into_iter().skip(1) {
+        wire.extend(enc(&HostToBoard::FrameChunk(c)));
+    }
+    for c in chunks(&frame(1, 0), 1, 40_000) {
+        wire.extend(enc(&HostToBoard::FrameChunk(c)));
+    }
+    let mut n = 0;
+    board.on_host_bytes(&wire, &mut asm, |_, _| n += 1);
+    assert_eq!(n, 1);
+    assert_eq!(board.counters().frames_dropped, 1);
+}
+
+#[test]
+fn clock_extender_unwraps() {
+    let mut c = ClockExtender::new();
+    assert_eq!(c.extend(5), 5);
+    assert_eq!(c.extend(u32::MAX), u64::from(u32::MAX));
+    assert_eq!(c.extend(3), (1 << 32) + 3);
+    assert_eq!(c.extend(1), (1 << 32) + 1, "small step back is not a wrap");
+}
+
+#[test]
+fn the_app_fits_a_ccm_static() {
+    // Placed in the 64 kB CCM next to nothing else large.
+    assert!(core::mem::size_of::<StereoBoardApp>() < 24 * 1024);
+    assert!(core::mem::size_of::<FrameAssembler>() < STEREO_FRAME_BYTES + 64);
+}
+
+mod prop {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        #[test]
+        fn arbitrary_link_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..600),
+                                            now in any::<u64>()) {
+            let mut board = app();
+            let mut asm = Box::new(FrameAssembler::new());
+            let mut out = Vec::new();
+            board.on_rx_bytes(&bytes, now, &mut |b| out.extend_from_slice(b));
+            board.on_host_bytes(&bytes, &mut asm, |_, _| {});
+            board.status_tick(now, &mut |b| out.extend_from_slice(b));
+            let (_, errors) = decode_out(&out);
+            prop_assert_eq!(errors.total(), 0);
+        }
+
+        #[test]
+        fn any_chunk_is_handled(frame_id in any::<u16>(), offset in any::<u16>(),
+                                len in 0usize..=FRAME_CHUNK_BYTES, capture in any::<u32>()) {
+            let mut asm = Box::new(FrameAssembler::new());
+            let chunk = FrameChunk {
+                frame_id, capture_us: capture, offset,
+                data: heapless::Vec::from_slice(&vec![7u8; len]).unwrap(),
+            };
+            prop_assert_eq!(asm.push(&chunk), None);
+        }
+
+        #[test]
+        fn any_config_request_is_answered(hw in any::<u8>(), sr in any::<u8>(), h in any::<u8>(),
+                                          shift in any::<i8>()) {
+            let mut board = app();
+            let cfg = EdgeFsConfig { half_window: hw, search_range: sr, max_horizon: h,
+                                     stereo_shift: shift };
+            let before = board.params().to_config();
+            let mut out = Vec::new();
+            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), 0,
+                              &mut |b| out.extend_from_slice(b));
+            let (msgs, _) = decode_out(&out);
+            prop_assert_eq!(msgs.len(), 1);
+            match cfg.validate() {
+                Ok(()) => prop_assert_eq!(board.params().to_config(), cfg),
+                Err(_) => prop_assert_eq!(board.params().to_config(), before),
+            }
+        }
+    }
+}
+
+#[test]
+fn autopilot_decoder_type_matches_the_link() {
+    // The firmware sizes its RX DMA buffer from this decoder type's frame size.
+    let _d: AutopilotToStereoDecoder = AutopilotToStereoDecoder::new();
+    assert_eq!(
+        core::mem::size_of::<[u8; AutopilotToStereo::MAX_FRAME_BYTES]>(),
+        A2S_N
+    );
+}
