@@ -1,10 +1,293 @@
-//! `sim-host fly`: closed-loop simulated flight (in progress).
+//! `sim-host fly`: closed-loop simulated flight of the pocket drone with both boards' task
+//! graphs in the loop (see [`crate::sim`]).
+//!
+//! One seed: prints a summary and writes `log.csv`, `trajectory.png`, `velocity.png`,
+//! `fsm.png` and `flight.gif` to `--out`. `--seeds N`: Monte Carlo over seeds `seed..seed+N`
+//! on all cores, one summary row per seed (and `montecarlo.csv` in `--out`).
+
+use crate::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm};
+use crate::sim::output;
+use crate::sim::uart::LinkFaults;
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+/// Avoidance FSM choice on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FsmArg {
+    /// The paper's FSM: check, forward, hover 1 s, turn 60 deg.
+    Paper,
+    /// Check and turn merged: keep turning until the way ahead is clear.
+    Improved,
+}
+
+/// Output format of the summary.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// Human-readable summary.
+    Table,
+    /// `seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m`.
+    Csv,
+}
 
 /// Command-line arguments of `sim-host fly`.
 #[derive(Debug, clap::Args)]
-pub struct FlyArgs {}
+pub struct FlyArgs {
+    /// Scene preset: room (the paper's 4 x 4 m room), room-obstacles, corridor.
+    #[arg(long, default_value = "room")]
+    pub scenario: String,
+    /// Simulated flight duration, s.
+    #[arg(long, default_value_t = 120.0)]
+    pub duration: f64,
+    /// Seed (textures, start heading, sensor noise, link faults).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Monte Carlo: fly seeds `seed..seed+N` in parallel on all cores (no plots or GIF).
+    #[arg(long)]
+    pub seeds: Option<u64>,
+    /// Avoidance FSM.
+    #[arg(long, value_enum, default_value_t = FsmArg::Paper)]
+    pub fsm: FsmArg,
+    /// Output directory.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Summary format.
+    #[arg(long, value_enum, default_value_t = Format::Table)]
+    pub format: Format,
+    /// Board-to-board UART baud rate, bit/s.
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    /// Bit error rate on both UART directions.
+    #[arg(long, default_value_t = 0.0)]
+    pub ber: f64,
+    /// Probability of losing a byte on both UART directions.
+    #[arg(long, default_value_t = 0.0)]
+    pub drop_rate: f64,
+    /// Link outage on both directions, `START_S:DURATION_S` (repeatable).
+    #[arg(long, value_parser = parse_outage)]
+    pub outage: Vec<(f64, f64)>,
+    /// Camera frame rate, Hz.
+    #[arg(long, default_value_t = 25.0)]
+    pub fps: f64,
+    /// Camera-board processing time per frame, ms.
+    #[arg(long, default_value_t = 15.0)]
+    pub processing_ms: f64,
+    /// Horizontal stereo misalignment of the rendered camera pair, px.
+    #[arg(long, default_value_t = 0.0)]
+    pub misalign_px: f32,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+fn parse_outage(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("expected START_S:DURATION_S, got {s:?}"))?;
+    let a: f64 = a.trim().parse().map_err(|e| format!("{e}"))?;
+    let b: f64 = b.trim().parse().map_err(|e| format!("{e}"))?;
+    if !(a >= 0.0 && b > 0.0) {
+        return Err(format!("outage start must be >= 0 and duration > 0: {s:?}"));
+    }
+    Ok((a, b))
+}
+
+impl FlyArgs {
+    /// The flight configuration these arguments describe, for `seed`.
+    pub fn config(&self, seed: u64) -> FlightConfig {
+        let faults = LinkFaults {
+            bit_error_rate: self.ber,
+            drop_rate: self.drop_rate,
+            outages: self
+                .outage
+                .iter()
+                .map(|&(a, d)| ((a * 1e6) as u64, ((a + d) * 1e6) as u64))
+                .collect(),
+        };
+        let mut cfg = FlightConfig {
+            scenario: self.scenario.clone(),
+            duration_s: self.duration,
+            seed,
+            fsm: match self.fsm {
+                FsmArg::Paper => Fsm::Paper,
+                FsmArg::Improved => Fsm::Improved,
+            },
+            baud: self.baud,
+            faults_s2a: faults.clone(),
+            faults_a2s: faults,
+            processing_us: (self.processing_ms * 1e3) as u64,
+            ..FlightConfig::default()
+        };
+        cfg.camera.fps = self.fps;
+        cfg.camera.misalign_px = self.misalign_px;
+        cfg
+    }
+}
+
+/// CSV header of the summary (`--format csv`).
+pub const CSV_HEADER: &str =
+    "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m";
+
+/// One CSV summary row.
+pub fn csv_row(r: &FlightResult) -> String {
+    format!(
+        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2}",
+        r.seed,
+        r.duration_s,
+        r.flight_time_s,
+        r.collisions,
+        r.vel_rmse_mps,
+        r.min_clearance_m,
+        r.distance_m
+    )
+}
+
+fn bar(len: u64, quiet: bool, unit: &str) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{elapsed_precise}} [{{bar:40}}] {{pos}}/{{len}} {unit} ({{eta}})"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    pb
+}
 
 /// Runs `sim-host fly`.
-pub fn run(_args: &FlyArgs) -> anyhow::Result<()> {
-    anyhow::bail!("sim-host fly is not implemented yet")
+pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.duration > 0.0 && args.duration.is_finite(),
+        "--duration must be positive"
+    );
+    anyhow::ensure!(
+        args.fps > 0.0 && args.fps <= 200.0,
+        "--fps must be in (0, 200]"
+    );
+    anyhow::ensure!(
+        crate::sim::scene::PRESETS.contains(&args.scenario.as_str()),
+        "unknown --scenario {:?} (one of {:?})",
+        args.scenario,
+        crate::sim::scene::PRESETS
+    );
+    std::fs::create_dir_all(&args.out)?;
+    let wall = Instant::now();
+    match args.seeds {
+        None | Some(1) => {
+            let mut cfg = args.config(args.seed);
+            cfg.keep_image_every = (cfg.camera.fps / 5.0).round().max(1.0) as u32;
+            let pb = bar(
+                args.duration.ceil() as u64,
+                args.quiet || args.format == Format::Csv,
+                "s",
+            );
+            let r = run_flight(&cfg, &mut |t| pb.set_position(t as u64))?;
+            pb.finish_and_clear();
+            let secs = wall.elapsed().as_secs_f64();
+            output::write_log_csv(&r, &args.out.join("log.csv"))?;
+            output::plot_trajectory(&r, &args.out.join("trajectory.png"))?;
+            output::plot_velocity(&r, &args.out.join("velocity.png"))?;
+            output::plot_fsm(&r, &args.out.join("fsm.png"))?;
+            output::write_gif(&r, &args.out.join("flight.gif"))?;
+            match args.format {
+                Format::Csv => {
+                    println!("{CSV_HEADER}");
+                    println!("{}", csv_row(&r));
+                }
+                Format::Table => {
+                    println!(
+                        "scenario        {}  (seed {}, fsm {:?})",
+                        args.scenario, r.seed, args.fsm
+                    );
+                    println!(
+                        "duration        {:.1} s simulated in {:.1} s ({:.1}x real time)",
+                        r.duration_s,
+                        secs,
+                        r.duration_s / secs
+                    );
+                    println!(
+                        "flight time     {:.1} s (until the first collision)",
+                        r.flight_time_s
+                    );
+                    println!("collisions      {}", r.collisions);
+                    println!(
+                        "vel RMSE        {:.3} m/s (valid raw Edge-FS estimates vs truth)",
+                        r.vel_rmse_mps
+                    );
+                    println!(
+                        "min clearance   {:.3} m (to the drone's rotor tips)",
+                        r.min_clearance_m
+                    );
+                    println!("distance flown  {:.1} m", r.distance_m);
+                    println!(
+                        "estimates       {} received, {} valid; {} frames dropped",
+                        r.estimates[0], r.estimates[1], r.frames_dropped
+                    );
+                    println!(
+                        "link            cam->ap {:?}\n                ap->cam {:?}",
+                        r.uart[0], r.uart[1]
+                    );
+                    println!("wrote           {}/{{log.csv,trajectory.png,velocity.png,fsm.png,flight.gif}}", args.out.display());
+                }
+            }
+        }
+        Some(n) => {
+            anyhow::ensure!(n > 0, "--seeds must be at least 1");
+            let pb = bar(n, args.quiet || args.format == Format::Csv, "flights");
+            let done = AtomicU64::new(0);
+            let mut results: Vec<FlightResult> = (args.seed..args.seed + n)
+                .into_par_iter()
+                .map(|seed| {
+                    let r = run_flight(&args.config(seed), &mut |_| {});
+                    pb.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
+                    r.map(|mut r| {
+                        r.log = Vec::new();
+                        r
+                    })
+                })
+                .collect::<anyhow::Result<_>>()?;
+            pb.finish_and_clear();
+            results.sort_by_key(|r| r.seed);
+            let mut csv = format!("{CSV_HEADER}\n");
+            for r in &results {
+                csv.push_str(&csv_row(r));
+                csv.push('\n');
+            }
+            std::fs::write(args.out.join("montecarlo.csv"), &csv)?;
+            match args.format {
+                Format::Csv => print!("{csv}"),
+                Format::Table => {
+                    println!(
+                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9}",
+                        "seed", "duration", "flight", "coll", "rmse", "min_clr", "dist"
+                    );
+                    for r in &results {
+                        println!(
+                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1}",
+                            r.seed,
+                            r.duration_s,
+                            r.flight_time_s,
+                            r.collisions,
+                            r.vel_rmse_mps,
+                            r.min_clearance_m,
+                            r.distance_m
+                        );
+                    }
+                    let ok = results.iter().filter(|r| r.collisions == 0).count();
+                    let mean_ft = results.iter().map(|r| r.flight_time_s).sum::<f64>() / n as f64;
+                    let sim_s: f64 = results.iter().map(|r| r.duration_s).sum();
+                    println!(
+                        "{ok}/{n} flights without collision; mean flight time {mean_ft:.1} s; {:.1} s simulated in {:.1} s wall",
+                        sim_s,
+                        wall.elapsed().as_secs_f64()
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
 }

@@ -8,10 +8,13 @@
 //! * [`uart`]: the simulated UART with fault injection.
 //! * [`sched`]: the virtual-clock scheduler over the boards' task tables.
 
+pub mod boards;
 pub mod camera;
 pub mod dynamics;
+pub mod flight;
 pub mod imu;
 pub mod math;
+pub mod output;
 pub mod scene;
 pub mod sched;
 pub mod uart;

@@ -1,0 +1,502 @@
+//! One closed-loop flight: world, IMU, camera, the two boards' task graphs on a virtual clock,
+//! and the two UART directions between them. Deterministic: the same [`FlightConfig`] gives the
+//! same [`FlightResult`], bit for bit.
+
+use super::boards::{autopilot_tasks, camera_tasks, send, CameraBoard};
+use super::camera::{CameraParams, StereoCamera};
+use super::dynamics::{Drone, DroneParams};
+use super::imu::{gauss, Imu, ImuParams};
+use super::scene::Scene;
+use super::sched::{Board, Release, Scheduler};
+use super::uart::{LinkFaults, SimUart, UartStats};
+use autopilot::app::{Autopilot, AutopilotConfig};
+use autopilot::fsm::FsmVariant;
+use protocol::{
+    AutopilotToStereo, Decoder, ExternalPosition, Heartbeat, ImuSample, Message, Node,
+    PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::collections::VecDeque;
+use stereo_board::edge_fs::EdgeFsParams;
+
+/// Which avoidance logic the autopilot flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fsm {
+    /// The paper's: check, forward, hover 1 s, turn 60 deg.
+    Paper,
+    /// Check and turn merged: turn until a clear path is seen.
+    Improved,
+}
+
+/// Everything that defines a flight.
+#[derive(Debug, Clone)]
+pub struct FlightConfig {
+    /// Scene preset name (see [`super::scene::PRESETS`]).
+    pub scenario: String,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// Seed of every random process (textures, start heading, sensor noise, link faults).
+    pub seed: u64,
+    /// Avoidance FSM variant.
+    pub fsm: Fsm,
+    /// UART baud rate between the boards, bit/s.
+    pub baud: u32,
+    /// Faults on the camera-board -> autopilot direction.
+    pub faults_s2a: LinkFaults,
+    /// Faults on the autopilot -> camera-board direction.
+    pub faults_a2s: LinkFaults,
+    /// Camera.
+    pub camera: CameraParams,
+    /// Drone.
+    pub drone: DroneParams,
+    /// IMU.
+    pub imu: ImuParams,
+    /// Camera readout time after exposure, µs.
+    pub readout_us: u64,
+    /// Camera-board processing time per frame (Edge-FS on the Cortex-M4), µs: the estimate
+    /// leaves this long after the frame is read out; frames arriving while busy are dropped.
+    pub processing_us: u64,
+    /// Physics step, µs (RK4).
+    pub physics_dt_us: u64,
+    /// Height measurement (motion capture) rate, Hz, and noise, m.
+    pub height_rate_hz: f64,
+    /// Height measurement noise (standard deviation), m.
+    pub height_noise_m: f64,
+    /// Arm (take off) at this time, s.
+    pub arm_at_s: f64,
+    /// Keep one left camera image every this many frames for the GIF (0: none).
+    pub keep_image_every: u32,
+    /// Stop at the first collision.
+    pub stop_on_collision: bool,
+    /// Autopilot configuration (its FSM variant is set from [`FlightConfig::fsm`]).
+    pub autopilot: AutopilotConfig,
+    /// Edge-FS parameters of the camera board.
+    pub edge_fs: EdgeFsParams,
+}
+
+impl Default for FlightConfig {
+    fn default() -> Self {
+        Self {
+            scenario: "room".into(),
+            duration_s: 120.0,
+            seed: 1,
+            fsm: Fsm::Paper,
+            baud: 115_200,
+            faults_s2a: LinkFaults::default(),
+            faults_a2s: LinkFaults::default(),
+            camera: CameraParams::default(),
+            drone: DroneParams::pocket_drone(),
+            imu: ImuParams::default(),
+            readout_us: 8_000,
+            processing_us: 15_000,
+            physics_dt_us: 500,
+            height_rate_hz: 100.0,
+            height_noise_m: 0.003,
+            arm_at_s: 0.5,
+            keep_image_every: 0,
+            stop_on_collision: false,
+            autopilot: AutopilotConfig::default(),
+            edge_fs: EdgeFsParams::default_config(),
+        }
+    }
+}
+
+/// One log row (50 Hz).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogRow {
+    /// Time, s.
+    pub t_s: f64,
+    /// True position (x north, y east), m, and height, m.
+    pub pos: [f32; 3],
+    /// True yaw, rad.
+    pub yaw: f32,
+    /// True velocity in the body's heading frame: forward, sideways, m/s.
+    pub vel_true: [f32; 2],
+    /// Autopilot's filtered velocity (median-5): forward, sideways, m/s (NaN: none yet).
+    pub vel_est: [f32; 2],
+    /// Velocity setpoint: forward, sideways, m/s.
+    pub vel_sp: [f32; 2],
+    /// Latest raw Edge-FS estimate received: forward, sideways, m/s (NaN: invalid).
+    pub vel_raw: [f32; 2],
+    /// Obstacle distance the autopilot holds, m (NaN: none).
+    pub obstacle_m: f32,
+    /// Clearance to the nearest wall/obstacle minus the drone radius, m.
+    pub clearance_m: f32,
+    /// FSM state (autopilot numbering; 255: not active).
+    pub fsm_state: u8,
+    /// Failsafe / flight mode (autopilot numbering).
+    pub mode: u8,
+    /// Motor throttles.
+    pub motors: [f32; 4],
+}
+
+/// Outcome of a flight.
+#[derive(Debug, Clone)]
+pub struct FlightResult {
+    /// Seed.
+    pub seed: u64,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// Time until the first collision, or the full duration, s.
+    pub flight_time_s: f64,
+    /// Number of collisions (contacts entered).
+    pub collisions: u32,
+    /// RMS error of the valid raw Edge-FS velocity estimates (forward and sideways together)
+    /// against the true velocity at their capture time, while airborne, m/s.
+    pub vel_rmse_mps: f64,
+    /// Smallest clearance minus drone radius while airborne, m.
+    pub min_clearance_m: f64,
+    /// Horizontal distance flown, m.
+    pub distance_m: f64,
+    /// 50 Hz log.
+    pub log: Vec<LogRow>,
+    /// Kept left camera images `(t_s, 128x96 gray)`.
+    pub images: Vec<(f64, Vec<u8>)>,
+    /// Link statistics camera -> autopilot and autopilot -> camera.
+    pub uart: [UartStats; 2],
+    /// Estimates received / valid by the autopilot.
+    pub estimates: [u64; 2],
+    /// Frames dropped by the camera board.
+    pub frames_dropped: u32,
+    /// The scene flown in.
+    pub scene: Scene,
+}
+
+/// A frame waiting for the camera board.
+struct PendingFrame {
+    ready_us: u64,
+    capture_us: u64,
+    frame: Box<[u8; STEREO_FRAME_BYTES]>,
+}
+
+/// Runs one flight. `progress` is called with the simulated time (s) about once per simulated
+/// second.
+pub fn run_flight(
+    cfg: &FlightConfig,
+    progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<FlightResult> {
+    let scene = Scene::preset(&cfg.scenario, cfg.seed)
+        .ok_or_else(|| anyhow::anyhow!("unknown scenario {:?}", cfg.scenario))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let mut cam_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xca3ea);
+    // Start heading varies with the seed.
+    let yaw0 =
+        scene.start[2] as f64 + (cfg.seed as f64 * 2.399_963).rem_euclid(std::f64::consts::TAU);
+    let mut drone = Drone::on_floor(
+        cfg.drone.clone(),
+        scene.start[0] as f64,
+        scene.start[1] as f64,
+        yaw0,
+    );
+    let mut imu = Imu::new(cfg.imu.clone(), &mut rng);
+    let mut camera = StereoCamera::new(cfg.camera.clone());
+    let mut ap_cfg = cfg.autopilot;
+    ap_cfg.fsm.variant = match cfg.fsm {
+        Fsm::Paper => FsmVariant::Paper,
+        Fsm::Improved => FsmVariant::TurnUntilClear,
+    };
+    let mut ap = Autopilot::new(ap_cfg);
+    let mut cb = CameraBoard::new(cfg.edge_fs);
+    let mut s2a = SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a);
+    let mut a2s = SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25);
+    let mut ap_rx: Decoder<StereoToAutopilot, { StereoToAutopilot::MAX_FRAME_BYTES }> =
+        Decoder::new();
+
+    let mut tasks = autopilot_tasks();
+    tasks.extend(camera_tasks());
+    let mut sched = Scheduler::new(tasks);
+
+    let end_us = (cfg.duration_s * 1e6) as u64;
+    let frame_period_us = (1e6 / cfg.camera.fps) as u64;
+    let height_period_us = (1e6 / cfg.height_rate_hz) as u64;
+    let arm_us = (cfg.arm_at_s * 1e6) as u64;
+    let mut next_capture = 100_000u64;
+    let mut next_height = 0u64;
+    let mut armed = false;
+    let mut motors = [0.0f64; 4];
+    let mut pending: Option<PendingFrame> = None;
+    let mut busy_until = 0u64;
+    let mut outbox: VecDeque<(u64, Vec<u8>)> = VecDeque::new();
+    let mut truth_at_capture: VecDeque<(u32, [f32; 2])> = VecDeque::new();
+    let mut releases: Vec<Release> = Vec::new();
+    let mut rxbuf: Vec<u8> = Vec::new();
+    let mut last_raw = [f32::NAN; 2];
+
+    let mut log = Vec::new();
+    let mut images = Vec::new();
+    let mut frames = 0u32;
+    let mut collisions = 0u32;
+    let mut in_contact = false;
+    let mut first_collision: Option<f64> = None;
+    let mut err2 = 0.0f64;
+    let mut n_err = 0u64;
+    let mut estimates = [0u64; 2];
+    let mut min_clear = f64::INFINITY;
+    let mut distance = 0.0f64;
+    let mut next_progress = 1_000_000u64;
+
+    let mut t = 0u64;
+    while t < end_us {
+        // Next event.
+        let mut next = end_us.min(t + cfg.physics_dt_us);
+        next = next.min(next_capture).min(next_height);
+        if let Some(r) = sched.next_release_us() {
+            next = next.min(r);
+        }
+        if let Some(p) = &pending {
+            next = next.min(p.ready_us);
+        }
+        if let Some((r, _)) = outbox.front() {
+            next = next.min(*r);
+        }
+        if !armed {
+            next = next.min(arm_us);
+        }
+        let next = next.max(t);
+        // Physics up to the event.
+        if next > t {
+            let dt = (next - t) as f64 * 1e-6;
+            let before = drone.state.pos;
+            drone.step(&motors, dt);
+            imu.track(&drone, dt);
+            let after = drone.state.pos;
+            // Collisions with walls and obstacles (horizontal, the drone's radius).
+            let h = -after.z as f32;
+            let c = scene.clearance(after.x as f32, after.y as f32, h) as f64 - cfg.drone.radius_m;
+            if h > 0.02 {
+                let dxy = ((after.x - before.x).powi(2) + (after.y - before.y).powi(2)).sqrt();
+                distance += dxy;
+                min_clear = min_clear.min(c);
+            }
+            if c < 0.0 {
+                if !in_contact {
+                    collisions += 1;
+                    first_collision.get_or_insert(next as f64 * 1e-6);
+                }
+                in_contact = true;
+                // Push out to contact and remove the velocity into the surface.
+                let n = scene.push_out_dir(after.x as f32, after.y as f32, h);
+                let (nx, ny) = (n[0] as f64, n[1] as f64);
+                drone.state.pos.x -= nx * c;
+                drone.state.pos.y -= ny * c;
+                let vn = drone.state.vel.x * nx + drone.state.vel.y * ny;
+                if vn < 0.0 {
+                    drone.state.vel.x -= vn * nx;
+                    drone.state.vel.y -= vn * ny;
+                }
+            } else if c > 0.01 {
+                in_contact = false;
+            }
+        }
+        t = next;
+        if cfg.stop_on_collision && first_collision.is_some() {
+            break;
+        }
+        if t >= next_progress {
+            progress(t as f64 * 1e-6);
+            next_progress += 1_000_000;
+        }
+
+        // UART arrivals: both directions (the RX idle-line tasks).
+        rxbuf.clear();
+        s2a.receive(t, &mut rxbuf);
+        if !rxbuf.is_empty() {
+            ap_rx.feed(&rxbuf, |m| {
+                if let StereoToAutopilot::Estimate(e) = m {
+                    estimates[0] += 1;
+                    ap.on_estimate(&e, t);
+                    last_raw = [f32::NAN; 2];
+                    if e.is_valid() {
+                        estimates[1] += 1;
+                        last_raw = [e.forward_mps, e.sideways_mps];
+                        if let Some(&(_, v)) =
+                            truth_at_capture.iter().find(|(c, _)| *c == e.capture_us)
+                        {
+                            if -drone.state.pos.z > 0.3 {
+                                err2 += ((e.forward_mps - v[0]) as f64).powi(2)
+                                    + ((e.sideways_mps - v[1]) as f64).powi(2);
+                                n_err += 2;
+                            }
+                        }
+                    }
+                }
+            });
+        }
+        rxbuf.clear();
+        a2s.receive(t, &mut rxbuf);
+        if !rxbuf.is_empty() {
+            cb.on_rx_bytes(&rxbuf, t);
+        }
+
+        // Camera board output leaves after the processing delay.
+        while outbox.front().is_some_and(|(r, _)| *r <= t) {
+            if let Some((_, bytes)) = outbox.pop_front() {
+                s2a.write(t, &bytes);
+            }
+        }
+        // A read-out frame reaches the camera board.
+        if pending.as_ref().is_some_and(|p| p.ready_us <= t) {
+            if let Some(p) = pending.take() {
+                let done = t + cfg.processing_us;
+                let mut bytes = Vec::new();
+                cb.on_frame(&p.frame, p.capture_us, done, &mut |b: &[u8]| {
+                    bytes.extend_from_slice(b)
+                });
+                busy_until = done;
+                outbox.push_back((done, bytes));
+            }
+        }
+        // Exposure.
+        if t >= next_capture {
+            next_capture += frame_period_us;
+            let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+            camera.render(
+                &scene,
+                drone.state.pos,
+                drone.state.att,
+                &mut cam_rng,
+                &mut frame,
+            );
+            let vb = drone.state.att.rotate_inv(drone.state.vel);
+            truth_at_capture.push_back((t as u32, [vb.x as f32, vb.y as f32]));
+            if truth_at_capture.len() > 32 {
+                truth_at_capture.pop_front();
+            }
+            frames += 1;
+            if cfg.keep_image_every > 0 && frames.is_multiple_of(cfg.keep_image_every) {
+                images.push((t as f64 * 1e-6, frame.iter().step_by(2).copied().collect()));
+            }
+            let ready = t + cfg.readout_us;
+            if pending.is_some() || busy_until > ready {
+                cb.frame_dropped();
+            } else {
+                pending = Some(PendingFrame {
+                    ready_us: ready,
+                    capture_us: t,
+                    frame,
+                });
+            }
+        }
+        // Height fix (motion capture) to the autopilot's host link.
+        if t >= next_height {
+            next_height += height_period_us;
+            let p = drone.state.pos;
+            let z = p.z + gauss(&mut rng) * cfg.height_noise_m;
+            ap.on_external_position(
+                &ExternalPosition {
+                    timestamp_us: t as u32,
+                    position_m: [p.x as f32, p.y as f32, z as f32],
+                },
+                t,
+            );
+        }
+        if !armed && t >= arm_us {
+            armed = true;
+            ap.on_command(PilotCommand::Arm, t);
+        }
+        // Periodic tasks of both boards.
+        releases.clear();
+        sched.due(t, &mut releases);
+        for r in &releases {
+            match (r.board, r.name) {
+                (Board::Autopilot, "imu_indi") => {
+                    let s = imu.sample(&mut rng);
+                    let out = ap.on_imu(
+                        &ImuSample {
+                            timestamp_us: t as u32,
+                            gyro_radps: s.gyro.to_f32(),
+                            accel_mps2: s.accel.to_f32(),
+                        },
+                        t,
+                    );
+                    motors = out.map(|m| m as f64);
+                }
+                (Board::Autopilot, "guidance") => {
+                    ap.guidance_step(t);
+                    if let Some(off) = ap.motor_safety(t) {
+                        motors = off.map(|m| m as f64);
+                    }
+                    log.push(log_row(&ap, &drone, &scene, t, last_raw, motors));
+                }
+                (Board::Autopilot, "gyro_tx") => {
+                    let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(t));
+                    send(&msg, &mut |b: &[u8]| a2s.write(t, b));
+                }
+                (Board::Autopilot, "heartbeat") => {
+                    let msg = AutopilotToStereo::Heartbeat(Heartbeat::new(
+                        Node::Autopilot,
+                        (t / 1000) as u32,
+                    ));
+                    send(&msg, &mut |b: &[u8]| a2s.write(t, b));
+                }
+                (Board::Stereo, "status") => {
+                    cb.status_tick(t, &mut |b: &[u8]| s2a.write(t, b));
+                }
+                _ => {}
+            }
+        }
+    }
+    let rmse = if n_err > 0 {
+        (err2 / n_err as f64).sqrt()
+    } else {
+        f64::NAN
+    };
+    Ok(FlightResult {
+        seed: cfg.seed,
+        duration_s: cfg.duration_s,
+        flight_time_s: first_collision.unwrap_or(cfg.duration_s),
+        collisions,
+        vel_rmse_mps: rmse,
+        min_clearance_m: if min_clear.is_finite() {
+            min_clear
+        } else {
+            f64::NAN
+        },
+        distance_m: distance,
+        log,
+        images,
+        uart: [s2a.stats(), a2s.stats()],
+        estimates,
+        frames_dropped: cb.frames_dropped(),
+        scene,
+    })
+}
+
+fn nan_opt(v: Option<f32>) -> f32 {
+    v.unwrap_or(f32::NAN)
+}
+
+fn log_row(
+    ap: &Autopilot,
+    drone: &Drone,
+    scene: &Scene,
+    t: u64,
+    raw: [f32; 2],
+    motors: [f64; 4],
+) -> LogRow {
+    let s = &drone.state;
+    let (_, _, yaw) = s.att.to_euler();
+    let (sy, cy) = yaw.sin_cos();
+    // Velocity in the heading frame (level body axes).
+    let vf = s.vel.x * cy + s.vel.y * sy;
+    let vs = -s.vel.x * sy + s.vel.y * cy;
+    let tel = ap.telemetry(t);
+    let v = ap.velocity();
+    let h = -s.pos.z as f32;
+    LogRow {
+        t_s: t as f64 * 1e-6,
+        pos: [s.pos.x as f32, s.pos.y as f32, h],
+        yaw: yaw as f32,
+        vel_true: [vf as f32, vs as f32],
+        vel_est: [nan_opt(v.map(|v| v[0])), nan_opt(v.map(|v| v[1]))],
+        vel_sp: tel.velocity_setpoint_mps,
+        vel_raw: raw,
+        obstacle_m: nan_opt(tel.obstacle_m),
+        clearance_m: scene.clearance(s.pos.x as f32, s.pos.y as f32, h)
+            - drone.params.radius_m as f32,
+        fsm_state: tel.fsm_state,
+        mode: tel.failsafe,
+        motors: motors.map(|m| m as f32),
+    }
+}

@@ -1,0 +1,378 @@
+//! Flight artefacts: CSV log, PNG plots (plotters, bitmap backend, no text: the build has no
+//! font support, so axes are drawn as 1 m / 1 s grids) and an animated GIF (top-down view beside
+//! the left camera image).
+
+use super::camera::{HEIGHT, WIDTH};
+use super::flight::FlightResult;
+use super::scene::{Obstacle, Scene};
+use plotters::prelude::*;
+use std::io::Write;
+use std::path::Path;
+
+/// Writes the 50 Hz log as CSV.
+pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(
+        f,
+        "t_s,x_m,y_m,height_m,yaw_rad,vf_true_mps,vs_true_mps,vf_est_mps,vs_est_mps,\
+         vf_sp_mps,vs_sp_mps,vf_raw_mps,vs_raw_mps,obstacle_m,clearance_m,fsm_state,mode,\
+         m1,m2,m3,m4"
+    )?;
+    for l in &r.log {
+        writeln!(
+            f,
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.4},{:.4},{:.3},{:.4},{},{},{:.4},{:.4},{:.4},{:.4}",
+            l.t_s,
+            l.pos[0],
+            l.pos[1],
+            l.pos[2],
+            l.yaw,
+            l.vel_true[0],
+            l.vel_true[1],
+            l.vel_est[0],
+            l.vel_est[1],
+            l.vel_sp[0],
+            l.vel_sp[1],
+            l.vel_raw[0],
+            l.vel_raw[1],
+            l.obstacle_m,
+            l.clearance_m,
+            l.fsm_state,
+            l.mode,
+            l.motors[0],
+            l.motors[1],
+            l.motors[2],
+            l.motors[3]
+        )?;
+    }
+    Ok(())
+}
+
+fn grid<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    x: (f64, f64, f64),
+    y: (f64, f64, f64),
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let style = RGBColor(225, 225, 225);
+    let mut v = (x.0 / x.2).ceil() * x.2;
+    while v <= x.1 {
+        chart
+            .draw_series(LineSeries::new([(v, y.0), (v, y.1)], style))
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        v += x.2;
+    }
+    let mut v = (y.0 / y.2).ceil() * y.2;
+    while v <= y.1 {
+        let c = if v.abs() < 1e-9 {
+            RGBColor(120, 120, 120)
+        } else {
+            style
+        };
+        chart
+            .draw_series(LineSeries::new([(x.0, v), (x.1, v)], c))
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        v += y.2;
+    }
+    Ok(())
+}
+
+/// Top-down trajectory with the room and obstacles (x north up, y east right; 1 m grid);
+/// collisions in red, start in green.
+pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
+    let s = &r.scene;
+    let px_per_m = 600.0 / s.size_x.max(s.size_y) as f64;
+    let w = (s.size_y as f64 * px_per_m) as u32 + 40;
+    let h = (s.size_x as f64 * px_per_m) as u32 + 40;
+    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("{e:?}");
+    root.fill(&WHITE).map_err(e)?;
+    let root = root.margin(20, 20, 20, 20);
+    // Plot coordinates: horizontal = east (y), vertical = north (x).
+    let mut chart = ChartBuilder::on(&root)
+        .build_cartesian_2d(0.0..s.size_y as f64, 0.0..s.size_x as f64)
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    grid(
+        &mut chart,
+        (0.0, s.size_y as f64, 1.0),
+        (0.0, s.size_x as f64, 1.0),
+    )?;
+    let wall = ShapeStyle::from(&BLACK).stroke_width(3);
+    let (sx, sy) = (s.size_x as f64, s.size_y as f64);
+    chart
+        .draw_series(LineSeries::new(
+            [(0.0, 0.0), (sy, 0.0), (sy, sx), (0.0, sx), (0.0, 0.0)],
+            wall,
+        ))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    for ob in &s.obstacles {
+        match ob {
+            Obstacle::Cylinder { x, y, radius, .. } => {
+                let pts: Vec<(f64, f64)> = (0..=36)
+                    .map(|k| {
+                        let a = k as f64 * std::f64::consts::TAU / 36.0;
+                        (
+                            *y as f64 + *radius as f64 * a.sin(),
+                            *x as f64 + *radius as f64 * a.cos(),
+                        )
+                    })
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(pts, wall))
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            }
+            Obstacle::Panel { a, b, .. } => {
+                chart
+                    .draw_series(LineSeries::new(
+                        [(a[1] as f64, a[0] as f64), (b[1] as f64, b[0] as f64)],
+                        wall,
+                    ))
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            }
+        }
+    }
+    let airborne: Vec<(f64, f64)> = r
+        .log
+        .iter()
+        .filter(|l| l.pos[2] > 0.05)
+        .map(|l| (l.pos[1] as f64, l.pos[0] as f64))
+        .collect();
+    chart
+        .draw_series(LineSeries::new(
+            airborne,
+            ShapeStyle::from(&BLUE).stroke_width(2),
+        ))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    if let Some(l) = r.log.first() {
+        chart
+            .draw_series([Circle::new(
+                (l.pos[1] as f64, l.pos[0] as f64),
+                6,
+                GREEN.filled(),
+            )])
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    }
+    let hits = r
+        .log
+        .iter()
+        .filter(|l| l.clearance_m <= 0.0 && l.pos[2] > 0.05)
+        .map(|l| Circle::new((l.pos[1] as f64, l.pos[0] as f64), 4, RED.filled()));
+    chart
+        .draw_series(hits)
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    root.present().map_err(e)?;
+    Ok(())
+}
+
+/// Estimated (median-filtered: solid, raw Edge-FS: dots) vs true (black) velocity over time,
+/// forward on top, sideways below; grid 1 s x 0.1 m/s.
+pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
+    let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
+    let w = (t_end * 20.0).clamp(800.0, 6000.0) as u32;
+    let root = BitMapBackend::new(path, (w, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let areas = root.split_evenly((2, 1));
+    for (axis, area) in areas.iter().enumerate() {
+        let area = area.margin(10, 10, 10, 10);
+        let mut chart = ChartBuilder::on(&area)
+            .build_cartesian_2d(0.0..t_end, -0.6..0.6)
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        grid(&mut chart, (0.0, t_end, 10.0), (-0.6, 0.6, 0.1))?;
+        let series = |f: &dyn Fn(&super::flight::LogRow) -> f32| -> Vec<(f64, f64)> {
+            r.log
+                .iter()
+                .filter(|l| f(l).is_finite())
+                .map(|l| (l.t_s, (f(l) as f64).clamp(-0.6, 0.6)))
+                .collect()
+        };
+        chart
+            .draw_series(
+                series(&|l| l.vel_raw[axis])
+                    .into_iter()
+                    .map(|p| Circle::new(p, 1, RGBColor(255, 160, 0).filled())),
+            )
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        chart
+            .draw_series(LineSeries::new(series(&|l| l.vel_sp[axis]), GREEN))
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        chart
+            .draw_series(LineSeries::new(series(&|l| l.vel_est[axis]), BLUE))
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        chart
+            .draw_series(LineSeries::new(series(&|l| l.vel_true[axis]), BLACK))
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    }
+    root.present().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    Ok(())
+}
+
+/// FSM state (0 check .. 3 turn; -1 inactive) over time in blue, flight mode in red (scaled
+/// 0..5), obstacle distance in gray (m) and clearance in black (m); grid 10 s x 1.
+pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
+    let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
+    let w = (t_end * 20.0).clamp(800.0, 6000.0) as u32;
+    let root = BitMapBackend::new(path, (w, 400)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let area = root.margin(10, 10, 10, 10);
+    let mut chart = ChartBuilder::on(&area)
+        .build_cartesian_2d(0.0..t_end, -1.5..5.5)
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    grid(&mut chart, (0.0, t_end, 10.0), (-1.0, 5.0, 1.0))?;
+    let pts = |f: &dyn Fn(&super::flight::LogRow) -> f64| -> Vec<(f64, f64)> {
+        r.log
+            .iter()
+            .map(|l| (l.t_s, f(l)))
+            .filter(|p| p.1.is_finite())
+            .collect()
+    };
+    chart
+        .draw_series(LineSeries::new(
+            pts(&|l| (l.obstacle_m as f64).min(5.0)),
+            RGBColor(160, 160, 160),
+        ))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    chart
+        .draw_series(LineSeries::new(pts(&|l| l.clearance_m as f64), BLACK))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    chart
+        .draw_series(LineSeries::new(pts(&|l| l.mode as f64), RED))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    chart
+        .draw_series(LineSeries::new(
+            pts(&|l| {
+                if l.fsm_state == u8::MAX {
+                    -1.0
+                } else {
+                    l.fsm_state as f64
+                }
+            }),
+            ShapeStyle::from(&BLUE).stroke_width(2),
+        ))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    Ok(())
+}
+
+const PAL_GRAY: u8 = 240; // indices 0..240: gray ramp
+const C_WHITE: u8 = 240;
+const C_BLACK: u8 = 241;
+const C_BLUE: u8 = 242;
+const C_RED: u8 = 243;
+const C_GREEN: u8 = 244;
+const C_LIGHT: u8 = 245;
+
+fn palette() -> Vec<u8> {
+    let mut p = Vec::with_capacity(256 * 3);
+    for i in 0..PAL_GRAY as u32 {
+        let g = (i * 255 / (PAL_GRAY as u32 - 1)) as u8;
+        p.extend_from_slice(&[g, g, g]);
+    }
+    for c in [
+        [255, 255, 255],
+        [0, 0, 0],
+        [30, 80, 230],
+        [230, 30, 30],
+        [20, 170, 40],
+        [235, 235, 235],
+    ] {
+        p.extend_from_slice(&c);
+    }
+    p.resize(256 * 3, 0);
+    p
+}
+
+/// Animated GIF: top-down view (trail, drone, heading) beside the left camera image (2x).
+pub fn write_gif(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
+    if r.images.is_empty() {
+        return Ok(());
+    }
+    let s: &Scene = &r.scene;
+    let side = 2 * HEIGHT as u16; // 192 px top view height
+    let scale = (side as f32 - 8.0) / s.size_x.max(s.size_y);
+    let top_w = (s.size_y * scale) as u16 + 8;
+    let top_h = (s.size_x * scale) as u16 + 8;
+    let cam_w = 2 * WIDTH as u16;
+    let w = top_w + 8 + cam_w;
+    let h = top_h.max(side);
+    let mut enc = gif::Encoder::new(std::fs::File::create(path)?, w, h, &palette())?;
+    enc.set_repeat(gif::Repeat::Infinite)?;
+    let dt = if r.images.len() > 1 {
+        r.images[1].0 - r.images[0].0
+    } else {
+        0.2
+    };
+    let to_px = |x: f32, y: f32| -> (i32, i32) {
+        // North up: x maps to rows from the bottom, y (east) to columns.
+        (
+            (4.0 + y * scale) as i32,
+            (top_h as f32 - 4.0 - x * scale) as i32,
+        )
+    };
+    let mut buf = vec![C_WHITE; w as usize * h as usize];
+    let mut li = 0usize;
+    for (t, img) in &r.images {
+        buf.fill(C_WHITE);
+        let put = |buf: &mut Vec<u8>, px: i32, py: i32, c: u8| {
+            if px >= 0 && py >= 0 && (px as u16) < w && (py as u16) < h {
+                buf[py as usize * w as usize + px as usize] = c;
+            }
+        };
+        // Room outline and obstacles (sampled clearance).
+        for py in 0..top_h as i32 {
+            for px in 0..top_w as i32 {
+                let y = (px as f32 - 4.0) / scale;
+                let x = (top_h as f32 - 4.0 - py as f32) / scale;
+                let inside = x >= 0.0 && y >= 0.0 && x <= s.size_x && y <= s.size_y;
+                let c = if !inside || s.clearance(x, y, 1.0) < 1.0 / scale {
+                    C_BLACK
+                } else {
+                    C_LIGHT
+                };
+                put(&mut buf, px, py, c);
+            }
+        }
+        while li + 1 < r.log.len() && r.log[li + 1].t_s <= *t {
+            li += 1;
+        }
+        for l in r.log.iter().take(li + 1).filter(|l| l.pos[2] > 0.05) {
+            let (px, py) = to_px(l.pos[0], l.pos[1]);
+            put(&mut buf, px, py, C_BLUE);
+        }
+        if let Some(l) = r.log.get(li) {
+            let (px, py) = to_px(l.pos[0], l.pos[1]);
+            let c = if l.clearance_m <= 0.0 { C_RED } else { C_GREEN };
+            for dy in -2..=2 {
+                for dx in -2..=2 {
+                    put(&mut buf, px + dx, py + dy, c);
+                }
+            }
+            for k in 0..12 {
+                let (hx, hy) = (
+                    l.pos[0] + k as f32 * 0.02 * l.yaw.cos(),
+                    l.pos[1] + k as f32 * 0.02 * l.yaw.sin(),
+                );
+                let (px, py) = to_px(hx, hy);
+                put(&mut buf, px, py, C_RED);
+            }
+        }
+        let x0 = top_w as usize + 8;
+        for (k, &v) in img.iter().enumerate() {
+            let (u, row) = (k % WIDTH, k / WIDTH);
+            let c = (v as u32 * (PAL_GRAY as u32 - 1) / 255) as u8;
+            for dy in 0..2 {
+                for dx in 0..2 {
+                    buf[(2 * row + dy) * w as usize + x0 + 2 * u + dx] = c;
+                }
+            }
+        }
+        let mut frame = gif::Frame::from_indexed_pixels(w, h, buf.clone(), None);
+        frame.delay = (dt * 100.0).round().clamp(2.0, 500.0) as u16;
+        enc.write_frame(&frame)?;
+    }
+    Ok(())
+}
