@@ -601,3 +601,7 @@ impl Autopilot {
         }
     }
 }
+
+#[cfg(test)]
+#[path = "app_tests.rs"]
+mod tests;

@@ -198,3 +198,175 @@ impl Failsafe {
         self.mode
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000;
+
+    fn all_fresh(now: u64) -> Freshness {
+        Freshness {
+            last_valid_estimate_us: Some(now),
+            last_imu_us: Some(now),
+            last_height_us: Some(now),
+        }
+    }
+
+    fn armed(now: u64) -> Failsafe {
+        let mut fs = Failsafe::new(FailsafeConfig::default());
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &all_fresh(now), now),
+            FlightMode::Flying
+        );
+        fs
+    }
+
+    #[test]
+    fn arm_needs_fresh_imu_and_height() {
+        let mut fs = Failsafe::new(FailsafeConfig::default());
+        let mut f = all_fresh(1000 * MS);
+        f.last_imu_us = None;
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &f, 1000 * MS),
+            FlightMode::Disarmed
+        );
+        let mut f = all_fresh(1000 * MS);
+        f.last_height_us = Some(0);
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &f, 1000 * MS),
+            FlightMode::Disarmed
+        );
+        // Estimates are not needed to arm.
+        let mut f = all_fresh(1000 * MS);
+        f.last_valid_estimate_us = None;
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &f, 1000 * MS),
+            FlightMode::Flying
+        );
+    }
+
+    #[test]
+    fn kill_always_wins() {
+        for start in [
+            FlightMode::Flying,
+            FlightMode::HoverNoEstimate,
+            FlightMode::Landing,
+        ] {
+            let mut fs = armed(0);
+            fs.set(start, 0);
+            assert_eq!(
+                fs.command(PilotCommand::Kill, &all_fresh(10 * MS), 10 * MS),
+                FlightMode::Killed
+            );
+            assert!(!fs.mode().motors_enabled());
+            // Land does not revive a killed drone; timeouts leave it alone.
+            fs.command(PilotCommand::Land, &all_fresh(20 * MS), 20 * MS);
+            fs.update(&Freshness::default(), 30 * MS);
+            assert_eq!(fs.mode(), FlightMode::Killed);
+        }
+        let mut fs = Failsafe::new(FailsafeConfig::default());
+        fs.command(PilotCommand::Kill, &all_fresh(0), 0);
+        assert_eq!(fs.mode(), FlightMode::Killed);
+        // Re-arming after a kill is allowed.
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &all_fresh(MS), MS),
+            FlightMode::Flying
+        );
+    }
+
+    #[test]
+    fn estimate_loss_hovers_then_lands_or_recovers() {
+        let mut fs = armed(0);
+        let mut f = all_fresh(0);
+        f.last_valid_estimate_us = Some(100 * MS);
+        let at = |t: u64, f: &Freshness| Freshness {
+            last_imu_us: Some(t),
+            last_height_us: Some(t),
+            ..*f
+        };
+        // 500 ms after the last valid estimate: still flying; 1 µs later: hover.
+        assert_eq!(fs.update(&at(600 * MS, &f), 600 * MS), FlightMode::Flying);
+        assert_eq!(
+            fs.update(&at(600 * MS + 1, &f), 600 * MS + 1),
+            FlightMode::HoverNoEstimate
+        );
+        // An estimate comes back: flying again.
+        f.last_valid_estimate_us = Some(1000 * MS);
+        assert_eq!(fs.update(&at(1000 * MS, &f), 1000 * MS), FlightMode::Flying);
+        // Lost again at 1.5 s: hover from 1.5 s, land 3 s later.
+        fs.update(&at(1501 * MS, &f), 1501 * MS);
+        assert_eq!(fs.mode(), FlightMode::HoverNoEstimate);
+        assert_eq!(
+            fs.update(&at(4500 * MS, &f), 4500 * MS),
+            FlightMode::HoverNoEstimate
+        );
+        assert_eq!(
+            fs.update(&at(4501 * MS, &f), 4501 * MS),
+            FlightMode::Landing
+        );
+        // Landing does not go back to flying on its own, and ends on touchdown.
+        f.last_valid_estimate_us = Some(4600 * MS);
+        assert_eq!(
+            fs.update(&at(4600 * MS, &f), 4600 * MS),
+            FlightMode::Landing
+        );
+        fs.landed(5000 * MS);
+        assert_eq!(fs.mode(), FlightMode::Disarmed);
+    }
+
+    #[test]
+    fn armed_without_estimates_gets_the_grace_period() {
+        let mut fs = Failsafe::new(FailsafeConfig::default());
+        let mut f = all_fresh(10 * 1000 * MS);
+        f.last_valid_estimate_us = None;
+        fs.command(PilotCommand::Arm, &f, 10_000 * MS);
+        let f2 = |t| Freshness {
+            last_valid_estimate_us: None,
+            last_imu_us: Some(t),
+            last_height_us: Some(t),
+        };
+        assert_eq!(fs.update(&f2(10_400 * MS), 10_400 * MS), FlightMode::Flying);
+        assert_eq!(
+            fs.update(&f2(10_501 * MS), 10_501 * MS),
+            FlightMode::HoverNoEstimate
+        );
+    }
+
+    #[test]
+    fn imu_stale_turns_motors_off() {
+        let mut fs = armed(0);
+        let mut f = all_fresh(0);
+        f.last_imu_us = Some(100 * MS);
+        f.last_height_us = Some(120 * MS);
+        f.last_valid_estimate_us = Some(120 * MS);
+        assert_eq!(fs.update(&f, 120 * MS), FlightMode::Flying);
+        assert_eq!(fs.update(&f, 120 * MS + 1), FlightMode::ImuFault);
+        assert!(!fs.mode().motors_enabled());
+        // A fresh IMU does not restart the motors by itself.
+        assert_eq!(
+            fs.update(&all_fresh(200 * MS), 200 * MS),
+            FlightMode::ImuFault
+        );
+    }
+
+    #[test]
+    fn height_stale_lands_and_land_command_lands() {
+        let mut fs = armed(0);
+        let mut f = all_fresh(600 * MS);
+        f.last_height_us = Some(100 * MS);
+        assert_eq!(fs.update(&f, 600 * MS), FlightMode::Flying);
+        assert_eq!(fs.update(&f, 600 * MS + 1), FlightMode::Landing);
+        let mut fs = armed(0);
+        assert_eq!(
+            fs.command(PilotCommand::Land, &all_fresh(MS), MS),
+            FlightMode::Landing
+        );
+        // Land while disarmed does nothing.
+        let mut fs = Failsafe::new(FailsafeConfig::default());
+        assert_eq!(
+            fs.command(PilotCommand::Land, &all_fresh(MS), MS),
+            FlightMode::Disarmed
+        );
+    }
+}

@@ -288,3 +288,173 @@ impl AvoidanceFsm {
         self.output()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const S: u64 = 1_000_000;
+    const STEP: u64 = 20_000;
+
+    fn reading(t: u64, d: Option<f32>) -> Option<ObstacleReading> {
+        Some(ObstacleReading {
+            received_us: t,
+            distance_m: d,
+        })
+    }
+
+    fn paper() -> AvoidanceFsm {
+        AvoidanceFsm::new(FsmConfig::default(), 0, 0.0)
+    }
+
+    #[test]
+    fn check_waits_for_a_fresh_reading_then_goes_forward_when_clear() {
+        let mut f = paper();
+        // A reading from before the state began does not count.
+        let mut f2 = AvoidanceFsm::new(FsmConfig::default(), 5 * S, 0.0);
+        f2.step(5 * S + STEP, 0.0, reading(4 * S, None));
+        assert_eq!(f2.state(), FsmState::Check);
+        // No reading: stays, zero speed.
+        let out = f.step(STEP, 0.0, None);
+        assert_eq!((f.state(), out.forward_mps), (FsmState::Check, 0.0));
+        // Clear (nothing in range) at t = 40 ms -> Forward at 40 ms, 0.3 m/s.
+        let out = f.step(2 * STEP, 0.0, reading(2 * STEP, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        assert_eq!(f.entered_us(), 2 * STEP);
+        assert_eq!(out.forward_mps, 0.3);
+        // Also clear: an obstacle beyond 1 m.
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, Some(1.2)));
+        assert_eq!(f.state(), FsmState::Forward);
+    }
+
+    #[test]
+    fn check_goes_to_hover_when_blocked() {
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, Some(0.8)));
+        assert_eq!(f.state(), FsmState::Hover);
+        assert_eq!(f.output().forward_mps, 0.0);
+    }
+
+    #[test]
+    fn forward_to_hover_to_turn_to_check_with_times() {
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        // The same reading again is not fresh; a far obstacle keeps going.
+        f.step(2 * STEP, 0.0, reading(STEP, Some(0.5)));
+        f.step(3 * STEP, 0.0, reading(3 * STEP, Some(1.5)));
+        assert_eq!(f.state(), FsmState::Forward);
+        // Obstacle at 0.95 m at t = 2 s -> Hover at 2 s.
+        f.step(2 * S, 0.0, reading(2 * S, Some(0.95)));
+        assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, 2 * S));
+        // Hover lasts exactly 1 s.
+        f.step(3 * S - 1, 0.0, None);
+        assert_eq!(f.state(), FsmState::Hover);
+        f.step(3 * S, 0.0, None);
+        assert_eq!((f.state(), f.entered_us()), (FsmState::Turn, 3 * S));
+        // The yaw setpoint ramps at 1.5 rad/s towards +60 deg.
+        let out = f.step(3 * S + 200_000, 0.0, None);
+        assert!((out.yaw_sp_rad - 0.3).abs() < 1e-4, "{}", out.yaw_sp_rad);
+        assert_eq!(out.forward_mps, 0.0);
+        // Ramp done at 3.698 s; the heading follows -> Check.
+        let target = 60.0_f32.to_radians();
+        let t_ramp = 3 * S + (target / 1.5 * 1e6) as u64 + 1;
+        f.step(t_ramp, target - 0.5, None);
+        assert_eq!(f.state(), FsmState::Turn, "heading not there yet");
+        f.step(t_ramp + STEP, target - 0.05, None);
+        assert_eq!(
+            (f.state(), f.entered_us()),
+            (FsmState::Check, t_ramp + STEP)
+        );
+        assert!((f.output().yaw_sp_rad - target).abs() < 1e-5);
+        // And the cycle goes on from Check.
+        f.step(t_ramp + 2 * STEP, target, reading(t_ramp + 2 * STEP, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        assert_eq!(f.transitions(), 5);
+    }
+
+    #[test]
+    fn turn_times_out_when_the_heading_lags() {
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, Some(0.3)));
+        f.step(STEP + S, 0.0, None);
+        assert_eq!(f.state(), FsmState::Turn);
+        let ramp_end = STEP + S + 700_000; // 60 deg at 1.5 rad/s = 0.698 s
+        f.step(ramp_end, 0.0, None);
+        assert_eq!(f.state(), FsmState::Turn);
+        f.step(ramp_end + 2 * S - 1, 0.0, None);
+        assert_eq!(f.state(), FsmState::Turn);
+        f.step(ramp_end + 2 * S, 0.0, None);
+        assert_eq!(f.state(), FsmState::Check);
+    }
+
+    #[test]
+    fn heading_wraps_through_pi() {
+        let mut f = AvoidanceFsm::new(FsmConfig::default(), 0, 3.0);
+        f.step(STEP, 3.0, reading(STEP, Some(0.3)));
+        f.step(STEP + S, 3.0, None);
+        let out = f.step(STEP + S + 800_000, 3.0, None);
+        let expect = wrap_pi(3.0 + 60.0_f32.to_radians());
+        assert!((out.yaw_sp_rad - expect).abs() < 1e-4);
+        f.step(STEP + S + 820_000, expect, None);
+        assert_eq!(f.state(), FsmState::Check);
+    }
+
+    #[test]
+    fn turn_until_clear_keeps_turning_until_confirmed_clear() {
+        let cfg = FsmConfig {
+            variant: FsmVariant::TurnUntilClear,
+            ..FsmConfig::default()
+        };
+        let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, Some(0.6)));
+        f.step(STEP + S, 0.0, None);
+        assert_eq!(f.state(), FsmState::Turn);
+        // The drone follows the setpoint; readings are blocked (1.2 m < 1.5 m clear distance),
+        // far beyond a 60 deg turn.
+        let mut t = STEP + S;
+        let mut yaw = 0.0;
+        for _ in 0..50 {
+            t += STEP;
+            let out = f.step(t, yaw, reading(t, Some(1.2)));
+            yaw = out.yaw_sp_rad;
+        }
+        assert_eq!(f.state(), FsmState::Turn);
+        assert!((yaw - 1.5).abs() < 0.01, "turned 1 s at 1.5 rad/s: {yaw}");
+        // Two clear readings, then a blocked one: the count restarts.
+        for d in [None, Some(2.0), Some(0.9)] {
+            t += STEP;
+            f.step(t, yaw, reading(t, d));
+        }
+        assert_eq!(f.state(), FsmState::Turn);
+        for _ in 0..2 {
+            t += STEP;
+            f.step(t, yaw, reading(t, None));
+            assert_eq!(f.state(), FsmState::Turn);
+        }
+        t += STEP;
+        let out = f.step(t, 1.55, reading(t, Some(3.0)));
+        assert_eq!((f.state(), f.entered_us()), (FsmState::Forward, t));
+        // Heading held where the drone is.
+        assert_eq!(out.yaw_sp_rad, 1.55);
+        assert_eq!(out.forward_mps, 0.3);
+    }
+
+    #[test]
+    fn turn_until_clear_setpoint_waits_for_a_slow_drone() {
+        let cfg = FsmConfig {
+            variant: FsmVariant::TurnUntilClear,
+            ..FsmConfig::default()
+        };
+        let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, Some(0.6)));
+        f.step(STEP + S, 0.0, None);
+        let mut t = STEP + S;
+        for _ in 0..200 {
+            t += STEP;
+            f.step(t, 0.0, None);
+        }
+        assert!(f.output().yaw_sp_rad <= 0.5 + 1e-4);
+    }
+}

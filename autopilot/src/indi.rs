@@ -355,3 +355,331 @@ impl Indi {
         self.airborne
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! Rigid-body models with first-order actuator dynamics, written here (not the simulator's
+    //! quadcopter): one axis, and three axes with Euler's equations and quaternion attitude.
+    use super::*;
+    use crate::attitude::{attitude_error, Quat};
+
+    const DT: f32 = 1.0 / 512.0;
+    /// Model integration steps per control step.
+    const SUB: usize = 8;
+
+    /// Deterministic noise in [-1, 1] (xorshift).
+    struct Noise(u32);
+    impl Noise {
+        fn next(&mut self) -> f32 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 17;
+            self.0 ^= self.0 << 5;
+            (self.0 as f32 / u32::MAX as f32) * 2.0 - 1.0
+        }
+    }
+
+    /// One axis: angle, rate, actuator; accel = g1_true * actuator + disturbance.
+    struct Axis {
+        angle: f32,
+        rate: f32,
+        act: f32,
+        g1_true: f32,
+        alpha_true: f32,
+        disturbance: f32,
+    }
+
+    impl Axis {
+        fn new(g1_true: f32) -> Self {
+            Self {
+                angle: 0.0,
+                rate: 0.0,
+                act: 0.0,
+                g1_true,
+                alpha_true: 0.03,
+                disturbance: 0.0,
+            }
+        }
+        fn advance(&mut self, u: f32) {
+            // The discrete actuator pole 0.03 per 1/512 s step, integrated in sub-steps.
+            let k = -libm::logf(1.0 - self.alpha_true) * 512.0;
+            let h = DT / SUB as f32;
+            for _ in 0..SUB {
+                self.act += k * (u - self.act) * h;
+                let acc = self.g1_true * self.act + self.disturbance;
+                self.rate += acc * h;
+                self.angle += self.rate * h;
+            }
+        }
+    }
+
+    fn cfg_fixed() -> IndiConfig {
+        IndiConfig {
+            adapt: false,
+            ..IndiConfig::default()
+        }
+    }
+
+    /// Flies the roll axis to `setpoint` for `seconds`; returns (angle trace, indi).
+    fn roll_run(
+        cfg: IndiConfig,
+        axis: &mut Axis,
+        setpoint: impl Fn(f32) -> f32,
+        seconds: f32,
+        noise: f32,
+    ) -> (std::vec::Vec<f32>, Indi) {
+        let mut indi = Indi::new(cfg);
+        let mut n = Noise(0x1234_5678);
+        let steps = (seconds * 512.0) as usize;
+        let mut trace = std::vec::Vec::with_capacity(steps);
+        for k in 0..steps {
+            let t = k as f32 * DT;
+            let gyro = [axis.rate + noise * n.next(), 0.0, 0.0];
+            let err = [setpoint(t) - axis.angle, 0.0, 0.0];
+            let u = indi.control(err, gyro, 0.65);
+            indi.actuator_update(u, gyro);
+            axis.advance(u[0]);
+            trace.push(axis.angle);
+        }
+        (trace, indi)
+    }
+
+    extern crate std;
+
+    #[test]
+    fn filter_passes_dc_and_differentiates() {
+        let mut f = SecondOrderFilter::new(50.0, 0.55, DT);
+        for k in 0..2048 {
+            f.update(2.0 * k as f32 * DT);
+        }
+        // A ramp of slope 2: derivative 2, value lags by 2*zeta/omega*slope.
+        assert!((f.xd - 2.0).abs() < 1e-3, "{}", f.xd);
+        let t = 2047.0 * DT * 2.0;
+        assert!(
+            (t - f.x - 2.0 * 2.0 * 0.55 / 50.0).abs() < 5e-3,
+            "lag {}",
+            t - f.x
+        );
+    }
+
+    #[test]
+    fn single_axis_step_settles_with_bounded_overshoot() {
+        let mut axis = Axis::new(IndiConfig::default().g1[0]);
+        let (trace, _) = roll_run(cfg_fixed(), &mut axis, |_| 0.2, 3.0, 0.0);
+        let peak = trace.iter().cloned().fold(f32::MIN, f32::max);
+        let overshoot = (peak - 0.2) / 0.2;
+        // Settling: within 2 % of the step from 0.8 s on.
+        let settled = trace[(0.8 * 512.0) as usize..]
+            .iter()
+            .all(|a| (a - 0.2).abs() < 0.004);
+        std::println!("single-axis step: overshoot {:.1} %", overshoot * 100.0);
+        assert!(overshoot < 0.10, "overshoot {overshoot}");
+        assert!(settled, "final {}", trace.last().unwrap());
+    }
+
+    #[test]
+    fn single_axis_rejects_constant_disturbance() {
+        let mut axis = Axis::new(IndiConfig::default().g1[0]);
+        // A torque worth 40 rad/s² (about 11 % of the roll authority), from the start.
+        axis.disturbance = 40.0;
+        let (trace, indi) = roll_run(cfg_fixed(), &mut axis, |_| 0.0, 3.0, 0.0);
+        let peak = trace.iter().fold(0.0f32, |m, a| m.max(a.abs()));
+        let last = *trace.last().unwrap();
+        std::println!("disturbance: peak {peak:.4} rad, final {last:.2e} rad");
+        assert!(last.abs() < 1e-3, "steady-state error {last}");
+        // The slow brushed-motor actuator (65 ms) lets a sudden 40 rad/s² torque tilt the
+        // drone by up to about 0.19 rad before the increment catches it.
+        assert!(peak < 0.25, "peak {peak}");
+        // The actuator holds the disturbance: u = -d / G1.
+        assert!((indi.actuator_state()[0] + 40.0 / axis.g1_true).abs() < 2e-3);
+    }
+
+    #[test]
+    fn nothing_winds_up_on_the_ground() {
+        let mut indi = Indi::new(IndiConfig::default());
+        let g1_0 = indi.g1();
+        // On the ground, tilted by 0.3 rad with a large error and gyro noise, for 10 s.
+        let mut n = Noise(7);
+        for _ in 0..5120 {
+            let gyro = [0.05 * n.next(), 0.05 * n.next(), 0.05 * n.next()];
+            let u = indi.control([0.3, -0.3, 1.0], gyro, 0.05);
+            assert_eq!(u, [0.0; 3]);
+            indi.actuator_update(u, gyro);
+        }
+        assert_eq!(indi.actuator_state(), [0.0; 3]);
+        assert_eq!(indi.g1(), g1_0, "no adaptation on the ground");
+        // Throttle up: the first command is one bounded increment, not an accumulated one.
+        let u = indi.control([0.3, -0.3, 1.0], [0.0; 3], 0.3);
+        let c = IndiConfig::default();
+        for i in 0..3 {
+            assert!(
+                u[i].abs() <= c.max_accel_ref[i] / indi.g1()[i] + 0.06,
+                "{u:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn adaptation_converges_from_half_and_double() {
+        let truth = IndiConfig::default().g1[0];
+        for start in [0.5, 2.0] {
+            let cfg = IndiConfig {
+                g1: [truth * start, 614.4, 26.88],
+                ..IndiConfig::default()
+            };
+            let mut axis = Axis::new(truth);
+            // Excitation: a ±0.15 rad square wave at 1 Hz.
+            let sq = |t: f32| {
+                if (t * 2.0) as i32 % 2 == 0 {
+                    0.15
+                } else {
+                    -0.15
+                }
+            };
+            let (trace, indi) = roll_run(cfg, &mut axis, sq, 20.0, 0.01);
+            let g = indi.g1()[0];
+            std::println!("G1 from {start}x: {g:.1} (truth {truth:.1})");
+            assert!((g - truth).abs() < 0.1 * truth, "start {start}: G1 {g}");
+            assert!(trace.iter().all(|a| a.abs() < 0.5), "stayed stable");
+        }
+    }
+
+    /// Three axes: Euler's equations with an inertia, quaternion attitude.
+    struct Body {
+        q: Quat,
+        w: [f32; 3],
+        act: [f32; 3],
+        g1_true: [f32; 3],
+        inertia: [f32; 3],
+        torque_dist: [f32; 3],
+    }
+
+    impl Body {
+        fn advance(&mut self, u: [f32; 3]) {
+            let k = -libm::logf(1.0 - 0.03) * 512.0;
+            let h = DT / SUB as f32;
+            for _ in 0..SUB {
+                let j = self.inertia;
+                let w = self.w;
+                // Gyroscopic coupling -w x (J w).
+                let jw = [j[0] * w[0], j[1] * w[1], j[2] * w[2]];
+                let cross = [
+                    w[1] * jw[2] - w[2] * jw[1],
+                    w[2] * jw[0] - w[0] * jw[2],
+                    w[0] * jw[1] - w[1] * jw[0],
+                ];
+                for i in 0..3 {
+                    self.act[i] += k * (u[i] - self.act[i]) * h;
+                    let torque = j[i] * self.g1_true[i] * self.act[i] + self.torque_dist[i];
+                    self.w[i] += (torque - cross[i]) / j[i] * h;
+                }
+                let dq = self.q.hamilton(Quat {
+                    w: 0.0,
+                    x: self.w[0],
+                    y: self.w[1],
+                    z: self.w[2],
+                });
+                self.q = Quat {
+                    w: self.q.w + 0.5 * dq.w * h,
+                    x: self.q.x + 0.5 * dq.x * h,
+                    y: self.q.y + 0.5 * dq.y * h,
+                    z: self.q.z + 0.5 * dq.z * h,
+                }
+                .normalized();
+            }
+        }
+    }
+
+    fn body() -> Body {
+        Body {
+            q: Quat::IDENTITY,
+            w: [0.0; 3],
+            act: [0.0; 3],
+            g1_true: IndiConfig::default().g1,
+            inertia: [1.6e-5, 1.6e-5, 2.9e-5],
+            torque_dist: [0.0; 3],
+        }
+    }
+
+    fn fly3(indi: &mut Indi, b: &mut Body, sp: [f32; 3], seconds: f32) -> std::vec::Vec<[f32; 3]> {
+        let q_sp = Quat::from_euler(sp[0], sp[1], sp[2]);
+        let mut trace = std::vec::Vec::new();
+        for _ in 0..(seconds * 512.0) as usize {
+            let err = attitude_error(b.q, q_sp);
+            let u = indi.control(err, b.w, 0.65);
+            indi.actuator_update(u, b.w);
+            b.advance(u);
+            trace.push(b.q.to_euler());
+        }
+        trace
+    }
+
+    #[test]
+    fn three_axis_step_settles_with_bounded_overshoot() {
+        let mut b = body();
+        let mut indi = Indi::new(cfg_fixed());
+        let sp = [0.2, -0.15, 0.5];
+        let trace = fly3(&mut indi, &mut b, sp, 4.0);
+        for axis in 0..3 {
+            let peak = trace
+                .iter()
+                .map(|e| e[axis] * sp[axis].signum())
+                .fold(f32::MIN, f32::max);
+            let overshoot = (peak - sp[axis].abs()) / sp[axis].abs();
+            std::println!(
+                "3-axis step axis {axis}: overshoot {:.1} %",
+                overshoot * 100.0
+            );
+            assert!(overshoot < 0.15, "axis {axis} overshoot {overshoot}");
+            let last = trace.last().unwrap()[axis];
+            assert!(
+                (last - sp[axis]).abs() < 0.01 * sp[axis].abs().max(0.2),
+                "axis {axis}: {last}"
+            );
+        }
+    }
+
+    #[test]
+    fn three_axis_rejects_constant_disturbance_torque() {
+        let mut b = body();
+        // Torques worth 10 % of each axis' authority.
+        for i in 0..3 {
+            b.torque_dist[i] = 0.1 * b.inertia[i] * b.g1_true[i] * if i == 1 { -1.0 } else { 1.0 };
+        }
+        let mut indi = Indi::new(cfg_fixed());
+        let trace = fly3(&mut indi, &mut b, [0.0; 3], 4.0);
+        let last = trace.last().unwrap();
+        for (i, e) in last.iter().enumerate() {
+            assert!(e.abs() < 2e-3, "axis {i}: steady-state error {e}");
+        }
+    }
+
+    #[test]
+    fn three_axis_adaptation_converges_from_half_and_double() {
+        for start in [0.5f32, 2.0] {
+            let mut b = body();
+            let truth = b.g1_true;
+            let cfg = IndiConfig {
+                g1: [truth[0] * start, truth[1] * start, truth[2] * start],
+                ..IndiConfig::default()
+            };
+            let mut indi = Indi::new(cfg);
+            for k in 0..12 {
+                let s = if k % 2 == 0 { 1.0 } else { -1.0 };
+                fly3(&mut indi, &mut b, [0.12 * s, -0.1 * s, 0.4 * s], 1.5);
+            }
+            let g = indi.g1();
+            for i in 0..3 {
+                std::println!(
+                    "3-axis G1[{i}] from {start}x: {:.1} (truth {:.1})",
+                    g[i],
+                    truth[i]
+                );
+                assert!(
+                    (g[i] - truth[i]).abs() < 0.1 * truth[i],
+                    "axis {i} from {start}x: {}",
+                    g[i]
+                );
+            }
+        }
+    }
+}

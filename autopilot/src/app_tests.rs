@@ -1,0 +1,462 @@
+//! Tests of the whole [`Autopilot`](super::Autopilot) against a small quadcopter model written
+//! here (rigid body, first-order motors, linear drag, one wall), plus failsafe and robustness
+//! tests of the public API.
+
+#![allow(clippy::needless_range_loop)] // index loops read like the physics
+
+extern crate std;
+
+use super::*;
+use crate::attitude::GRAVITY;
+use proptest::prelude::*;
+use std::vec::Vec;
+
+const IMU_US: u64 = 1_953;
+
+/// A 40 g X quad: motor `i` thrust `k * state_i`, state first-order towards the throttle.
+/// Roll/pitch/yaw accelerations follow the mixer's differentials times the true G1.
+struct Quad {
+    pos: [f32; 3],
+    vel: [f32; 3],
+    q: Quat,
+    w: [f32; 3],
+    motor: [f32; 4],
+    g1: [f32; 3],
+    hover: f32,
+    drag: f32,
+    wall_x: f32,
+    accel_body: [f32; 3],
+}
+
+impl Quad {
+    fn new() -> Self {
+        Self {
+            pos: [0.0; 3],
+            vel: [0.0; 3],
+            q: Quat::IDENTITY,
+            w: [0.0; 3],
+            motor: [0.0; 4],
+            g1: IndiConfig::default().g1,
+            hover: 0.65,
+            drag: 0.6,
+            wall_x: 3.0,
+            accel_body: [0.0, 0.0, -GRAVITY],
+        }
+    }
+
+    fn height(&self) -> f32 {
+        -self.pos[2]
+    }
+
+    fn rotate(q: Quat, v: [f32; 3]) -> [f32; 3] {
+        let p = q
+            .hamilton(Quat {
+                w: 0.0,
+                x: v[0],
+                y: v[1],
+                z: v[2],
+            })
+            .hamilton(q.conj());
+        [p.x, p.y, p.z]
+    }
+
+    fn step(&mut self, throttle: [f32; 4], dt: f32) {
+        let sub = 4;
+        let h = dt / sub as f32;
+        let k = -libm::logf(1.0 - 0.03) * 512.0;
+        for _ in 0..sub {
+            for (m, t) in self.motor.iter_mut().zip(throttle.iter()) {
+                *m += k * (t - *m) * h;
+            }
+            let m = self.motor;
+            let mut u = [0.0f32; 3];
+            for i in 0..4 {
+                u[0] += mixer::ROLL[i] * m[i] / 4.0;
+                u[1] += mixer::PITCH[i] * m[i] / 4.0;
+                u[2] += mixer::YAW[i] * m[i] / 4.0;
+            }
+            for i in 0..3 {
+                self.w[i] += self.g1[i] * u[i] * h;
+            }
+            let dq = self.q.hamilton(Quat {
+                w: 0.0,
+                x: self.w[0],
+                y: self.w[1],
+                z: self.w[2],
+            });
+            self.q = Quat {
+                w: self.q.w + 0.5 * dq.w * h,
+                x: self.q.x + 0.5 * dq.x * h,
+                y: self.q.y + 0.5 * dq.y * h,
+                z: self.q.z + 0.5 * dq.z * h,
+            }
+            .normalized();
+            // Specific force in body axes: thrust along -z plus drag.
+            let thrust_acc = GRAVITY * (m.iter().sum::<f32>() / 4.0) / self.hover;
+            let vb = Self::rotate(self.q.conj(), self.vel);
+            let f_body = [
+                -self.drag * vb[0],
+                -self.drag * vb[1],
+                -thrust_acc - self.drag * vb[2],
+            ];
+            self.accel_body = f_body;
+            let f_world = Self::rotate(self.q, f_body);
+            for i in 0..3 {
+                let g = if i == 2 { GRAVITY } else { 0.0 };
+                self.vel[i] += (f_world[i] + g) * h;
+                self.pos[i] += self.vel[i] * h;
+            }
+            if self.pos[2] > 0.0 {
+                // Floor.
+                self.pos[2] = 0.0;
+                self.vel = [0.0; 3];
+                self.w = [0.0; 3];
+                let [_, _, yaw] = self.q.to_euler();
+                self.q = Quat::from_euler(0.0, 0.0, yaw);
+                self.accel_body = [0.0, 0.0, -GRAVITY];
+            }
+        }
+    }
+
+    fn imu(&self, now: u64) -> ImuSample {
+        ImuSample {
+            timestamp_us: now as u32,
+            gyro_radps: self.w,
+            accel_mps2: self.accel_body,
+        }
+    }
+
+    fn estimate(&self, seq: u16) -> Estimate {
+        let vb = Self::rotate(self.q.conj(), self.vel);
+        let yaw = self.q.to_euler()[2];
+        let c = libm::cosf(yaw);
+        let obstacle = if c > 0.45 {
+            let d = (self.wall_x - self.pos[0]) / c;
+            (d < 4.0).then_some(d)
+        } else {
+            None
+        };
+        Estimate {
+            seq,
+            capture_us: 0,
+            forward_mps: vb[0],
+            sideways_mps: vb[1],
+            obstacle_m: obstacle,
+            quality: 200,
+            flags: EstimateFlags::NONE,
+            processing_us: 0,
+        }
+    }
+
+    fn position(&self, now: u64) -> ExternalPosition {
+        ExternalPosition {
+            timestamp_us: now as u32,
+            position_m: self.pos,
+        }
+    }
+}
+
+/// What the world hands the autopilot over time.
+struct Run {
+    ap: Autopilot,
+    quad: Quad,
+    now: u64,
+    estimates: bool,
+    imu: bool,
+    seq: u16,
+    max_tilt: f32,
+    min_wall_gap: f32,
+    modes: Vec<(u64, FlightMode)>,
+}
+
+impl Run {
+    fn new(cfg: AutopilotConfig) -> Self {
+        Self {
+            ap: Autopilot::new(cfg),
+            quad: Quad::new(),
+            now: 0,
+            estimates: true,
+            imu: true,
+            seq: 0,
+            max_tilt: 0.0,
+            min_wall_gap: f32::MAX,
+            modes: Vec::new(),
+        }
+    }
+
+    fn fly(&mut self, seconds: f32) {
+        let end = self.now + (seconds * 1e6) as u64;
+        let mut motors = [0.0; 4];
+        while self.now < end {
+            let k = self.now / IMU_US;
+            if self.imu {
+                motors = self.ap.on_imu(&self.quad.imu(self.now), self.now);
+            }
+            if k.is_multiple_of(10) {
+                self.ap.guidance_step(self.now);
+                if let Some(m) = self.ap.motor_safety(self.now) {
+                    motors = m;
+                }
+                self.ap
+                    .on_external_position(&self.quad.position(self.now), self.now);
+                let mode = self.ap.mode();
+                if self.modes.last().map(|m| m.1) != Some(mode) {
+                    self.modes.push((self.now, mode));
+                }
+            }
+            if k.is_multiple_of(17) && self.estimates {
+                self.seq = self.seq.wrapping_add(1);
+                self.ap.on_estimate(&self.quad.estimate(self.seq), self.now);
+            }
+            for m in motors {
+                assert!((0.0..=1.0).contains(&m), "motor {m}");
+            }
+            self.quad.step(motors, IMU_US as f32 * 1e-6);
+            let [r, p, _] = self.quad.q.to_euler();
+            self.max_tilt = self.max_tilt.max(r.abs()).max(p.abs());
+            self.min_wall_gap = self.min_wall_gap.min(self.quad.wall_x - self.quad.pos[0]);
+            self.now += IMU_US;
+        }
+    }
+
+    fn takeoff(&mut self) {
+        self.fly(0.5);
+        self.ap.on_command(PilotCommand::Arm, self.now);
+        assert_eq!(self.ap.mode(), FlightMode::Flying);
+    }
+}
+
+#[test]
+fn task_table_is_consistent() {
+    assert_eq!(TASKS[0].name, "imu_indi");
+    let top = TASKS.iter().map(|t| t.priority).max().unwrap();
+    assert_eq!(
+        TASKS[0].priority, top,
+        "the 512 Hz loop has the highest priority"
+    );
+    for t in TASKS {
+        if let Trigger::Periodic { period_us } = t.trigger {
+            assert!(t.deadline_us <= period_us, "{}", t.name);
+        }
+    }
+    let mut names: Vec<_> = TASKS.iter().map(|t| t.name).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), TASKS.len());
+    assert_eq!(IMU_PERIOD_US, 1_000_000 / 512);
+}
+
+#[test]
+fn disarmed_motors_stay_off() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.fly(2.0);
+    assert_eq!(r.ap.motors(), [0.0; 4]);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+    assert_eq!(r.quad.height(), 0.0);
+}
+
+#[test]
+fn takes_off_flies_the_fsm_and_does_not_hit_the_wall() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(4.0);
+    let h = r.quad.height();
+    assert!((h - 1.0).abs() < 0.1, "height after take-off {h}");
+    assert!(r.ap.fsm_active());
+    r.fly(20.0);
+    std::println!(
+        "closed loop: height {:.2} m, max tilt {:.1} deg, closest to wall {:.2} m, FSM transitions {}, yaw {:.2}",
+        r.quad.height(),
+        r.max_tilt.to_degrees(),
+        r.min_wall_gap,
+        r.ap.fsm().transitions(),
+        r.quad.q.to_euler()[2]
+    );
+    assert!(
+        r.min_wall_gap > 0.3,
+        "came within {} m of the wall",
+        r.min_wall_gap
+    );
+    assert!(
+        r.ap.fsm().transitions() >= 4,
+        "flew forward, hovered, turned"
+    );
+    assert!(
+        r.max_tilt < 20.0_f32.to_radians(),
+        "max tilt {}",
+        r.max_tilt
+    );
+    assert!((r.quad.height() - 1.0).abs() < 0.15);
+    assert_eq!(r.ap.mode(), FlightMode::Flying);
+}
+
+#[test]
+fn estimate_loss_hovers_then_lands_and_disarms() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(4.0);
+    r.estimates = false;
+    let lost_at = r.now;
+    r.fly(12.0);
+    let find = |m: FlightMode| r.modes.iter().find(|x| x.1 == m).map(|x| x.0);
+    let hover = find(FlightMode::HoverNoEstimate).expect("hovered");
+    let land = find(FlightMode::Landing).expect("landed");
+    let disarm = r.modes.last().unwrap();
+    std::println!(
+        "hover after {} ms, land after {} ms",
+        (hover - lost_at) / 1000,
+        (land - lost_at) / 1000
+    );
+    assert!(hover - lost_at <= 560_000);
+    assert!((land - hover).abs_diff(3_000_000) <= 40_000);
+    assert_eq!(disarm.1, FlightMode::Disarmed);
+    assert!(r.quad.height() < 0.02);
+    assert_eq!(r.ap.motors(), [0.0; 4]);
+}
+
+#[test]
+fn kill_stops_motors_at_once() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(3.0);
+    r.ap.on_command(PilotCommand::Kill, r.now);
+    let m = r.ap.on_imu(&r.quad.imu(r.now), r.now);
+    assert_eq!(m, [0.0; 4]);
+    assert_eq!(r.ap.motor_safety(r.now), Some([0.0; 4]));
+    // Arm/land cannot be confused with a kill: land does not restart anything.
+    r.ap.on_command(PilotCommand::Land, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Killed);
+}
+
+#[test]
+fn stale_imu_makes_motors_safe() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(3.0);
+    assert_eq!(r.ap.motor_safety(r.now), None);
+    r.imu = false;
+    r.fly(0.05);
+    assert_eq!(r.ap.motor_safety(r.now), Some([0.0; 4]));
+    assert_eq!(r.ap.mode(), FlightMode::ImuFault);
+    // The IMU coming back does not restart the motors.
+    r.imu = true;
+    r.fly(0.1);
+    assert_eq!(r.ap.motors(), [0.0; 4]);
+}
+
+#[test]
+fn land_command_lands_and_disarms() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(4.0);
+    r.ap.on_command(PilotCommand::Land, r.now);
+    r.fly(6.0);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+    assert!(r.quad.height() < 0.02);
+}
+
+#[test]
+fn telemetry_and_gyro_attitude_reflect_state() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(4.0);
+    let t = r.ap.telemetry(r.now);
+    assert_eq!(t.failsafe, FlightMode::Flying as u8);
+    assert!(t.fsm_state <= 3);
+    assert!((t.height_m - r.quad.height()).abs() < 0.05);
+    let g = r.ap.gyro_attitude(r.now);
+    assert_eq!(g.timestamp_us, r.now as u32);
+    let truth = r.quad.q.to_euler();
+    for i in 0..2 {
+        assert!((g.attitude_rad[i] - truth[i]).abs() < 0.05);
+    }
+}
+
+fn arb_f32() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        any::<f32>(),
+        Just(f32::NAN),
+        Just(f32::INFINITY),
+        Just(f32::NEG_INFINITY),
+        -20.0f32..20.0,
+    ]
+}
+
+#[derive(Debug, Clone)]
+enum Input {
+    Imu([f32; 3], [f32; 3]),
+    Est(f32, f32, Option<f32>, u8),
+    Pos(f32),
+    Cmd(u8),
+    Guidance,
+    Wait(u32),
+}
+
+fn arb_input() -> impl Strategy<Value = Input> {
+    prop_oneof![
+        4 => ([arb_f32(), arb_f32(), arb_f32()], [arb_f32(), arb_f32(), arb_f32()])
+            .prop_map(|(g, a)| Input::Imu(g, a)),
+        2 => (arb_f32(), arb_f32(), proptest::option::of(arb_f32()), any::<u8>())
+            .prop_map(|(f, s, o, fl)| Input::Est(f, s, o, fl)),
+        2 => arb_f32().prop_map(Input::Pos),
+        1 => (0u8..3).prop_map(Input::Cmd),
+        2 => Just(Input::Guidance),
+        1 => (0u32..200_000).prop_map(Input::Wait),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 200, ..ProptestConfig::default() })]
+
+    /// No panic, and every output finite and in range, for any input sequence including NaN
+    /// and infinities.
+    #[test]
+    fn outputs_always_finite_and_in_range(inputs in proptest::collection::vec(arb_input(), 1..300)) {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let mut now = 0u64;
+        for input in inputs {
+            now += 1_953;
+            match input {
+                Input::Imu(g, a) => {
+                    let m = ap.on_imu(&ImuSample { timestamp_us: now as u32, gyro_radps: g, accel_mps2: a }, now);
+                    for x in m {
+                        prop_assert!(x.is_finite() && (0.0..=1.0).contains(&x), "{:?}", m);
+                    }
+                }
+                Input::Est(f, s, o, fl) => ap.on_estimate(&Estimate {
+                    seq: 0, capture_us: 0, forward_mps: f, sideways_mps: s, obstacle_m: o,
+                    quality: 255, flags: EstimateFlags(fl & 0x01), processing_us: 0,
+                }, now),
+                Input::Pos(z) => ap.on_external_position(&ExternalPosition {
+                    timestamp_us: now as u32, position_m: [0.0, 0.0, z],
+                }, now),
+                Input::Cmd(c) => ap.on_command(
+                    [PilotCommand::Arm, PilotCommand::Land, PilotCommand::Kill][c as usize], now),
+                Input::Guidance => ap.guidance_step(now),
+                Input::Wait(us) => now += us as u64,
+            }
+            let sp = ap.setpoints();
+            prop_assert!(sp.attitude_rad.iter().all(|x| x.is_finite()));
+            prop_assert!(sp.thrust.is_finite() && (0.0..=1.0).contains(&sp.thrust));
+            prop_assert!(sp.attitude_rad[0].abs() <= 15.0f32.to_radians() + 1e-5);
+            prop_assert!(sp.attitude_rad[1].abs() <= 15.0f32.to_radians() + 1e-5);
+            let t = ap.telemetry(now);
+            prop_assert!(t.attitude_rad.iter().all(|x| x.is_finite()));
+            prop_assert!(t.velocity_mps.iter().all(|x| x.is_finite()));
+            prop_assert!(t.height_m.is_finite());
+            let g = ap.gyro_attitude(now);
+            prop_assert!(g.rates_radps.iter().chain(g.attitude_rad.iter()).all(|x| x.is_finite()));
+            prop_assert!(ap.indi().g1().iter().all(|g| g.is_finite() && *g > 0.0));
+        }
+    }
+
+    /// The mixer never leaves [0, 1] whatever it is asked.
+    #[test]
+    fn mixer_outputs_in_range(t in arb_f32(), r in arb_f32(), p in arb_f32(), y in arb_f32()) {
+        let m = mixer::mix(t, r, p, y);
+        for x in m.throttle {
+            prop_assert!(x.is_finite() && (0.0..=1.0).contains(&x));
+        }
+        prop_assert!(m.achieved.iter().all(|x| x.is_finite()));
+    }
+}
