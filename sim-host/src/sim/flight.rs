@@ -2,7 +2,7 @@
 //! and the two UART directions between them. Deterministic: the same [`FlightConfig`] gives the
 //! same [`FlightResult`], bit for bit.
 
-use super::boards::{autopilot_tasks, camera_tasks, send, CameraBoard};
+use super::boards::{autopilot_tasks, camera_tasks, send};
 use super::camera::{CameraParams, StereoCamera};
 use super::dynamics::{Drone, DroneParams};
 use super::imu::{gauss, Imu, ImuParams};
@@ -18,7 +18,8 @@ use protocol::{
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
-use stereo_board::edge_fs::EdgeFsParams;
+use stereo_board::app::StereoBoardApp;
+use stereo_board::edge_fs::{EdgeFsOutput, EdgeFsParams};
 
 /// Which avoidance logic the autopilot flies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -197,7 +198,7 @@ pub fn run_flight(
         Fsm::Improved => FsmVariant::TurnUntilClear,
     };
     let mut ap = Autopilot::new(ap_cfg);
-    let mut cb = CameraBoard::new(cfg.edge_fs);
+    let mut cb = Box::new(StereoBoardApp::new(cfg.edge_fs));
     let mut s2a = SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a);
     let mut a2s = SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25);
     let mut ap_rx: Decoder<StereoToAutopilot, { StereoToAutopilot::MAX_FRAME_BYTES }> =
@@ -217,7 +218,7 @@ pub fn run_flight(
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
     let mut busy_until = 0u64;
-    let mut outbox: VecDeque<(u64, Vec<u8>)> = VecDeque::new();
+    let mut outbox: VecDeque<(u64, u64, EdgeFsOutput)> = VecDeque::new();
     let mut truth_at_capture: VecDeque<(u32, [f32; 2])> = VecDeque::new();
     let mut releases: Vec<Release> = Vec::new();
     let mut rxbuf: Vec<u8> = Vec::new();
@@ -247,7 +248,7 @@ pub fn run_flight(
         if let Some(p) = &pending {
             next = next.min(p.ready_us);
         }
-        if let Some((r, _)) = outbox.front() {
+        if let Some((r, _, _)) = outbox.front() {
             next = next.min(*r);
         }
         if !armed {
@@ -326,25 +327,24 @@ pub fn run_flight(
         rxbuf.clear();
         a2s.receive(t, &mut rxbuf);
         if !rxbuf.is_empty() {
-            cb.on_rx_bytes(&rxbuf, t);
+            cb.on_rx_bytes(&rxbuf, t, &mut |b: &[u8]| s2a.write(t, b));
         }
 
         // Camera board output leaves after the processing delay.
-        while outbox.front().is_some_and(|(r, _)| *r <= t) {
-            if let Some((_, bytes)) = outbox.pop_front() {
-                s2a.write(t, &bytes);
+        while outbox.front().is_some_and(|(r, _, _)| *r <= t) {
+            if let Some((_, capture_us, out)) = outbox.pop_front() {
+                cb.send_estimate(&out, capture_us, t, &mut |b: &[u8]| s2a.write(t, b));
             }
         }
         // A read-out frame reaches the camera board.
         if pending.as_ref().is_some_and(|p| p.ready_us <= t) {
             if let Some(p) = pending.take() {
+                // Edge-FS starts now (gyro sample as of now); the estimate leaves when the
+                // modelled processing time is over.
+                let out = cb.process_frame(&p.frame, p.capture_us, t);
                 let done = t + cfg.processing_us;
-                let mut bytes = Vec::new();
-                cb.on_frame(&p.frame, p.capture_us, done, &mut |b: &[u8]| {
-                    bytes.extend_from_slice(b)
-                });
                 busy_until = done;
-                outbox.push_back((done, bytes));
+                outbox.push_back((done, p.capture_us, out));
             }
         }
         // Exposure.
@@ -430,7 +430,7 @@ pub fn run_flight(
                     ));
                     send(&msg, &mut |b: &[u8]| a2s.write(t, b));
                 }
-                (Board::Stereo, "status") => {
+                (Board::Stereo, stereo_board::app::TASK_STATUS) => {
                     cb.status_tick(t, &mut |b: &[u8]| s2a.write(t, b));
                 }
                 _ => {}
@@ -458,7 +458,7 @@ pub fn run_flight(
         images,
         uart: [s2a.stats(), a2s.stats()],
         estimates,
-        frames_dropped: cb.frames_dropped(),
+        frames_dropped: cb.counters().frames_dropped,
         scene,
     })
 }
