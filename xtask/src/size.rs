@@ -1,6 +1,332 @@
 //! `cargo xtask size`: static flash/RAM/CCM use of each firmware.
+//!
+//! ```text
+//! cargo xtask size [--flavour real|qemu|hil] [--no-build]
+//! ```
+//!
+//! Builds both firmwares in release (unless `--no-build`) and prints one line per firmware,
+//! `NAME flash=BYTES ram=BYTES ccm=BYTES`, read from the ELF section headers (parsed here; no
+//! binutils needed): flash is every allocated section with contents (code, read-only data, the
+//! vector table and the initial values of `.data`); ram is `.data`, `.bss` and `.uninit` in
+//! SRAM; ccm is the `.ccmram` section. The stack is not static: it takes what SRAM is left,
+//! which is printed on stderr and checked against a floor.
+
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Firmware packages, in print order.
+pub const FIRMWARES: [&str; 2] = ["stereo-board", "autopilot"];
+
+/// SRAM of the STM32F405 (contiguous SRAM1 + SRAM2), bytes.
+const SRAM_BYTES: u64 = 128 * 1024;
+/// CCM of the STM32F405, bytes.
+const CCM_BYTES: u64 = 64 * 1024;
+/// The least SRAM that must stay free for the stack, bytes.
+const MIN_STACK_BYTES: u64 = 8 * 1024;
+
+/// Static memory use of one firmware image.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Usage {
+    /// Bytes stored in flash.
+    pub flash: u64,
+    /// Bytes of SRAM taken by statics.
+    pub ram: u64,
+    /// Bytes of CCM taken by statics.
+    pub ccm: u64,
+}
 
 /// Runs `cargo xtask size`.
-pub fn run(_args: &[String]) -> anyhow::Result<()> {
-    anyhow::bail!("cargo xtask size is not implemented yet")
+pub fn run(args: &[String]) -> Result<()> {
+    let mut flavour = Flavour::Real;
+    let mut build = true;
+    let mut it = args.iter();
+    while let Some(arg) = it.next() {
+        match arg.as_str() {
+            "--flavour" | "--flavor" => {
+                flavour = Flavour::parse(it.next().context("--flavour needs a value")?)?
+            }
+            "--no-build" => build = false,
+            other => bail!("cargo xtask size: unknown argument {other:?}"),
+        }
+    }
+    if build {
+        build_firmwares(flavour, &FIRMWARES)?;
+    }
+    let mut over = Vec::new();
+    for name in FIRMWARES {
+        let elf = firmware_elf(flavour, name);
+        let bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
+        let usage = usage(&bytes).with_context(|| format!("parsing {}", elf.display()))?;
+        println!(
+            "{name} flash={} ram={} ccm={}",
+            usage.flash, usage.ram, usage.ccm
+        );
+        if flavour == Flavour::Real {
+            let stack = SRAM_BYTES.saturating_sub(usage.ram);
+            eprintln!("  {name}: {stack} bytes of SRAM left for the stack");
+            if stack < MIN_STACK_BYTES || usage.ccm > CCM_BYTES {
+                over.push(name);
+            }
+        }
+    }
+    if !over.is_empty() {
+        bail!("firmware does not fit with {MIN_STACK_BYTES} bytes of stack: {over:?}");
+    }
+    Ok(())
+}
+
+/// Firmware build flavour.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flavour {
+    /// The flight firmware.
+    Real,
+    /// `qemu-system-arm -M netduinoplus2` (feature `qemu`).
+    Qemu,
+    /// Hardware-in-the-loop (feature `hil`).
+    Hil,
+}
+
+impl Flavour {
+    /// Parses `real`, `qemu` or `hil`.
+    pub fn parse(s: &str) -> Result<Self> {
+        Ok(match s {
+            "real" => Self::Real,
+            "qemu" => Self::Qemu,
+            "hil" => Self::Hil,
+            other => bail!("unknown flavour {other:?} (real, qemu, hil)"),
+        })
+    }
+
+    fn feature(self) -> Option<&'static str> {
+        match self {
+            Self::Real => None,
+            Self::Qemu => Some("qemu"),
+            Self::Hil => Some("hil"),
+        }
+    }
+
+    /// Cargo target directory of this flavour's builds: the workspace's for the real flavour,
+    /// a subdirectory for the others, so that switching flavours does not rebuild.
+    pub fn target_dir(self) -> PathBuf {
+        let base = std::env::var_os("CARGO_TARGET_DIR")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| workspace_root().join("target"));
+        match self.feature() {
+            None => base,
+            Some(f) => base.join(format!("fw-{f}")),
+        }
+    }
+}
+
+/// The workspace root (the parent of xtask/).
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+/// Path of a firmware's ELF after [`build_firmwares`].
+pub fn firmware_elf(flavour: Flavour, name: &str) -> PathBuf {
+    flavour
+        .target_dir()
+        .join("thumbv7em-none-eabihf")
+        .join("release")
+        .join(name)
+}
+
+/// Builds the named firmwares of a flavour in release.
+pub fn build_firmwares(flavour: Flavour, names: &[&str]) -> Result<()> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.current_dir(workspace_root())
+        .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
+        .arg("--target-dir")
+        .arg(flavour.target_dir());
+    for name in names {
+        cmd.args(["-p", name]);
+    }
+    if let Some(feature) = flavour.feature() {
+        let features: Vec<String> = names.iter().map(|n| format!("{n}/{feature}")).collect();
+        cmd.args(["--features", &features.join(",")]);
+    }
+    let status = cmd.status().context("running cargo build")?;
+    if !status.success() {
+        bail!("firmware build failed ({flavour:?}: {names:?})");
+    }
+    Ok(())
+}
+
+/// Static memory use of an ELF32 little-endian image, from its section headers.
+pub fn usage(elf: &[u8]) -> Result<Usage> {
+    let mut u = Usage::default();
+    for s in sections(elf)? {
+        const SHF_ALLOC: u32 = 0x2;
+        const SHT_NOBITS: u32 = 8;
+        if s.flags & SHF_ALLOC == 0 || s.size == 0 {
+            continue;
+        }
+        let size = u64::from(s.size);
+        let in_flash = (0x0800_0000..0x0810_0000).contains(&s.addr);
+        if s.name.starts_with(".ccmram") || (0x1000_0000..0x1001_0000).contains(&s.addr) {
+            u.ccm += size;
+        } else if in_flash {
+            u.flash += size;
+        } else {
+            u.ram += size;
+            // Initialised data is also stored in flash (copied at start-up).
+            if s.kind != SHT_NOBITS {
+                u.flash += size;
+            }
+        }
+    }
+    Ok(u)
+}
+
+/// One section header (the fields used here).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Section {
+    /// Section name.
+    pub name: String,
+    /// `sh_type`.
+    pub kind: u32,
+    /// `sh_flags`.
+    pub flags: u32,
+    /// `sh_addr`.
+    pub addr: u32,
+    /// `sh_size`.
+    pub size: u32,
+}
+
+fn rd_u16(b: &[u8], at: usize) -> Result<u16> {
+    b.get(at..at + 2)
+        .and_then(|s| s.try_into().ok())
+        .map(u16::from_le_bytes)
+        .context("ELF truncated")
+}
+
+fn rd_u32(b: &[u8], at: usize) -> Result<u32> {
+    b.get(at..at + 4)
+        .and_then(|s| s.try_into().ok())
+        .map(u32::from_le_bytes)
+        .context("ELF truncated")
+}
+
+/// Section headers of an ELF32 little-endian file.
+pub fn sections(elf: &[u8]) -> Result<Vec<Section>> {
+    if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
+        bail!("not an ELF file");
+    }
+    if elf.get(4) != Some(&1) || elf.get(5) != Some(&1) {
+        bail!("not a 32-bit little-endian ELF");
+    }
+    let shoff = rd_u32(elf, 0x20)? as usize;
+    let shentsize = usize::from(rd_u16(elf, 0x2e)?);
+    let shnum = usize::from(rd_u16(elf, 0x30)?);
+    let shstrndx = usize::from(rd_u16(elf, 0x32)?);
+    if shentsize < 40 {
+        bail!("bad section header size {shentsize}");
+    }
+    let header = |i: usize| shoff + i * shentsize;
+    let strtab_off = rd_u32(elf, header(shstrndx) + 0x10)? as usize;
+    let mut out = Vec::with_capacity(shnum);
+    for i in 0..shnum {
+        let h = header(i);
+        let name_off = rd_u32(elf, h)? as usize;
+        let name = elf
+            .get(strtab_off + name_off..)
+            .and_then(|s| s.split(|&c| c == 0).next())
+            .map(|s| String::from_utf8_lossy(s).into_owned())
+            .unwrap_or_default();
+        out.push(Section {
+            name,
+            kind: rd_u32(elf, h + 0x04)?,
+            flags: rd_u32(elf, h + 0x08)?,
+            addr: rd_u32(elf, h + 0x0c)?,
+            size: rd_u32(elf, h + 0x14)?,
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A minimal ELF32 LE image with the given (name, type, flags, addr, size) sections.
+    fn elf(secs: &[(&str, u32, u32, u32, u32)]) -> Vec<u8> {
+        let mut strtab = vec![0u8];
+        let mut names = Vec::new();
+        for (n, ..) in secs.iter().chain([(".shstrtab", 3, 0, 0, 0)].iter()) {
+            names.push(strtab.len() as u32);
+            strtab.extend_from_slice(n.as_bytes());
+            strtab.push(0);
+        }
+        let strtab_off = 52u32;
+        let shoff = (52 + strtab.len() as u32 + 3) & !3;
+        let mut b = vec![0u8; shoff as usize];
+        b[..4].copy_from_slice(b"\x7fELF");
+        b[4] = 1;
+        b[5] = 1;
+        b[0x20..0x24].copy_from_slice(&shoff.to_le_bytes());
+        b[0x2e..0x30].copy_from_slice(&40u16.to_le_bytes());
+        let n = secs.len() as u16 + 1;
+        b[0x30..0x32].copy_from_slice(&n.to_le_bytes());
+        b[0x32..0x34].copy_from_slice(&(n - 1).to_le_bytes());
+        b[52..52 + strtab.len()].copy_from_slice(&strtab);
+        let all: Vec<_> = secs
+            .iter()
+            .copied()
+            .chain([(".shstrtab", 3u32, 0u32, 0u32, strtab.len() as u32)])
+            .collect();
+        for (i, (_, kind, flags, addr, size)) in all.iter().enumerate() {
+            let mut h = [0u8; 40];
+            h[0..4].copy_from_slice(&names[i].to_le_bytes());
+            h[4..8].copy_from_slice(&kind.to_le_bytes());
+            h[8..12].copy_from_slice(&flags.to_le_bytes());
+            h[12..16].copy_from_slice(&addr.to_le_bytes());
+            let off = if *kind == 3 { strtab_off } else { 0 };
+            h[16..20].copy_from_slice(&off.to_le_bytes());
+            h[20..24].copy_from_slice(&size.to_le_bytes());
+            b.extend_from_slice(&h);
+        }
+        b
+    }
+
+    #[test]
+    fn classifies_sections() {
+        let img = elf(&[
+            (".vector_table", 1, 2, 0x0800_0000, 0x188),
+            (".text", 1, 6, 0x0800_0188, 10_000),
+            (".rodata", 1, 2, 0x0800_2898, 500),
+            (".data", 1, 3, 0x2000_0000, 64),
+            (".bss", 8, 3, 0x2000_0040, 50_000),
+            (".uninit", 8, 3, 0x2000_c390, 16),
+            (".ccmram", 8, 3, 0x1000_0000, 9_000),
+            (".defmt", 1, 0, 0, 300),
+            (".debug_info", 1, 0, 0, 99_999),
+        ]);
+        let u = usage(&img).unwrap();
+        assert_eq!(
+            u,
+            Usage {
+                flash: 0x188 + 10_000 + 500 + 64,
+                ram: 64 + 50_000 + 16,
+                ccm: 9_000
+            }
+        );
+        // The QEMU map puts ".ccmram" inside SRAM: classified by name.
+        let img = elf(&[(".ccmram", 8, 3, 0x2001_0000, 100)]);
+        assert_eq!(usage(&img).unwrap().ccm, 100);
+    }
+
+    #[test]
+    fn rejects_garbage() {
+        assert!(usage(b"not an elf").is_err());
+        assert!(usage(b"\x7fELF\x01\x01").is_err());
+        let mut img = elf(&[(".text", 1, 6, 0x0800_0000, 4)]);
+        img.truncate(img.len() - 30);
+        assert!(usage(&img).is_err());
+    }
 }
