@@ -1,0 +1,232 @@
+//! Ground-truth camera-frame velocities from the OptiTrack log (spec §1.5, §2).
+
+use super::dataset::{read_table, read_tme, Take};
+use anyhow::{ensure, Result};
+
+/// How images are matched to motion-capture samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Alignment {
+    /// The paper-era MATLAB rule (reproduces the published numbers; board 1 is one frame early,
+    /// duplicate OptiTrack timestamps give Inf/NaN, first 4 frames zeroed).
+    Paper,
+    /// Physically correct: per-image `.tme` times (or the (k+1)-th flagged timing row),
+    /// sentinel rows and duplicate timestamps removed, yaw unwrapped, central differences at
+    /// the image time. Not comparable with the paper's table.
+    Corrected,
+}
+
+/// Ground truth for images `1..=N-1` (index 0 = image 1).
+#[derive(Debug, Clone, Default)]
+pub struct Truth {
+    /// Image time, s (logging clock).
+    pub time_s: Vec<f64>,
+    /// Forward velocity, m/s.
+    pub fwd: Vec<f64>,
+    /// Lateral velocity in the data set's convention (MATLAB `cam_Vx`), m/s.
+    pub side: Vec<f64>,
+    /// OptiTrack yaw, deg (data set convention: about the vertical axis, up).
+    pub yaw_deg: Vec<f64>,
+}
+
+/// MATLAB `smooth(x, span)`: centred moving average whose span shrinks at the ends.
+pub fn matlab_smooth(x: &[f64], span: usize) -> Vec<f64> {
+    let n = x.len();
+    let h = (span.max(1) - 1) / 2;
+    (0..n)
+        .map(|k| {
+            let r = h.min(k).min(n - 1 - k);
+            let s: f64 = x[k - r..=k + r].iter().sum();
+            s / (2 * r + 1) as f64
+        })
+        .collect()
+}
+
+/// Index of the sample nearest to `t` (first on ties), `ts` ascending or not.
+fn nearest(ts: &[f64], t: f64) -> usize {
+    let mut best = 0;
+    let mut bd = f64::INFINITY;
+    for (k, &s) in ts.iter().enumerate() {
+        let d = (t - s).abs();
+        if d < bd {
+            bd = d;
+            best = k;
+        }
+    }
+    best
+}
+
+/// Ground truth for a take with `n_images` images.
+pub fn ground_truth(take: &Take, n_images: usize, alignment: Alignment) -> Result<Truth> {
+    match alignment {
+        Alignment::Paper => paper_truth(take, n_images),
+        Alignment::Corrected => corrected_truth(take, n_images),
+    }
+}
+
+fn flagged_times(rows: &[Vec<f64>]) -> Vec<f64> {
+    rows.iter().filter(|r| r[1] == 1.0).map(|r| r[0]).collect()
+}
+
+/// Paper-era alignment and ground truth (exact MATLAB replica, see the spec).
+pub fn paper_truth(take: &Take, n_images: usize) -> Result<Truth> {
+    let timing_path = take.dir.join("timing.dat");
+    let timing = read_table(&timing_path, 2, true)?;
+    let t_frame = flagged_times(&timing.rows);
+    let m = n_images.saturating_sub(1);
+    ensure!(
+        t_frame.len() >= m,
+        "{}: {} recorded-frame rows (flag 1) after line 1, need {m} for {n_images} images",
+        timing_path.display(),
+        t_frame.len()
+    );
+    let pos = read_table(&take.dir.join("position.dat"), 8, true)?;
+    let t: Vec<f64> = pos.rows.iter().map(|r| r[0]).collect();
+    let col = |c: usize| -> Vec<f64> { pos.rows.iter().map(|r| r[c]).collect() };
+    let (x, z, yaw) = (
+        matlab_smooth(&col(2), 5),
+        matlab_smooth(&col(4), 5),
+        matlab_smooth(&col(7), 15),
+    );
+    let n = t.len();
+    let diff = |v: &[f64]| -> Vec<f64> {
+        (0..n)
+            .map(|k| {
+                if k + 1 < n {
+                    (v[k + 1] - v[k]) / (t[k + 1] - t[k])
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    };
+    let (vx, vz) = (diff(&x), diff(&z));
+    let sign = if take.board == 2 { -1.0 } else { 1.0 };
+    let mut truth = Truth::default();
+    for (i, &tf) in t_frame.iter().take(m).enumerate() {
+        let k = nearest(&t, tf);
+        let psi = yaw[k] * std::f64::consts::PI / 180.0;
+        let (c, s) = (psi.cos(), psi.sin());
+        let zeroed = i < 4;
+        truth.time_s.push(tf);
+        truth
+            .side
+            .push(if zeroed { 0.0 } else { vx[k] * c - vz[k] * s });
+        truth.fwd.push(if zeroed {
+            0.0
+        } else {
+            sign * (vz[k] * c + vx[k] * s)
+        });
+        truth.yaw_deg.push(if zeroed { 0.0 } else { yaw[k] });
+    }
+    Ok(truth)
+}
+
+/// Linear interpolation of `v` at `t` (clamped at the ends; `ts` strictly increasing).
+fn interp(ts: &[f64], v: &[f64], t: f64) -> f64 {
+    let k = ts.partition_point(|&s| s <= t);
+    if k == 0 {
+        return v[0];
+    }
+    if k >= ts.len() {
+        return v[ts.len() - 1];
+    }
+    let a = (t - ts[k - 1]) / (ts[k] - ts[k - 1]);
+    v[k - 1] + a * (v[k] - v[k - 1])
+}
+
+/// Corrected alignment (see [`Alignment::Corrected`]).
+pub fn corrected_truth(take: &Take, n_images: usize) -> Result<Truth> {
+    let m = n_images.saturating_sub(1);
+    let times = match read_tme(take)? {
+        Some(t) => {
+            ensure!(
+                t.len() >= m,
+                "{}: {} times for {n_images} images",
+                take.dir.join("%i.bmp.tme").display(),
+                t.len()
+            );
+            t
+        }
+        None => {
+            let path = take.dir.join("timing.dat");
+            let timing = read_table(&path, 2, false)?;
+            let flagged = flagged_times(&timing.rows);
+            ensure!(
+                flagged.len() > m,
+                "{}: {} recorded-frame rows, need {} (image k is the (k+1)-th)",
+                path.display(),
+                flagged.len(),
+                m + 1
+            );
+            flagged[1..].to_vec()
+        }
+    };
+    let path = take.dir.join("position.dat");
+    let pos = read_table(&path, 8, false)?;
+    let mut rows: Vec<&Vec<f64>> = Vec::new();
+    for r in &pos.rows {
+        let sentinel = r[2].abs() > 1e5 || r[3].abs() > 1e5 || r[4].abs() > 1e5;
+        let dup = rows.last().is_some_and(|p| r[0] <= p[0]);
+        if !sentinel && !dup && r.iter().all(|v| v.is_finite()) {
+            rows.push(r);
+        }
+    }
+    ensure!(
+        rows.len() >= 16,
+        "{}: only {} valid motion-capture rows",
+        path.display(),
+        rows.len()
+    );
+    let t: Vec<f64> = rows.iter().map(|r| r[0]).collect();
+    let mut yaw_unwrapped: Vec<f64> = Vec::with_capacity(rows.len());
+    for r in &rows {
+        let y = r[7];
+        let y = match yaw_unwrapped.last() {
+            Some(&p) => p + (y - p + 180.0).rem_euclid(360.0) - 180.0,
+            None => y,
+        };
+        yaw_unwrapped.push(y);
+    }
+    let x = matlab_smooth(&rows.iter().map(|r| r[2]).collect::<Vec<_>>(), 5);
+    let z = matlab_smooth(&rows.iter().map(|r| r[4]).collect::<Vec<_>>(), 5);
+    let yaw = matlab_smooth(&yaw_unwrapped, 15);
+    let sign = if take.board == 2 { -1.0 } else { 1.0 };
+    let h = 0.05;
+    let mut truth = Truth::default();
+    for &tf in times.iter().take(m) {
+        let vx = (interp(&t, &x, tf + h) - interp(&t, &x, tf - h)) / (2.0 * h);
+        let vz = (interp(&t, &z, tf + h) - interp(&t, &z, tf - h)) / (2.0 * h);
+        let yd = interp(&t, &yaw, tf);
+        let psi = yd.to_radians();
+        let (c, s) = (psi.cos(), psi.sin());
+        truth.time_s.push(tf);
+        truth.side.push(vx * c - vz * s);
+        truth.fwd.push(sign * (vz * c + vx * s));
+        truth.yaw_deg.push(yd);
+    }
+    Ok(truth)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn smooth_matches_matlab_end_behaviour() {
+        let x = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+        let s = matlab_smooth(&x, 5);
+        assert_eq!(s[0], 1.0);
+        assert!((s[1] - 7.0 / 3.0).abs() < 1e-12);
+        assert!((s[2] - 31.0 / 5.0).abs() < 1e-12);
+        assert!((s[4] - 56.0 / 3.0).abs() < 1e-12);
+        assert_eq!(s[5], 32.0);
+    }
+
+    #[test]
+    fn nearest_takes_first_on_ties_and_interp_clamps() {
+        assert_eq!(nearest(&[0.0, 1.0, 2.0], 0.5), 0);
+        assert_eq!(nearest(&[0.0, 1.0, 2.0], 1.6), 2);
+        assert_eq!(interp(&[0.0, 1.0], &[2.0, 4.0], 0.25), 2.5);
+        assert_eq!(interp(&[0.0, 1.0], &[2.0, 4.0], 9.0), 4.0);
+    }
+}
