@@ -17,8 +17,9 @@ use crate::indi::{Indi, IndiConfig};
 use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
 use protocol::{
-    Estimate, EstimateFlags, ExternalPosition, GyroAttitude, ImuSample, LinkErrorCounts,
-    PilotCommand, Telemetry,
+    ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
+    LinkErrorCounts, PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder,
+    Telemetry,
 };
 
 /// What starts a task.
@@ -233,8 +234,11 @@ pub struct Autopilot {
     last_guidance_us: Option<u64>,
     below_landed_since_us: Option<u64>,
     motors: [f32; 4],
-    link_errors: LinkErrorCounts,
     estimates_received: u32,
+    stereo_rx: StereoToAutopilotDecoder,
+    stereo_heartbeat: Option<(u64, Heartbeat)>,
+    stereo_status: Option<StereoStatus>,
+    stereo_config_ack: Option<ConfigResult>,
 }
 
 fn finite3(v: &[f32; 3], max_abs: f32) -> bool {
@@ -267,8 +271,11 @@ impl Autopilot {
             last_guidance_us: None,
             below_landed_since_us: None,
             motors: MOTORS_OFF,
-            link_errors: LinkErrorCounts::default(),
             estimates_received: 0,
+            stereo_rx: StereoToAutopilotDecoder::new(),
+            stereo_heartbeat: None,
+            stereo_status: None,
+            stereo_config_ack: None,
             cfg: config,
         }
     }
@@ -323,9 +330,53 @@ impl Autopilot {
         self.motors
     }
 
-    /// Errors decoding camera-board bytes since boot.
+    /// Errors decoding camera-board bytes (via [`Autopilot::on_stereo_bytes`]) since boot.
     pub fn link_errors(&self) -> LinkErrorCounts {
-        self.link_errors
+        self.stereo_rx.errors()
+    }
+
+    /// Estimates received since boot (valid or not, wrapping).
+    pub fn estimates_received(&self) -> u32 {
+        self.estimates_received
+    }
+
+    /// The camera board's last heartbeat and when it arrived (µs).
+    pub fn stereo_heartbeat(&self) -> Option<(u64, Heartbeat)> {
+        self.stereo_heartbeat
+    }
+
+    /// The camera board's last status report.
+    pub fn stereo_status(&self) -> Option<StereoStatus> {
+        self.stereo_status
+    }
+
+    /// The camera board's answer to the last configuration request.
+    pub fn stereo_config_ack(&self) -> Option<ConfigResult> {
+        self.stereo_config_ack
+    }
+
+    /// Bytes from the camera-board UART, as they arrive (any chunking). Complete frames are
+    /// decoded (bad ones counted in [`Autopilot::link_errors`]) and handled: estimates go to
+    /// [`Autopilot::on_estimate`] with time `now_us`. Returns the number of messages decoded.
+    pub fn on_stereo_bytes(&mut self, bytes: &[u8], now_us: u64) -> usize {
+        let mut n = 0;
+        for &b in bytes {
+            if let Some(msg) = self.stereo_rx.push(b) {
+                n += 1;
+                self.on_stereo_message(msg, now_us);
+            }
+        }
+        n
+    }
+
+    /// One decoded camera-board message (for callers that run their own decoder).
+    pub fn on_stereo_message(&mut self, msg: StereoToAutopilot, now_us: u64) {
+        match msg {
+            StereoToAutopilot::Estimate(e) => self.on_estimate(&e, now_us),
+            StereoToAutopilot::Heartbeat(h) => self.stereo_heartbeat = Some((now_us, h)),
+            StereoToAutopilot::Status(s) => self.stereo_status = Some(s),
+            StereoToAutopilot::ConfigAck(a) => self.stereo_config_ack = Some(a),
+        }
     }
 
     fn freshness(&self) -> Freshness {
@@ -597,7 +648,7 @@ impl Autopilot {
             velocity_setpoint_mps: self.sp.velocity_mps,
             obstacle_m: self.obstacle.and_then(|o| o.distance_m),
             height_m: self.height.height_m(),
-            link_errors: self.link_errors,
+            link_errors: self.stereo_rx.errors(),
         }
     }
 }

@@ -372,6 +372,40 @@ fn telemetry_and_gyro_attitude_reflect_state() {
     }
 }
 
+#[test]
+fn stereo_bytes_are_decoded_in_any_chunking() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let quad = Quad::new();
+    let mut wire = Vec::new();
+    let mut buf = [0u8; 128];
+    for seq in 0..3u16 {
+        let mut e = quad.estimate(seq);
+        e.forward_mps = 0.1 * seq as f32;
+        let n = protocol::encode(&StereoToAutopilot::Estimate(e), &mut buf).unwrap();
+        wire.extend_from_slice(&buf[..n]);
+    }
+    let hb = Heartbeat::new(protocol::Node::StereoBoard, 5);
+    let n = protocol::encode(&StereoToAutopilot::Heartbeat(hb), &mut buf).unwrap();
+    wire.extend_from_slice(&buf[..n]);
+    // Garbage in the middle: counted, and the decoder resynchronises.
+    let mut bad = wire.clone();
+    bad.splice(0..0, [1u8, 2, 3, 0]);
+    let mut decoded = 0;
+    for chunk in bad.chunks(7) {
+        decoded += ap.on_stereo_bytes(chunk, 1_000);
+    }
+    assert_eq!(decoded, 4);
+    assert_eq!(ap.estimates_received(), 3);
+    assert_eq!(ap.stereo_heartbeat(), Some((1_000, hb)));
+    assert_eq!(ap.velocity(), Some([0.1, 0.0]));
+    let errors = ap.link_errors();
+    assert_eq!(
+        errors.crc + errors.cobs + errors.too_short + errors.malformed,
+        1
+    );
+    assert_eq!(ap.telemetry(0).link_errors, errors);
+}
+
 fn arb_f32() -> impl Strategy<Value = f32> {
     prop_oneof![
         any::<f32>(),
