@@ -1,81 +1,389 @@
 //! RTIC 2 application of the autopilot firmware (thumbv7em-none-eabihf only).
 //!
-//! A thin shell: every task body is one call into the board's hardware-free logic.
+//! A thin shell around [`autopilot::app::Autopilot`]; the tasks mirror `autopilot::app::TASKS`
+//! (same names and relative priorities) and each body is one call into the library.
+//!
+//! | RTIC task | prio | trigger | body |
+//! |---|---|---|---|
+//! | `usart1`, `usart2` | 6 | UART RXNE | bytes into lock-free queues (never wait for a lock) |
+//! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out |
+//! | `stereo_rx` | 4 | woken by `usart1` | `Autopilot::on_stereo_bytes` |
+//! | `host_rx` | 4 | woken by `usart2` | IMU / position / command from the host |
+//! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety` |
+//! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
+//! | `telemetry` | 1 | 10 Hz | `Autopilot::telemetry` to the host |
+//! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog |
+//!
+//! Motor commands leave as `BoardToHost::Motors` on the host link in the HIL and QEMU
+//! flavours (the flight logic is the same code as on hardware).
 
 mod board;
+mod clock;
 mod log;
 
+use autopilot::app::Autopilot;
+use core::mem::MaybeUninit;
 use defmt_rtt as _;
 #[cfg(not(feature = "qemu"))]
 use panic_probe as _;
 
 rtic_monotonics::systick_monotonic!(Mono, 1_000);
 
-#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART4])]
-mod app {
-    use super::{board, log, Mono};
+/// The autopilot state: CPU-only, so it lives in CCM. NOLOAD: `init` writes it first.
+#[link_section = ".ccmram"]
+static mut AP: MaybeUninit<Autopilot> = MaybeUninit::uninit();
+
+/// Bytes of each receive queue between the RX interrupt and its decoding task.
+const RX_QUEUE: usize = 2048;
+
+/// Blocking write of whole frames to a UART (a few dozen bytes per message at 921,600 Bd).
+fn write_all<U: stm32f4xx_hal::serial::Instance>(
+    tx: &mut stm32f4xx_hal::serial::Tx<U>,
+    bytes: &[u8],
+) {
     use embedded_io::Write as _;
-    use protocol::{AutopilotToStereo, Heartbeat, Message as _, Node};
+    let _ = tx.write_all(bytes);
+}
+
+/// Encodes one message and writes it.
+fn send<M: protocol::Message, U: stm32f4xx_hal::serial::Instance, const N: usize>(
+    tx: &mut stm32f4xx_hal::serial::Tx<U>,
+    msg: &M,
+) {
+    let mut buf = [0u8; N];
+    if let Ok(n) = protocol::encode(msg, &mut buf) {
+        write_all(tx, buf.get(..n).unwrap_or(&[]));
+    }
+}
+
+/// Period in SysTick ticks (1 ms), at least 1.
+const fn ticks(period_us: u32) -> u32 {
+    let t = period_us / 1_000;
+    if t == 0 {
+        1
+    } else {
+        t
+    }
+}
+
+#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART4, UART5, TIM8_UP_TIM13])]
+mod app {
+    use super::{board, clock, log, send, ticks, Mono, AP, RX_QUEUE};
+    use autopilot::app::{
+        Autopilot, AutopilotConfig, GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, HEARTBEAT_PERIOD_US,
+        TELEMETRY_PERIOD_US,
+    };
+    use heapless::spsc::{Consumer, Producer, Queue};
+    use protocol::{
+        AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
+        Message as _, MotorCommand, Node,
+    };
     use rtic_monotonics::Timebase as _;
+    use rtic_sync::channel::{Receiver, Sender};
     use stm32f4xx_hal::{
         gpio::{Output, PC13},
         pac,
         prelude::*,
-        serial::{self, Tx},
+        serial::{self, Rx, Tx},
+        watchdog::IndependentWatchdog,
     };
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
+    const A2S: usize = AutopilotToStereo::MAX_FRAME_BYTES;
+    const B2H: usize = BoardToHost::MAX_FRAME_BYTES;
 
     #[shared]
     struct Shared {
+        ap: &'static mut Autopilot,
         link_tx: Tx<pac::USART1>,
+        host_tx: Tx<pac::USART2>,
+        /// Messages decoded from the camera board since boot.
+        stereo_msgs: u32,
     }
 
     #[local]
     struct Local {
         led: PC13<Output>,
+        iwdg: IndependentWatchdog,
+        link_rx: Rx<pac::USART1>,
+        link_in: Producer<'static, u8>,
+        link_out: Consumer<'static, u8>,
+        link_wake_tx: Sender<'static, (), 1>,
+        link_wake_rx: Receiver<'static, (), 1>,
+        host_rx: Rx<pac::USART2>,
+        host_in: Producer<'static, u8>,
+        host_out: Consumer<'static, u8>,
+        host_wake_tx: Sender<'static, (), 1>,
+        host_wake_rx: Receiver<'static, (), 1>,
+        host_decoder: HostToBoardDecoder,
     }
 
-    #[init]
+    #[init(local = [
+        link_q: Queue<u8, RX_QUEUE> = Queue::new(),
+        host_q: Queue<u8, RX_QUEUE> = Queue::new(),
+    ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut rcc = cx.device.RCC.freeze(board::clocks());
         Mono::start(cx.core.SYST, board::SYSTICK_HZ);
+
+        // SAFETY: `init` runs once, before any task; this is the only reference ever made to
+        // AP, and it is handed to RTIC as a shared resource.
+        #[allow(static_mut_refs)]
+        let ap: &'static mut Autopilot =
+            unsafe { AP.write(Autopilot::new(AutopilotConfig::default())) };
 
         let gpioa = cx.device.GPIOA.split(&mut rcc);
         let gpioc = cx.device.GPIOC.split(&mut rcc);
         let led = gpioc.pc13.into_push_pull_output();
 
-        let link = cx
+        let config = serial::Config::default().baudrate(board::LINK_BAUD.bps());
+        let (link_tx, mut link_rx) = cx
             .device
             .USART1
-            .serial::<u8>(
-                (gpioa.pa9, gpioa.pa10),
-                serial::Config::default().baudrate(board::LINK_BAUD.bps()),
-                &mut rcc,
-            )
-            .unwrap_or_else(|_| log::fatal("USART1 configuration"));
-        let (link_tx, _link_rx) = link.split();
+            .serial::<u8>((gpioa.pa9, gpioa.pa10), config, &mut rcc)
+            .unwrap_or_else(|_| log::fatal("USART1 configuration"))
+            .split();
+        link_rx.listen();
+        let (host_tx, mut host_rx) = cx
+            .device
+            .USART2
+            .serial::<u8>((gpioa.pa2, gpioa.pa3), config, &mut rcc)
+            .unwrap_or_else(|_| log::fatal("USART2 configuration"))
+            .split();
+        host_rx.listen();
+        let (link_in, link_out) = cx.local.link_q.split();
+        let (host_in, host_out) = cx.local.host_q.split();
+        let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!((), 1);
+        let (host_wake_tx, host_wake_rx) = rtic_sync::make_channel!((), 1);
+
+        let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
+        iwdg.start(board::WATCHDOG_MS.millis());
 
         log::info!("autopilot up, sysclk {} Hz", rcc.clocks.sysclk().raw());
+        stereo_rx::spawn().ok();
+        host_rx::spawn().ok();
+        guidance::spawn().ok();
+        gyro_tx::spawn().ok();
+        telemetry::spawn().ok();
         heartbeat::spawn().ok();
-        (Shared { link_tx }, Local { led })
+
+        (
+            Shared {
+                ap,
+                link_tx,
+                host_tx,
+                stereo_msgs: 0,
+            },
+            Local {
+                led,
+                iwdg,
+                link_rx,
+                link_in,
+                link_out,
+                link_wake_tx,
+                link_wake_rx,
+                host_rx,
+                host_in,
+                host_out,
+                host_wake_tx,
+                host_wake_rx,
+                host_decoder: HostToBoardDecoder::new(),
+            },
+        )
     }
 
-    /// 1 Hz heartbeat to the camera board, LED toggle.
-    #[task(priority = 1, shared = [link_tx], local = [led])]
+    /// Moves every received byte of a UART into its queue and wakes the decoding task.
+    fn drain_uart<U: serial::Instance>(
+        rx: &mut Rx<U>,
+        queue: &mut Producer<'static, u8>,
+        wake: &mut Sender<'static, (), 1>,
+    ) {
+        use stm32f4xx_hal::nb;
+        for _ in 0..64 {
+            match rx.read() {
+                Ok(byte) => {
+                    let _ = queue.enqueue(byte);
+                }
+                Err(nb::Error::WouldBlock) => break,
+                Err(nb::Error::Other(_)) => {}
+            }
+        }
+        let _ = wake.try_send(());
+    }
+
+    /// Takes up to `buf.len()` bytes out of a queue.
+    fn take(queue: &mut Consumer<'static, u8>, buf: &mut [u8]) -> usize {
+        let mut n = 0;
+        for slot in buf.iter_mut() {
+            match queue.dequeue() {
+                Some(b) => {
+                    *slot = b;
+                    n += 1;
+                }
+                None => break,
+            }
+        }
+        n
+    }
+
+    /// USART1 (camera board) receive interrupt.
+    #[task(binds = USART1, priority = 6, local = [link_rx, link_in, link_wake_tx])]
+    fn usart1(cx: usart1::Context) {
+        drain_uart(cx.local.link_rx, cx.local.link_in, cx.local.link_wake_tx);
+    }
+
+    /// USART2 (host) receive interrupt.
+    #[task(binds = USART2, priority = 6, local = [host_rx, host_in, host_wake_tx])]
+    fn usart2(cx: usart2::Context) {
+        drain_uart(cx.local.host_rx, cx.local.host_in, cx.local.host_wake_tx);
+    }
+
+    /// 512 Hz: IMU sample -> attitude -> INDI -> motors.
+    #[task(priority = 5, shared = [ap, host_tx])]
+    async fn imu_indi(mut cx: imu_indi::Context, imu: ImuSample) {
+        let now = clock::now_us();
+        let throttle = cx.shared.ap.lock(|ap| ap.on_imu(&imu, now));
+        motors_out(&mut cx.shared.host_tx, now, throttle);
+    }
+
+    /// Motor command out: the host link in HIL/QEMU (PWM on hardware).
+    fn motors_out(
+        host_tx: &mut impl rtic::Mutex<T = Tx<pac::USART2>>,
+        now: u64,
+        throttle: [f32; 4],
+    ) {
+        let msg = BoardToHost::Motors(MotorCommand {
+            timestamp_us: now as u32,
+            throttle,
+        });
+        host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
+    }
+
+    /// Camera-board bytes: estimates, status, heartbeats, config acks.
+    #[task(priority = 4, shared = [ap, stereo_msgs], local = [link_out, link_wake_rx])]
+    async fn stereo_rx(mut cx: stereo_rx::Context) {
+        let mut buf = [0u8; 64];
+        while cx.local.link_wake_rx.recv().await.is_ok() {
+            loop {
+                let n = take(cx.local.link_out, &mut buf);
+                if n == 0 {
+                    break;
+                }
+                let now = clock::now_us();
+                let bytes = buf.get(..n).unwrap_or(&[]);
+                let decoded = cx.shared.ap.lock(|ap| ap.on_stereo_bytes(bytes, now));
+                cx.shared
+                    .stereo_msgs
+                    .lock(|c| *c = c.wrapping_add(decoded as u32));
+            }
+        }
+    }
+
+    /// Host bytes: IMU samples (HIL), external position, pilot commands.
+    #[task(priority = 4, shared = [ap], local = [host_out, host_wake_rx, host_decoder])]
+    async fn host_rx(mut cx: host_rx::Context) {
+        let mut buf = [0u8; 64];
+        while cx.local.host_wake_rx.recv().await.is_ok() {
+            loop {
+                let n = take(cx.local.host_out, &mut buf);
+                if n == 0 {
+                    break;
+                }
+                for &byte in buf.get(..n).unwrap_or(&[]) {
+                    let Some(msg) = cx.local.host_decoder.push(byte) else {
+                        continue;
+                    };
+                    let now = clock::now_us();
+                    match msg {
+                        HostToBoard::Imu(sample) => {
+                            // A sample arriving while the previous one is still being
+                            // processed is skipped (the IMU failsafe watches the rate).
+                            let _ = imu_indi::spawn(sample);
+                        }
+                        HostToBoard::ExternalPosition(pos) => {
+                            cx.shared.ap.lock(|ap| ap.on_external_position(&pos, now))
+                        }
+                        HostToBoard::Command(cmd) => {
+                            cx.shared.ap.lock(|ap| ap.on_command(cmd, now))
+                        }
+                        HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => {}
+                    }
+                }
+            }
+        }
+    }
+
+    /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be.
+    #[task(priority = 3, shared = [ap, host_tx])]
+    async fn guidance(mut cx: guidance::Context) {
+        loop {
+            let now = clock::now_us();
+            let off = cx.shared.ap.lock(|ap| {
+                ap.guidance_step(now);
+                ap.motor_safety(now)
+            });
+            if let Some(throttle) = off {
+                motors_out(&mut cx.shared.host_tx, now, throttle);
+            }
+            Mono::delay(Duration::from_ticks(ticks(GUIDANCE_PERIOD_US))).await;
+        }
+    }
+
+    /// 128 Hz: gyro and attitude to the camera board for derotation.
+    #[task(priority = 2, shared = [ap, link_tx])]
+    async fn gyro_tx(mut cx: gyro_tx::Context) {
+        loop {
+            let now = clock::now_us();
+            let msg =
+                AutopilotToStereo::GyroAttitude(cx.shared.ap.lock(|ap| ap.gyro_attitude(now)));
+            cx.shared.link_tx.lock(|tx| send::<_, _, A2S>(tx, &msg));
+            Mono::delay(Duration::from_ticks(ticks(GYRO_TX_PERIOD_US))).await;
+        }
+    }
+
+    /// 10 Hz: telemetry to the host.
+    #[task(priority = 1, shared = [ap, host_tx])]
+    async fn telemetry(mut cx: telemetry::Context) {
+        loop {
+            let now = clock::now_us();
+            let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| ap.telemetry(now)));
+            cx.shared.host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
+            Mono::delay(Duration::from_ticks(ticks(TELEMETRY_PERIOD_US))).await;
+        }
+    }
+
+    /// 1 Hz: heartbeats to both links, LED, watchdog, a status log line.
+    #[task(priority = 1, shared = [ap, link_tx, host_tx, stereo_msgs], local = [led, iwdg])]
     async fn heartbeat(mut cx: heartbeat::Context) {
         loop {
-            let uptime_ms = Mono::now().as_ticks();
-            let msg = AutopilotToStereo::Heartbeat(Heartbeat::new(Node::Autopilot, uptime_ms));
-            let mut buf = [0u8; AutopilotToStereo::MAX_FRAME_BYTES];
-            if let Ok(n) = protocol::encode(&msg, &mut buf) {
-                cx.shared.link_tx.lock(|tx| {
-                    let _ = tx.write_all(buf.get(..n).unwrap_or(&[]));
-                });
-            }
+            let now = clock::now_us();
+            let uptime_ms = (now / 1_000) as u32;
+            let hb = Heartbeat::new(Node::Autopilot, uptime_ms);
+            cx.shared
+                .link_tx
+                .lock(|tx| send::<_, _, A2S>(tx, &AutopilotToStereo::Heartbeat(hb)));
+            cx.shared
+                .host_tx
+                .lock(|tx| send::<_, _, B2H>(tx, &BoardToHost::Heartbeat(hb)));
             cx.local.led.toggle();
-            log::info!("heartbeat {} ms", uptime_ms);
-            Mono::delay(Duration::from_ticks(1000)).await;
+            cx.local.iwdg.feed();
+            let msgs = cx.shared.stereo_msgs.lock(|c| *c);
+            let (errors, estimates, peer) = cx.shared.ap.lock(|ap| {
+                (
+                    ap.link_errors().total(),
+                    ap.estimates_received(),
+                    ap.stereo_heartbeat().map(|(_, h)| h.uptime_ms),
+                )
+            });
+            log::info!(
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={}",
+                uptime_ms,
+                msgs,
+                errors,
+                estimates,
+                peer.unwrap_or(u32::MAX)
+            );
+            Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD_US))).await;
         }
     }
 }

@@ -43,3 +43,6 @@ pub fn clocks() -> Config {
         Config::hsi().sysclk(Hertz::from_raw(SYSCLK_HZ))
     }
 }
+
+/// Independent-watchdog timeout, ms (the 1 Hz status task feeds it).
+pub const WATCHDOG_MS: u32 = 2_000;
