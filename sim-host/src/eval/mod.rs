@@ -9,7 +9,8 @@
 //! configuration's outputs for images `i <= 2H` are set to 0; the estimator gets the OptiTrack
 //! yaw (converted to the body convention: `yaw_body = -yaw_optitrack`) as its attitude and the
 //! image times as capture times; its sideways output (positive right) is compared with the
-//! data set's lateral velocity, which is positive to the left, so it is negated here.
+//! data set's lateral velocity, which is positive to the left, so it is negated here. Every
+//! estimate is scored as it is, flagged or not (the flags are kept in [`Series::flags`]).
 
 pub mod dataset;
 pub mod metrics;
@@ -82,6 +83,8 @@ pub struct Series {
     pub gt_x: Vec<f64>,
     /// Ground-truth lateral velocity, m/s.
     pub gt_y: Vec<f64>,
+    /// Validity flags of each estimate ([`protocol::EstimateFlags`] bits).
+    pub flags: Vec<u8>,
     /// First and last evaluated index (0-based, inclusive).
     pub window: (usize, usize),
 }
@@ -161,10 +164,12 @@ pub fn evaluate_take_with(
         };
         let capture_us = (t * 1e6).round().max(0.0) as u64;
         let out = fs.process(&frame, capture_us, Some(&motion));
+        s.flags.push(out.flags.0);
         let (mut ex, mut ey) = (f64::from(out.forward_mps), -f64::from(out.sideways_mps));
         if zero_first_2h && i <= 2 * h {
             (ex, ey) = (0.0, 0.0);
         }
+
         s.est_x.push(ex);
         s.est_y.push(ey);
         on_frame();
@@ -301,18 +306,41 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// Win counts of our MSE against the published numbers: `(x vs Edge-FS, x vs Farnebäck,
-/// y vs Edge-FS, y vs Farnebäck, takes with a published row)`. A win is a strictly lower
-/// unrounded MSE than the published (4-decimal) value; NaN never wins.
-pub fn wins(results: &[TakeResult]) -> (usize, usize, usize, usize, usize) {
-    let mut w = (0, 0, 0, 0, 0);
+/// Win counts of our MSE against the published numbers of the takes that have them.
+/// A win is a strictly lower unrounded MSE than the published (4-decimal) value; NaN never
+/// wins.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Wins {
+    /// Takes with published numbers.
+    pub takes: usize,
+    /// Forward: lower than the paper's Edge-FS.
+    pub x_edgefs: usize,
+    /// Forward: lower than the paper's Farnebäck.
+    pub x_farneback: usize,
+    /// Forward: lower than both.
+    pub x_both: usize,
+    /// Sideways: lower than the paper's Edge-FS.
+    pub y_edgefs: usize,
+    /// Sideways: lower than the paper's Farnebäck.
+    pub y_farneback: usize,
+    /// Sideways: lower than both.
+    pub y_both: usize,
+}
+
+/// Counts the [`Wins`] of `results`.
+pub fn wins(results: &[TakeResult]) -> Wins {
+    let mut w = Wins::default();
     for r in results {
         if let Some(p) = paper_row(r.board, r.take) {
-            w.4 += 1;
-            w.0 += usize::from(r.x.mse < p.edgefs[1]);
-            w.1 += usize::from(r.x.mse < p.farneback[1]);
-            w.2 += usize::from(r.y.mse < p.edgefs[4]);
-            w.3 += usize::from(r.y.mse < p.farneback[4]);
+            let (xe, xf) = (r.x.mse < p.edgefs[1], r.x.mse < p.farneback[1]);
+            let (ye, yf) = (r.y.mse < p.edgefs[4], r.y.mse < p.farneback[4]);
+            w.takes += 1;
+            w.x_edgefs += usize::from(xe);
+            w.x_farneback += usize::from(xf);
+            w.x_both += usize::from(xe && xf);
+            w.y_edgefs += usize::from(ye);
+            w.y_farneback += usize::from(yf);
+            w.y_both += usize::from(ye && yf);
         }
     }
     w
@@ -341,10 +369,12 @@ pub fn table(results: &[TakeResult], config: Config, alignment: Alignment) -> St
         "median MSE: x {mx:.4}, y {my:.4} ({} takes)\n",
         results.len()
     );
-    let (xe, xf, ye, yf, n) = wins(results);
+    let w = wins(results);
+    let n = w.takes;
     if n > 0 {
         s += &format!(
-            "lower MSE than the paper's Edge-FS: x {xe}/{n}, y {ye}/{n}; than the paper's Farneback: x {xf}/{n}, y {yf}/{n}\n"
+            "takes with lower MSE than the paper's Edge-FS: x {}/{n}, y {}/{n}; than its Farneback: x {}/{n}, y {}/{n}; than both: x {}/{n}, y {}/{n}\n",
+            w.x_edgefs, w.y_edgefs, w.x_farneback, w.y_farneback, w.x_both, w.y_both
         );
     }
     s
