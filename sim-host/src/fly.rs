@@ -77,9 +77,23 @@ pub struct FlyArgs {
     /// Horizontal stereo misalignment of the rendered camera pair, px.
     #[arg(long, default_value_t = 0.0)]
     pub misalign_px: f32,
+    /// Start pose `X,Y,YAW_DEG` (m, m, deg) instead of the scene's (and its seeded heading).
+    #[arg(long, value_parser = parse_start, allow_hyphen_values = true)]
+    pub start: Option<[f64; 3]>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+}
+
+fn parse_start(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{e} in {s:?}")))
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [x, y, yaw] if v.iter().all(|a| a.is_finite()) => Ok([*x, *y, *yaw]),
+        _ => Err(format!("expected X,Y,YAW_DEG, got {s:?}")),
+    }
 }
 
 fn parse_outage(s: &str) -> Result<(f64, f64), String> {
@@ -120,6 +134,10 @@ impl FlyArgs {
             processing_us: (self.processing_ms * 1e3) as u64,
             ..FlightConfig::default()
         };
+        if let Some([x, y, yaw_deg]) = self.start {
+            cfg.start_xy = Some([x, y]);
+            cfg.start_yaw_rad = Some(yaw_deg.to_radians());
+        }
         cfg.camera.fps = self.fps;
         cfg.camera.misalign_px = self.misalign_px;
         cfg

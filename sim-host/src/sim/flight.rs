@@ -39,6 +39,11 @@ pub struct FlightConfig {
     pub duration_s: f64,
     /// Seed of every random process (textures, start heading, sensor noise, link faults).
     pub seed: u64,
+    /// Start heading, rad; `None`: the scene's heading, plus a seed-dependent angle in scenes
+    /// with [`Scene::random_heading`].
+    pub start_yaw_rad: Option<f64>,
+    /// Start position (x, y), m; `None`: the scene's start.
+    pub start_xy: Option<[f64; 2]>,
     /// Avoidance FSM variant.
     pub fsm: Fsm,
     /// UART baud rate between the boards, bit/s.
@@ -82,6 +87,8 @@ impl Default for FlightConfig {
             scenario: "room".into(),
             duration_s: 120.0,
             seed: 1,
+            start_yaw_rad: None,
+            start_xy: None,
             fsm: Fsm::Paper,
             baud: 115_200,
             faults_s2a: LinkFaults::default(),
@@ -182,14 +189,18 @@ pub fn run_flight(
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let mut cam_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xca3ea);
     // Start heading varies with the seed.
-    let yaw0 =
-        scene.start[2] as f64 + (cfg.seed as f64 * 2.399_963).rem_euclid(std::f64::consts::TAU);
-    let mut drone = Drone::on_floor(
-        cfg.drone.clone(),
-        scene.start[0] as f64,
-        scene.start[1] as f64,
-        yaw0,
-    );
+    let yaw0 = cfg.start_yaw_rad.unwrap_or_else(|| {
+        let spin = if scene.random_heading {
+            (cfg.seed as f64 * 2.399_963).rem_euclid(std::f64::consts::TAU)
+        } else {
+            0.0
+        };
+        scene.start[2] as f64 + spin
+    });
+    let [x0, y0] = cfg
+        .start_xy
+        .unwrap_or([scene.start[0] as f64, scene.start[1] as f64]);
+    let mut drone = Drone::on_floor(cfg.drone.clone(), x0, y0, yaw0);
     let mut imu = Imu::new(cfg.imu.clone(), &mut rng);
     let mut camera = StereoCamera::new(cfg.camera.clone());
     let mut ap_cfg = cfg.autopilot;
@@ -201,7 +212,7 @@ pub fn run_flight(
     let mut cb = Box::new(StereoBoardApp::new(cfg.edge_fs));
     let mut s2a = SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a);
     let mut a2s = SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25);
-    let mut ap_rx: Decoder<StereoToAutopilot, { StereoToAutopilot::MAX_FRAME_BYTES }> =
+    let mut tap: Decoder<StereoToAutopilot, { StereoToAutopilot::MAX_FRAME_BYTES }> =
         Decoder::new();
 
     let mut tasks = autopilot_tasks();
@@ -303,10 +314,12 @@ pub fn run_flight(
         rxbuf.clear();
         s2a.receive(t, &mut rxbuf);
         if !rxbuf.is_empty() {
-            ap_rx.feed(&rxbuf, |m| {
+            // The autopilot's stereo_rx task decodes the bytes itself; the simulator taps the
+            // same bytes with its own decoder (a logic analyser on the wire) for the metrics.
+            ap.on_stereo_bytes(&rxbuf, t);
+            tap.feed(&rxbuf, |m| {
                 if let StereoToAutopilot::Estimate(e) = m {
                     estimates[0] += 1;
-                    ap.on_estimate(&e, t);
                     last_raw = [f32::NAN; 2];
                     if e.is_valid() {
                         estimates[1] += 1;

@@ -165,6 +165,8 @@ pub struct Scene {
     pub obstacles: Vec<Obstacle>,
     /// Start position (x, y), m, and heading, rad.
     pub start: [f32; 3],
+    /// Whether flights start at a seed-dependent heading (rooms) or at `start`'s (corridor).
+    pub random_heading: bool,
     walls: [Texture; 4],
     floor: Texture,
     ceiling: Texture,
@@ -210,6 +212,7 @@ impl Scene {
             height: h,
             obstacles,
             start,
+            random_heading: true,
             walls,
             floor: Texture::floor(sx, sy, &mut rng),
             ceiling: Texture::ceiling(sx, sy),
@@ -247,13 +250,16 @@ impl Scene {
                 [2.0, 2.0, 0.0],
                 texture_seed,
             ),
-            "corridor" => Self::new(
-                "corridor",
-                [12.0, 1.8, 2.5],
-                vec![],
-                [1.0, 0.9, 0.0],
-                texture_seed,
-            ),
+            "corridor" => Self {
+                random_heading: false,
+                ..Self::new(
+                    "corridor",
+                    [12.0, 1.8, 2.5],
+                    vec![],
+                    [1.0, 0.9, 0.0],
+                    texture_seed,
+                )
+            },
             _ => return None,
         })
     }
