@@ -140,6 +140,9 @@ pub fn wrap_pi(a: f32) -> f32 {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AttitudeConfig {
     /// Proportional correction gain, rad/s per unit of direction error (1/time constant).
+    /// Low on purpose: a quadcopter's accelerometer mostly measures thrust (body -z), so while
+    /// it accelerates a strong correction would pull the estimate towards level and the
+    /// velocity loop would see a tilt it did not command.
     pub kp: f32,
     /// Gyro bias integral gain, rad/s² per unit of direction error.
     pub ki: f32,
@@ -152,8 +155,8 @@ pub struct AttitudeConfig {
 impl Default for AttitudeConfig {
     fn default() -> Self {
         Self {
-            kp: 0.5,
-            ki: 0.05,
+            kp: 0.1,
+            ki: 0.005,
             max_bias: 0.1,
             accel_gate: 0.15,
         }
@@ -301,8 +304,9 @@ mod tests {
             est.update([0.0, 0.0, 0.5], accel_for(0.1, -0.2), 1.0 / 512.0);
         }
         assert!((est.euler()[2] - 0.5).abs() < 0.02);
-        // A constant gyro bias is rejected: the roll/pitch stay near the accelerometer's.
-        for _ in 0..512 * 30 {
+        // A constant gyro bias is learnt (time constant about 20 s with the default gains): the
+        // roll/pitch end up at the accelerometer's.
+        for _ in 0..512 * 120 {
             est.update([0.02, -0.01, 0.0], accel_for(0.0, 0.0), 1.0 / 512.0);
         }
         let e = est.euler();

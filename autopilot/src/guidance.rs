@@ -30,8 +30,8 @@ pub struct GuidanceConfig {
 impl Default for GuidanceConfig {
     fn default() -> Self {
         Self {
-            kp: 0.25,
-            ki: 0.08,
+            kp: 0.2,
+            ki: 0.1,
             max_bank_rad: 15.0_f32.to_radians(),
             max_integral_rad: 5.0_f32.to_radians(),
         }
