@@ -1,0 +1,282 @@
+//! Shared helpers of the QEMU tests (`qemu_*.rs` include this file with `#[path]`): build the
+//! `qemu` flavour of the firmwares, start `qemu-system-arm -M netduinoplus2` with its USARTs on
+//! loopback sockets served by the test, and always kill QEMU (a guard kills on drop, also
+//! when a test panics).
+//!
+//! The tests need `qemu-system-arm` and the `thumbv7em-none-eabihf` target (the CI command
+//! installs both). Where they are missing the tests are skipped with a message, unless
+//! `POCKET_DRONE_REQUIRE_QEMU` is set, in which case they fail.
+#![allow(dead_code)]
+
+use std::io::Read;
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+/// Workspace root.
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .expect("tests/ has a parent")
+}
+
+/// The cargo target directory this test binary was built into (`<target>/debug/deps/exe`).
+fn target_dir() -> PathBuf {
+    if let Some(dir) = std::env::var_os("CARGO_TARGET_DIR") {
+        return PathBuf::from(dir);
+    }
+    let exe = std::env::current_exe().expect("test executable path");
+    exe.ancestors()
+        .nth(3)
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| workspace_root().join("target"))
+}
+
+/// True when QEMU tests can run here; otherwise prints why (and panics when
+/// `POCKET_DRONE_REQUIRE_QEMU` is set).
+pub fn qemu_available() -> bool {
+    let qemu = Command::new("qemu-system-arm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    let target = Command::new("rustup")
+        .args(["target", "list", "--installed"])
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).contains("thumbv7em-none-eabihf"))
+        .unwrap_or(true);
+    let ok = qemu && target;
+    if !ok {
+        let why = format!(
+            "QEMU test skipped: qemu-system-arm {} / thumbv7em-none-eabihf target {}",
+            if qemu { "found" } else { "missing" },
+            if target { "found" } else { "missing" }
+        );
+        if std::env::var_os("POCKET_DRONE_REQUIRE_QEMU").is_some() {
+            panic!("{why}");
+        }
+        eprintln!("{why}");
+    }
+    ok
+}
+
+/// Builds both firmwares in the `qemu` flavour (once per test binary) and returns the ELF
+/// paths (stereo board, autopilot). Uses its own target directory so the outer cargo's lock
+/// is not needed (the same one `cargo xtask qemu` uses).
+pub fn qemu_firmwares() -> (PathBuf, PathBuf) {
+    static BUILT: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            let dir = target_dir().join("fw-qemu");
+            let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+            let status = Command::new(cargo)
+                .current_dir(workspace_root())
+                .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
+                .args(["-p", "stereo-board", "-p", "autopilot"])
+                .args(["--features", "stereo-board/qemu,autopilot/qemu"])
+                .arg("--target-dir")
+                .arg(&dir)
+                .status()
+                .expect("running cargo build for the qemu firmwares");
+            assert!(status.success(), "qemu firmware build failed");
+            let out = dir.join("thumbv7em-none-eabihf").join("release");
+            (out.join("stereo-board"), out.join("autopilot"))
+        })
+        .clone()
+}
+
+/// A loopback listener for one QEMU USART (QEMU connects as a client).
+pub struct Port {
+    listener: TcpListener,
+    /// The port number.
+    pub port: u16,
+}
+
+impl Port {
+    /// Binds a free loopback port.
+    pub fn new() -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").expect("bind loopback");
+        let port = listener.local_addr().expect("local addr").port();
+        Self { listener, port }
+    }
+
+    /// The `-chardev` spec that connects QEMU to this port.
+    pub fn chardev(&self, id: &str) -> String {
+        format!("socket,id={id},host=127.0.0.1,port={}", self.port)
+    }
+
+    /// Accepts QEMU's connection (within `timeout`).
+    pub fn accept(&self, timeout: Duration) -> TcpStream {
+        self.listener.set_nonblocking(true).expect("nonblocking");
+        let start = Instant::now();
+        loop {
+            match self.listener.accept() {
+                Ok((s, _)) => {
+                    s.set_nonblocking(false).expect("blocking stream");
+                    s.set_nodelay(true).ok();
+                    return s;
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    assert!(start.elapsed() < timeout, "QEMU did not connect");
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                Err(e) => panic!("accept: {e}"),
+            }
+        }
+    }
+}
+
+/// A running QEMU; killed (and reaped) on drop. Its stdout (the semihosting log) is collected.
+pub struct Qemu {
+    child: Child,
+    log: Arc<Mutex<String>>,
+    reader: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Qemu {
+    /// Starts `elf` with USART1 and USART2 on the given chardev specs (ids `link` and `host`).
+    pub fn start(elf: &Path, usart1: &str, usart2: &str) -> Self {
+        let mut child = Command::new("qemu-system-arm")
+            .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .args(["-icount", "shift=auto"])
+            .args(["-chardev", usart1, "-serial", "chardev:link"])
+            .args(["-chardev", usart2, "-serial", "chardev:host"])
+            .arg("-kernel")
+            .arg(elf)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("starting qemu-system-arm");
+        let log = Arc::new(Mutex::new(String::new()));
+        let mut out = child.stdout.take().expect("piped stdout");
+        let sink = Arc::clone(&log);
+        let reader = std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = out.read(&mut buf) {
+                if n == 0 {
+                    break;
+                }
+                let text = String::from_utf8_lossy(&buf[..n]).into_owned();
+                sink.lock().expect("log lock").push_str(&text);
+            }
+        });
+        Self {
+            child,
+            log,
+            reader: Some(reader),
+        }
+    }
+
+    /// The semihosting log so far.
+    pub fn log(&self) -> String {
+        self.log.lock().expect("log lock").clone()
+    }
+
+    /// Fails if QEMU has exited (a semihosting exit means a panic or fatal error).
+    pub fn assert_running(&mut self) {
+        if let Ok(Some(status)) = self.child.try_wait() {
+            panic!("QEMU exited early with {status}; log:\n{}", self.log());
+        }
+    }
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        if let Some(r) = self.reader.take() {
+            let _ = r.join();
+        }
+    }
+}
+
+/// The value of `key=` in the last log line starting with `prefix` (e.g. `status`).
+pub fn last_field(log: &str, prefix: &str, key: &str) -> Option<u64> {
+    log.lines()
+        .rev()
+        .filter(|l| l.starts_with(prefix))
+        .find_map(|l| {
+            l.split_whitespace()
+                .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
+                .and_then(|v| v.parse().ok())
+        })
+}
+
+/// The camera board's host link as the HIL host sees it: frames out, mirrored estimates in.
+pub struct HostLink {
+    stream: TcpStream,
+    decoder: protocol::BoardToHostDecoder,
+    pending: std::collections::VecDeque<protocol::BoardToHost>,
+}
+
+impl HostLink {
+    /// Wraps an accepted connection.
+    pub fn new(stream: TcpStream) -> Self {
+        Self {
+            stream,
+            decoder: protocol::BoardToHostDecoder::new(),
+            pending: Default::default(),
+        }
+    }
+
+    /// Streams one interleaved frame as `FrameChunk`s.
+    pub fn send_frame(&mut self, frame: &[u8], frame_id: u16, capture_us: u32) {
+        use protocol::{encode, FrameChunk, HostToBoard, Message, FRAME_CHUNK_BYTES};
+        use std::io::Write;
+        let mut out = Vec::new();
+        for (i, data) in frame.chunks(FRAME_CHUNK_BYTES).enumerate() {
+            let msg = HostToBoard::FrameChunk(FrameChunk {
+                frame_id,
+                capture_us,
+                offset: (i * FRAME_CHUNK_BYTES) as u16,
+                data: data.try_into().expect("chunk fits"),
+            });
+            let mut buf = [0u8; HostToBoard::MAX_FRAME_BYTES];
+            let n = encode(&msg, &mut buf).expect("encodes");
+            out.extend_from_slice(&buf[..n]);
+        }
+        self.stream.write_all(&out).expect("stream a frame");
+    }
+
+    /// The next estimate mirrored on the host link, within `timeout`.
+    pub fn next_estimate(&mut self, timeout: Duration) -> Option<protocol::Estimate> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            while let Some(msg) = self.pending.pop_front() {
+                if let protocol::BoardToHost::Estimate(e) = msg {
+                    return Some(e);
+                }
+            }
+            let left = deadline.checked_duration_since(Instant::now())?;
+            self.stream
+                .set_read_timeout(Some(left.max(Duration::from_millis(1))))
+                .ok()?;
+            let mut buf = [0u8; 512];
+            match self.stream.read(&mut buf) {
+                Ok(0) => return None,
+                Ok(n) => {
+                    let pending = &mut self.pending;
+                    self.decoder.feed(&buf[..n], |m| pending.push_back(m));
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) => {}
+                Err(_) => return None,
+            }
+        }
+    }
+
+    /// Decoding errors on the host link so far.
+    pub fn errors(&self) -> protocol::LinkErrorCounts {
+        self.decoder.errors()
+    }
+}
