@@ -65,9 +65,9 @@ fn both_firmwares_talk_over_loopback_without_errors() {
         return;
     }
     let (stereo_elf, autopilot_elf) = qemu_firmwares();
-    let s_link = Port::new();
-    let a_link = Port::new();
-    let s_host = Port::new();
+    let s_link = Port::bind();
+    let a_link = Port::bind();
+    let s_host = Port::bind();
     let mut stereo = Qemu::start(
         &stereo_elf,
         &s_link.chardev("link"),

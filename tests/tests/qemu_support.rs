@@ -99,7 +99,7 @@ pub struct Port {
 
 impl Port {
     /// Binds a free loopback port.
-    pub fn new() -> Self {
+    pub fn bind() -> Self {
         let listener = TcpListener::bind("127.0.0.1:0").expect("bind loopback");
         let port = listener.local_addr().expect("local addr").port();
         Self { listener, port }
