@@ -513,6 +513,13 @@ impl EdgeFs {
         if np < 2 {
             out.flags.insert(EstimateFlags::NO_STEREO_MATCH);
         }
+        if !(out.forward_mps.is_finite() && out.sideways_mps.is_finite()) {
+            // Only with repeated capture times (infinite frame rate): never on real data.
+            out.forward_mps = 0.0;
+            out.sideways_mps = 0.0;
+            out.quality = 0;
+            out.flags.insert(EstimateFlags::POOR_FIT);
+        }
         out
     }
 

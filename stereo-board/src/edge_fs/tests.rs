@@ -182,3 +182,40 @@ fn estimator_is_small_and_const_constructible() {
     static _FS: EdgeFs = EdgeFs::new(EdgeFsParams::default_config());
     assert!(core::mem::size_of::<EdgeFs>() < 16 * 1024);
 }
+
+mod no_panic {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        /// Arbitrary frames, timestamps (also repeated or going backwards), attitudes (NaN,
+        /// inf) and parameters never panic and never produce non-finite velocities.
+        #[test]
+        fn process_never_panics(
+            seed in any::<u64>(),
+            paper in any::<bool>(),
+            w in 0u8..30, d in 0u8..30, h in 0u8..12, shift in -40i32..40,
+            times in proptest::collection::vec(0u64..2_000_000, 12),
+            yaws in proptest::collection::vec(prop_oneof![Just(f32::NAN), Just(f32::INFINITY), -10.0f32..10.0], 12),
+        ) {
+            let mut p = if paper { EdgeFsParams::paper() } else { EdgeFsParams::default_config() };
+            p.half_window = w;
+            p.search_range = d;
+            p.max_horizon = h;
+            p.stereo_shift_px = shift;
+            let mut fs = EdgeFs::new(p);
+            let mut x = seed;
+            let mut frame = [0u8; STEREO_FRAME_BYTES];
+            for (t, yaw) in times.iter().zip(&yaws) {
+                for b in frame.iter_mut() {
+                    x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+                    *b = (x >> 56) as u8;
+                }
+                let out = fs.process(&frame, *t, Some(&gyro(*yaw)));
+                prop_assert!(out.forward_mps.is_finite() && out.sideways_mps.is_finite());
+                prop_assert!(out.obstacle_m.is_none_or(|z| z.is_finite() && z > 0.0));
+            }
+        }
+    }
+}
