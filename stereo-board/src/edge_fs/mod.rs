@@ -21,7 +21,10 @@
 //!   texture and peak-ratio confidence; the flow search is centred on the rotation predicted
 //!   from the gyro/attitude yaw change, which is then removed exactly (sub-pixel); flow per
 //!   second from the true capture times across the horizon; robust (Huber, MAD scale) fit;
-//!   quality and validity flags. Integer SAD, f32 elsewhere (no f64 in the hot path).
+//!   quality and validity flags; a short median over the last fitted velocities. Flow is
+//!   tracked in the right image, the one the disparity is indexed by, so a column's depth and
+//!   flow belong to the same scene point (the paper-era code mixes left-image flow with
+//!   right-indexed depth). Integer SAD, f32 elsewhere (no f64 in the hot path).
 //!
 //! Conventions: column `x` is 0-based from the left of the image (in docs "1-based" is said
 //! where the MATLAB index is meant). Image motion is positive towards larger `x`. The yaw in
@@ -138,20 +141,25 @@ impl EdgeFsParams {
     /// Our best estimator: default mode, FOV 57.4° (the paper's hardware value), baseline 6 cm,
     /// stereo shift 0 (set the board's calibration).
     ///
-    /// Parameter choice (never per take): the window W, horizon H, minimum disparity, Huber
-    /// threshold and output median length were chosen by a grid search on a tuning subset of
-    /// the recorded takes only — board 1 takes 1, 5, 9, 13, 17, 21 (forward, sideways and
-    /// corridor motions) — scored with `--alignment paper` by the mean over those takes and both
-    /// axes of `ln(MSE / min(published Edge-FS MSE, published Farnebäck MSE))`. The other takes
-    /// (1/3, 1/7, 1/11, 1/15, 1/19, 2/3) were held out and only reported. The tool and the
-    /// exact procedure: `tests/tests/eval_tune.rs`. The remaining thresholds (confidences 1.2,
-    /// texture 2000, search range 15, stereo range 15) are engineering defaults, not tuned.
+    /// Parameter choice (never per take): a grid search over W ∈ {5,6,7,8}, H ∈ {2,3,4,5},
+    /// minimum disparity ∈ {1, 1.5} px, Huber k ∈ {1, 1.5} and output median ∈ {3, 5} on a
+    /// tuning subset of the recorded takes only — board 1 takes 1, 5, 9, 13, 17, 21 (forward,
+    /// sideways and corridor motions) — scored with `--alignment paper` by the mean over those
+    /// takes and both axes of `ln(MSE / min(published Edge-FS MSE, published Farnebäck MSE))`;
+    /// the best score won (W=6, H=2, 1 px, k=1, median 5). The other takes (1/3, 1/7, 1/11,
+    /// 1/15, 1/19, 2/3) were held out and only reported. The tool and procedure:
+    /// `tests/tests/eval_tune.rs`. The remaining thresholds (confidences 1.2, texture 2000,
+    /// search and stereo range 15 px, fit RMS 1 m/s, 8 columns) are engineering defaults.
+    ///
+    /// H counts frames and was tuned on the data set's ~7 Hz frames (H=2 ≈ 0.29 s); at 25 Hz
+    /// the same time span is H ≈ 7 (set `max_horizon`; the adaptive horizon shortens it when
+    /// flow reaches the search range).
     pub const fn default_config() -> Self {
         Self {
             mode: Mode::Default,
-            half_window: 7,
+            half_window: 6,
             search_range: 15,
-            max_horizon: 3,
+            max_horizon: 2,
             stereo_shift_px: 0,
             fov_x_rad: 57.4 * core::f32::consts::PI / 180.0,
             baseline_m: 0.06,
@@ -160,7 +168,7 @@ impl EdgeFsParams {
             min_stereo_confidence: 1.2,
             min_flow_confidence: 1.2,
             min_texture: 2000,
-            huber_k: 1.5,
+            huber_k: 1.0,
             depth_weight_exp: 0.0,
             max_fit_rms_mps: 1.0,
             min_fit_columns: 8,
@@ -313,7 +321,8 @@ pub struct EdgeFs {
     frames: u32,
     horizon: u8,
     tau_x: f64,
-    right: EdgeHistogram,
+    /// Current histogram of the camera whose history is not kept (paper: right, default: left).
+    other: EdgeHistogram,
     diag: Diagnostics,
     recent: [(f32, f32); MEDIAN_MAX],
     recent_len: usize,
@@ -329,7 +338,7 @@ impl EdgeFs {
             frames: 0,
             horizon: 1,
             tau_x: 0.0,
-            right: [0; IMG_W],
+            other: [0; IMG_W],
             diag: Diagnostics::EMPTY,
             recent: [(0.0, 0.0); MEDIAN_MAX],
             recent_len: 0,
@@ -392,18 +401,28 @@ impl EdgeFs {
         (self.head + RING - back % RING) % RING
     }
 
+    /// Histograms of the current frame: the flow camera's goes into the ring, the other one
+    /// into `self.other`. The paper mode tracks flow in the left image (and indexes stereo by
+    /// right-image column, so depth and flow of a column come from different scene points
+    /// near depth edges); the default mode tracks flow in the right image, the one stereo is
+    /// indexed by, so each column's depth and flow belong together.
     fn compute_histograms(&mut self, frame: &[u8; STEREO_FRAME_BYTES]) {
-        let mut left = [0; IMG_W];
-        edge_histograms(frame, &mut left, &mut self.right);
-        if self.params.mode == Mode::Default {
-            // The zero-padded border bins hold image intensity, not edges: drop them.
-            for h in [&mut left, &mut self.right] {
-                h[0] = 0;
-                h[IMG_W - 1] = 0;
+        let (mut left, mut right) = ([0; IMG_W], [0; IMG_W]);
+        edge_histograms(frame, &mut left, &mut right);
+        let (tracked, other) = match self.params.mode {
+            Mode::Paper => (left, right),
+            Mode::Default => {
+                // The zero-padded border bins hold image intensity, not edges: drop them.
+                for h in [&mut left, &mut right] {
+                    h[0] = 0;
+                    h[IMG_W - 1] = 0;
+                }
+                (right, left)
             }
-        }
+        };
+        self.other = other;
         if let Some(slot) = self.ring.get_mut(self.head) {
-            slot.hist = left;
+            slot.hist = tracked;
         }
     }
 
@@ -462,7 +481,7 @@ impl EdgeFs {
             let cur = &self.slot(0).hist;
             for c1 in lo.max(1)..=hi.min(IMG_W as i32) {
                 let c0 = (c1 - 1) as usize;
-                if let Some(m) = stereo_match(cur, &self.right, c0, d, s, w) {
+                if let Some(m) = stereo_match(cur, &self.other, c0, d, s, w) {
                     disp[c0] = m.best as u8;
                 }
             }
@@ -558,7 +577,7 @@ impl EdgeFs {
             for c in 0..IMG_W {
                 texture[c] = window_sum(cur, c, w);
                 let ds = usize::from(p.stereo_range);
-                let Some(m) = stereo_match(cur, &self.right, c, ds, s, w) else {
+                let Some(m) = stereo_match(&self.other, cur, c, ds, s, w) else {
                     continue;
                 };
                 let disp = m.best as f32 + m.subpixel;
