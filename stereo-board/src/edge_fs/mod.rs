@@ -676,16 +676,22 @@ impl EdgeFs {
             return out;
         };
         let (a, b) = (fit.slope as f32, fit.intercept as f32);
-        let mut ss = 0.0f32;
-        for (c, pt) in pts.iter().enumerate() {
-            let r = pt.1 - (a * pt.0 + b);
-            ss += r * r;
-            if let Some(u) = self.diag.used.get_mut(pt.0 as usize + 64) {
-                let _ = c;
-                *u = true;
+        // Robust residual scale (1.4826 · median |residual|), converted to m/s.
+        let mut m = 0;
+        for pt in pts.iter() {
+            if let Some(r) = scratch.get_mut(m) {
+                *r = (pt.1 - (a * pt.0 + b)).abs();
+                m += 1;
+            }
+            let col = libm::roundf(pt.0 + 63.5);
+            if (0.0..IMG_W as f32).contains(&col) {
+                if let Some(u) = self.diag.used.get_mut(col as usize) {
+                    *u = true;
+                }
             }
         }
-        let rms_mps = libm::sqrtf(ss / np as f32) / f;
+        let res = scratch.get_mut(..m).unwrap_or(&mut []);
+        let rms_mps = 1.4826 * median(res) / f;
         self.diag.fit_columns = np as u8;
         out.forward_mps = a;
         out.sideways_mps = -b / f;

@@ -87,8 +87,21 @@ fn stereo_depth_of_a_wall_is_recovered_per_column() {
 
 #[test]
 fn forward_motion_towards_a_wall() {
-    let (out, _) = fly(EdgeFsParams::default_config(), 1.5, 0.5, 0.0, 0.0, 12);
+    let (out, fs) = fly(EdgeFsParams::default_config(), 1.5, 0.5, 0.0, 0.0, 12);
     assert!(out.flags.is_valid(), "{:?}", out.flags);
+    let d = fs.diagnostics();
+    let used = d.used.iter().filter(|&&u| u).count();
+    assert_eq!(used, usize::from(d.fit_columns));
+    assert!(used > 40, "{used} columns used");
+    // Used columns carry a depth near the wall's and a finite flow.
+    for c in (0..IMG_W).filter(|&c| d.used[c]) {
+        assert!(
+            (d.depth_m[c] - 1.5).abs() < 0.4,
+            "column {c}: {}",
+            d.depth_m[c]
+        );
+        assert!(d.flow_pxps[c].is_finite());
+    }
     assert!(
         (out.forward_mps - 0.5).abs() < 0.08,
         "forward {}",
