@@ -222,6 +222,63 @@ mod tests {
         assert_eq!(s[5], 32.0);
     }
 
+    /// A board-2 style take (no header lines) moving at 0.5 m/s along +Z with yaw 0, with
+    /// sentinel rows, a duplicated timestamp and a `.tme` file.
+    fn synthetic_take(board: u32) -> Take {
+        let dir = std::env::temp_dir().join(format!("edgefs-truth-{}-{board}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut pos = String::new();
+        for _ in 0..2 {
+            pos += "10.000000\t-431602080\t-431602080\t-431602080\t-431602080\t135\t-0\t135\r\n";
+        }
+        for k in 0..200 {
+            let t = 10.0 + 0.05 * k as f64;
+            let z = 0.5 * (t - 10.0);
+            pos += &format!("{t:.6}\t0\t0.1\t1.0\t{z:.6}\t0\t0\t0\r\n");
+            if k == 50 {
+                pos += &format!("{t:.6}\t0\t0.1\t1.0\t{z:.6}\t0\t0\t0\r\n");
+            }
+        }
+        std::fs::write(dir.join("position.dat"), pos).unwrap();
+        let (mut timing, mut tme) = (String::new(), String::new());
+        for k in 0..40 {
+            let t = 10.5 + 0.125 * k as f64;
+            timing += &format!("{t:.6}\t1.000000\r\n");
+            if k > 0 {
+                tme += &format!("{t:.6}\r\n");
+            }
+        }
+        std::fs::write(dir.join("timing.dat"), timing).unwrap();
+        std::fs::write(dir.join("%i.bmp.tme"), tme).unwrap();
+        Take {
+            board,
+            take: 1,
+            dir,
+        }
+    }
+
+    #[test]
+    fn corrected_truth_survives_sentinels_and_duplicate_timestamps() {
+        let take = synthetic_take(1);
+        let t = corrected_truth(&take, 39).unwrap();
+        assert_eq!(t.fwd.len(), 38);
+        for (k, (&f, &s)) in t.fwd.iter().zip(&t.side).enumerate() {
+            assert!((f - 0.5).abs() < 1e-6, "image {}: fwd {f}", k + 1);
+            assert!(s.abs() < 1e-6);
+        }
+        // Image k is at the (k+1)-th flagged time.
+        assert!((t.time_s[0] - 10.625).abs() < 1e-9);
+        // Paper-era rule on the same files: first 4 zeroed, duplicate timestamp -> Inf/NaN
+        // only where an image lands on it.
+        let p = paper_truth(&take, 39).unwrap();
+        assert_eq!(&p.fwd[..4], &[0.0; 4]);
+        assert!(p.fwd[4..]
+            .iter()
+            .all(|v| !v.is_finite() || (v - 0.5).abs() < 1e-6));
+        let _ = std::fs::remove_dir_all(&take.dir);
+    }
+
     #[test]
     fn nearest_takes_first_on_ties_and_interp_clamps() {
         assert_eq!(nearest(&[0.0, 1.0, 2.0], 0.5), 0);
