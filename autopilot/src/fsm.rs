@@ -6,7 +6,8 @@
 //!   state), holding zero velocity. Obstacle within [`FsmConfig::obstacle_distance_m`] (1 m) ->
 //!   `Hover`; clear -> `Forward`.
 //! * [`FsmState::Forward`]: fly forward at [`FsmConfig::forward_speed_mps`] (0.3 m/s), guided by
-//!   the Edge-FS velocity. Obstacle within 1 m -> `Hover`.
+//!   the Edge-FS velocity. Obstacle within 1 m -> `Hover`; also `Hover` when no obstacle
+//!   reading has arrived for [`FsmConfig::reading_timeout_us`] (flying blind is not clear).
 //! * [`FsmState::Hover`]: hold zero velocity for [`FsmConfig::hover_time_us`] (1 s) -> `Turn`.
 //! * [`FsmState::Turn`]: depends on the [`FsmVariant`]:
 //!   * [`FsmVariant::Paper`]: the yaw setpoint ramps by [`FsmConfig::turn_angle_rad`] (60 deg)
@@ -70,6 +71,8 @@ pub struct FsmConfig {
     pub clear_distance_m: f32,
     /// Turn-until-clear: consecutive clear readings needed to stop turning.
     pub clear_confirm: u8,
+    /// `Forward` stops (-> `Hover`) when the newest obstacle reading is older than this, µs.
+    pub reading_timeout_us: u64,
 }
 
 impl Default for FsmConfig {
@@ -85,6 +88,7 @@ impl Default for FsmConfig {
             turn_timeout_us: 2_000_000,
             clear_distance_m: 1.5,
             clear_confirm: 3,
+            reading_timeout_us: 300_000,
         }
     }
 }
@@ -231,10 +235,14 @@ impl AvoidanceFsm {
                 }
             }
             FsmState::Forward => {
-                if let Some(r) = fresh {
-                    if self.blocked(r.distance_m, self.cfg.obstacle_distance_m) {
-                        self.enter(FsmState::Hover, now_us);
-                    }
+                let stale = match reading {
+                    Some(r) => now_us.saturating_sub(r.received_us) > self.cfg.reading_timeout_us,
+                    None => true,
+                };
+                let blocked = matches!(fresh,
+                    Some(r) if self.blocked(r.distance_m, self.cfg.obstacle_distance_m));
+                if blocked || stale {
+                    self.enter(FsmState::Hover, now_us);
                 }
             }
             FsmState::Hover => {
@@ -345,6 +353,13 @@ mod tests {
         f.step(2 * STEP, 0.0, reading(STEP, Some(0.5)));
         f.step(3 * STEP, 0.0, reading(3 * STEP, Some(1.5)));
         assert_eq!(f.state(), FsmState::Forward);
+        // Readings keep coming while clear.
+        let mut t = 3 * STEP;
+        while t < 2 * S - 100_000 {
+            t += 100_000;
+            f.step(t, 0.0, reading(t, None));
+            assert_eq!(f.state(), FsmState::Forward);
+        }
         // Obstacle at 0.95 m at t = 2 s -> Hover at 2 s.
         f.step(2 * S, 0.0, reading(2 * S, Some(0.95)));
         assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, 2 * S));
@@ -372,6 +387,26 @@ mod tests {
         f.step(t_ramp + 2 * STEP, target, reading(t_ramp + 2 * STEP, None));
         assert_eq!(f.state(), FsmState::Forward);
         assert_eq!(f.transitions(), 5);
+    }
+
+    #[test]
+    fn forward_stops_when_readings_stop() {
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        // The last reading is 300 ms old: still going; 1 µs later: stop.
+        f.step(STEP + 300_000, 0.0, reading(STEP, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        f.step(STEP + 300_001, 0.0, reading(STEP, None));
+        assert_eq!(
+            (f.state(), f.entered_us()),
+            (FsmState::Hover, STEP + 300_001)
+        );
+        // No reading at all is stale too.
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, None));
+        f.step(2 * STEP, 0.0, None);
+        assert_eq!(f.state(), FsmState::Hover);
     }
 
     #[test]
