@@ -8,6 +8,7 @@ extern crate std;
 
 use super::*;
 use crate::attitude::GRAVITY;
+use crate::indi::IndiConfig;
 use proptest::prelude::*;
 use std::vec::Vec;
 
@@ -481,6 +482,47 @@ proptest! {
             let g = ap.gyro_attitude(now);
             prop_assert!(g.rates_radps.iter().chain(g.attitude_rad.iter()).all(|x| x.is_finite()));
             prop_assert!(ap.indi().g1().iter().all(|g| g.is_finite() && *g > 0.0));
+        }
+    }
+
+    /// INDI commands stay finite and within their bounds, and G1/G2 positive and finite, for
+    /// any gyro, error and thrust sequence.
+    #[test]
+    fn indi_bounded_for_any_input(steps in proptest::collection::vec(
+        ([arb_f32(), arb_f32(), arb_f32()], [arb_f32(), arb_f32(), arb_f32()], arb_f32()), 1..200)) {
+        let cfg = IndiConfig::default();
+        let mut indi = Indi::new(cfg);
+        for (err, gyro, thrust) in steps {
+            let u = indi.control(err, gyro, thrust);
+            for i in 0..3 {
+                prop_assert!(u[i].is_finite() && u[i].abs() <= cfg.max_cmd[i]);
+            }
+            indi.actuator_update(u, gyro);
+            prop_assert!(indi.g1().iter().all(|g| g.is_finite() && *g >= cfg.g1_min));
+            prop_assert!(indi.g2().is_finite() && indi.g2() >= 0.0);
+            prop_assert!(indi.actuator_state().iter().all(|a| a.is_finite()));
+        }
+    }
+
+    /// The median output is always one of (or between two of) the finite inputs held.
+    #[test]
+    fn median_output_within_input_range(xs in proptest::collection::vec(arb_f32(), 1..40)) {
+        let mut m = crate::median::Median5::new();
+        let mut finite = Vec::new();
+        for x in xs {
+            let out = m.push(x);
+            if x.is_finite() {
+                finite.push(x);
+            }
+            let last5 = &finite[finite.len().saturating_sub(5)..];
+            match out {
+                None => prop_assert!(last5.is_empty()),
+                Some(o) => {
+                    let lo = last5.iter().cloned().fold(f32::INFINITY, f32::min);
+                    let hi = last5.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+                    prop_assert!(o >= lo && o <= hi, "{o} not in [{lo}, {hi}]");
+                }
+            }
         }
     }
 
