@@ -473,8 +473,12 @@ impl Autopilot {
         self.height.on_measurement(-pos.position_m[2], now_us);
     }
 
-    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height.
+    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height and an
+    /// initialised attitude estimate (an accelerometer sample near 1 g).
     pub fn on_command(&mut self, cmd: PilotCommand, now_us: u64) {
+        if cmd == PilotCommand::Arm && !self.att.initialised() {
+            return;
+        }
         let before = self.failsafe.mode();
         let f = self.freshness();
         let after = self.failsafe.command(cmd, &f, now_us);

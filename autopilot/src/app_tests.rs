@@ -316,6 +316,35 @@ fn estimate_loss_hovers_then_lands_and_disarms() {
 }
 
 #[test]
+fn arm_is_refused_until_the_attitude_is_initialised() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let pos = ExternalPosition {
+        timestamp_us: 0,
+        position_m: [0.0; 3],
+    };
+    // Accelerometer reading 2 g (the board being shaken): no attitude yet.
+    for k in 0..100u64 {
+        let imu = ImuSample {
+            timestamp_us: 0,
+            gyro_radps: [0.0; 3],
+            accel_mps2: [0.0, 0.0, -2.0 * GRAVITY],
+        };
+        ap.on_imu(&imu, k * IMU_US);
+        ap.on_external_position(&pos, k * IMU_US);
+    }
+    ap.on_command(PilotCommand::Arm, 100 * IMU_US);
+    assert_eq!(ap.mode(), FlightMode::Disarmed);
+    let imu = ImuSample {
+        timestamp_us: 0,
+        gyro_radps: [0.0; 3],
+        accel_mps2: [0.0, 0.0, -GRAVITY],
+    };
+    ap.on_imu(&imu, 101 * IMU_US);
+    ap.on_command(PilotCommand::Arm, 101 * IMU_US);
+    assert_eq!(ap.mode(), FlightMode::Flying);
+}
+
+#[test]
 fn kill_stops_motors_at_once() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
