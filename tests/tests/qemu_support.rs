@@ -12,7 +12,7 @@ use std::io::Read;
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// Workspace root.
@@ -131,17 +131,22 @@ impl Port {
     }
 }
 
-/// A running QEMU; killed (and reaped) on drop. Its stdout (the semihosting log) is collected.
+/// A running QEMU; killed (and reaped) on drop. Its stdout (the semihosting log) goes to a
+/// temporary file: written through at once, unlike a pipe.
 pub struct Qemu {
     child: Child,
-    log: Arc<Mutex<String>>,
-    reader: Option<std::thread::JoinHandle<()>>,
+    log_path: PathBuf,
 }
 
 impl Qemu {
     /// Starts `elf` with USART1 and USART2 on the given chardev specs (ids `link` and `host`).
     pub fn start(elf: &Path, usart1: &str, usart2: &str) -> Self {
-        let mut child = Command::new("qemu-system-arm")
+        static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let log_path =
+            std::env::temp_dir().join(format!("pocket-drone-qemu-{}-{n}.log", std::process::id()));
+        let _ = std::fs::remove_file(&log_path);
+        let child = Command::new("qemu-system-arm")
             .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
             .args(["-semihosting-config", "enable=on,target=native"])
             .args(["-icount", "shift=auto"])
@@ -150,33 +155,31 @@ impl Qemu {
             .arg("-kernel")
             .arg(elf)
             .stdin(Stdio::null())
-            .stdout(Stdio::piped())
+            .stdout(std::fs::File::create(&log_path).expect("QEMU log file"))
             .stderr(Stdio::inherit())
             .spawn()
             .expect("starting qemu-system-arm");
-        let log = Arc::new(Mutex::new(String::new()));
-        let mut out = child.stdout.take().expect("piped stdout");
-        let sink = Arc::clone(&log);
-        let reader = std::thread::spawn(move || {
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = out.read(&mut buf) {
-                if n == 0 {
-                    break;
-                }
-                let text = String::from_utf8_lossy(&buf[..n]).into_owned();
-                sink.lock().expect("log lock").push_str(&text);
-            }
-        });
-        Self {
-            child,
-            log,
-            reader: Some(reader),
-        }
+        Self { child, log_path }
     }
 
     /// The semihosting log so far.
     pub fn log(&self) -> String {
-        self.log.lock().expect("log lock").clone()
+        std::fs::read_to_string(&self.log_path).unwrap_or_default()
+    }
+
+    /// Waits until the log contains `needle` (e.g. the first `status` line: the firmware is
+    /// initialised and its USARTs receive; QEMU drops bytes sent before that).
+    pub fn wait_for_log(&mut self, needle: &str, timeout: Duration) {
+        let start = Instant::now();
+        while !self.log().contains(needle) {
+            self.assert_running();
+            assert!(
+                start.elapsed() < timeout,
+                "no {needle:?} in the QEMU log within {timeout:?}:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// Fails if QEMU has exited (a semihosting exit means a panic or fatal error).
@@ -191,9 +194,7 @@ impl Drop for Qemu {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
-        if let Some(r) = self.reader.take() {
-            let _ = r.join();
-        }
+        let _ = std::fs::remove_file(&self.log_path);
     }
 }
 

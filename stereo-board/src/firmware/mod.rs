@@ -42,6 +42,9 @@ rtic_monotonics::systick_monotonic!(Mono, 1_000);
 #[link_section = ".ccmram"]
 static mut APP: MaybeUninit<StereoBoardApp> = MaybeUninit::uninit();
 
+/// Received bytes lost since boot: queue full, or a UART overrun/framing/noise error.
+static RX_LOST: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 4096;
 
@@ -348,11 +351,15 @@ mod app {
         for _ in 0..64 {
             match rx.read() {
                 Ok(byte) => {
-                    let _ = queue.enqueue(byte);
+                    if queue.enqueue(byte).is_err() {
+                        super::RX_LOST.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
+                    }
+                }
+                // Overrun, framing or noise error: the data register was read to clear it.
+                Err(nb::Error::Other(_)) => {
+                    super::RX_LOST.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
                 }
                 Err(nb::Error::WouldBlock) => break,
-                // Overrun, framing or noise error: the data register was read to clear it.
-                Err(nb::Error::Other(_)) => {}
             }
         }
         let _ = wake.try_send(());
@@ -507,17 +514,24 @@ mod app {
                 .lock(|board, tx| board.status_tick(now, &mut |f| write_all(tx, f)));
             cx.local.led.toggle();
             cx.local.iwdg.feed();
-            let (rx_ok, gyro_age) = cx
-                .shared
-                .board
-                .lock(|b| (b.link_frames_ok(), b.gyro_age_us(now).unwrap_or(u64::MAX)));
+            let (rx_ok, host_errors, gyro_age) = cx.shared.board.lock(|b| {
+                (
+                    b.link_frames_ok(),
+                    b.host_link_errors(),
+                    b.gyro_age_us(now).unwrap_or(u64::MAX),
+                )
+            });
             log::info!(
-                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} gyro_age_us={}",
+                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} gyro_age_us={}",
                 status.uptime_ms,
                 status.frames_processed,
                 status.frames_dropped,
                 rx_ok,
                 status.link_errors.total(),
+                host_errors.total(),
+                host_errors.crc,
+                host_errors.too_long,
+                super::RX_LOST.load(core::sync::atomic::Ordering::Relaxed),
                 gyro_age
             );
             Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / 1_000)).await;
