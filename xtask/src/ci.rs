@@ -66,6 +66,8 @@ pub fn run(args: &[String]) -> Result<()> {
             "stereo-board",
             "-p",
             "autopilot",
+            "-p",
+            "insns-firmware",
         ];
         if !features.is_empty() {
             clippy.extend(["--features", features]);

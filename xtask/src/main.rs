@@ -4,8 +4,10 @@
 //!   fmt, clippy on host and thumbv7em, all host tests, firmware builds, a bounded fuzz run).
 //! * `cargo xtask size`: static flash/RAM/CCM use of each firmware.
 //! * `cargo xtask qemu`: build a firmware flavour and run it in QEMU.
+//! * `cargo xtask insns`: exact Cortex-M4 instruction counts per call (QEMU plugin).
 
 mod ci;
+mod insns;
 mod qemu;
 mod size;
 
@@ -19,8 +21,9 @@ fn main() -> anyhow::Result<()> {
         "test" => ci::run(rest),
         "size" => size::run(rest),
         "qemu" => qemu::run(rest),
+        "insns" => insns::run(rest),
         _ => {
-            eprintln!("usage: cargo xtask <test|size|qemu> [ARGS]");
+            eprintln!("usage: cargo xtask <test|size|qemu|insns> [ARGS]");
             std::process::exit(2)
         }
     }

@@ -1,0 +1,217 @@
+//! Benchmark firmware for `cargo xtask insns` (thumbv7em-none-eabihf, QEMU `netduinoplus2`).
+//!
+//! Runs the camera board's and the autopilot's per-frame / per-sample work on real embedded
+//! frames, each call bracketed by [`insns_begin`] and [`insns_end`]. The project's QEMU plugin
+//! (xtask/qemu-plugin/insn_markers.c) counts the instructions executed between the two markers;
+//! this firmware prints, over semihosting and in the same order, the name of each measurement
+//! (`measure NAME`). `cargo xtask insns` pairs the two streams.
+//!
+//! On the host this is a stub.
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg_attr(target_os = "none", no_main)]
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("insns-firmware only builds for thumbv7em-none-eabihf (run `cargo xtask insns`)");
+    std::process::exit(2);
+}
+
+#[cfg(target_os = "none")]
+mod bench {
+    use autopilot::app::{Autopilot, AutopilotConfig};
+    use core::hint::black_box;
+    use cortex_m_rt::entry;
+    use cortex_m_semihosting::{debug, hprintln};
+    use protocol::{
+        AutopilotToStereoDecoder, Estimate, EstimateFlags, GyroAttitude, ImuSample,
+        StereoToAutopilot, STEREO_FRAME_BYTES,
+    };
+    use stereo_board::edge_fs::{
+        edge_histograms, flow_match, line_fit, stereo_match, EdgeFs, EdgeFsParams, EdgeHistogram,
+    };
+    use stm32f4xx_hal as _;
+
+    /// Frames embedded by build.rs (interleaved 128x96 stereo frames, back to back).
+    static FRAMES: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/frames.bin"));
+
+    // Large state lives in statics, as on the board (not on the small QEMU stack).
+    static mut EDGE_FS_DEFAULT: EdgeFs = EdgeFs::new(EdgeFsParams::default_config());
+    static mut EDGE_FS_PAPER: EdgeFs = EdgeFs::new(EdgeFsParams::paper());
+
+    /// Marker: the plugin notes the instruction count when this runs.
+    #[no_mangle]
+    #[inline(never)]
+    pub extern "C" fn insns_begin() {
+        // Distinct bodies so that the linker cannot fold the two markers into one address.
+        unsafe { core::arch::asm!("nop", "nop", options(nomem, nostack)) }
+    }
+
+    /// Marker: the plugin prints the instructions executed since [`insns_begin`].
+    #[no_mangle]
+    #[inline(never)]
+    pub extern "C" fn insns_end() {
+        unsafe { core::arch::asm!("nop", options(nomem, nostack)) }
+    }
+
+    /// Announces `name`, then runs `f` between the markers.
+    #[inline(never)]
+    fn measure<R>(name: &str, f: impl FnOnce() -> R) -> R {
+        hprintln!("measure {}", name);
+        insns_begin();
+        let r = f();
+        insns_end();
+        black_box(r)
+    }
+
+    fn frame(k: usize) -> Option<&'static [u8; STEREO_FRAME_BYTES]> {
+        FRAMES
+            .get(k * STEREO_FRAME_BYTES..(k + 1) * STEREO_FRAME_BYTES)
+            .and_then(|s| s.try_into().ok())
+    }
+
+    fn gyro(k: usize) -> GyroAttitude {
+        GyroAttitude {
+            timestamp_us: (k as u32) * 40_000,
+            rates_radps: [0.01, -0.02, 0.05],
+            attitude_rad: [0.0, 0.0, 0.002 * k as f32],
+        }
+    }
+
+    #[entry]
+    fn main() -> ! {
+        let frames = FRAMES.len() / STEREO_FRAME_BYTES;
+        if frames < 2 {
+            hprintln!("error: no frames embedded (build with cargo xtask insns)");
+            debug::exit(debug::EXIT_FAILURE);
+        }
+        hprintln!("frames {}", frames);
+        measure("baseline", || ());
+
+        // Whole Edge-FS frames; the first frames fill the history, xtask takes the median of
+        // the frames measured after it is full.
+        // SAFETY: single-threaded benchmark, no interrupts touch these statics.
+        let (default, paper) = unsafe {
+            (
+                &mut *core::ptr::addr_of_mut!(EDGE_FS_DEFAULT),
+                &mut *core::ptr::addr_of_mut!(EDGE_FS_PAPER),
+            )
+        };
+        for k in 0..frames {
+            let Some(f) = frame(k) else { break };
+            let t = 40_000 * k as u64;
+            let g = gyro(k);
+            measure("edge_fs_frame_default", || default.process(f, t, Some(&g)));
+        }
+        for k in 0..frames {
+            let Some(f) = frame(k) else { break };
+            let t = 40_000 * k as u64;
+            let g = gyro(k);
+            measure("edge_fs_frame_paper", || paper.process(f, t, Some(&g)));
+        }
+
+        // The building blocks on the last two frames.
+        let (mut left, mut right): (EdgeHistogram, EdgeHistogram) = ([0; 128], [0; 128]);
+        let (mut old_left, mut old_right): (EdgeHistogram, EdgeHistogram) = ([0; 128], [0; 128]);
+        if let (Some(a), Some(b)) = (frame(frames - 2), frame(frames - 1)) {
+            edge_histograms(a, &mut old_left, &mut old_right);
+            measure("edge_histograms", || {
+                edge_histograms(b, &mut left, &mut right)
+            });
+        }
+        let (w, d) = (8usize, 15usize);
+        measure("stereo_match", || {
+            let mut sum = 0u32;
+            for c in w + d..128 - w - d {
+                if let Some(m) = stereo_match(&left, &right, c, d, 0, w) {
+                    sum = sum.wrapping_add(m.best as u32);
+                }
+            }
+            sum
+        });
+        measure("flow_match", || {
+            let mut sum = 0u32;
+            for c in w + d..128 - w - d {
+                if let Some(m) = flow_match(&old_left, &left, c, d, 0, w) {
+                    sum = sum.wrapping_add(m.best as u32);
+                }
+            }
+            sum
+        });
+        let points: [(f64, f64); 80] =
+            core::array::from_fn(|i| (i as f64 + 24.0, 0.01 * i as f64 - 0.3));
+        measure("line_fit", || line_fit(black_box(&points).iter().copied()));
+
+        // The autopilot's 512 Hz step and its guidance + FSM step, in flight.
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        ap.on_command(protocol::PilotCommand::Arm, 0);
+        let mut t = 0u64;
+        for k in 0..2048u32 {
+            t = u64::from(k) * 1_953;
+            let imu = ImuSample {
+                timestamp_us: t as u32,
+                gyro_radps: [0.01, 0.0, -0.01],
+                accel_mps2: [0.0, 0.0, -9.81],
+            };
+            if k % 10 == 0 {
+                ap.on_estimate(&estimate(k as u16, t), t);
+                ap.on_external_position(
+                    &protocol::ExternalPosition {
+                        timestamp_us: t as u32,
+                        position_m: [0.0, 0.0, -1.0],
+                    },
+                    t,
+                );
+                ap.guidance_step(t);
+            }
+            if k >= 2040 {
+                measure("indi_step", || ap.on_imu(&imu, t));
+            } else {
+                ap.on_imu(&imu, t);
+            }
+        }
+        t += 20_000;
+        ap.on_estimate(&estimate(999, t), t);
+        measure("guidance_fsm_step", || ap.guidance_step(t));
+
+        // Wire format of the per-frame message.
+        let msg = StereoToAutopilot::Estimate(estimate(7, 123_456));
+        let mut wire = [0u8; 64];
+        let n = measure("estimate_encode", || {
+            protocol::encode(&msg, &mut wire).unwrap_or(0)
+        });
+        let mut decoder = protocol::StereoToAutopilotDecoder::new();
+        measure("estimate_decode", || {
+            let mut got = 0u32;
+            decoder.feed(&wire[..n], |_| got += 1);
+            got
+        });
+        // Keep the other direction's decoder in the image too (the camera board's RX path).
+        let _ = black_box(AutopilotToStereoDecoder::new());
+
+        hprintln!("done");
+        debug::exit(debug::EXIT_SUCCESS);
+        #[allow(clippy::empty_loop)]
+        loop {}
+    }
+
+    fn estimate(seq: u16, t: u64) -> Estimate {
+        Estimate {
+            seq,
+            capture_us: t as u32,
+            forward_mps: 0.3,
+            sideways_mps: -0.02,
+            obstacle_m: Some(1.5),
+            quality: 180,
+            flags: EstimateFlags::NONE,
+            processing_us: 1_200,
+        }
+    }
+
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        hprintln!("panic: {}", info);
+        debug::exit(debug::EXIT_FAILURE);
+        #[allow(clippy::empty_loop)]
+        loop {}
+    }
+}
