@@ -38,6 +38,7 @@ fn tune_default_config() {
             "rms" => p.max_fit_rms_mps = f,
             "minc" => p.min_fit_columns = f as u8,
             "ds" => p.stereo_range = f as u8,
+            "hs" => p.horizon_s = f,
             "med" => p.output_median = f as u8,
             "dw" => p.depth_weight_exp = f,
             "fov_deg" => p.fov_x_rad = f.to_radians(),

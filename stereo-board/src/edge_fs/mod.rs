@@ -84,6 +84,10 @@ pub struct EdgeFsParams {
     pub fov_x_rad: f32,
     /// Stereo baseline, m.
     pub baseline_m: f32,
+    /// Default mode: flow time span, s. The horizon is the fewest frames (up to the adaptive
+    /// cap, itself at most `max_horizon`) whose capture times span at least this, so the
+    /// estimator behaves alike at 7 Hz and at 25 Hz. 0: always use the adaptive cap.
+    pub horizon_s: f32,
     /// Default mode: largest stereo disparity searched, px (the paper mode uses
     /// `search_range`); up to 40. Closer obstacles than `f·b/stereo_range` get no depth.
     pub stereo_range: u8,
@@ -124,6 +128,7 @@ impl EdgeFsParams {
             stereo_shift_px: 0,
             fov_x_rad: core::f32::consts::FRAC_PI_3,
             baseline_m: 0.06,
+            horizon_s: 0.0,
             stereo_range: 15,
             min_disparity_px: 2.0,
             min_stereo_confidence: 0.0,
@@ -151,18 +156,20 @@ impl EdgeFsParams {
     /// `tests/tests/eval_tune.rs`. The remaining thresholds (confidences 1.2, texture 2000,
     /// search and stereo range 15 px, fit RMS 1 m/s, 8 columns) are engineering defaults.
     ///
-    /// H counts frames and was tuned on the data set's ~7 Hz frames (H=2 ≈ 0.29 s); at 25 Hz
-    /// the same time span is H ≈ 7 (set `max_horizon`; the adaptive horizon shortens it when
-    /// flow reaches the search range).
+    /// H was tuned in frames on the data set's 7–8 Hz frames (H=2, 0.25–0.29 s). So that the
+    /// estimator behaves the same at the board's 25 Hz, the default expresses it as a time
+    /// span, `horizon_s` = 0.25 s (2 frames at 7–8 Hz, 7 at 25 Hz), with `max_horizon` 9 as the
+    /// cap; the adaptive horizon still shortens it when flow reaches the search range.
     pub const fn default_config() -> Self {
         Self {
             mode: Mode::Default,
             half_window: 6,
             search_range: 15,
-            max_horizon: 2,
+            max_horizon: 9,
             stereo_shift_px: 0,
             fov_x_rad: 57.4 * core::f32::consts::PI / 180.0,
             baseline_m: 0.06,
+            horizon_s: 0.25,
             stereo_range: 15,
             min_disparity_px: 1.0,
             min_stereo_confidence: 1.2,
@@ -606,7 +613,16 @@ impl EdgeFs {
 
         // Flow against the frame `n` back, searched around the predicted rotation.
         let avail = (self.frames as usize).saturating_sub(1);
-        let n = (self.horizon as usize).clamp(1, h).min(avail);
+        let mut n = (self.horizon as usize).clamp(1, h).min(avail);
+        if p.horizon_s > 0.0 {
+            // Time-based horizon: the fewest frames spanning `horizon_s`, within the cap.
+            let now = self.ring[self.idx(0)].capture_us;
+            if let Some(k) = (1..=n).find(|&k| {
+                now.saturating_sub(self.ring[self.idx(k)].capture_us) as f32 * 1e-6 >= p.horizon_s
+            }) {
+                n = k;
+            }
+        }
         self.diag.horizon = n as u8;
         if n == 0 {
             out.flags.insert(EstimateFlags::HISTORY_FILLING);
