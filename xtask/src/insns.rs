@@ -201,6 +201,9 @@ fn measure(elf: &Path, plugin: &Path, begin: u32, end: u32) -> Result<BTreeMap<S
     if !status.success() {
         bail!("benchmark firmware failed ({status}):\n{stdout}");
     }
+    for line in stdout.lines().filter(|l| !l.starts_with("measure ")) {
+        eprintln!("firmware: {line}");
+    }
     let names: Vec<&str> = stdout
         .lines()
         .filter_map(|l| l.strip_prefix("measure "))

@@ -143,10 +143,13 @@ mod bench {
 
         // The autopilot's 512 Hz step and its guidance + FSM step, in flight.
         let mut ap = Autopilot::new(AutopilotConfig::default());
-        ap.on_command(protocol::PilotCommand::Arm, 0);
         let mut t = 0u64;
-        for k in 0..2048u32 {
+        for k in 0..3072u32 {
             t = u64::from(k) * 1_953;
+            // Arm once the attitude estimate has settled (the autopilot refuses earlier).
+            if k == 512 {
+                ap.on_command(protocol::PilotCommand::Arm, t);
+            }
             let imu = ImuSample {
                 timestamp_us: t as u32,
                 gyro_radps: [0.01, 0.0, -0.01],
@@ -163,7 +166,7 @@ mod bench {
                 );
                 ap.guidance_step(t);
             }
-            if k >= 2040 {
+            if k >= 3064 {
                 measure("indi_step", || ap.on_imu(&imu, t));
             } else {
                 ap.on_imu(&imu, t);
@@ -172,6 +175,8 @@ mod bench {
         t += 20_000;
         ap.on_estimate(&estimate(999, t), t);
         measure("guidance_fsm_step", || ap.guidance_step(t));
+        // The measurement is only meaningful in flight: say which mode it ran in.
+        hprintln!("autopilot mode {:?}", ap.mode());
 
         // Wire format of the per-frame message.
         let msg = StereoToAutopilot::Estimate(estimate(7, 123_456));
