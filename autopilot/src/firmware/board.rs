@@ -5,6 +5,8 @@
 //! | link to the camera board (protocol, 921,600 Bd 8N1) | USART1 | PA9 TX, PA10 RX |
 //! | telemetry / HIL host link (IMU in, motors out) | USART2 | PA2 TX, PA3 RX |
 //! | status LED (active high) | GPIO | PC13 |
+//! | IMU MPU-6000 (SPI mode 3) | SPI1 | PA5 SCK, PA6 MISO, PA7 MOSI, PA4 CS |
+//! | motors 1-4 (FR, RR, RL, FL), 32 kHz PWM | TIM3 CH1-4 | PB4, PB5, PB0, PB1 |
 //!
 //! Wiring between the boards: autopilot PA9 (TX) -> camera PA10 (RX), autopilot PA10 (RX) <-
 //! camera PA9 (TX), common ground. In QEMU (`-M netduinoplus2`) USART1 is the first `-serial` and USART2 the
@@ -46,3 +48,8 @@ pub fn clocks() -> Config {
 
 /// Independent-watchdog timeout, ms (the 1 Hz heartbeat task feeds it).
 pub const WATCHDOG_MS: u32 = 2_000;
+
+/// Control-loop rate: the TIM2 interrupt that reads the IMU, Hz (real flavour; in HIL and
+/// QEMU the host's IMU samples pace the loop).
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+pub const IMU_RATE_HZ: u32 = 512;

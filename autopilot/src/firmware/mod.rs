@@ -6,6 +6,7 @@
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
 //! | `usart1`, `usart2` | 6 | UART RXNE | bytes into lock-free queues (never wait for a lock) |
+//! | `imu_timer` | 6 | TIM2 at 512 Hz (real) | MPU-6000 burst read over SPI1, spawns `imu_indi` |
 //! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out |
 //! | `stereo_rx` | 4 | woken by `usart1` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `usart2` | IMU / position / command from the host |
@@ -14,12 +15,18 @@
 //! | `telemetry` | 1 | 10 Hz | `Autopilot::telemetry` to the host |
 //! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog |
 //!
-//! Motor commands leave as `BoardToHost::Motors` on the host link in the HIL and QEMU
-//! flavours (the flight logic is the same code as on hardware).
+//! Motors: TIM3 PWM (see [`motors`]); in the HIL and QEMU flavours the commands also leave as
+//! `BoardToHost::Motors` on the host link (the flight logic is the same code as on hardware).
+//!
+//! Not wired yet: RC input (arm/kill/manual comes from the host link's `PilotCommand` only).
 
 mod board;
 mod clock;
+// Only the real flavour reads the IMU; the type is named in the RTIC resources of every flavour.
+#[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
+mod imu;
 mod log;
+mod motors;
 
 use autopilot::app::Autopilot;
 use core::mem::MaybeUninit;
@@ -32,6 +39,12 @@ rtic_monotonics::systick_monotonic!(Mono, 1_000);
 /// The autopilot state: CPU-only, so it lives in CCM. NOLOAD: `init` writes it first.
 #[link_section = ".ccmram"]
 static mut AP: MaybeUninit<Autopilot> = MaybeUninit::uninit();
+
+/// The IMU of the real flavour: MPU-6000 on SPI1 with chip select PA4.
+type ImuDevice = imu::Mpu6000<
+    stm32f4xx_hal::spi::Spi<stm32f4xx_hal::pac::SPI1>,
+    stm32f4xx_hal::gpio::PA4<stm32f4xx_hal::gpio::Output>,
+>;
 
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 2048;
@@ -68,6 +81,7 @@ const fn ticks(period_us: u32) -> u32 {
 
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART4, UART5, TIM8_UP_TIM13])]
 mod app {
+    use super::motors::{Motors, PWM_HZ};
     use super::{board, clock, log, send, ticks, Mono, AP, RX_QUEUE};
     use autopilot::app::{
         Autopilot, AutopilotConfig, GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, HEARTBEAT_PERIOD_US,
@@ -76,7 +90,7 @@ mod app {
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::{
         AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
-        Message as _, MotorCommand, Node,
+        Message as _, Node,
     };
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
@@ -99,6 +113,7 @@ mod app {
         host_tx: Tx<pac::USART2>,
         /// Messages decoded from the camera board since boot.
         stereo_msgs: u32,
+        motors: Motors,
     }
 
     #[local]
@@ -116,6 +131,10 @@ mod app {
         host_wake_tx: Sender<'static, (), 1>,
         host_wake_rx: Receiver<'static, (), 1>,
         host_decoder: HostToBoardDecoder,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        imu: super::ImuDevice,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        imu_timer: stm32f4xx_hal::timer::CounterHz<pac::TIM2>,
     }
 
     #[init(local = [
@@ -156,6 +175,46 @@ mod app {
         let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!((), 1);
         let (host_wake_tx, host_wake_rx) = rtic_sync::make_channel!((), 1);
 
+        let gpiob = cx.device.GPIOB.split(&mut rcc);
+        let (_, (c1, c2, c3, c4)) = cx.device.TIM3.pwm_hz(PWM_HZ.Hz(), &mut rcc);
+        let motors = Motors::new((
+            // PB4 leaves its reset function (JTAG NJTRST) first.
+            c1.with(gpiob.pb4.into_floating_input()),
+            c2.with(gpiob.pb5),
+            c3.with(gpiob.pb0),
+            c4.with(gpiob.pb1),
+        ));
+
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        let (imu, imu_timer) = {
+            use stm32f4xx_hal::spi::{Mode, Phase, Polarity};
+            let mode = Mode {
+                polarity: Polarity::IdleHigh,
+                phase: Phase::CaptureOnSecondTransition,
+            };
+            let spi = cx.device.SPI1.spi(
+                (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
+                mode,
+                1.MHz(),
+                &mut rcc,
+            );
+            let cs = gpioa
+                .pa4
+                .into_push_pull_output_in_state(stm32f4xx_hal::gpio::PinState::High);
+            let mut imu = super::imu::Mpu6000::new(spi, cs);
+            let sysclk = rcc.clocks.sysclk().raw();
+            match imu.init(|ms| cortex_m::asm::delay(ms.saturating_mul(sysclk / 1_000))) {
+                Ok(()) => log::info!("IMU configured"),
+                Err(_) => defmt::error!("MPU-6000 not found on SPI1"),
+            }
+            let mut timer = cx.device.TIM2.counter_hz(&mut rcc);
+            timer
+                .start(board::IMU_RATE_HZ.Hz())
+                .unwrap_or_else(|_| log::fatal("TIM2 start"));
+            timer.listen(stm32f4xx_hal::timer::Event::Update);
+            (imu, timer)
+        };
+
         let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
         iwdg.start(board::WATCHDOG_MS.millis());
 
@@ -173,6 +232,7 @@ mod app {
                 link_tx,
                 host_tx,
                 stereo_msgs: 0,
+                motors,
             },
             Local {
                 led,
@@ -188,6 +248,10 @@ mod app {
                 host_wake_tx,
                 host_wake_rx,
                 host_decoder: HostToBoardDecoder::new(),
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                imu,
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                imu_timer,
             },
         )
     }
@@ -238,25 +302,46 @@ mod app {
         drain_uart(cx.local.host_rx, cx.local.host_in, cx.local.host_wake_tx);
     }
 
+    /// 512 Hz timer (real flavour): reads the MPU-6000 and hands the sample to `imu_indi`.
+    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    #[task(binds = TIM2, priority = 6, local = [imu, imu_timer])]
+    fn imu_timer(cx: imu_timer::Context) {
+        cx.local
+            .imu_timer
+            .clear_flags(stm32f4xx_hal::timer::Flag::Update);
+        let now = clock::now_us();
+        if let Ok(sample) = cx.local.imu.read(now as u32) {
+            // Still busy with the previous sample: skip this one.
+            let _ = imu_indi::spawn(sample);
+        }
+    }
+
     /// 512 Hz: IMU sample -> attitude -> INDI -> motors.
-    #[task(priority = 5, shared = [ap, host_tx])]
+    #[task(priority = 5, shared = [ap, motors, host_tx])]
     async fn imu_indi(mut cx: imu_indi::Context, imu: ImuSample) {
         let now = clock::now_us();
         let throttle = cx.shared.ap.lock(|ap| ap.on_imu(&imu, now));
-        motors_out(&mut cx.shared.host_tx, now, throttle);
+        motors_out(&mut cx.shared.motors, &mut cx.shared.host_tx, now, throttle);
     }
 
-    /// Motor command out: the host link in HIL/QEMU (PWM on hardware).
+    /// Motor command out: PWM, and the host link in HIL/QEMU.
     fn motors_out(
+        motors: &mut impl rtic::Mutex<T = Motors>,
         host_tx: &mut impl rtic::Mutex<T = Tx<pac::USART2>>,
         now: u64,
         throttle: [f32; 4],
     ) {
-        let msg = BoardToHost::Motors(MotorCommand {
-            timestamp_us: now as u32,
-            throttle,
-        });
-        host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
+        motors.lock(|m| m.set(throttle));
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        {
+            let msg = BoardToHost::Motors(protocol::MotorCommand {
+                timestamp_us: now as u32,
+                throttle,
+            });
+            host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
+        }
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        let _ = (host_tx, now);
     }
 
     /// Camera-board bytes: estimates, status, heartbeats, config acks.
@@ -314,7 +399,7 @@ mod app {
     }
 
     /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be.
-    #[task(priority = 3, shared = [ap, host_tx])]
+    #[task(priority = 3, shared = [ap, motors, host_tx])]
     async fn guidance(mut cx: guidance::Context) {
         loop {
             let now = clock::now_us();
@@ -323,7 +408,7 @@ mod app {
                 ap.motor_safety(now)
             });
             if let Some(throttle) = off {
-                motors_out(&mut cx.shared.host_tx, now, throttle);
+                motors_out(&mut cx.shared.motors, &mut cx.shared.host_tx, now, throttle);
             }
             Mono::delay(Duration::from_ticks(ticks(GUIDANCE_PERIOD_US))).await;
         }
