@@ -286,7 +286,8 @@ fn palette() -> Vec<u8> {
     p
 }
 
-/// Animated GIF: top-down view (trail, drone, heading) beside the left camera image (2x).
+/// Animated GIF, played at 4x speed: top-down view (trail, drone, heading; red when in
+/// contact) beside the left camera image.
 pub fn write_gif(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     if r.images.is_empty() {
         return Ok(());
@@ -296,7 +297,7 @@ pub fn write_gif(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let scale = (side as f32 - 8.0) / s.size_x.max(s.size_y);
     let top_w = (s.size_y * scale) as u16 + 8;
     let top_h = (s.size_x * scale) as u16 + 8;
-    let cam_w = 2 * WIDTH as u16;
+    let cam_w = WIDTH as u16;
     let w = top_w + 8 + cam_w;
     let h = top_h.max(side);
     let mut enc = gif::Encoder::new(std::fs::File::create(path)?, w, h, &palette())?;
@@ -364,14 +365,10 @@ pub fn write_gif(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         for (k, &v) in img.iter().enumerate() {
             let (u, row) = (k % WIDTH, k / WIDTH);
             let c = (v as u32 * (PAL_GRAY as u32 - 1) / 255) as u8;
-            for dy in 0..2 {
-                for dx in 0..2 {
-                    buf[(2 * row + dy) * w as usize + x0 + 2 * u + dx] = c;
-                }
-            }
+            buf[row * w as usize + x0 + u] = c;
         }
         let mut frame = gif::Frame::from_indexed_pixels(w, h, buf.clone(), None);
-        frame.delay = (dt * 100.0).round().clamp(2.0, 500.0) as u16;
+        frame.delay = (dt * 25.0).round().clamp(2.0, 500.0) as u16;
         enc.write_frame(&frame)?;
     }
     Ok(())
