@@ -28,6 +28,8 @@ mod dcmi;
 mod log;
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
 mod sensor;
+#[cfg(not(feature = "qemu"))]
+mod uart_dma;
 
 use core::mem::MaybeUninit;
 use defmt_rtt as _;
@@ -165,6 +167,8 @@ mod app {
         link_tx: Tx<pac::USART1>,
         host_tx: Tx<pac::USART2>,
         frames: Frames,
+        link_in: Producer<'static, u8>,
+        link_wake_tx: Sender<'static, Wake, 1>,
     }
 
     #[local]
@@ -172,9 +176,7 @@ mod app {
         led: PC13<Output>,
         iwdg: IndependentWatchdog,
         link_rx: Rx<pac::USART1>,
-        link_in: Producer<'static, u8>,
         link_out: Consumer<'static, u8>,
-        link_wake_tx: Sender<'static, Wake, 1>,
         link_wake_rx: Receiver<'static, Wake, 1>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
         host_rx: Rx<pac::USART2>,
@@ -217,8 +219,15 @@ mod app {
                 &mut rcc,
             )
             .unwrap_or_else(|_| log::fatal("USART1 configuration"));
-        let (link_tx, mut link_rx) = link.split();
-        link_rx.listen();
+        let (link_tx, link_rx) = link.split();
+        #[cfg(feature = "qemu")]
+        let link_rx = {
+            let mut rx = link_rx;
+            rx.listen();
+            rx
+        };
+        #[cfg(not(feature = "qemu"))]
+        super::uart_dma::start();
         let (link_in, link_out) = cx.local.link_q.split();
         let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!(Wake, 1);
 
@@ -314,14 +323,14 @@ mod app {
                 link_tx,
                 host_tx,
                 frames,
+                link_in,
+                link_wake_tx,
             },
             Local {
                 led,
                 iwdg,
                 link_rx,
-                link_in,
                 link_out,
-                link_wake_tx,
                 link_wake_rx,
                 #[cfg(any(feature = "qemu", feature = "hil"))]
                 host_rx,
@@ -339,6 +348,7 @@ mod app {
         )
     }
 
+    #[cfg_attr(not(any(feature = "qemu", feature = "hil")), allow(dead_code))]
     /// Moves every received byte of a UART into its queue and wakes the decoding task. Bytes
     /// that do not fit are dropped (the decoder then rejects the frame and counts it).
     fn drain_uart<U: serial::Instance>(
@@ -365,10 +375,32 @@ mod app {
         let _ = wake.try_send(());
     }
 
-    /// USART1 (autopilot link) receive interrupt.
-    #[task(binds = USART1, priority = 4, local = [link_rx, link_in, link_wake_tx])]
+    /// USART1 (autopilot link) receive interrupt: RXNE in QEMU, IDLE line with DMA otherwise.
+    #[task(binds = USART1, priority = 4, shared = [link_in, link_wake_tx], local = [link_rx])]
     fn usart1(cx: usart1::Context) {
-        drain_uart(cx.local.link_rx, cx.local.link_in, cx.local.link_wake_tx);
+        let rx = cx.local.link_rx;
+        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
+            #[cfg(feature = "qemu")]
+            drain_uart(rx, queue, wake);
+            #[cfg(not(feature = "qemu"))]
+            {
+                let _ = rx;
+                let lost = super::uart_dma::on_interrupt(queue);
+                super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
+                let _ = wake.try_send(());
+            }
+        });
+    }
+
+    /// DMA2 stream 2 (USART1 RX) half/full transfer: hand on what arrived so far.
+    #[cfg(not(feature = "qemu"))]
+    #[task(binds = DMA2_STREAM2, priority = 4, shared = [link_in, link_wake_tx])]
+    fn usart1_dma(cx: usart1_dma::Context) {
+        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
+            let lost = super::uart_dma::on_interrupt(queue);
+            super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
+            let _ = wake.try_send(());
+        });
     }
 
     /// Decodes the autopilot's bytes (gyro/attitude, config, heartbeat).
