@@ -5,7 +5,7 @@
 //!
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
-//! | `usart1`, `usart2` | 6 | UART RXNE | bytes into lock-free queues (never wait for a lock) |
+//! | `usart1`, `usart1_dma`, `usart2` | 6 | USART1 IDLE + DMA2 stream 2 (QEMU: RXNE), USART2 RXNE | bytes into lock-free queues (never wait for a lock) |
 //! | `imu_timer` | 6 | TIM2 at 512 Hz (real) | MPU-6000 burst read over SPI1, spawns `imu_indi` |
 //! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out |
 //! | `stereo_rx` | 4 | woken by `usart1` | `Autopilot::on_stereo_bytes` |
@@ -27,6 +27,8 @@ mod clock;
 mod imu;
 mod log;
 mod motors;
+#[cfg(not(feature = "qemu"))]
+mod uart_dma;
 
 use autopilot::app::Autopilot;
 use core::mem::MaybeUninit;
@@ -114,6 +116,8 @@ mod app {
         /// Messages decoded from the camera board since boot.
         stereo_msgs: u32,
         motors: Motors,
+        link_in: Producer<'static, u8>,
+        link_wake_tx: Sender<'static, (), 1>,
     }
 
     #[local]
@@ -121,9 +125,7 @@ mod app {
         led: PC13<Output>,
         iwdg: IndependentWatchdog,
         link_rx: Rx<pac::USART1>,
-        link_in: Producer<'static, u8>,
         link_out: Consumer<'static, u8>,
-        link_wake_tx: Sender<'static, (), 1>,
         link_wake_rx: Receiver<'static, (), 1>,
         host_rx: Rx<pac::USART2>,
         host_in: Producer<'static, u8>,
@@ -156,13 +158,21 @@ mod app {
         let led = gpioc.pc13.into_push_pull_output();
 
         let config = serial::Config::default().baudrate(board::LINK_BAUD.bps());
-        let (link_tx, mut link_rx) = cx
+        let (link_tx, link_rx) = cx
             .device
             .USART1
             .serial::<u8>((gpioa.pa9, gpioa.pa10), config, &mut rcc)
             .unwrap_or_else(|_| log::fatal("USART1 configuration"))
             .split();
-        link_rx.listen();
+        // The camera-board link: circular DMA + IDLE on hardware, RXNE in QEMU (no DMA model).
+        #[cfg(feature = "qemu")]
+        let link_rx = {
+            let mut rx = link_rx;
+            rx.listen();
+            rx
+        };
+        #[cfg(not(feature = "qemu"))]
+        super::uart_dma::start();
         let (host_tx, mut host_rx) = cx
             .device
             .USART2
@@ -233,14 +243,14 @@ mod app {
                 host_tx,
                 stereo_msgs: 0,
                 motors,
+                link_in,
+                link_wake_tx,
             },
             Local {
                 led,
                 iwdg,
                 link_rx,
-                link_in,
                 link_out,
-                link_wake_tx,
                 link_wake_rx,
                 host_rx,
                 host_in,
@@ -290,10 +300,30 @@ mod app {
         n
     }
 
-    /// USART1 (camera board) receive interrupt.
-    #[task(binds = USART1, priority = 6, local = [link_rx, link_in, link_wake_tx])]
+    /// USART1 (camera board) receive interrupt: RXNE in QEMU, IDLE line with DMA otherwise.
+    #[task(binds = USART1, priority = 6, shared = [link_in, link_wake_tx], local = [link_rx])]
     fn usart1(cx: usart1::Context) {
-        drain_uart(cx.local.link_rx, cx.local.link_in, cx.local.link_wake_tx);
+        let rx = cx.local.link_rx;
+        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
+            #[cfg(feature = "qemu")]
+            drain_uart(rx, queue, wake);
+            #[cfg(not(feature = "qemu"))]
+            {
+                let _ = rx;
+                let _ = super::uart_dma::on_interrupt(queue);
+                let _ = wake.try_send(());
+            }
+        });
+    }
+
+    /// DMA2 stream 2 (USART1 RX) half/full transfer: hand on what arrived so far.
+    #[cfg(not(feature = "qemu"))]
+    #[task(binds = DMA2_STREAM2, priority = 6, shared = [link_in, link_wake_tx])]
+    fn usart1_dma(cx: usart1_dma::Context) {
+        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
+            let _ = super::uart_dma::on_interrupt(queue);
+            let _ = wake.try_send(());
+        });
     }
 
     /// USART2 (host) receive interrupt.
