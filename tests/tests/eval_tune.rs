@@ -21,7 +21,10 @@ const TUNING: [(u32, u32); 6] = [(1, 1), (1, 5), (1, 9), (1, 13), (1, 17), (1, 2
 #[test]
 #[ignore = "parameter-selection tool; run explicitly"]
 fn tune_default_config() {
-    let mut p = EdgeFsParams::default_config();
+    let mut p = EdgeFsParams {
+        output_median: 5,
+        ..EdgeFsParams::default_config()
+    };
     let spec = std::env::var("EDGEFS_TUNE").unwrap_or_default();
     for kv in spec.split_whitespace() {
         let (k, v) = kv.split_once('=').expect("key=value");

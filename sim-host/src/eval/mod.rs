@@ -34,7 +34,8 @@ pub use truth::Alignment;
 pub enum Config {
     /// The paper's configuration (reproduces the published numbers with `--alignment paper`).
     Paper,
-    /// Our best estimator ([`EdgeFsParams::default_config`]).
+    /// Our best estimator ([`EdgeFsParams::default_config`]) followed by the autopilot's
+    /// median over the last 5 estimates.
     Default,
 }
 
@@ -106,11 +107,18 @@ pub struct TakeResult {
     pub series: Series,
 }
 
-/// Edge-FS parameters for a take (the board's stereo shift from calibration_data.txt).
+/// Edge-FS parameters for a take (the board's stereo shift from calibration_data.txt). The
+/// default configuration is scored after the autopilot's median-of-5 (the estimator's
+/// `output_median` = 5), as the controller consumes it.
 pub fn params_for(config: Config, take: &Take) -> Result<EdgeFsParams> {
     let mut p = match config {
         Config::Paper => EdgeFsParams::paper(),
-        Config::Default => EdgeFsParams::default_config(),
+        Config::Default => EdgeFsParams {
+            // The autopilot's median over the last 5 estimates (ARCHITECTURE.md, the paper's
+            // system): score the velocity the controller uses.
+            output_median: 5,
+            ..EdgeFsParams::default_config()
+        },
     };
     p.stereo_shift_px = dataset::stereo_shift(take)?;
     Ok(p)
