@@ -164,6 +164,13 @@ pub struct AutopilotConfig {
     pub median_reset_gap_us: u64,
     /// Largest accepted velocity estimate magnitude per axis, m/s (bigger is treated as invalid).
     pub max_estimate_mps: f32,
+    /// Plausibility gate: an estimate further than this from the median output on either axis
+    /// is an outlier and skipped, m/s (a 15 deg bank changes the velocity by about 0.1 m/s
+    /// per 25 Hz frame). The median alone cannot reject two spikes in a row.
+    pub max_velocity_jump_mps: f32,
+    /// After this many consecutive outliers the gate gives up and restarts the median from the
+    /// new value (the filter, not the estimates, lost track).
+    pub max_consecutive_outliers: u8,
 }
 
 impl Default for AutopilotConfig {
@@ -187,6 +194,8 @@ impl Default for AutopilotConfig {
             min_quality: 0,
             median_reset_gap_us: 500_000,
             max_estimate_mps: 5.0,
+            max_velocity_jump_mps: 0.6,
+            max_consecutive_outliers: 3,
         }
     }
 }
@@ -235,6 +244,8 @@ pub struct Autopilot {
     below_landed_since_us: Option<u64>,
     motors: [f32; 4],
     estimates_received: u32,
+    outliers_in_a_row: u8,
+    outliers_total: u32,
     stereo_rx: StereoToAutopilotDecoder,
     stereo_heartbeat: Option<(u64, Heartbeat)>,
     stereo_status: Option<StereoStatus>,
@@ -272,6 +283,8 @@ impl Autopilot {
             below_landed_since_us: None,
             motors: MOTORS_OFF,
             estimates_received: 0,
+            outliers_in_a_row: 0,
+            outliers_total: 0,
             stereo_rx: StereoToAutopilotDecoder::new(),
             stereo_heartbeat: None,
             stereo_status: None,
@@ -338,6 +351,11 @@ impl Autopilot {
     /// Estimates received since boot (valid or not, wrapping).
     pub fn estimates_received(&self) -> u32 {
         self.estimates_received
+    }
+
+    /// Valid estimates skipped by the plausibility gate since boot (wrapping).
+    pub fn velocity_outliers(&self) -> u32 {
+        self.outliers_total
     }
 
     /// The camera board's last heartbeat and when it arrived (µs).
@@ -433,8 +451,9 @@ impl Autopilot {
         self.motors
     }
 
-    /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities go
-    /// through the median-5 filter; the obstacle distance is kept when the stereo part is usable.
+    /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a
+    /// plausibility gate ([`AutopilotConfig::max_velocity_jump_mps`]) and go through the
+    /// median-5 filter; the obstacle distance is kept when the stereo part is usable.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
         self.estimates_received = self.estimates_received.wrapping_add(1);
         if est.flags.0 & OBSTACLE_INVALID.0 == 0 {
@@ -462,7 +481,24 @@ impl Autopilot {
             };
             if gap {
                 self.median.reset();
+                self.outliers_in_a_row = 0;
             }
+            let jump = self.cfg.max_velocity_jump_mps;
+            let outlier = match self.median.output() {
+                Some([f, s]) => {
+                    (est.forward_mps - f).abs() > jump || (est.sideways_mps - s).abs() > jump
+                }
+                None => false,
+            };
+            if outlier && self.outliers_in_a_row < self.cfg.max_consecutive_outliers {
+                self.outliers_in_a_row += 1;
+                self.outliers_total = self.outliers_total.wrapping_add(1);
+                return;
+            }
+            if outlier {
+                self.median.reset();
+            }
+            self.outliers_in_a_row = 0;
             self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
             self.last_valid_estimate_us = Some(now_us);
         }

@@ -345,6 +345,41 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
 }
 
 #[test]
+fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let est = |f: f32| Estimate {
+        seq: 0,
+        capture_us: 0,
+        forward_mps: f,
+        sideways_mps: 0.0,
+        obstacle_m: None,
+        quality: 200,
+        flags: EstimateFlags::NONE,
+        processing_us: 0,
+    };
+    let mut t = 0;
+    let mut feed = |ap: &mut Autopilot, f: f32| {
+        t += 40_000;
+        ap.on_estimate(&est(f), t);
+        ap.velocity().unwrap()[0]
+    };
+    for _ in 0..5 {
+        feed(&mut ap, 0.3);
+    }
+    // Two spikes in a row (the median-5 alone would follow the second one to -1.8).
+    assert_eq!(feed(&mut ap, -1.7), 0.3);
+    assert_eq!(feed(&mut ap, -1.9), 0.3);
+    assert_eq!(ap.velocity_outliers(), 2);
+    assert_eq!(feed(&mut ap, 0.32), 0.3);
+    // A sustained change: after three outliers the filter restarts from the new value.
+    for _ in 0..3 {
+        assert_eq!(feed(&mut ap, 1.5), 0.3);
+    }
+    assert_eq!(feed(&mut ap, 1.5), 1.5);
+    assert_eq!(ap.velocity_outliers(), 5);
+}
+
+#[test]
 fn kill_stops_motors_at_once() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
