@@ -10,7 +10,7 @@
 //! | `usart2` / `host_rx` | 4 / 3 | USART2 RXNE (qemu, hil) | [`StereoBoardApp::on_host_bytes`] |
 //! | `dcmi_frame` | 4 | DMA2 stream 1 transfer complete (real) | hands the filled buffer on |
 //! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` |
-//! | `status` | 1 | every `app::STATUS_PERIOD_US` | [`StereoBoardApp::status_tick`], LED, watchdog |
+//! | `status` | 1 | every `app::STATUS_PERIOD_US` | [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
 //!
 //! Edge-FS runs inside a lock of the board state, whose ceiling is the receive tasks'
 //! priority 3: while a frame is processed, received bytes wait in the queues filled at
@@ -538,12 +538,18 @@ mod app {
     }
 
     /// 1 Hz: status and heartbeat to the autopilot, LED, watchdog.
-    #[task(priority = 1, shared = [board, link_tx], local = [led, iwdg])]
+    #[task(priority = 1, shared = [board, link_tx, host_tx], local = [led, iwdg])]
     async fn status(mut cx: status::Context) {
         loop {
             let now = clock::now_us();
             let status = (&mut cx.shared.board, &mut cx.shared.link_tx)
                 .lock(|board, tx| board.status_tick(now, &mut |f| write_all(tx, f)));
+            // The host link gets a heartbeat too: a HIL host starts streaming once it sees one
+            // (bytes sent before the USART is enabled are lost).
+            let hb = protocol::Heartbeat::new(protocol::Node::StereoBoard, status.uptime_ms);
+            cx.shared.host_tx.lock(|tx| {
+                send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| write_all(tx, f));
+            });
             cx.local.led.toggle();
             cx.local.iwdg.feed();
             let (rx_ok, host_errors, gyro_age) = cx.shared.board.lock(|b| {
