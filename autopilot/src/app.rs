@@ -168,9 +168,14 @@ pub struct AutopilotConfig {
     /// is an outlier and skipped, m/s (a 15 deg bank changes the velocity by about 0.1 m/s
     /// per 25 Hz frame). The median alone cannot reject two spikes in a row.
     pub max_velocity_jump_mps: f32,
-    /// After this many consecutive outliers the gate gives up and restarts the median from the
-    /// new value (the filter, not the estimates, lost track).
+    /// After this many consecutive outliers that agree with each other (within
+    /// `max_velocity_jump_mps`) the gate restarts the median from the new value (the filter,
+    /// not the estimates, lost track).
     pub max_consecutive_outliers: u8,
+    /// Guidance uses the filtered velocity only while the last accepted estimate is younger
+    /// than this, µs; older, it holds the trim attitude (a stale velocity must not keep
+    /// driving the tilt).
+    pub velocity_max_age_us: u64,
 }
 
 impl Default for AutopilotConfig {
@@ -196,6 +201,7 @@ impl Default for AutopilotConfig {
             max_estimate_mps: 5.0,
             max_velocity_jump_mps: 0.6,
             max_consecutive_outliers: 3,
+            velocity_max_age_us: 150_000,
         }
     }
 }
@@ -245,6 +251,7 @@ pub struct Autopilot {
     motors: [f32; 4],
     estimates_received: u32,
     outliers_in_a_row: u8,
+    last_outlier: [f32; 2],
     outliers_total: u32,
     stereo_rx: StereoToAutopilotDecoder,
     stereo_heartbeat: Option<(u64, Heartbeat)>,
@@ -284,6 +291,7 @@ impl Autopilot {
             motors: MOTORS_OFF,
             estimates_received: 0,
             outliers_in_a_row: 0,
+            last_outlier: [0.0; 2],
             outliers_total: 0,
             stereo_rx: StereoToAutopilotDecoder::new(),
             stereo_heartbeat: None,
@@ -490,10 +498,18 @@ impl Autopilot {
                 }
                 None => false,
             };
-            if outlier && self.outliers_in_a_row < self.cfg.max_consecutive_outliers {
-                self.outliers_in_a_row += 1;
-                self.outliers_total = self.outliers_total.wrapping_add(1);
-                return;
+            if outlier {
+                let [f, s] = self.last_outlier;
+                let agrees = self.outliers_in_a_row > 0
+                    && (est.forward_mps - f).abs() <= jump
+                    && (est.sideways_mps - s).abs() <= jump;
+                let run = if agrees { self.outliers_in_a_row } else { 0 };
+                if run < self.cfg.max_consecutive_outliers {
+                    self.outliers_in_a_row = run + 1;
+                    self.last_outlier = [est.forward_mps, est.sideways_mps];
+                    self.outliers_total = self.outliers_total.wrapping_add(1);
+                    return;
+                }
             }
             if outlier {
                 self.median.reset();
@@ -558,7 +574,13 @@ impl Autopilot {
         let yaw = self.att.euler()[2];
         let est_fresh = matches!(self.last_valid_estimate_us,
             Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.estimate_timeout_us);
-        let velocity = if est_fresh { self.velocity } else { None };
+        let velocity_fresh = matches!(self.last_valid_estimate_us,
+            Some(t) if now_us.saturating_sub(t) <= self.cfg.velocity_max_age_us);
+        let velocity = if est_fresh && velocity_fresh {
+            self.velocity
+        } else {
+            None
+        };
         let obstacle = self.obstacle.filter(|o| {
             now_us.saturating_sub(o.received_us) <= self.cfg.failsafe.estimate_timeout_us
         });

@@ -371,12 +371,16 @@ fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
     assert_eq!(feed(&mut ap, -1.9), 0.3);
     assert_eq!(ap.velocity_outliers(), 2);
     assert_eq!(feed(&mut ap, 0.32), 0.3);
-    // A sustained change: after three outliers the filter restarts from the new value.
-    for _ in 0..3 {
+    // Outliers that disagree with each other never restart the filter.
+    for f in [1.5, -1.5, 1.5, -1.5, 1.5] {
+        assert_eq!(feed(&mut ap, f), 0.3);
+    }
+    // A sustained change: after three agreeing outliers the filter restarts from the new value.
+    for _ in 0..2 {
         assert_eq!(feed(&mut ap, 1.5), 0.3);
     }
-    assert_eq!(feed(&mut ap, 1.5), 1.5);
-    assert_eq!(ap.velocity_outliers(), 5);
+    assert_eq!(feed(&mut ap, 1.45), 1.45);
+    assert_eq!(ap.velocity_outliers(), 9);
 }
 
 #[test]
