@@ -17,7 +17,7 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use support::{last_field, qemu_available, qemu_firmwares, HostLink, Port, Qemu};
+use support::{last_field, qemu_firmwares, require_qemu, HostLink, Port, Qemu};
 
 /// Frames streamed to the camera board (each takes seconds through QEMU's USART model).
 const FRAMES: usize = 3;
@@ -64,9 +64,7 @@ fn synthetic_frame(k: usize) -> Vec<u8> {
 
 #[test]
 fn both_firmwares_talk_over_loopback_without_errors() {
-    if !qemu_available() {
-        return;
-    }
+    require_qemu();
     let (stereo_elf, autopilot_elf) = qemu_firmwares();
     let s_link = Port::bind();
     let a_link = Port::bind();

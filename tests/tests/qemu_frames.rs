@@ -16,16 +16,14 @@ use sim_host::eval::dataset::{discover_takes, load_bmp};
 use std::time::Duration;
 use stereo_board::app::{FrameAssembler, StereoBoardApp};
 use stereo_board::edge_fs::EdgeFsParams;
-use support::{qemu_available, qemu_firmwares, HostLink, Port, Qemu};
+use support::{qemu_firmwares, require_qemu, HostLink, Port, Qemu};
 
 /// Frames streamed: more than the flow horizon (5) + 1, so velocities are estimated.
 const FRAMES: usize = 8;
 
 #[test]
 fn firmware_estimates_equal_the_host_library_on_real_frames() {
-    if !qemu_available() {
-        return;
-    }
+    require_qemu();
     let takes = discover_takes(&integration_tests::shared_dataset_dir()).expect("data set");
     let take = &takes[0];
     let frames: Vec<Box<[u8; STEREO_FRAME_BYTES]>> = (1..=FRAMES)

@@ -3,9 +3,9 @@
 //! loopback sockets served by the test, and always kill QEMU (a guard kills on drop, also
 //! when a test panics).
 //!
-//! The tests need `qemu-system-arm` and the `thumbv7em-none-eabihf` target (the CI command
-//! installs both). Where they are missing the tests are skipped with a message, unless
-//! `POCKET_DRONE_REQUIRE_QEMU` is set, in which case they fail.
+//! The tests need `qemu-system-arm` and the `thumbv7em-none-eabihf` target (`cargo xtask test`
+//! installs both). Where either is missing they fail with a message saying so: a check that
+//! silently skips is no check.
 #![allow(dead_code)]
 
 use std::io::Read;
@@ -35,9 +35,8 @@ fn target_dir() -> PathBuf {
         .unwrap_or_else(|| workspace_root().join("target"))
 }
 
-/// True when QEMU tests can run here; otherwise prints why (and panics when
-/// `POCKET_DRONE_REQUIRE_QEMU` is set).
-pub fn qemu_available() -> bool {
+/// Panics, saying what is missing, unless QEMU tests can run here.
+pub fn require_qemu() {
     let qemu = Command::new("qemu-system-arm")
         .arg("--version")
         .stdout(Stdio::null())
@@ -53,16 +52,13 @@ pub fn qemu_available() -> bool {
     let ok = qemu && target;
     if !ok {
         let why = format!(
-            "QEMU test skipped: qemu-system-arm {} / thumbv7em-none-eabihf target {}",
+            "QEMU test cannot run: qemu-system-arm {} / thumbv7em-none-eabihf target {} \
+             (run `cargo xtask test`, which installs both)",
             if qemu { "found" } else { "missing" },
             if target { "found" } else { "missing" }
         );
-        if std::env::var_os("POCKET_DRONE_REQUIRE_QEMU").is_some() {
-            panic!("{why}");
-        }
-        eprintln!("{why}");
+        panic!("{why}");
     }
-    ok
 }
 
 /// Builds both firmwares in the `qemu` flavour (once per test binary) and returns the ELF
