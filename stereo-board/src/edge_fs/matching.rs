@@ -57,31 +57,38 @@ pub fn match_column(
     let mut costs = [0u32; MAX_CANDIDATES];
     let n = n.min(MAX_CANDIDATES);
     let costs = costs.get_mut(..n)?;
-    let mut best = 0;
     for (k, cost) in costs.iter_mut().enumerate() {
         *cost = sad(reference, rc, target, tc0 + k as isize, w);
         if *cost == u32::MAX {
             return None;
         }
     }
-    for (k, &c) in costs.iter().enumerate() {
-        if c < costs[best] {
+    best_match(costs)
+}
+
+/// The match of one column from its candidate costs: first minimum, parabola sub-pixel offset
+/// and peak-ratio confidence (see [`ColumnMatch`]). `None` only for an empty slice.
+pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
+    let mut best = 0;
+    let mut c0 = *costs.first()?;
+    for (k, &c) in costs.iter().enumerate().skip(1) {
+        if c < c0 {
             best = k;
+            c0 = c;
         }
     }
-    let c0 = costs[best];
-    let subpixel = if best > 0 && best + 1 < n {
-        parabola(costs[best - 1], c0, costs[best + 1])
-    } else {
-        0.0
+    let n = costs.len();
+    let subpixel = match (
+        best.checked_sub(1).and_then(|k| costs.get(k)),
+        costs.get(best + 1),
+    ) {
+        (Some(&l), Some(&r)) => parabola(l, c0, r),
+        _ => 0.0,
     };
-    let second = costs
-        .iter()
-        .enumerate()
-        .filter(|(k, _)| k.abs_diff(best) >= 2)
-        .map(|(_, &c)| c)
-        .min()
-        .unwrap_or(c0);
+    // Smallest cost at least two candidates away from the minimum (c0 when there is none).
+    let before = costs.get(..best.saturating_sub(1)).unwrap_or(&[]);
+    let after = costs.get((best + 2).min(n)..).unwrap_or(&[]);
+    let second = before.iter().chain(after).copied().min().unwrap_or(c0);
     let confidence = if c0 == 0 {
         if second == 0 {
             1.0
@@ -97,6 +104,124 @@ pub fn match_column(
         confidence,
         cost: c0,
     })
+}
+
+/// Candidate costs of every column at once, for a search whose target offset is the same for
+/// all columns: for each reference column `c` whose `n` candidate windows all fit, in
+/// increasing `c`, calls `f(c, costs)` with `costs[k] == sad(reference, c, target,
+/// c + delta0 + k, w)` (`n` clamped to [`MAX_CANDIDATES`]). Columns with a window outside the
+/// histograms (where [`match_column`] returns `None`) are skipped.
+///
+/// Running-sum SAD: the first valid column's costs are summed in full, every further column
+/// updates each candidate by the bin entering and the bin leaving the window, so a whole row
+/// costs `O(IMG_W · n)` instead of `O(IMG_W · n · (2w+1))`. Integer-exact, so the costs (and
+/// [`best_match`] of them) equal the per-column search bit for bit.
+pub fn column_costs(
+    reference: &EdgeHistogram,
+    target: &EdgeHistogram,
+    delta0: isize,
+    n: usize,
+    w: usize,
+    mut f: impl FnMut(usize, &[u32]),
+) {
+    let n = n.min(MAX_CANDIDATES);
+    let last = IMG_W as isize - 1;
+    let (wi, ni) = (w.min(IMG_W) as isize, n as isize);
+    // Valid columns: c - w >= 0, c + w <= last, c + delta0 - w >= 0,
+    // c + delta0 + (n - 1) + w <= last.
+    let lo = wi.max(wi - delta0);
+    let hi = (last - wi).min(last - wi - delta0 - (ni - 1));
+    if n == 0 || lo > hi {
+        return;
+    }
+    let (lo, hi) = (lo as usize, hi as usize);
+    let mut buf = [0u32; MAX_CANDIDATES];
+    let Some(costs) = buf.get_mut(..n) else {
+        return;
+    };
+    // Full sums for the first column.
+    let t0 = (lo as isize + delta0) as usize - w;
+    let Some(rw) = reference.get(lo - w..=lo + w) else {
+        return;
+    };
+    for (k, cost) in costs.iter_mut().enumerate() {
+        let Some(tw) = target.get(t0 + k..=t0 + k + 2 * w) else {
+            return;
+        };
+        *cost = rw
+            .iter()
+            .zip(tw)
+            .map(|(&x, &y)| u32::from(x.abs_diff(y)))
+            .sum();
+    }
+    f(lo, costs);
+    // Slide: column c enters bin c + w, drops bin c - w - 1.
+    for c in lo + 1..=hi {
+        let (add, sub) = (c + w, c - w - 1);
+        let ta0 = (add as isize + delta0) as usize;
+        let ts0 = (sub as isize + delta0) as usize;
+        let (Some(&ra), Some(&rs), Some(ta), Some(ts)) = (
+            reference.get(add),
+            reference.get(sub),
+            target.get(ta0..ta0 + n),
+            target.get(ts0..ts0 + n),
+        ) else {
+            return;
+        };
+        for ((cost, &a), &s) in costs.iter_mut().zip(ta).zip(ts) {
+            // The leaving term is part of the sum: no underflow.
+            *cost = *cost + u32::from(ra.abs_diff(a)) - u32::from(rs.abs_diff(s));
+        }
+        f(c, costs);
+    }
+}
+
+/// Stereo matches of every right-image column at once (same candidates and results as
+/// [`stereo_match`] per column); calls `f(c, match)` for each column where it is `Some`.
+pub fn stereo_row(
+    left: &EdgeHistogram,
+    right: &EdgeHistogram,
+    max_d: usize,
+    shift: i32,
+    w: usize,
+    mut f: impl FnMut(usize, ColumnMatch),
+) {
+    column_costs(
+        right,
+        left,
+        -(shift as isize),
+        max_d.saturating_add(1),
+        w,
+        |c, costs| {
+            if let Some(m) = best_match(costs) {
+                f(c, m);
+            }
+        },
+    );
+}
+
+/// Flow matches of every column of `older` at once (same candidates and results as
+/// [`flow_match`] per column); calls `f(c, match)` for each column where it is `Some`.
+pub fn flow_row(
+    older: &EdgeHistogram,
+    current: &EdgeHistogram,
+    d: usize,
+    offset: i32,
+    w: usize,
+    mut f: impl FnMut(usize, ColumnMatch),
+) {
+    column_costs(
+        older,
+        current,
+        offset as isize - d as isize,
+        d.saturating_mul(2).saturating_add(1),
+        w,
+        |c, costs| {
+            if let Some(m) = best_match(costs) {
+                f(c, m);
+            }
+        },
+    );
 }
 
 /// Vertex offset of the parabola through `(−1, l)`, `(0, m)`, `(1, r)`, clamped to ±0.5 px.
@@ -149,8 +274,153 @@ pub fn flow_match(
 }
 
 #[cfg(test)]
+// The reference implementations index plainly on purpose.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// Plain reference search (spec form): explicit SAD per candidate, first minimum, no
+    /// shared code with the optimised kernels.
+    fn reference_match(
+        r: &EdgeHistogram,
+        rc: isize,
+        t: &EdgeHistogram,
+        tc0: isize,
+        n: usize,
+        w: usize,
+    ) -> Option<ColumnMatch> {
+        let w = w as isize;
+        let mut costs = [0u32; MAX_CANDIDATES];
+        if n == 0 || n > MAX_CANDIDATES {
+            return None;
+        }
+        for k in 0..n {
+            let tc = tc0 + k as isize;
+            if rc - w < 0 || tc - w < 0 || rc + w >= IMG_W as isize || tc + w >= IMG_W as isize {
+                return None;
+            }
+            let mut sum = 0u32;
+            for j in -w..=w {
+                let a = i64::from(r[(rc + j) as usize]);
+                let b = i64::from(t[(tc + j) as usize]);
+                sum += (a - b).unsigned_abs() as u32;
+            }
+            costs[k] = sum;
+        }
+        let mut best = 0;
+        for k in 1..n {
+            if costs[k] < costs[best] {
+                best = k;
+            }
+        }
+        let c0 = costs[best];
+        let subpixel = if best > 0 && best + 1 < n {
+            parabola(costs[best - 1], c0, costs[best + 1])
+        } else {
+            0.0
+        };
+        let mut second = c0;
+        let mut found = false;
+        for k in 0..n {
+            if k.abs_diff(best) >= 2 && (!found || costs[k] < second) {
+                second = costs[k];
+                found = true;
+            }
+        }
+        let confidence = match (c0, second) {
+            (0, 0) => 1.0,
+            (0, _) => f32::INFINITY,
+            _ => second as f32 / c0 as f32,
+        };
+        Some(ColumnMatch {
+            best,
+            subpixel,
+            confidence,
+            cost: c0,
+        })
+    }
+
+    /// Histograms with plateaus and repeats (ties) as well as full-range values.
+    fn hist_strategy() -> impl Strategy<Value = EdgeHistogram> {
+        (
+            proptest::collection::vec(0u16..=24_480, IMG_W),
+            0u16..=3,
+            any::<u64>(),
+        )
+            .prop_map(|(v, q, seed)| {
+                let mut h = [0u16; IMG_W];
+                for (c, (o, x)) in h.iter_mut().zip(v).enumerate() {
+                    // q > 0: coarse values (many equal costs); some runs of zeros.
+                    let x = if q > 0 {
+                        x / (4096 >> (q * 3)).max(1)
+                    } else {
+                        x
+                    };
+                    *o = if (seed >> (c % 64)) & 1 == 1 && q == 2 {
+                        0
+                    } else {
+                        x
+                    };
+                }
+                h
+            })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// Every optimised entry point equals the plain reference, column by column.
+        #[test]
+        fn optimised_matching_equals_reference(
+            a in hist_strategy(),
+            b in hist_strategy(),
+            w in 0usize..=12,
+            d in 0usize..=20,
+            shift in -20i32..=20,
+            offset in -40i32..=40,
+        ) {
+            // Stereo: per column and whole row.
+            let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
+            stereo_row(&a, &b, d, shift, w, |c, m| row[c] = Some(m));
+            for c in 0..IMG_W {
+                let want = reference_match(&b, c as isize, &a, c as isize - shift as isize, d + 1, w);
+                prop_assert_eq!(stereo_match(&a, &b, c, d, shift, w), want, "stereo col {}", c);
+                prop_assert_eq!(row[c], want, "stereo row col {}", c);
+            }
+            // Flow.
+            let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
+            flow_row(&a, &b, d, offset, w, |c, m| row[c] = Some(m));
+            for c in 0..IMG_W {
+                let tc0 = c as isize + offset as isize - d as isize;
+                let want = reference_match(&a, c as isize, &b, tc0, 2 * d + 1, w);
+                prop_assert_eq!(flow_match(&a, &b, c, d, offset, w), want, "flow col {}", c);
+                prop_assert_eq!(row[c], want, "flow row col {}", c);
+            }
+        }
+    }
+
+    #[test]
+    fn column_costs_visits_columns_in_order_and_handles_degenerate_input() {
+        let h = texture(0);
+        let mut seen = heapless::Vec::<usize, IMG_W>::new();
+        column_costs(&h, &h, -3, 7, 4, |c, costs| {
+            assert_eq!(costs.len(), 7);
+            assert_eq!(costs[3], 0);
+            seen.push(c).unwrap();
+        });
+        let want: heapless::Vec<usize, IMG_W> = (7..=IMG_W - 8).collect();
+        assert_eq!(seen, want);
+        // Nothing fits / nothing to search: no calls, no panic.
+        column_costs(&h, &h, 0, 0, 3, |_, _| panic!("n = 0"));
+        column_costs(&h, &h, 0, 5, 200, |_, _| {
+            panic!("window wider than the image")
+        });
+        column_costs(&h, &h, 500, 5, 3, |_, _| panic!("offset beyond the image"));
+        column_costs(&h, &h, -500, 5, 3, |_, _| panic!("offset beyond the image"));
+        assert!(match_column(&h, 60, &h, 60, 0, 3).is_none());
+        assert!(best_match(&[]).is_none());
+    }
 
     /// A textured histogram: pseudo-random bins from a small LCG, shifted by `s` px.
     fn texture(s: isize) -> EdgeHistogram {

@@ -40,7 +40,10 @@ mod matching;
 
 pub use fit::{line_fit, robust_line_fit, weighted_line_fit, LineFit};
 pub use histogram::{edge_histograms, mean_intensity, EdgeHistogram};
-pub use matching::{flow_match, match_column, parabola, sad, stereo_match, ColumnMatch};
+pub use matching::{
+    best_match, column_costs, flow_match, flow_row, match_column, parabola, sad, stereo_match,
+    stereo_row, ColumnMatch,
+};
 
 use protocol::{ConfigError, EdgeFsConfig, EstimateFlags, GyroAttitude, STEREO_FRAME_BYTES};
 
@@ -470,11 +473,12 @@ impl EdgeFs {
         {
             let cur = &self.slot(0).hist;
             let older = &self.slot(n).hist;
-            for c1 in (w + d + 1)..=(IMG_W - w - d) {
-                if let Some(m) = flow_match(older, cur, c1 - 1, d, 0, w) {
-                    flow[c1 - 1] = (m.best as f64 - d as f64) / n as f64;
+            let cols = (w + d)..(IMG_W - w - d);
+            flow_row(older, cur, d, 0, w, |c0, m| {
+                if cols.contains(&c0) {
+                    flow[c0] = (m.best as f64 - d as f64) / n as f64;
                 }
-            }
+            });
         }
         let global = line_fit(
             flow.iter()
@@ -490,12 +494,12 @@ impl EdgeFs {
         let hi = (IMG_W - w - d) as i32 + s.min(0);
         {
             let cur = &self.slot(0).hist;
-            for c1 in lo.max(1)..=hi.min(IMG_W as i32) {
-                let c0 = (c1 - 1) as usize;
-                if let Some(m) = stereo_match(cur, &self.other, c0, d, s, w) {
+            let cols = lo.max(1)..=hi.min(IMG_W as i32);
+            stereo_row(cur, &self.other, d, s, w, |c0, m| {
+                if cols.contains(&(c0 as i32 + 1)) {
                     disp[c0] = m.best as u8;
                 }
-            }
+            });
         }
 
         // Post-hoc derotation with the n-frame yaw difference / n (data set yaw = -body yaw).
@@ -585,26 +589,26 @@ impl EdgeFs {
         let mut texture = [0u32; IMG_W];
         {
             let cur = &self.ring[self.idx(0)].hist;
-            for c in 0..IMG_W {
-                texture[c] = window_sum(cur, c, w);
-                let ds = usize::from(p.stereo_range);
-                let Some(m) = stereo_match(&self.other, cur, c, ds, s, w) else {
-                    continue;
-                };
+            for (c, t) in texture.iter_mut().enumerate() {
+                *t = window_sum(cur, c, w);
+            }
+            let ds = usize::from(p.stereo_range);
+            let diag = &mut self.diag;
+            stereo_row(&self.other, cur, ds, s, w, |c, m| {
                 let disp = m.best as f32 + m.subpixel;
-                self.diag.disparity_px[c] = disp;
+                diag.disparity_px[c] = disp;
                 let ok = m.best > 0
                     && m.best < ds
                     && disp >= p.min_disparity_px
                     && m.confidence >= p.min_stereo_confidence
                     && texture[c] >= p.min_texture;
                 if ok {
-                    self.diag.depth_m[c] = f * p.baseline_m / disp;
-                    self.diag.confidence[c] = m.confidence.min(100.0);
+                    diag.depth_m[c] = f * p.baseline_m / disp;
+                    diag.confidence[c] = m.confidence.min(100.0);
                     stereo_ok[c] = true;
                     n_stereo += 1;
                 }
-            }
+            });
         }
         out.obstacle_m = self.nearest_obstacle();
         let total_texture: u32 = texture.iter().step_by(2 * w + 1).sum();
@@ -650,30 +654,38 @@ impl EdgeFs {
         let mut textured = 0;
         {
             let (cur_h, old_h) = (&cur.hist, &older.hist);
-            for c in 0..IMG_W {
-                if texture[c] < p.min_texture {
-                    continue;
-                }
-                let Some(m) = flow_match(old_h, cur_h, c, d, offset, w) else {
-                    continue;
-                };
-                textured += 1;
-                if m.best == 0 || m.best == 2 * d {
-                    edge_hits += 1;
-                    continue;
-                }
-                let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel;
-                let u = (motion - rot_px) / dt_s;
-                self.diag.flow_pxps[c] = u;
-                if stereo_ok[c] && m.confidence >= p.min_flow_confidence {
-                    let z = self.diag.depth_m[c];
-                    if let Some(pt) = pts.get_mut(np) {
-                        let wgt = libm::powf(z.max(0.05), -p.depth_weight_exp);
-                        *pt = (c as f32 - 63.5, z * u, wgt);
-                        np += 1;
+            let diag = &mut self.diag;
+            column_costs(
+                old_h,
+                cur_h,
+                offset as isize - d as isize,
+                2 * d + 1,
+                w,
+                |c, costs| {
+                    if texture[c] < p.min_texture {
+                        return;
                     }
-                }
-            }
+                    let Some(m) = best_match(costs) else {
+                        return;
+                    };
+                    textured += 1;
+                    if m.best == 0 || m.best == 2 * d {
+                        edge_hits += 1;
+                        return;
+                    }
+                    let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel;
+                    let u = (motion - rot_px) / dt_s;
+                    diag.flow_pxps[c] = u;
+                    if stereo_ok[c] && m.confidence >= p.min_flow_confidence {
+                        let z = diag.depth_m[c];
+                        if let Some(pt) = pts.get_mut(np) {
+                            let wgt = libm::powf(z.max(0.05), -p.depth_weight_exp);
+                            *pt = (c as f32 - 63.5, z * u, wgt);
+                            np += 1;
+                        }
+                    }
+                },
+            );
         }
         // Adaptive horizon: shorten when many searches hit the range end, lengthen when none.
         if edge_hits * 8 > textured && self.horizon > 1 {
