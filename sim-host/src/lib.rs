@@ -4,4 +4,5 @@
 
 pub mod eval;
 pub mod fly;
+pub mod plot_font;
 pub mod sim;
