@@ -1,10 +1,10 @@
-//! Flight artefacts: CSV log, PNG plots (plotters, bitmap backend, no text: the build has no
-//! font support, so axes are drawn as 1 m / 1 s grids) and an animated GIF (top-down view beside
-//! the left camera image).
+//! Flight artefacts: CSV log, PNG plots (plotters, bitmap backend, text in the embedded font of
+//! [`crate::plot_font`]) and an animated GIF (top-down view beside the left camera image).
 
 use super::camera::{HEIGHT, WIDTH};
 use super::flight::FlightResult;
 use super::scene::{Obstacle, Scene};
+use crate::plot_font::{self, FAMILY};
 use plotters::prelude::*;
 use std::io::Write;
 use std::path::Path;
@@ -82,21 +82,77 @@ where
     Ok(())
 }
 
+/// Axis labels and tick values (the light grid is drawn by [`grid`]).
+fn axes<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<
+        'a,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    x_desc: &str,
+    y_desc: &str,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((FAMILY, 13))
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e:?}"))
+}
+
+/// Draws the legend of the labelled series in the upper right corner.
+fn legend<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<
+        'a,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .label_font((FAMILY, 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e:?}"))
+}
+
+fn line_key(color: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new([(x, y), (x + 18, y)], color.stroke_width(2))
+}
+
 /// Top-down trajectory with the room and obstacles (x north up, y east right; 1 m grid);
 /// collisions in red, start in green.
 pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let s = &r.scene;
     let px_per_m = 600.0 / s.size_x.max(s.size_y) as f64;
-    let w = (s.size_y as f64 * px_per_m) as u32 + 40;
-    let h = (s.size_x as f64 * px_per_m) as u32 + 40;
+    plot_font::register();
+    let w = (s.size_y as f64 * px_per_m) as u32 + 100;
+    let h = (s.size_x as f64 * px_per_m) as u32 + 110;
     let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
     let e = |e: DrawingAreaErrorKind<_>| anyhow::anyhow!("{e:?}");
     root.fill(&WHITE).map_err(e)?;
     let root = root.margin(20, 20, 20, 20);
     // Plot coordinates: horizontal = east (y), vertical = north (x).
     let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("seed {}: trajectory (start green, collisions red)", r.seed),
+            (FAMILY, 16),
+        )
+        .x_label_area_size(35)
+        .y_label_area_size(45)
         .build_cartesian_2d(0.0..s.size_y as f64, 0.0..s.size_x as f64)
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    axes(&mut chart, "east [m]", "north [m]")?;
     grid(
         &mut chart,
         (0.0, s.size_y as f64, 1.0),
@@ -174,14 +230,20 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
 pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
     let w = (t_end * 20.0).clamp(800.0, 6000.0) as u32;
-    let root = BitMapBackend::new(path, (w, 600)).into_drawing_area();
+    plot_font::register();
+    let root = BitMapBackend::new(path, (w, 700)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let areas = root.split_evenly((2, 1));
     for (axis, area) in areas.iter().enumerate() {
         let area = area.margin(10, 10, 10, 10);
+        let name = if axis == 0 { "forward" } else { "sideways" };
         let mut chart = ChartBuilder::on(&area)
+            .caption(format!("{name} velocity, body frame"), (FAMILY, 16))
+            .x_label_area_size(35)
+            .y_label_area_size(50)
             .build_cartesian_2d(0.0..t_end, -0.6..0.6)
             .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        axes(&mut chart, "time [s]", "velocity [m/s]")?;
         grid(&mut chart, (0.0, t_end, 10.0), (-0.6, 0.6, 0.1))?;
         let series = |f: &dyn Fn(&super::flight::LogRow) -> f32| -> Vec<(f64, f64)> {
             r.log
@@ -196,16 +258,25 @@ pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
                     .into_iter()
                     .map(|p| Circle::new(p, 1, RGBColor(255, 160, 0).filled())),
             )
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?
+            .label("Edge-FS (raw)")
+            .legend(|(x, y)| Circle::new((x + 9, y), 3, RGBColor(255, 160, 0).filled()));
         chart
             .draw_series(LineSeries::new(series(&|l| l.vel_sp[axis]), GREEN))
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?
+            .label("setpoint")
+            .legend(line_key(GREEN));
         chart
             .draw_series(LineSeries::new(series(&|l| l.vel_est[axis]), BLUE))
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?
+            .label("median-5 estimate")
+            .legend(line_key(BLUE));
         chart
             .draw_series(LineSeries::new(series(&|l| l.vel_true[axis]), BLACK))
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?
+            .label("truth")
+            .legend(line_key(BLACK));
+        legend(&mut chart)?;
     }
     root.present().map_err(|e| anyhow::anyhow!("{e:?}"))?;
     Ok(())
@@ -216,12 +287,20 @@ pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
 pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
     let w = (t_end * 20.0).clamp(800.0, 6000.0) as u32;
-    let root = BitMapBackend::new(path, (w, 400)).into_drawing_area();
+    plot_font::register();
+    let root = BitMapBackend::new(path, (w, 450)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let area = root.margin(10, 10, 10, 10);
     let mut chart = ChartBuilder::on(&area)
+        .caption(
+            "FSM state (-1 inactive, 0 check, 1 forward, 2 hover, 3 turn), flight mode, distances",
+            (FAMILY, 16),
+        )
+        .x_label_area_size(35)
+        .y_label_area_size(50)
         .build_cartesian_2d(0.0..t_end, -1.5..5.5)
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    axes(&mut chart, "time [s]", "state / metres")?;
     grid(&mut chart, (0.0, t_end, 10.0), (-1.0, 5.0, 1.0))?;
     let pts = |f: &dyn Fn(&super::flight::LogRow) -> f64| -> Vec<(f64, f64)> {
         r.log
@@ -235,13 +314,19 @@ pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             pts(&|l| (l.obstacle_m as f64).min(5.0)),
             RGBColor(160, 160, 160),
         ))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?
+        .label("obstacle distance [m]")
+        .legend(line_key(RGBColor(160, 160, 160)));
     chart
         .draw_series(LineSeries::new(pts(&|l| l.clearance_m as f64), BLACK))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?
+        .label("true clearance [m]")
+        .legend(line_key(BLACK));
     chart
         .draw_series(LineSeries::new(pts(&|l| l.mode as f64), RED))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?
+        .label("flight mode (0 disarmed, 1 flying, 2 hover, 3 landing)")
+        .legend(line_key(RED));
     chart
         .draw_series(LineSeries::new(
             pts(&|l| {
@@ -253,7 +338,10 @@ pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             }),
             ShapeStyle::from(&BLUE).stroke_width(2),
         ))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?
+        .label("FSM state")
+        .legend(line_key(BLUE));
+    legend(&mut chart)?;
     root.present().map_err(|e| anyhow::anyhow!("{e:?}"))?;
     Ok(())
 }
