@@ -12,7 +12,7 @@ pub type EdgeHistogram = [u16; IMG_W];
 /// Computes the column edge histograms of the left and right images of an interleaved stereo
 /// frame (`[L0 R0 L1 R1 ...]`, 128x96, row-major, top row first).
 ///
-/// Integer only; one pass over the frame, four pixels at a time: the gradient of column `c`
+/// Integer only; one pass over the frame, four pixels of four rows at a time: the gradient of column `c`
 /// compares the bytes `2c - 2` and `2c + 2` of a row, which are four bytes (one `u32` word)
 /// apart, so the per-byte absolute difference of two neighbouring words yields the gradients
 /// of columns `2j+1` and `2j+2` of both images at once. They are accumulated in two packed
@@ -24,26 +24,43 @@ pub fn edge_histograms(
     right: &mut EdgeHistogram,
 ) {
     const PAIRS: usize = IMG_W / 2 - 1;
+    const ROW: usize = 2 * IMG_W;
     // acc[j] = (left cols 2j+1 | 2j+2 << 16, right cols 2j+1 | 2j+2 << 16).
     let mut acc = [(0u32, 0u32); PAIRS];
-    let (mut first, mut last) = ([0u16; 2], [0u16; 2]);
-    for row in frame.chunks_exact(2 * IMG_W).take(IMG_H) {
-        let mut words = row
-            .chunks_exact(4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
-        let Some(mut prev) = words.next() else {
+    // A row as its 64 little-endian words (fixed size: no bounds checks in the loop).
+    fn words(r: &[u8]) -> Option<&[[u8; 4]; ROW / 4]> {
+        r.as_chunks::<4>().0.try_into().ok()
+    }
+    // Four rows at a time, so the accumulators are loaded and stored once per four rows.
+    for rows in frame.chunks_exact(4 * ROW).take(IMG_H / 4) {
+        let (a, rest) = rows.split_at(ROW);
+        let (b, rest) = rest.split_at(ROW);
+        let (c, d) = rest.split_at(ROW);
+        let (Some(a), Some(b), Some(c), Some(d)) = (words(a), words(b), words(c), words(d)) else {
             continue;
         };
-        for ((l, r), next) in acc.iter_mut().zip(words) {
-            let g = absdiff_u8x4(next, prev);
-            *l += g & 0x00FF_00FF;
-            *r += (g >> 8) & 0x00FF_00FF;
-            prev = next;
+        let w = |r: &[[u8; 4]; ROW / 4], j: usize| u32::from_le_bytes(r[j]);
+        let (mut pa, mut pb, mut pc, mut pd) = (w(a, 0), w(b, 0), w(c, 0), w(d, 0));
+        for (j, (l, r)) in acc.iter_mut().enumerate() {
+            let (na, nb, nc, nd) = (w(a, j + 1), w(b, j + 1), w(c, j + 1), w(d, j + 1));
+            let (ga, gb, gc, gd) = (
+                absdiff_u8x4(na, pa),
+                absdiff_u8x4(nb, pb),
+                absdiff_u8x4(nc, pc),
+                absdiff_u8x4(nd, pd),
+            );
+            const M: u32 = 0x00FF_00FF;
+            *l += (ga & M) + (gb & M) + (gc & M) + (gd & M);
+            *r += ((ga >> 8) & M) + ((gb >> 8) & M) + ((gc >> 8) & M) + ((gd >> 8) & M);
+            (pa, pb, pc, pd) = (na, nb, nc, nd);
         }
-        // Border columns: |I(1) - 0| and |0 - I(126)|.
+    }
+    // Border columns: |I(1) - 0| and |0 - I(126)|.
+    let (mut first, mut last) = ([0u16; 2], [0u16; 2]);
+    for row in frame.chunks_exact(ROW).take(IMG_H) {
         if let (Some(&[l1, r1]), Some(&[l126, r126])) = (
             row.get(2..4).and_then(|b| <&[u8; 2]>::try_from(b).ok()),
-            row.get(2 * IMG_W - 4..2 * IMG_W - 2)
+            row.get(ROW - 4..ROW - 2)
                 .and_then(|b| <&[u8; 2]>::try_from(b).ok()),
         ) {
             first[0] += u16::from(l1);
