@@ -337,6 +337,19 @@ fn estimate_worst_case_fits_in_32_bytes() {
     );
 }
 
+/// Link error counters with every field at its largest value (worst case on the wire).
+fn all_counters_at_max() -> LinkErrorCounts {
+    LinkErrorCounts {
+        crc: u32::MAX,
+        cobs: u32::MAX,
+        too_long: u32::MAX,
+        too_short: u32::MAX,
+        unknown_message: u32::MAX,
+        malformed: u32::MAX,
+        version_mismatch: u32::MAX,
+    }
+}
+
 /// The declared maximum frame sizes hold for the largest message of each direction.
 #[test]
 fn declared_maximum_frame_sizes_hold() {
@@ -353,15 +366,7 @@ fn declared_maximum_frame_sizes_hold() {
         frame_rate_hz: f32::MAX,
         frames_processed: u32::MAX,
         frames_dropped: u32::MAX,
-        link_errors: LinkErrorCounts {
-            crc: u32::MAX,
-            cobs: u32::MAX,
-            too_long: u32::MAX,
-            too_short: u32::MAX,
-            unknown_message: u32::MAX,
-            malformed: u32::MAX,
-            version_mismatch: u32::MAX,
-        },
+        link_errors: all_counters_at_max(),
         max_processing_us: u32::MAX,
     });
     assert!(encode(&status, &mut wire).unwrap() <= StereoToAutopilot::MAX_FRAME_BYTES);
@@ -380,15 +385,7 @@ fn declared_maximum_frame_sizes_hold() {
         velocity_setpoint_mps: [f32::MAX; 2],
         obstacle_m: Some(f32::MAX),
         height_m: f32::MAX,
-        link_errors: LinkErrorCounts {
-            crc: u32::MAX,
-            cobs: u32::MAX,
-            too_long: u32::MAX,
-            too_short: u32::MAX,
-            unknown_message: u32::MAX,
-            malformed: u32::MAX,
-            version_mismatch: u32::MAX,
-        },
+        link_errors: all_counters_at_max(),
     });
     assert!(encode(&telemetry, &mut wire).unwrap() <= BoardToHost::MAX_FRAME_BYTES);
 }
