@@ -77,6 +77,12 @@ pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
             c0 = c;
         }
     }
+    Some(finish_match(costs, best, c0))
+}
+
+/// [`best_match`] given its first minimum: `costs[best] == c0`, the first minimum of `costs`.
+#[inline]
+fn finish_match(costs: &[u32], best: usize, c0: u32) -> ColumnMatch {
     let n = costs.len();
     let subpixel = match (
         best.checked_sub(1).and_then(|k| costs.get(k)),
@@ -85,10 +91,15 @@ pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
         (Some(&l), Some(&r)) => parabola(l, c0, r),
         _ => 0.0,
     };
-    // Smallest cost at least two candidates away from the minimum (c0 when there is none).
+    // Smallest cost at least two candidates away from the minimum (c0 when there is none;
+    // real costs are far below u32::MAX).
     let before = costs.get(..best.saturating_sub(1)).unwrap_or(&[]);
     let after = costs.get((best + 2).min(n)..).unwrap_or(&[]);
-    let second = before.iter().chain(after).copied().min().unwrap_or(c0);
+    let min = |s: &[u32]| s.iter().fold(u32::MAX, |m, &c| m.min(c));
+    let second = match min(before).min(min(after)) {
+        u32::MAX => c0,
+        s => s,
+    };
     let confidence = if c0 == 0 {
         if second == 0 {
             1.0
@@ -98,13 +109,19 @@ pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
     } else {
         second as f32 / c0 as f32
     };
-    Some(ColumnMatch {
+    ColumnMatch {
         best,
         subpixel,
         confidence,
         cost: c0,
-    })
+    }
 }
+
+/// Largest SAD half-window of the packed kernel (the protocol's limit); wider windows take the
+/// scalar path of [`column_costs`].
+const MAX_W: usize = protocol::EdgeFsConfig::MAX_HALF_WINDOW as usize;
+/// Candidate pairs (two 16-bit lanes per word) of the packed kernel.
+const MAX_PAIRS: usize = MAX_CANDIDATES.div_ceil(2);
 
 /// Candidate costs of every column at once, for a search whose target offset is the same for
 /// all columns: for each reference column `c` whose `n` candidate windows all fit, in
@@ -112,10 +129,13 @@ pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
 /// c + delta0 + k, w)` (`n` clamped to [`MAX_CANDIDATES`]). Columns with a window outside the
 /// histograms (where [`match_column`] returns `None`) are skipped.
 ///
-/// Running-sum SAD: the first valid column's costs are summed in full, every further column
-/// updates each candidate by the bin entering and the bin leaving the window, so a whole row
-/// costs `O(IMG_W · n)` instead of `O(IMG_W · n · (2w+1))`. Integer-exact, so the costs (and
-/// [`best_match`] of them) equal the per-column search bit for bit.
+/// Running-sum SAD: each column's costs are the previous column's plus the bin entering and
+/// minus the bin leaving each window, so a whole row costs `O(IMG_W · n)` instead of
+/// `O(IMG_W · n · (2w+1))`. Each absolute difference is computed once: the differences of the
+/// last `2w+1` bins are kept in a ring and the leaving one is read back. Two candidates are
+/// handled per 32-bit word (bins are at most `96 · 255 < 2^15`, so differences and their
+/// changes fit 16-bit lanes; on the Cortex-M4 `USUB16`/`SEL` and `SSUB16`/`SXTAH`). Integer-exact,
+/// so the costs (and [`best_match`] of them) equal the per-column search bit for bit.
 pub fn column_costs(
     reference: &EdgeHistogram,
     target: &EdgeHistogram,
@@ -125,16 +145,151 @@ pub fn column_costs(
     mut f: impl FnMut(usize, &[u32]),
 ) {
     let n = n.min(MAX_CANDIDATES);
+    let Some((lo, hi)) = valid_columns(delta0, n, w) else {
+        return;
+    };
+    if w > MAX_W {
+        return column_costs_scalar(reference, target, delta0, n, w, lo, hi, f);
+    }
+    packed_rows::<false>(reference, target, delta0, n, w, lo, hi, |c, costs, _, _| {
+        f(c, costs)
+    });
+}
+
+/// Valid reference columns `lo..=hi` of a whole-row search (see [`column_costs`]), `None` when
+/// there is none or nothing to search.
+fn valid_columns(delta0: isize, n: usize, w: usize) -> Option<(usize, usize)> {
     let last = IMG_W as isize - 1;
     let (wi, ni) = (w.min(IMG_W) as isize, n as isize);
     // Valid columns: c - w >= 0, c + w <= last, c + delta0 - w >= 0,
     // c + delta0 + (n - 1) + w <= last.
     let lo = wi.max(wi - delta0);
     let hi = (last - wi).min(last - wi - delta0 - (ni - 1));
-    if n == 0 || lo > hi {
-        return;
+    (n > 0 && lo <= hi).then_some((lo as usize, hi as usize))
+}
+
+/// The packed running-sum kernel of [`column_costs`] (`w <= MAX_W`, `1 <= n <=
+/// MAX_CANDIDATES`, `lo..=hi` from [`valid_columns`]): calls `f(c, costs, c0, best)` per column.
+/// With `MIN`, `(c0, best)` is the first minimum of `costs` (value, index), found while the
+/// costs are updated; without, it is `(0, 0)`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn packed_rows<const MIN: bool>(
+    reference: &EdgeHistogram,
+    target: &EdgeHistogram,
+    delta0: isize,
+    n: usize,
+    w: usize,
+    lo: usize,
+    hi: usize,
+    mut f: impl FnMut(usize, &[u32], u32, usize),
+) {
+    let pairs = n.div_ceil(2);
+    // The target as word pairs starting at even (`even[m] = t[2m] | t[2m+1] << 16`) and odd
+    // (`odd[m] = t[2m+1] | t[2m+2] << 16`, `t[IMG_W] = 0`) bins: candidates `k`, `k+1` of a
+    // bin are one aligned word of either.
+    let mut even = [0u32; IMG_W / 2];
+    let mut odd = [0u32; IMG_W / 2];
+    let mut next = 0u32;
+    for ((e, o), t) in even
+        .iter_mut()
+        .zip(odd.iter_mut())
+        .zip(target.chunks_exact(2))
+        .rev()
+    {
+        let (a, b) = (u32::from(t[0]), u32::from(t[1]));
+        *e = a | b << 16;
+        *o = b | next << 16;
+        next = a;
     }
-    let (lo, hi) = (lo as usize, hi as usize);
+    // costs[p] = (cost of candidate 2p, cost of candidate 2p+1); the ring holds the packed
+    // differences of the last 2w+1 entering bins (zero before the first: nothing to remove).
+    // With an odd `n` the high lane of the last pair is a spare (a real, in-range bin that is
+    // not a candidate): computed, never reported.
+    let mut costs = [[0u32; 2]; MAX_PAIRS];
+    let mut ring = [[0u32; MAX_PAIRS]; 2 * MAX_W + 1];
+    let span = 2 * w + 1;
+    let (Some(costs_p), Some(ring)) = (costs.get_mut(..pairs), ring.get_mut(..span)) else {
+        return;
+    };
+    let full = n / 2;
+    let mut slot = 0;
+    // Bin `j` enters; after bin `c + w` has entered, column `c`'s window is complete.
+    for j in lo - w..=hi + w {
+        let (Some(&r), Some(old)) = (reference.get(j), ring.get_mut(slot)) else {
+            return;
+        };
+        let rr = u32::from(r) * 0x0001_0001;
+        let tb = (j as isize + delta0) as usize;
+        let words = if tb.is_multiple_of(2) { &even } else { &odd };
+        let Some(words) = words.get(tb / 2..tb / 2 + pairs) else {
+            return;
+        };
+        slot += 1;
+        if slot == span {
+            slot = 0;
+        }
+        let emit = j >= lo + w;
+        let (mut c0, mut best) = (u32::MAX, 0usize);
+        if MIN && emit {
+            // Update and track the first minimum (strict `<`: ties keep the earlier). The
+            // spare lane of an odd `n` is updated but not searched.
+            let (cf, ct) = costs_p.split_at_mut(full);
+            let (of, ot) = old.split_at_mut(full);
+            let (wf, wt) = words.split_at(full);
+            let mut k = 0;
+            for ((c, old), &t) in cf.iter_mut().zip(of.iter_mut()).zip(wf) {
+                let d = absdiff_u16x2(t, rr);
+                accumulate_u16x2(c, d, *old);
+                *old = d;
+                let [a, b] = *c;
+                if a < c0 {
+                    c0 = a;
+                    best = k;
+                }
+                if b < c0 {
+                    c0 = b;
+                    best = k + 1;
+                }
+                k += 2;
+            }
+            if let (Some(c), Some(old), Some(&t)) = (ct.first_mut(), ot.first_mut(), wt.first()) {
+                let d = absdiff_u16x2(t, rr);
+                accumulate_u16x2(c, d, *old);
+                *old = d;
+                if c[0] < c0 {
+                    c0 = c[0];
+                    best = k;
+                }
+            }
+        } else {
+            for ((c, old), &t) in costs_p.iter_mut().zip(old.iter_mut()).zip(words) {
+                let d = absdiff_u16x2(t, rr);
+                accumulate_u16x2(c, d, *old);
+                *old = d;
+            }
+        }
+        if emit {
+            if let Some(costs) = costs_p.as_flattened().get(..n) {
+                f(j - w, costs, c0, best);
+            }
+        }
+    }
+}
+
+/// [`column_costs`] for windows wider than the packed kernel's ring (`w > MAX_W`): plain
+/// running sums, both differences computed per column. `lo..=hi` are the valid columns.
+#[allow(clippy::too_many_arguments)]
+fn column_costs_scalar(
+    reference: &EdgeHistogram,
+    target: &EdgeHistogram,
+    delta0: isize,
+    n: usize,
+    w: usize,
+    lo: usize,
+    hi: usize,
+    mut f: impl FnMut(usize, &[u32]),
+) {
     let mut buf = [0u32; MAX_CANDIDATES];
     let Some(costs) = buf.get_mut(..n) else {
         return;
@@ -176,6 +331,108 @@ pub fn column_costs(
     }
 }
 
+/// Per-lane absolute difference of two packed `u16` pairs.
+#[cfg(not(target_arch = "arm"))]
+#[inline(always)]
+fn absdiff_u16x2(a: u32, b: u32) -> u32 {
+    let lo = (a as u16).abs_diff(b as u16);
+    let hi = ((a >> 16) as u16).abs_diff((b >> 16) as u16);
+    u32::from(lo) | u32::from(hi) << 16
+}
+
+/// Per-lane absolute difference of two packed `u16` pairs: `USUB16` both ways, then `SEL`
+/// picks, per lane, the one that did not borrow. Three instructions (DSP extension).
+#[cfg(target_arch = "arm")]
+#[inline(always)]
+fn absdiff_u16x2(a: u32, b: u32) -> u32 {
+    let r: u32;
+    // SAFETY: register arithmetic only (writes the APSR.GE flags, which nothing else reads).
+    unsafe {
+        core::arch::asm!(
+            "usub16 {t}, {a}, {b}",
+            "usub16 {r}, {b}, {a}",
+            "sel {r}, {r}, {t}",
+            a = in(reg) a,
+            b = in(reg) b,
+            t = out(reg) _,
+            r = lateout(reg) r,
+            options(pure, nomem, nostack),
+        );
+    }
+    r
+}
+
+/// `cost[0] += new.lo - old.lo`, `cost[1] += new.hi - old.hi` for packed `u16` differences
+/// (each below `2^15`, so the per-lane change fits `i16`; the costs never go negative because
+/// the leaving difference is part of the sum).
+#[cfg(not(target_arch = "arm"))]
+#[inline(always)]
+fn accumulate_u16x2(cost: &mut [u32; 2], new: u32, old: u32) {
+    let lo = i32::from(new as u16) - i32::from(old as u16);
+    let hi = i32::from((new >> 16) as u16) - i32::from((old >> 16) as u16);
+    cost[0] = cost[0].wrapping_add_signed(lo);
+    cost[1] = cost[1].wrapping_add_signed(hi);
+}
+
+/// Packed form of the portable `accumulate_u16x2`: `SSUB16` gives both lane changes, `SXTAH`
+/// adds the low one sign-extended, `ADD ..., ASR #16` the high one. Three instructions.
+#[cfg(target_arch = "arm")]
+#[inline(always)]
+fn accumulate_u16x2(cost: &mut [u32; 2], new: u32, old: u32) {
+    let [mut lo, mut hi] = *cost;
+    // SAFETY: register arithmetic only (writes the APSR.GE flags, which nothing else reads).
+    unsafe {
+        core::arch::asm!(
+            "ssub16 {d}, {n}, {o}",
+            "sxtah {lo}, {lo}, {d}",
+            "add {hi}, {hi}, {d}, asr #16",
+            n = in(reg) new,
+            o = in(reg) old,
+            d = out(reg) _,
+            lo = inout(reg) lo,
+            hi = inout(reg) hi,
+            options(pure, nomem, nostack),
+        );
+    }
+    *cost = [lo, hi];
+}
+
+/// Matches of every column of a whole-row search: [`column_costs`] followed by [`best_match`]
+/// per column, with the first minimum found while the costs are updated. Calls `f(c, match)`
+/// for each valid column, in increasing `c`.
+pub fn column_matches(
+    reference: &EdgeHistogram,
+    target: &EdgeHistogram,
+    delta0: isize,
+    n: usize,
+    w: usize,
+    mut f: impl FnMut(usize, ColumnMatch),
+) {
+    let n = n.min(MAX_CANDIDATES);
+    let Some((lo, hi)) = valid_columns(delta0, n, w) else {
+        return;
+    };
+    if w > MAX_W {
+        return column_costs_scalar(reference, target, delta0, n, w, lo, hi, |c, costs| {
+            if let Some(m) = best_match(costs) {
+                f(c, m);
+            }
+        });
+    }
+    packed_rows::<true>(
+        reference,
+        target,
+        delta0,
+        n,
+        w,
+        lo,
+        hi,
+        |c, costs, c0, best| {
+            f(c, finish_match(costs, best, c0));
+        },
+    );
+}
+
 /// Stereo matches of every right-image column at once (same candidates and results as
 /// [`stereo_match`] per column); calls `f(c, match)` for each column where it is `Some`.
 pub fn stereo_row(
@@ -184,19 +441,15 @@ pub fn stereo_row(
     max_d: usize,
     shift: i32,
     w: usize,
-    mut f: impl FnMut(usize, ColumnMatch),
+    f: impl FnMut(usize, ColumnMatch),
 ) {
-    column_costs(
+    column_matches(
         right,
         left,
         -(shift as isize),
         max_d.saturating_add(1),
         w,
-        |c, costs| {
-            if let Some(m) = best_match(costs) {
-                f(c, m);
-            }
-        },
+        f,
     );
 }
 
@@ -208,19 +461,15 @@ pub fn flow_row(
     d: usize,
     offset: i32,
     w: usize,
-    mut f: impl FnMut(usize, ColumnMatch),
+    f: impl FnMut(usize, ColumnMatch),
 ) {
-    column_costs(
+    column_matches(
         older,
         current,
         offset as isize - d as isize,
         d.saturating_mul(2).saturating_add(1),
         w,
-        |c, costs| {
-            if let Some(m) = best_match(costs) {
-                f(c, m);
-            }
-        },
+        f,
     );
 }
 
@@ -375,7 +624,7 @@ mod tests {
         fn optimised_matching_equals_reference(
             a in hist_strategy(),
             b in hist_strategy(),
-            w in 0usize..=12,
+            w in 0usize..=30,
             d in 0usize..=20,
             shift in -20i32..=20,
             offset in -40i32..=40,
