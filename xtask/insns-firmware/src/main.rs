@@ -27,7 +27,8 @@ mod bench {
         StereoToAutopilot, STEREO_FRAME_BYTES,
     };
     use stereo_board::edge_fs::{
-        edge_histograms, flow_match, line_fit, stereo_match, EdgeFs, EdgeFsParams, EdgeHistogram,
+        edge_histograms, flow_match, flow_row, line_fit, robust_line_fit, stereo_match, stereo_row,
+        EdgeFs, EdgeFsParams, EdgeHistogram,
     };
     use stm32f4xx_hal as _;
 
@@ -137,9 +138,49 @@ mod bench {
             }
             sum
         });
+        // What the default-mode frame runs: whole-row matching (running-sum SAD + best match per
+        // column) with the default parameters, on histograms with the border bins dropped.
+        let dp = EdgeFsParams::default_config();
+        let (w, d, ds) = (
+            usize::from(dp.half_window),
+            usize::from(dp.search_range),
+            usize::from(dp.stereo_range),
+        );
+        for h in [&mut left, &mut right, &mut old_right] {
+            h[0] = 0;
+            h[127] = 0;
+        }
+        measure("stereo_row", || {
+            let mut sum = 0u32;
+            stereo_row(&left, &right, ds, dp.stereo_shift_px, w, |_, m| {
+                sum = sum.wrapping_add(m.best as u32);
+            });
+            sum
+        });
+        measure("flow_row", || {
+            let mut sum = 0u32;
+            flow_row(&old_right, &right, d, 0, w, |_, m| {
+                sum = sum.wrapping_add(m.best as u32);
+            });
+            sum
+        });
+        // The default mode's fit: robust (4 Huber rounds, k = 1), f32, 80 columns with a few
+        // outliers. The paper mode's f64 least squares is `line_fit_paper`.
+        let mut pts: [(f32, f32, f32); 80] = core::array::from_fn(|i| {
+            let x = i as f32 - 40.0;
+            let noise = ((i * 37) % 11) as f32 * 0.01 - 0.05;
+            let outlier = if i % 13 == 5 { 3.0 } else { 0.0 };
+            (x, 0.4 * x + 2.0 + noise + outlier, 1.0)
+        });
+        let (mut prior, mut scratch) = ([0.0f32; 80], [0.0f32; 80]);
+        measure("line_fit", || {
+            robust_line_fit(black_box(&mut pts), &mut prior, &mut scratch, 4, dp.huber_k)
+        });
         let points: [(f64, f64); 80] =
             core::array::from_fn(|i| (i as f64 + 24.0, 0.01 * i as f64 - 0.3));
-        measure("line_fit", || line_fit(black_box(&points).iter().copied()));
+        measure("line_fit_paper", || {
+            line_fit(black_box(&points).iter().copied())
+        });
 
         // The autopilot's 512 Hz step and its guidance + FSM step, in flight.
         let mut ap = Autopilot::new(AutopilotConfig::default());
