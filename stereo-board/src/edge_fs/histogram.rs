@@ -12,12 +12,13 @@ pub type EdgeHistogram = [u16; IMG_W];
 /// Computes the column edge histograms of the left and right images of an interleaved stereo
 /// frame (`[L0 R0 L1 R1 ...]`, 128x96, row-major, top row first).
 ///
-/// Integer only; one pass over the frame, four pixels of four rows at a time: the gradient of column `c`
-/// compares the bytes `2c - 2` and `2c + 2` of a row, which are four bytes (one `u32` word)
-/// apart, so the per-byte absolute difference of two neighbouring words yields the gradients
-/// of columns `2j+1` and `2j+2` of both images at once. They are accumulated in two packed
-/// 16-bit lanes per word (no lane can overflow: at most `96 * 255`). The two border columns
-/// (zero padding) are handled outside the loop.
+/// Integer only; one pass over the frame, four pixels of three rows at a time: the gradient of
+/// column `c` compares the bytes `2c - 2` and `2c + 2` of a row, which are four bytes (one `u32`
+/// word) apart, so the per-byte absolute difference of two neighbouring words yields the
+/// gradients of columns `2j+1` and `2j+2` of both images at once (on the M4: `UQSUB8` both
+/// ways + `ORR`). They are accumulated in two packed 16-bit lanes per word (`UXTAB16`; no lane
+/// can overflow: at most `96 * 255`). The two border columns (zero padding) are handled
+/// outside the loop.
 pub fn edge_histograms(
     frame: &[u8; protocol::STEREO_FRAME_BYTES],
     left: &mut EdgeHistogram,
@@ -31,28 +32,20 @@ pub fn edge_histograms(
     fn words(r: &[u8]) -> Option<&[[u8; 4]; ROW / 4]> {
         r.as_chunks::<4>().0.try_into().ok()
     }
-    // Four rows at a time, so the accumulators are loaded and stored once per four rows.
-    for rows in frame.chunks_exact(4 * ROW).take(IMG_H / 4) {
+    // Three rows at a time, so the accumulators are loaded and stored once per three rows
+    // (four rows' worth of carried words would not fit the M4's registers).
+    for rows in frame.chunks_exact(3 * ROW).take(IMG_H / 3) {
         let (a, rest) = rows.split_at(ROW);
-        let (b, rest) = rest.split_at(ROW);
-        let (c, d) = rest.split_at(ROW);
-        let (Some(a), Some(b), Some(c), Some(d)) = (words(a), words(b), words(c), words(d)) else {
+        let (b, c) = rest.split_at(ROW);
+        let (Some(a), Some(b), Some(c)) = (words(a), words(b), words(c)) else {
             continue;
         };
         let w = |r: &[[u8; 4]; ROW / 4], j: usize| u32::from_le_bytes(r[j]);
-        let (mut pa, mut pb, mut pc, mut pd) = (w(a, 0), w(b, 0), w(c, 0), w(d, 0));
         for (j, (l, r)) in acc.iter_mut().enumerate() {
-            let (na, nb, nc, nd) = (w(a, j + 1), w(b, j + 1), w(c, j + 1), w(d, j + 1));
-            let (ga, gb, gc, gd) = (
-                absdiff_u8x4(na, pa),
-                absdiff_u8x4(nb, pb),
-                absdiff_u8x4(nc, pc),
-                absdiff_u8x4(nd, pd),
-            );
-            const M: u32 = 0x00FF_00FF;
-            *l += (ga & M) + (gb & M) + (gc & M) + (gd & M);
-            *r += ((ga >> 8) & M) + ((gb >> 8) & M) + ((gc >> 8) & M) + ((gd >> 8) & M);
-            (pa, pb, pc, pd) = (na, nb, nc, nd);
+            let g = |row: &[[u8; 4]; ROW / 4]| absdiff_u8x4(w(row, j + 1), w(row, j));
+            let (ga, gb, gc) = (g(a), g(b), g(c));
+            *l = add_bytes02(add_bytes02(add_bytes02(*l, ga), gb), gc);
+            *r = add_bytes13(add_bytes13(add_bytes13(*r, ga), gb), gc);
         }
     }
     // Border columns: |I(1) - 0| and |0 - I(126)|.
@@ -82,6 +75,57 @@ pub fn edge_histograms(
         r[0] = ar as u16;
         r[1] = (ar >> 16) as u16;
     }
+}
+
+/// Adds bytes 0 and 2 of `g` to the low and high 16-bit lanes of `acc` (lanes never carry:
+/// each holds at most `96 * 255`).
+#[cfg(not(target_arch = "arm"))]
+#[inline(always)]
+fn add_bytes02(acc: u32, g: u32) -> u32 {
+    acc + (g & 0x00FF_00FF)
+}
+
+/// Adds bytes 1 and 3 of `g` to the low and high 16-bit lanes of `acc`.
+#[cfg(not(target_arch = "arm"))]
+#[inline(always)]
+fn add_bytes13(acc: u32, g: u32) -> u32 {
+    acc + ((g >> 8) & 0x00FF_00FF)
+}
+
+/// Adds bytes 0 and 2 of `g` to the two 16-bit lanes of `acc`: one `UXTAB16` (DSP extension).
+#[cfg(target_arch = "arm")]
+#[inline(always)]
+fn add_bytes02(acc: u32, g: u32) -> u32 {
+    let r: u32;
+    // SAFETY: register arithmetic only, no flags.
+    unsafe {
+        core::arch::asm!(
+            "uxtab16 {r}, {a}, {g}",
+            a = in(reg) acc,
+            g = in(reg) g,
+            r = lateout(reg) r,
+            options(pure, nomem, nostack, preserves_flags),
+        );
+    }
+    r
+}
+
+/// Adds bytes 1 and 3 of `g` to the two 16-bit lanes of `acc`: `UXTAB16` with `ROR #8`.
+#[cfg(target_arch = "arm")]
+#[inline(always)]
+fn add_bytes13(acc: u32, g: u32) -> u32 {
+    let r: u32;
+    // SAFETY: register arithmetic only, no flags.
+    unsafe {
+        core::arch::asm!(
+            "uxtab16 {r}, {a}, {g}, ror #8",
+            a = in(reg) acc,
+            g = in(reg) g,
+            r = lateout(reg) r,
+            options(pure, nomem, nostack, preserves_flags),
+        );
+    }
+    r
 }
 
 /// Per-byte absolute difference of four packed bytes.
