@@ -75,9 +75,9 @@ impl Quat {
 
     /// Rotation from ZYX Euler angles roll, pitch, yaw (rad).
     pub fn from_euler(roll: f32, pitch: f32, yaw: f32) -> Self {
-        let (sr, cr) = (libm::sinf(roll * 0.5), libm::cosf(roll * 0.5));
-        let (sp, cp) = (libm::sinf(pitch * 0.5), libm::cosf(pitch * 0.5));
-        let (sy, cy) = (libm::sinf(yaw * 0.5), libm::cosf(yaw * 0.5));
+        let (sr, cr) = sin_cos(roll * 0.5);
+        let (sp, cp) = sin_cos(pitch * 0.5);
+        let (sy, cy) = sin_cos(yaw * 0.5);
         Self {
             w: cr * cp * cy + sr * sp * sy,
             x: sr * cp * cy - cr * sp * sy,
@@ -103,6 +103,41 @@ impl Quat {
             2.0 * (y * z + w * x),
             1.0 - 2.0 * (x * x + y * y),
         ]
+    }
+}
+
+/// `(sin x, cos x)` in single precision only (x in rad), within about 1e-7 of the exact
+/// values for `|x| <= 1e4` (farther out, and for non-finite `x`, it defers to `libm`).
+///
+/// `libm`'s `sinf`/`cosf` evaluate their kernels in `f64`, which the Cortex-M4 (single-precision
+/// FPU) runs in software: about 1,100 instructions each. This is a quadrant reduction by
+/// `pi/2` (three-part Cody-Waite constant, so `x - k·pi/2` is exact to f32 rounding for these
+/// `k`) and minimax polynomials on `[-pi/4, pi/4]`: a few dozen FPU instructions for both.
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    // pi/2 = P1 + P2 + P3; P1 and P2 have few significant bits, so k·P1 and k·P2 are exact.
+    const P1: f32 = 1.570_312_5;
+    const P2: f32 = 4.837_513e-4;
+    const P3: f32 = 7.549_79e-8;
+    // Minimax coefficients for |r| <= pi/4 (single precision).
+    const S1: f32 = -0.166_666_55;
+    const S2: f32 = 0.008_332_161;
+    const S3: f32 = -0.000_195_152_96;
+    const C1: f32 = 0.041_666_646;
+    const C2: f32 = -0.001_388_731_6;
+    const C3: f32 = 2.443_315_7e-5;
+    if x.is_nan() || x.abs() > 1.0e4 {
+        return (libm::sinf(x), libm::cosf(x));
+    }
+    let k = libm::roundf(x * core::f32::consts::FRAC_2_PI);
+    let r = ((x - k * P1) - k * P2) - k * P3;
+    let z = r * r;
+    let s = r + r * z * (S1 + z * (S2 + z * S3));
+    let c = 1.0 - 0.5 * z + z * z * (C1 + z * (C2 + z * C3));
+    match (k as i32) & 3 {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
     }
 }
 
@@ -321,6 +356,29 @@ mod tests {
         assert!((e[0] - 0.1).abs() < 1e-3 && e[1].abs() < 1e-6);
         let sp = Quat::from_euler(0.0, 0.0, 1.0);
         assert!(attitude_error(cur, sp)[2] > 0.9);
+    }
+
+    #[test]
+    fn sin_cos_matches_libm() {
+        let mut x = -40.0f32;
+        while x <= 40.0 {
+            let (s, c) = sin_cos(x);
+            let (ls, lc) = (libm::sin(f64::from(x)), libm::cos(f64::from(x)));
+            assert!((f64::from(s) - ls).abs() < 2.5e-7, "sin {x}: {s} vs {ls}");
+            assert!((f64::from(c) - lc).abs() < 2.5e-7, "cos {x}: {c} vs {lc}");
+            x += 0.000_37;
+        }
+        for x in [0.0f32, -0.0, 1e-30, 1e3, -9_999.9, 2e4, 1e30] {
+            let (s, c) = sin_cos(x);
+            assert!(
+                (s - libm::sinf(x)).abs() < 2e-4 && (c - libm::cosf(x)).abs() < 2e-4,
+                "{x}"
+            );
+        }
+        assert_eq!(sin_cos(0.0), (0.0, 1.0));
+        let (s, c) = sin_cos(f32::NAN);
+        assert!(s.is_nan() && c.is_nan());
+        assert!(sin_cos(f32::INFINITY).0.is_nan());
     }
 
     #[test]

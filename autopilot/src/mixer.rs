@@ -109,17 +109,22 @@ pub fn mix(thrust: f32, roll: f32, pitch: f32, yaw: f32) -> MixOutput {
 
     // 2. yaw in the spread that is left: for every motor pair (i, j),
     //    rp[i] - rp[j] + k*yaw*(Y[i] - Y[j]) <= 1.
+    //    Every Y is ±1, so the constraining pairs are the motors yaw speeds up (i) against the
+    //    ones it slows down (j), all with slope 2|yaw|: the tightest is the largest rp[i]
+    //    against the smallest rp[j]. (Rounding is monotone, so this equals the minimum over
+    //    the pairs exactly.)
     let mut k_yaw = 1.0f32;
     if yaw_in != 0.0 {
-        for i in 0..4 {
-            for j in 0..4 {
-                let slope = yaw_in * (YAW[i] - YAW[j]);
-                if slope > 0.0 {
-                    let room = (1.0 - (rp[i] - rp[j])).max(0.0);
-                    k_yaw = k_yaw.min(room / slope);
-                }
+        let (mut up_hi, mut down_lo) = (f32::NEG_INFINITY, f32::INFINITY);
+        for (&d, &y) in rp.iter().zip(YAW.iter()) {
+            if y * yaw_in > 0.0 {
+                up_hi = up_hi.max(d);
+            } else {
+                down_lo = down_lo.min(d);
             }
         }
+        let room = (1.0 - (up_hi - down_lo)).max(0.0);
+        k_yaw = k_yaw.min(room / (2.0 * yaw_in.abs()));
     }
     let k_yaw = k_yaw.clamp(0.0, 1.0);
     if k_yaw < 1.0 {
@@ -218,6 +223,91 @@ mod tests {
         assert!(close(m.achieved[0] / m.achieved[1], 2.0));
         let (lo, hi) = spread(&m.throttle);
         assert!(close(hi - lo, 1.0));
+    }
+
+    /// The mixer as first written: the yaw room over all 16 motor pairs.
+    fn mix_reference(thrust: f32, roll: f32, pitch: f32, yaw: f32) -> MixOutput {
+        let thrust_in = finite_or_zero(thrust).clamp(0.0, 1.0);
+        let roll_in = finite_or_zero(roll).clamp(-1.0, 1.0);
+        let pitch_in = finite_or_zero(pitch).clamp(-1.0, 1.0);
+        let yaw_in = finite_or_zero(yaw).clamp(-1.0, 1.0);
+        let mut saturated =
+            thrust_in != thrust || roll_in != roll || pitch_in != pitch || yaw_in != yaw;
+        let (mut roll, mut pitch) = (roll_in, pitch_in);
+        let mut rp = [0.0f32; 4];
+        for (i, d) in rp.iter_mut().enumerate() {
+            *d = ROLL[i] * roll + PITCH[i] * pitch;
+        }
+        let (lo, hi) = spread(&rp);
+        let range = hi - lo;
+        if range > 1.0 {
+            let k = 1.0 / range;
+            roll *= k;
+            pitch *= k;
+            for d in rp.iter_mut() {
+                *d *= k;
+            }
+            saturated = true;
+        }
+        let mut k_yaw = 1.0f32;
+        if yaw_in != 0.0 {
+            for i in 0..4 {
+                for j in 0..4 {
+                    let slope = yaw_in * (YAW[i] - YAW[j]);
+                    if slope > 0.0 {
+                        let room = (1.0 - (rp[i] - rp[j])).max(0.0);
+                        k_yaw = k_yaw.min(room / slope);
+                    }
+                }
+            }
+        }
+        let k_yaw = k_yaw.clamp(0.0, 1.0);
+        if k_yaw < 1.0 {
+            saturated = true;
+        }
+        let yaw = yaw_in * k_yaw;
+        let mut d = rp;
+        for (i, x) in d.iter_mut().enumerate() {
+            *x += YAW[i] * yaw;
+        }
+        let (lo, hi) = spread(&d);
+        let (t_min, t_max) = (-lo, 1.0 - hi);
+        let t = if t_min <= t_max {
+            thrust_in.clamp(t_min, t_max)
+        } else {
+            0.5 * (t_min + t_max)
+        };
+        if t != thrust_in {
+            saturated = true;
+        }
+        let mut throttle = [0.0f32; 4];
+        for (o, x) in throttle.iter_mut().zip(d.iter()) {
+            *o = finite_or_zero(t + x).clamp(0.0, 1.0);
+        }
+        MixOutput {
+            throttle,
+            achieved: [roll, pitch, yaw],
+            achieved_thrust: t,
+            saturated,
+        }
+    }
+
+    #[test]
+    fn yaw_room_equals_the_all_pairs_search_bit_for_bit() {
+        assert!(YAW.iter().all(|&y| y == 1.0 || y == -1.0));
+        let mut x: u32 = 7;
+        let mut next = |scale: f32| {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            ((x >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0) * scale
+        };
+        for _ in 0..20_000 {
+            let (t, r, p, y) = (next(0.7) + 0.5, next(0.8), next(0.8), next(1.3));
+            let (a, b) = (mix(t, r, p, y), mix_reference(t, r, p, y));
+            assert_eq!(a.throttle.map(f32::to_bits), b.throttle.map(f32::to_bits));
+            assert_eq!(a.achieved.map(f32::to_bits), b.achieved.map(f32::to_bits));
+            assert_eq!(a.achieved_thrust.to_bits(), b.achieved_thrust.to_bits());
+            assert_eq!(a.saturated, b.saturated);
+        }
     }
 
     #[test]
