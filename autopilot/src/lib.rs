@@ -14,6 +14,8 @@
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
+//! * [`rc`]: SBUS receiver decoding and the RC switches mapped to pilot commands.
+//! * [`lockstep`]: the world clock and task releases of the hardware-in-the-loop flavours.
 #![no_std]
 #![warn(missing_docs)]
 
@@ -25,8 +27,10 @@ pub mod fsm;
 pub mod guidance;
 pub mod height;
 pub mod indi;
+pub mod lockstep;
 pub mod median;
 pub mod mixer;
+pub mod rc;
 
 pub use app::{Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
 pub use failsafe::FlightMode;

@@ -4,5 +4,6 @@
 
 pub mod eval;
 pub mod fly;
+pub mod hil;
 pub mod plot_font;
 pub mod sim;

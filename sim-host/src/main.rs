@@ -16,6 +16,9 @@ enum Command {
     Fly(sim_host::fly::FlyArgs),
     /// Evaluate Edge-FS on a recorded stereo data set against motion-capture ground truth.
     Eval(sim_host::eval::EvalArgs),
+    /// Hardware in the loop: fly the simulated world with the two real boards (serial links)
+    /// or the two firmwares in QEMU (TCP), in lockstep on world time.
+    Hil(sim_host::hil::HilArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -23,5 +26,6 @@ fn main() -> anyhow::Result<()> {
     match &cli.command {
         Command::Fly(args) => sim_host::fly::run(args),
         Command::Eval(args) => sim_host::eval::run(args),
+        Command::Hil(args) => sim_host::hil::run_cli(args),
     }
 }

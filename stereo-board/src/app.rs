@@ -384,6 +384,13 @@ impl StereoBoardApp {
         }
     }
 
+    /// The latest gyro/attitude sample from the autopilot, whatever its age. In the HIL
+    /// flavours its timestamp is the world time of the host's simulation (see the firmware's
+    /// clock).
+    pub fn latest_gyro(&self) -> Option<&GyroAttitude> {
+        self.gyro.as_ref().map(|(g, _)| g)
+    }
+
     /// Frame task, first half: runs Edge-FS on one interleaved frame exposed at `capture_us`
     /// (`now_us`: when processing starts, to pick the gyro sample).
     pub fn process_frame(

@@ -1,6 +1,8 @@
 //! Boots both firmwares (qemu flavour) in two QEMUs whose board-to-board UARTs are joined
 //! through this test (loopback sockets), which decodes every byte in both directions on the
-//! way. The camera board gets synthetic frames on its host link, so estimates flow too.
+//! way. The camera board gets synthetic frames on its host link, so estimates flow too. The
+//! autopilot runs in lockstep with its host link's IMU samples (world time): a feeder sends
+//! samples of a drone at rest, so its periodic tasks (gyro/attitude to the camera board) run.
 //!
 //! Passes when the protocol flows both ways (heartbeats, status, estimates one way; heartbeats
 //! and gyro/attitude the other) with zero decoding errors, seen both by this relay and by the
@@ -17,7 +19,7 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use support::{last_field, qemu_firmwares, require_qemu, HostLink, Port, Qemu};
+use support::{last_field, qemu_firmwares, require_qemu, HostLink, Port, Qemu, RestImuFeeder};
 
 /// Frames streamed to the camera board (each takes seconds through QEMU's USART model).
 const FRAMES: usize = 3;
@@ -74,11 +76,17 @@ fn both_firmwares_talk_over_loopback_without_errors() {
         &s_link.chardev("link"),
         &s_host.chardev("host"),
     );
-    let mut autopilot = Qemu::start(&autopilot_elf, &a_link.chardev("link"), "null,id=host");
+    let a_host = Port::bind();
+    let mut autopilot = Qemu::start(
+        &autopilot_elf,
+        &a_link.chardev("link"),
+        &a_host.chardev("host"),
+    );
     let timeout = Duration::from_secs(30);
     let s = s_link.accept(timeout);
     let a = a_link.accept(timeout);
     let mut host = HostLink::new(s_host.accept(timeout));
+    let a_host = a_host.accept(timeout);
 
     let seen = Arc::new(Mutex::new(Seen::default()));
     {
@@ -116,6 +124,7 @@ fn both_firmwares_talk_over_loopback_without_errors() {
     // seconds): the next one when the estimate of the previous one is back.
     stereo.wait_for_log("status", timeout);
     autopilot.wait_for_log("status", timeout);
+    let feeder = RestImuFeeder::start(a_host);
     let start = Instant::now();
     let mut estimates = 0;
     for k in 0..FRAMES {
@@ -130,18 +139,23 @@ fn both_firmwares_talk_over_loopback_without_errors() {
     let settle =
         Duration::from_secs(6).saturating_sub(start.elapsed()) + Duration::from_millis(1500);
     std::thread::sleep(settle);
+    let (imu_sent, motor_replies) = feeder.finish();
     let g = seen.lock().unwrap().clone();
     let slog = stereo.log();
     let alog = autopilot.log();
     drop(stereo);
     drop(autopilot);
-    let report = format!("{g:#?}\nstereo log:\n{slog}\nautopilot log:\n{alog}");
+    let report = format!("{g:#?}\nimu samples {imu_sent}, motor replies {motor_replies}\nstereo log:\n{slog}\nautopilot log:\n{alog}");
 
     assert_eq!(
         estimates, FRAMES,
         "every frame answered on the host link: {report}"
     );
     assert_eq!(host.errors().total(), 0, "{report}");
+    assert!(
+        motor_replies + 2 >= imu_sent && imu_sent >= 500,
+        "the autopilot answers every IMU sample: {report}"
+    );
     assert_eq!(g.s2a_errors.total(), 0, "{report}");
     assert_eq!(g.a2s_errors.total(), 0, "{report}");
     assert!(g.s2a_heartbeat >= 3 && g.s2a_status >= 3, "{report}");

@@ -101,9 +101,14 @@ impl Port {
         Self { listener, port }
     }
 
-    /// The `-chardev` spec that connects QEMU to this port.
+    /// The `-chardev` spec that connects QEMU to this port. `nodelay=on`: without it Nagle's
+    /// algorithm holds QEMU's small writes (a 30-byte reply) for a delayed ACK, about 40 ms
+    /// per round trip, which throttled the HIL lockstep to 0.04x real time.
     pub fn chardev(&self, id: &str) -> String {
-        format!("socket,id={id},host=127.0.0.1,port={}", self.port)
+        format!(
+            "socket,id={id},host=127.0.0.1,port={},nodelay=on",
+            self.port
+        )
     }
 
     /// Accepts QEMU's connection (within `timeout`).
@@ -275,5 +280,95 @@ impl HostLink {
     /// Decoding errors on the host link so far.
     pub fn errors(&self) -> protocol::LinkErrorCounts {
         self.decoder.errors()
+    }
+}
+
+/// Drives the autopilot's world clock in the lockstep flavours (see `autopilot::lockstep`):
+/// a thread sends IMU samples of a drone at rest, level (and a height fix every 5th sample),
+/// one per 1/512 s of world time, each after the `Motors` reply to the previous one (or a
+/// 2 s timeout). Stops (and joins) on drop.
+pub struct RestImuFeeder {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<(u64, u64)>>,
+}
+
+impl RestImuFeeder {
+    /// Starts feeding over an accepted connection to the autopilot's host USART.
+    pub fn start(mut stream: TcpStream) -> Self {
+        use protocol::{encode, BoardToHost, ExternalPosition, HostToBoard, ImuSample, Message};
+        use std::io::Write;
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = std::sync::Arc::clone(&stop);
+        let thread = std::thread::spawn(move || {
+            let mut dec = protocol::BoardToHostDecoder::new();
+            let (mut sent, mut replies) = (0u64, 0u64);
+            let mut k = 0u64;
+            while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                let t = (k * 1_000_000 / 512) as u32;
+                let mut out = Vec::new();
+                let mut push = |m: &HostToBoard| {
+                    let mut buf = [0u8; HostToBoard::MAX_FRAME_BYTES];
+                    let n = encode(m, &mut buf).expect("encodes");
+                    out.extend_from_slice(&buf[..n]);
+                };
+                if k.is_multiple_of(5) {
+                    push(&HostToBoard::ExternalPosition(ExternalPosition {
+                        timestamp_us: t,
+                        position_m: [0.0; 3],
+                    }));
+                }
+                push(&HostToBoard::Imu(ImuSample {
+                    timestamp_us: t,
+                    gyro_radps: [0.0; 3],
+                    accel_mps2: [0.0, 0.0, -9.81],
+                }));
+                if stream.write_all(&out).is_err() {
+                    break;
+                }
+                sent += 1;
+                k += 1;
+                let deadline = Instant::now() + Duration::from_secs(2);
+                let mut got = false;
+                while !got && Instant::now() < deadline {
+                    stream
+                        .set_read_timeout(Some(Duration::from_millis(100)))
+                        .ok();
+                    let mut buf = [0u8; 256];
+                    match stream.read(&mut buf) {
+                        Ok(0) => return (sent, replies),
+                        Ok(n) => dec.feed(&buf[..n], |m| {
+                            if matches!(m, BoardToHost::Motors(c) if c.timestamp_us == t) {
+                                got = true;
+                            }
+                        }),
+                        Err(_) => {}
+                    }
+                }
+                replies += u64::from(got);
+            }
+            (sent, replies)
+        });
+        Self {
+            stop,
+            thread: Some(thread),
+        }
+    }
+
+    /// Stops the feeder; returns (samples sent, motor replies received).
+    pub fn finish(mut self) -> (u64, u64) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.thread
+            .take()
+            .and_then(|t| t.join().ok())
+            .unwrap_or((0, 0))
+    }
+}
+
+impl Drop for RestImuFeeder {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
     }
 }

@@ -7,7 +7,7 @@
 //! |---|---|---|---|
 //! | `usart1`, `usart1_dma`, `usart2` | 6 | USART1 IDLE + DMA2 stream 2 (QEMU: RXNE), USART2 RXNE | bytes into lock-free queues (never wait for a lock) |
 //! | `imu_timer` | 6 | TIM2 at 512 Hz (real) | MPU-6000 burst read over SPI1, spawns `imu_indi` |
-//! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out |
+//! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out (HIL/QEMU: releases the periodic tasks) |
 //! | `stereo_rx` | 4 | woken by `usart1` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `usart2` | IMU / position / command from the host |
 //! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety` |
@@ -18,6 +18,14 @@
 //! Motors: TIM3 PWM (see [`motors`]); in the HIL and QEMU flavours the commands also leave as
 //! `BoardToHost::Motors` on the host link (the flight logic is the same code as on hardware).
 //!
+//! Time (see [`tick`]): on hardware the library clock is the board's SysTick and the periodic
+//! tasks run on SysTick periods. In the `hil` and `qemu` flavours the board runs in lockstep
+//! with the host's world simulation ([`autopilot::lockstep`]): the library clock is the world
+//! time carried by the host's IMU samples, `imu_indi` releases `guidance`, `gyro_tx` and
+//! `telemetry` when the world clock passes their periods, and the host sends the next sample
+//! only after the `Motors` reply to the previous one. `heartbeat` (liveness, LED, watchdog)
+//! stays on the board clock in every flavour.
+//!
 //! Not wired yet: RC input (arm/kill/manual comes from the host link's `PilotCommand` only).
 
 mod board;
@@ -27,6 +35,7 @@ mod clock;
 mod imu;
 mod log;
 mod motors;
+mod tick;
 #[cfg(not(feature = "qemu"))]
 mod uart_dma;
 
@@ -81,14 +90,21 @@ const fn ticks(period_us: u32) -> u32 {
     }
 }
 
+/// The release channels of the lockstep flavours: (to `imu_indi`, to the periodic task).
+#[cfg(any(feature = "qemu", feature = "hil"))]
+type TickChannel = (
+    rtic_sync::channel::Sender<'static, u64, 1>,
+    rtic_sync::channel::Receiver<'static, u64, 1>,
+);
+
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART4, UART5, TIM8_UP_TIM13])]
 mod app {
     use super::motors::{Motors, PWM_HZ};
+    use super::tick::Tick;
     use super::{board, clock, log, send, ticks, Mono, AP, RX_QUEUE};
-    use autopilot::app::{
-        Autopilot, AutopilotConfig, GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, HEARTBEAT_PERIOD_US,
-        TELEMETRY_PERIOD_US,
-    };
+    use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
+    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    use autopilot::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::{
         AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
@@ -133,6 +149,13 @@ mod app {
         host_wake_tx: Sender<'static, (), 1>,
         host_wake_rx: Receiver<'static, (), 1>,
         host_decoder: HostToBoardDecoder,
+        guidance_tick: Tick,
+        gyro_tick: Tick,
+        telemetry_tick: Tick,
+        /// The world clock from the host's IMU timestamps (used by the lockstep flavours).
+        world: autopilot::lockstep::WorldClock,
+        /// Releases of the periodic tasks on the world clock (a no-op on hardware).
+        releases: super::tick::Releases,
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
         imu: super::ImuDevice,
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
@@ -225,6 +248,31 @@ mod app {
             (imu, timer)
         };
 
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        let (guidance_tick, gyro_tick, telemetry_tick, releases) = (
+            Tick::every(GUIDANCE_PERIOD_US),
+            Tick::every(GYRO_TX_PERIOD_US),
+            Tick::every(TELEMETRY_PERIOD_US),
+            super::tick::Releases,
+        );
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        let (guidance_tick, gyro_tick, telemetry_tick, releases) = {
+            let g: super::TickChannel = rtic_sync::make_channel!(u64, 1);
+            let y: super::TickChannel = rtic_sync::make_channel!(u64, 1);
+            let t: super::TickChannel = rtic_sync::make_channel!(u64, 1);
+            (
+                Tick(g.1),
+                Tick(y.1),
+                Tick(t.1),
+                super::tick::Releases {
+                    guidance: g.0,
+                    gyro_tx: y.0,
+                    telemetry: t.0,
+                    timers: autopilot::lockstep::WorldTimers::new(),
+                },
+            )
+        };
+
         let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
         iwdg.start(board::WATCHDOG_MS.millis());
 
@@ -258,6 +306,11 @@ mod app {
                 host_wake_tx,
                 host_wake_rx,
                 host_decoder: HostToBoardDecoder::new(),
+                guidance_tick,
+                gyro_tick,
+                telemetry_tick,
+                world: autopilot::lockstep::WorldClock::new(),
+                releases,
                 #[cfg(not(any(feature = "qemu", feature = "hil")))]
                 imu,
                 #[cfg(not(any(feature = "qemu", feature = "hil")))]
@@ -342,16 +395,18 @@ mod app {
         let now = clock::now_us();
         if let Ok(sample) = cx.local.imu.read(now as u32) {
             // Still busy with the previous sample: skip this one.
-            let _ = imu_indi::spawn(sample);
+            let _ = imu_indi::spawn((sample, now));
         }
     }
 
-    /// 512 Hz: IMU sample -> attitude -> INDI -> motors.
-    #[task(priority = 5, shared = [ap, motors, host_tx])]
-    async fn imu_indi(mut cx: imu_indi::Context, imu: ImuSample) {
-        let now = clock::now_us();
+    /// 512 Hz: IMU sample (and its library time, µs) -> attitude -> INDI -> motors. In the
+    /// lockstep flavours it then releases the periodic tasks due at the sample's world time.
+    #[task(priority = 5, shared = [ap, motors, host_tx], local = [releases])]
+    async fn imu_indi(mut cx: imu_indi::Context, sample: (ImuSample, u64)) {
+        let (imu, now) = sample;
         let throttle = cx.shared.ap.lock(|ap| ap.on_imu(&imu, now));
         motors_out(&mut cx.shared.motors, &mut cx.shared.host_tx, now, throttle);
+        cx.local.releases.release(now);
     }
 
     /// Motor command out: PWM, and the host link in HIL/QEMU.
@@ -384,7 +439,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = clock::now_us();
+                let now = clock::lib_now_us();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 let decoded = cx.shared.ap.lock(|ap| ap.on_stereo_bytes(bytes, now));
                 cx.shared
@@ -395,7 +450,7 @@ mod app {
     }
 
     /// Host bytes: IMU samples (HIL), external position, pilot commands.
-    #[task(priority = 4, shared = [ap], local = [host_out, host_wake_rx, host_decoder])]
+    #[task(priority = 4, shared = [ap], local = [host_out, host_wake_rx, host_decoder, world])]
     async fn host_rx(mut cx: host_rx::Context) {
         let mut buf = [0u8; 64];
         while cx.local.host_wake_rx.recv().await.is_ok() {
@@ -408,17 +463,27 @@ mod app {
                     let Some(msg) = cx.local.host_decoder.push(byte) else {
                         continue;
                     };
-                    let now = clock::now_us();
                     match msg {
                         HostToBoard::Imu(sample) => {
+                            // Lockstep flavours: the sample's timestamp is the world time.
+                            #[cfg(any(feature = "qemu", feature = "hil"))]
+                            let at = {
+                                let at = cx.local.world.observe(sample.timestamp_us);
+                                clock::set_world_us(cx.local.world.now_us());
+                                at
+                            };
+                            #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                            let at = clock::now_us();
                             // A sample arriving while the previous one is still being
                             // processed is skipped (the IMU failsafe watches the rate).
-                            let _ = imu_indi::spawn(sample);
+                            let _ = imu_indi::spawn((sample, at));
                         }
                         HostToBoard::ExternalPosition(pos) => {
+                            let now = clock::lib_now_us();
                             cx.shared.ap.lock(|ap| ap.on_external_position(&pos, now))
                         }
                         HostToBoard::Command(cmd) => {
+                            let now = clock::lib_now_us();
                             cx.shared.ap.lock(|ap| ap.on_command(cmd, now))
                         }
                         HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => {}
@@ -429,10 +494,10 @@ mod app {
     }
 
     /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be.
-    #[task(priority = 3, shared = [ap, motors, host_tx])]
+    #[task(priority = 3, shared = [ap, motors, host_tx], local = [guidance_tick])]
     async fn guidance(mut cx: guidance::Context) {
         loop {
-            let now = clock::now_us();
+            let now = cx.local.guidance_tick.wait().await;
             let off = cx.shared.ap.lock(|ap| {
                 ap.guidance_step(now);
                 ap.motor_safety(now)
@@ -440,30 +505,27 @@ mod app {
             if let Some(throttle) = off {
                 motors_out(&mut cx.shared.motors, &mut cx.shared.host_tx, now, throttle);
             }
-            Mono::delay(Duration::from_ticks(ticks(GUIDANCE_PERIOD_US))).await;
         }
     }
 
     /// 128 Hz: gyro and attitude to the camera board for derotation.
-    #[task(priority = 2, shared = [ap, link_tx])]
+    #[task(priority = 2, shared = [ap, link_tx], local = [gyro_tick])]
     async fn gyro_tx(mut cx: gyro_tx::Context) {
         loop {
-            let now = clock::now_us();
+            let now = cx.local.gyro_tick.wait().await;
             let msg =
                 AutopilotToStereo::GyroAttitude(cx.shared.ap.lock(|ap| ap.gyro_attitude(now)));
             cx.shared.link_tx.lock(|tx| send::<_, _, A2S>(tx, &msg));
-            Mono::delay(Duration::from_ticks(ticks(GYRO_TX_PERIOD_US))).await;
         }
     }
 
     /// 10 Hz: telemetry to the host.
-    #[task(priority = 1, shared = [ap, host_tx])]
+    #[task(priority = 1, shared = [ap, host_tx], local = [telemetry_tick])]
     async fn telemetry(mut cx: telemetry::Context) {
         loop {
-            let now = clock::now_us();
+            let now = cx.local.telemetry_tick.wait().await;
             let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| ap.telemetry(now)));
             cx.shared.host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
-            Mono::delay(Duration::from_ticks(ticks(TELEMETRY_PERIOD_US))).await;
         }
     }
 

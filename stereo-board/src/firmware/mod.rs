@@ -17,6 +17,12 @@
 //! priority 4 (4 KiB each, 44 ms of a 921,600 Bd line) and are decoded right after. The
 //! gyro sample used for a frame is the latest one when processing starts.
 //!
+//! Time: on hardware the library sees the board clock. In the `hil` and `qemu` flavours it
+//! sees the world time of the host's simulation ([`clock::lib_now_us`]): frames carry their
+//! exposure time in world time and the autopilot, which runs in lockstep with the host, stamps
+//! its gyro samples with world time, so gyro ages and processing times are measured on one
+//! clock however slowly the link lets the world run. `status` stays on the board clock.
+//!
 //! Memory: the board state (Edge-FS history, decoders) is CPU-only and lives in CCM
 //! ([`APP`]); camera frame buffers are DMA targets in SRAM. `cargo xtask size` prints the
 //! static use.
@@ -427,10 +433,15 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = clock::now_us();
+                let now = clock::lib_now_us();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 (&mut cx.shared.board, &mut cx.shared.link_tx).lock(|board, tx| {
-                    board.on_rx_bytes(bytes, now, &mut |frame| write_all(tx, frame))
+                    board.on_rx_bytes(bytes, now, &mut |frame| write_all(tx, frame));
+                    // Lockstep flavours: the autopilot's gyro timestamps are world time.
+                    #[cfg(any(feature = "qemu", feature = "hil"))]
+                    if let Some(g) = board.latest_gyro() {
+                        clock::observe_world_gyro(g.timestamp_us);
+                    }
                 });
             }
         }
@@ -480,6 +491,7 @@ mod app {
                         }
                         slot.buf.copy_from_slice(frame);
                         slot.capture_us = Some(capture_us);
+                        clock::observe_world_us(capture_us);
                         ready = true;
                     });
                     for _ in 0..overwritten {
@@ -512,7 +524,7 @@ mod app {
     /// host link).
     #[task(priority = 2, shared = [board, frames, link_tx, host_tx])]
     async fn frame(mut cx: frame::Context, ready: FrameReady) {
-        let start = clock::now_us();
+        let start = clock::lib_now_us();
         let est = (
             &mut cx.shared.board,
             &mut cx.shared.frames,
@@ -527,7 +539,7 @@ mod app {
                     (board.process_frame(buf, capture_us, start), capture_us)
                 };
                 frames.release(ready);
-                let done = clock::now_us();
+                let done = clock::lib_now_us();
                 Some(board.send_estimate(&out, capture_us, done, &mut |f| write_all(tx, f)))
             });
         if let Some(est) = est {
@@ -556,7 +568,7 @@ mod app {
                 (
                     b.link_frames_ok(),
                     b.host_link_errors(),
-                    b.gyro_age_us(now).unwrap_or(u64::MAX),
+                    b.gyro_age_us(clock::lib_now_us()).unwrap_or(u64::MAX),
                 )
             });
             log::info!(

@@ -1,0 +1,910 @@
+//! Hardware-in-the-loop: the world simulation of [`crate::sim`] flown by the two real boards
+//! (or the two firmwares in QEMU) over serial links.
+//!
+//! ```text
+//!   sim-host hil                       camera board (hil flavour)      autopilot (hil flavour)
+//!   world: dynamics, IMU, scene  --FrameChunk-->  USART2                USART2  <--Imu, ExternalPosition, Command--
+//!   camera renderer              <--Estimate----                        USART2  --Motors, Telemetry, Heartbeat-->
+//!                                               USART1 <--------------> USART1   (direct, or relayed by sim-host)
+//! ```
+//!
+//! # Timing: lockstep on world time
+//!
+//! The boards run on the world's clock, not their own (see `autopilot::lockstep` and the
+//! camera board firmware's clock module); only the time source and the sensor transport differ
+//! from the real flavour, the flight code is the same.
+//!
+//! * IMU: every IMU period (512 Hz of world time) the host sends one `ImuSample` stamped with
+//!   the world time and waits for the autopilot's `Motors` reply carrying the same timestamp;
+//!   only then does it integrate the world one IMU period with those motor commands. The
+//!   autopilot releases guidance (50 Hz), gyro-to-camera (128 Hz) and telemetry (10 Hz) from
+//!   the same world clock. The world therefore runs exactly as fast as the link allows: slower
+//!   than real time in QEMU, real time on a fast serial link and fast boards.
+//! * Height: an `ExternalPosition` (truth + noise) at [`HilConfig::height_rate_hz`], sent just
+//!   before the IMU sample of the same instant.
+//! * Camera: a frame is rendered at world time `t` (its exposure time on the wire) every
+//!   `1 / fps` of world time and streamed as `FrameChunk`s by a writer thread while the
+//!   lockstep goes on. The camera board mirrors each `Estimate` to the host; the world is not
+//!   allowed to pass the next exposure time before the estimate of the previous frame is back
+//!   (it waits, holding the lockstep). So the boards always see frames at `fps` of world time
+//!   with at most one frame period of latency, however slow the link.
+//! * Arming: a `PilotCommand::Arm` at [`HilConfig::arm_at_s`].
+//!
+//! A reply that does not come within [`HilConfig::reply_timeout`] (a byte lost in the link)
+//! is counted and the world goes on with the previous commands.
+//!
+//! # Link rates (measured)
+//!
+//! QEMU 7.2's STM32 USART model accepts one received byte per main-loop iteration: about
+//! 11 kB/s into the firmware under `-icount shift=auto` on the 2-core CI machine (stereo
+//! firmware, host link; see `docs/hardware.md`). One frame (24,576 pixel bytes, 25.2 kB
+//! framed) then takes about 2.3 s, so the QEMU hover test runs the camera at a few frames per
+//! second of world time. On hardware, 25 fps of frames need 25.2 kB x 25 = 630 kB/s, i.e.
+//! about 6.3 Mbit/s with 8N1 framing on the host-to-camera link: a 3 Mbaud USB-serial adapter
+//! carries about 12 fps, so use `--fps 10` there (or a faster link); the autopilot link needs
+//! about 70 B x 512 Hz = 36 kB/s (921,600 Bd is enough).
+//!
+//! # The board-to-board UART
+//!
+//! On hardware the boards are wired to each other. In QEMU the two firmwares' USART1 can be
+//! joined directly (one QEMU `-chardev socket,server=on`, the other connecting to it), or
+//! through this host ([`Relay`], used by the CI test): the relay copies bytes both ways
+//! unchanged and decodes them on the way, so the test can check for decode errors on the
+//! inter-board link too.
+
+use crate::sim::camera::StereoCamera;
+use crate::sim::dynamics::Drone;
+use crate::sim::flight::FlightConfig;
+use crate::sim::imu::{gauss, Imu};
+use crate::sim::math::V3;
+use crate::sim::scene::Scene;
+use anyhow::{anyhow, bail, Context as _};
+use protocol::{
+    encode, AutopilotToStereo, AutopilotToStereoDecoder, BoardToHost, BoardToHostDecoder, Estimate,
+    ExternalPosition, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message, PilotCommand,
+    StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
+};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::io::{Read, Write};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// One byte stream to a board: a serial device or a TCP connection to a QEMU chardev.
+pub trait Link: Read + Write + Send {
+    /// A second handle on the same stream (one thread reads, another writes).
+    fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>>;
+}
+
+impl Link for std::net::TcpStream {
+    fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>> {
+        Ok(Box::new(self.try_clone()?))
+    }
+}
+
+impl Link for std::fs::File {
+    fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>> {
+        Ok(Box::new(self.try_clone()?))
+    }
+}
+
+/// Opens `addr`: `tcp:HOST:PORT` (or `HOST:PORT`) connects to a TCP server such as a QEMU
+/// `-chardev socket,server=on,...`; anything else is a serial device path opened raw 8N1 at
+/// `baud`.
+pub fn open_link(addr: &str, baud: u32) -> anyhow::Result<Box<dyn Link>> {
+    let tcp = addr
+        .strip_prefix("tcp:")
+        .or_else(|| (!addr.starts_with('/') && addr.contains(':')).then_some(addr));
+    if let Some(hostport) = tcp {
+        let s = std::net::TcpStream::connect(hostport)
+            .with_context(|| format!("connecting to {hostport}"))?;
+        s.set_nodelay(true).ok();
+        return Ok(Box::new(s));
+    }
+    Ok(Box::new(serial::open(addr, baud)?))
+}
+
+/// Raw serial ports through termios.
+mod serial {
+    use anyhow::{bail, Context as _};
+    use std::fs::{File, OpenOptions};
+
+    /// Opens `path` raw 8N1 at `baud` (no flow control, blocking reads with a 100 ms timeout).
+    #[cfg(unix)]
+    pub fn open(path: &str, baud: u32) -> anyhow::Result<File> {
+        use std::os::fd::AsRawFd;
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(path)
+            .with_context(|| format!("opening serial device {path}"))?;
+        let speed = match baud {
+            115_200 => libc::B115200,
+            230_400 => libc::B230400,
+            460_800 => libc::B460800,
+            921_600 => libc::B921600,
+            1_000_000 => libc::B1000000,
+            1_500_000 => libc::B1500000,
+            2_000_000 => libc::B2000000,
+            3_000_000 => libc::B3000000,
+            4_000_000 => libc::B4000000,
+            _ => bail!("unsupported baud rate {baud}"),
+        };
+        let fd = file.as_raw_fd();
+        // SAFETY: `fd` is an open descriptor owned by `file` for the whole block; `tio` is a
+        // plain C struct that tcgetattr fills before it is read.
+        unsafe {
+            let mut tio: libc::termios = std::mem::zeroed();
+            if libc::tcgetattr(fd, &mut tio) != 0 {
+                bail!("{path} is not a serial device (tcgetattr failed)");
+            }
+            libc::cfmakeraw(&mut tio);
+            tio.c_cflag |= libc::CLOCAL | libc::CREAD;
+            tio.c_cflag &= !(libc::CSTOPB | libc::PARENB | libc::CRTSCTS);
+            tio.c_cc[libc::VMIN] = 0;
+            tio.c_cc[libc::VTIME] = 1;
+            if libc::cfsetispeed(&mut tio, speed) != 0
+                || libc::cfsetospeed(&mut tio, speed) != 0
+                || libc::tcsetattr(fd, libc::TCSANOW, &tio) != 0
+            {
+                bail!("configuring {path} at {baud} Bd failed");
+            }
+        }
+        Ok(file)
+    }
+
+    /// Serial devices are only supported on Unix hosts.
+    #[cfg(not(unix))]
+    pub fn open(path: &str, _baud: u32) -> anyhow::Result<File> {
+        bail!("serial devices are not supported on this host ({path}); use tcp:HOST:PORT")
+    }
+}
+
+/// Everything that defines a HIL run.
+#[derive(Debug, Clone)]
+pub struct HilConfig {
+    /// World, drone, IMU and camera parameters, scene and seed (the `fly` defaults; the
+    /// simulator-only fields such as link faults and processing times are not used).
+    pub world: FlightConfig,
+    /// Simulated duration, s (world time).
+    pub duration_s: f64,
+    /// Camera frames per second of world time.
+    pub fps: f64,
+    /// Height fixes (`ExternalPosition`) per second of world time.
+    pub height_rate_hz: f64,
+    /// World time of the arm command, s.
+    pub arm_at_s: f64,
+    /// Longest wait for the autopilot's `Motors` reply to an IMU sample before it counts as
+    /// lost, wall time.
+    pub reply_timeout: Duration,
+    /// Longest wait for the estimate of a frame, from when it was handed to the link (a frame
+    /// takes seconds through QEMU's USART), wall time.
+    pub frame_timeout: Duration,
+    /// Longest wait for both boards' first heartbeat, wall time.
+    pub boot_timeout: Duration,
+}
+
+impl Default for HilConfig {
+    fn default() -> Self {
+        Self {
+            world: FlightConfig::default(),
+            duration_s: 10.0,
+            fps: 25.0,
+            height_rate_hz: 100.0,
+            arm_at_s: 0.5,
+            reply_timeout: Duration::from_secs(5),
+            frame_timeout: Duration::from_secs(60),
+            boot_timeout: Duration::from_secs(60),
+        }
+    }
+}
+
+/// One row of the HIL log (every 20 ms of world time).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HilRow {
+    /// World time, s.
+    pub t_s: f64,
+    /// True position x, y (m) and height (m).
+    pub pos: [f32; 3],
+    /// True horizontal velocity in the world frame, m/s.
+    pub vel: [f32; 2],
+    /// Motor commands applied, 0..=1.
+    pub motors: [f32; 4],
+    /// The autopilot's failsafe mode in its latest telemetry (`u8::MAX`: none yet).
+    pub mode: u8,
+}
+
+/// What a HIL run measured.
+#[derive(Debug, Clone, Default)]
+pub struct HilResult {
+    /// World time flown, s.
+    pub sim_s: f64,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// IMU samples sent.
+    pub imu_samples: u64,
+    /// `Motors` replies matched to their sample.
+    pub motor_replies: u64,
+    /// IMU samples whose reply did not come within the timeout.
+    pub reply_timeouts: u64,
+    /// Frames streamed to the camera board.
+    pub frames_sent: u64,
+    /// Estimates mirrored back by the camera board.
+    pub estimates: u64,
+    /// Of those, valid ones (usable for control).
+    pub valid_estimates: u64,
+    /// How often each `EstimateFlags` bit (0..=7) was set in the estimates.
+    pub flag_counts: [u64; 8],
+    /// Frames whose estimate did not come within the timeout.
+    pub frame_timeouts: u64,
+    /// Wall time spent waiting for the autopilot's `Motors` replies, s.
+    pub imu_wait_s: f64,
+    /// Wall time the world was held for a frame's estimate, s.
+    pub frame_wait_s: f64,
+    /// Time with the drone above 0.1 m, s.
+    pub airborne_s: f64,
+    /// Highest height reached, m.
+    pub max_height_m: f64,
+    /// Height at the end, m.
+    pub final_height_m: f64,
+    /// Largest horizontal distance from the start position, m.
+    pub max_drift_m: f64,
+    /// Wall and obstacle contacts.
+    pub collisions: u32,
+    /// Largest absolute motor command seen (0: the motors never ran).
+    pub max_motor: f32,
+    /// Decoding errors on the autopilot's host link (host side).
+    pub autopilot_link_errors: LinkErrorCounts,
+    /// Decoding errors on the camera board's host link (host side).
+    pub stereo_link_errors: LinkErrorCounts,
+    /// Decoding errors on the relayed board-to-board link (both directions), if relayed.
+    pub relay_errors: LinkErrorCounts,
+    /// Messages relayed camera board -> autopilot and autopilot -> camera board.
+    pub relayed_messages: [u64; 2],
+    /// The autopilot's last telemetry (its own count of camera-link errors included).
+    pub last_telemetry: Option<Telemetry>,
+    /// The log (50 Hz of world time).
+    pub log: Vec<HilRow>,
+}
+
+impl HilResult {
+    /// Sum of every decoding error seen on every link.
+    pub fn total_link_errors(&self) -> u32 {
+        self.autopilot_link_errors.total()
+            + self.stereo_link_errors.total()
+            + self.relay_errors.total()
+            + self.last_telemetry.map_or(0, |t| t.link_errors.total())
+    }
+
+    /// A summary like `fly`'s, one fact per line.
+    pub fn summary(&self) -> String {
+        let mode = self.last_telemetry.map_or(u8::MAX, |t| t.failsafe);
+        format!(
+            "world time        {:.2} s in {:.1} s wall ({:.3}x real time)\n\
+             airborne          {:.2} s, max height {:.2} m, final height {:.2} m\n\
+             max drift         {:.2} m (horizontal, from the start)\n\
+             collisions        {}\n\
+             imu lockstep      {} samples, {} motor replies, {} timeouts, {:.1} s waiting\n\
+             camera            {} frames, {} estimates ({} valid; flag bits set {:?}), {} timeouts, world held {:.1} s\n\
+             link errors       autopilot host {}, camera host {}, board-to-board relay {}, autopilot's own {}\n\
+             relayed messages  camera->autopilot {}, autopilot->camera {}\n\
+             final mode        {} (autopilot failsafe numbering)",
+            self.sim_s,
+            self.wall_s,
+            if self.wall_s > 0.0 { self.sim_s / self.wall_s } else { 0.0 },
+            self.airborne_s,
+            self.max_height_m,
+            self.final_height_m,
+            self.max_drift_m,
+            self.collisions,
+            self.imu_samples,
+            self.motor_replies,
+            self.reply_timeouts,
+            self.imu_wait_s,
+            self.frames_sent,
+            self.estimates,
+            self.valid_estimates,
+            self.flag_counts,
+            self.frame_timeouts,
+            self.frame_wait_s,
+            self.autopilot_link_errors.total(),
+            self.stereo_link_errors.total(),
+            self.relay_errors.total(),
+            self.last_telemetry.map_or(0, |t| t.link_errors.total()),
+            self.relayed_messages[0],
+            self.relayed_messages[1],
+            mode,
+        )
+    }
+}
+
+/// Relays the board-to-board UART through the host: bytes are copied unchanged both ways and
+/// decoded on the way (for counting). Threads end when either side closes.
+pub struct Relay {
+    seen: Arc<Mutex<RelayCounts>>,
+}
+
+#[derive(Debug, Default, Clone, Copy)]
+struct RelayCounts {
+    s2a: u64,
+    a2s: u64,
+    s2a_errors: LinkErrorCounts,
+    a2s_errors: LinkErrorCounts,
+}
+
+impl Relay {
+    /// Starts relaying between the camera board's and the autopilot's USART1.
+    pub fn start(stereo: Box<dyn Link>, autopilot: Box<dyn Link>) -> anyhow::Result<Self> {
+        let seen = Arc::new(Mutex::new(RelayCounts::default()));
+        let (s_r, s_w) = (stereo.try_clone_link()?, stereo);
+        let (a_r, a_w) = (autopilot.try_clone_link()?, autopilot);
+        {
+            let seen = Arc::clone(&seen);
+            let mut dec = StereoToAutopilotDecoder::new();
+            pump(s_r, a_w, move |bytes| {
+                let mut g = seen.lock().unwrap_or_else(|e| e.into_inner());
+                let mut n = 0;
+                dec.feed(bytes, |_: StereoToAutopilot| n += 1);
+                g.s2a += n;
+                g.s2a_errors = dec.errors();
+            });
+        }
+        {
+            let seen = Arc::clone(&seen);
+            let mut dec = AutopilotToStereoDecoder::new();
+            pump(a_r, s_w, move |bytes| {
+                let mut g = seen.lock().unwrap_or_else(|e| e.into_inner());
+                let mut n = 0;
+                dec.feed(bytes, |_: AutopilotToStereo| n += 1);
+                g.a2s += n;
+                g.a2s_errors = dec.errors();
+            });
+        }
+        Ok(Self { seen })
+    }
+
+    /// Messages relayed (camera -> autopilot, autopilot -> camera) and decoding errors (both
+    /// directions added up) so far.
+    pub fn counts(&self) -> ([u64; 2], LinkErrorCounts) {
+        let g = *self.seen.lock().unwrap_or_else(|e| e.into_inner());
+        ([g.s2a, g.a2s], add_errors(g.s2a_errors, g.a2s_errors))
+    }
+}
+
+fn add_errors(a: LinkErrorCounts, b: LinkErrorCounts) -> LinkErrorCounts {
+    LinkErrorCounts {
+        crc: a.crc + b.crc,
+        cobs: a.cobs + b.cobs,
+        too_long: a.too_long + b.too_long,
+        too_short: a.too_short + b.too_short,
+        unknown_message: a.unknown_message + b.unknown_message,
+        malformed: a.malformed + b.malformed,
+        version_mismatch: a.version_mismatch + b.version_mismatch,
+    }
+}
+
+/// Copies `from` to `to` on a thread, showing every chunk to `tap` first.
+fn pump(
+    mut from: Box<dyn Link>,
+    mut to: Box<dyn Link>,
+    mut tap: impl FnMut(&[u8]) + Send + 'static,
+) {
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 1024];
+        loop {
+            match from.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => {
+                    let bytes = buf.get(..n).unwrap_or(&[]);
+                    tap(bytes);
+                    if to.write_all(bytes).is_err() {
+                        break;
+                    }
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::TimedOut
+                            | std::io::ErrorKind::Interrupted
+                    ) => {}
+                Err(_) => break,
+            }
+        }
+    });
+}
+
+/// A reader thread decoding `BoardToHost` messages from a board into a channel.
+struct BoardRx {
+    rx: Receiver<BoardToHost>,
+    errors: Arc<Mutex<LinkErrorCounts>>,
+}
+
+impl BoardRx {
+    fn start(mut link: Box<dyn Link>, stop: Arc<AtomicBool>) -> Self {
+        let (tx, rx) = mpsc::channel();
+        let errors = Arc::new(Mutex::new(LinkErrorCounts::default()));
+        let errs = Arc::clone(&errors);
+        std::thread::spawn(move || {
+            let mut dec = BoardToHostDecoder::new();
+            let mut buf = [0u8; 1024];
+            while !stop.load(Ordering::Relaxed) {
+                match link.read(&mut buf) {
+                    Ok(0) => break,
+                    Ok(n) => {
+                        let mut closed = false;
+                        dec.feed(buf.get(..n).unwrap_or(&[]), |m| {
+                            closed |= tx.send(m).is_err();
+                        });
+                        *errs.lock().unwrap_or_else(|e| e.into_inner()) = dec.errors();
+                        if closed {
+                            break;
+                        }
+                    }
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock
+                                | std::io::ErrorKind::TimedOut
+                                | std::io::ErrorKind::Interrupted
+                        ) => {}
+                    Err(_) => break,
+                }
+            }
+        });
+        Self { rx, errors }
+    }
+
+    fn errors(&self) -> LinkErrorCounts {
+        *self.errors.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// Encodes one host message into `out`.
+fn push_msg(msg: &HostToBoard, out: &mut Vec<u8>) -> anyhow::Result<()> {
+    let mut buf = [0u8; HostToBoard::MAX_FRAME_BYTES];
+    let n = encode(msg, &mut buf).map_err(|e| anyhow!("encoding a host message: {e:?}"))?;
+    out.extend_from_slice(buf.get(..n).unwrap_or(&[]));
+    Ok(())
+}
+
+/// The chunks of one interleaved frame, encoded.
+pub fn encode_frame(
+    frame: &[u8; STEREO_FRAME_BYTES],
+    frame_id: u16,
+    capture_us: u32,
+) -> anyhow::Result<Vec<u8>> {
+    let mut out = Vec::with_capacity(STEREO_FRAME_BYTES + STEREO_FRAME_BYTES / 16);
+    for (i, data) in frame.chunks(FRAME_CHUNK_BYTES).enumerate() {
+        let msg = HostToBoard::FrameChunk(FrameChunk {
+            frame_id,
+            capture_us,
+            offset: (i * FRAME_CHUNK_BYTES) as u16,
+            data: data
+                .try_into()
+                .map_err(|_| anyhow!("frame chunk larger than {FRAME_CHUNK_BYTES} bytes"))?,
+        });
+        push_msg(&msg, &mut out)?;
+    }
+    Ok(out)
+}
+
+/// Waits for a first heartbeat on a board's host link (the board is up and its USART
+/// receives: bytes sent earlier are lost).
+fn wait_heartbeat(rx: &BoardRx, name: &str, timeout: Duration) -> anyhow::Result<()> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let left = deadline
+            .checked_duration_since(Instant::now())
+            .ok_or_else(|| anyhow!("no heartbeat from the {name} within {timeout:?}"))?;
+        match rx.rx.recv_timeout(left) {
+            Ok(BoardToHost::Heartbeat(_)) => return Ok(()),
+            Ok(_) => {}
+            Err(RecvTimeoutError::Timeout) => {
+                bail!("no heartbeat from the {name} within {timeout:?}")
+            }
+            Err(RecvTimeoutError::Disconnected) => bail!("the {name}'s link closed"),
+        }
+    }
+}
+
+/// Runs the world against the two boards' host links (and, optionally, relays their
+/// board-to-board UART). `progress` is called with the world time about once per world
+/// second.
+pub fn run(
+    cfg: &HilConfig,
+    stereo: Box<dyn Link>,
+    autopilot: Box<dyn Link>,
+    relay: Option<&Relay>,
+    progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<HilResult> {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !positive(cfg.fps) || !positive(cfg.height_rate_hz) {
+        bail!("fps and height rate must be positive");
+    }
+    let w = &cfg.world;
+    let scene = Scene::preset(&w.scenario, w.seed)
+        .ok_or_else(|| anyhow!("unknown scenario {:?}", w.scenario))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(w.seed);
+    let mut cam_rng = ChaCha8Rng::seed_from_u64(w.seed ^ 0xca3ea);
+    let yaw0 = w.start_yaw_rad.unwrap_or(scene.start[2] as f64);
+    let [x0, y0] = w
+        .start_xy
+        .unwrap_or([scene.start[0] as f64, scene.start[1] as f64]);
+    let mut drone = Drone::on_floor(w.drone.clone(), x0, y0, yaw0);
+    let mut imu = Imu::new(w.imu.clone(), &mut rng);
+    let mut camera = StereoCamera::new(w.camera.clone());
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let ap_rx = BoardRx::start(autopilot.try_clone_link()?, Arc::clone(&stop));
+    let cam_rx = BoardRx::start(stereo.try_clone_link()?, Arc::clone(&stop));
+    let mut ap_tx = autopilot;
+    // Frames are written by their own thread: a frame takes seconds through QEMU's USART.
+    let (frame_tx, frame_rx): (Sender<Vec<u8>>, Receiver<Vec<u8>>) = mpsc::channel();
+    {
+        let mut link = stereo;
+        std::thread::spawn(move || {
+            while let Ok(bytes) = frame_rx.recv() {
+                if link.write_all(&bytes).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+    let result = (|| {
+        wait_heartbeat(&ap_rx, "autopilot", cfg.boot_timeout)?;
+        wait_heartbeat(&cam_rx, "camera board", cfg.boot_timeout)?;
+        lockstep(
+            cfg,
+            &scene,
+            &mut drone,
+            &mut imu,
+            &mut camera,
+            (&mut rng, &mut cam_rng),
+            &mut ap_tx,
+            &ap_rx,
+            &cam_rx,
+            &frame_tx,
+            relay,
+            [x0, y0],
+            progress,
+        )
+    })();
+    stop.store(true, Ordering::Relaxed);
+    result
+}
+
+/// The lockstep loop (see the module docs).
+#[allow(clippy::too_many_arguments)]
+fn lockstep(
+    cfg: &HilConfig,
+    scene: &Scene,
+    drone: &mut Drone,
+    imu: &mut Imu,
+    camera: &mut StereoCamera,
+    (rng, cam_rng): (&mut ChaCha8Rng, &mut ChaCha8Rng),
+    ap_tx: &mut Box<dyn Link>,
+    ap_rx: &BoardRx,
+    cam_rx: &BoardRx,
+    frame_tx: &Sender<Vec<u8>>,
+    relay: Option<&Relay>,
+    start_xy: [f64; 2],
+    progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<HilResult> {
+    const IMU_HZ: u64 = 512;
+    let wall0 = Instant::now();
+    let end_us = (cfg.duration_s * 1e6) as u64;
+    let frame_period_us = (1e6 / cfg.fps) as u64;
+    let height_period_us = (1e6 / cfg.height_rate_hz) as u64;
+    let arm_us = (cfg.arm_at_s * 1e6) as u64;
+    let physics_dt_us = cfg.world.physics_dt_us.max(1);
+    let mut r = HilResult {
+        max_height_m: 0.0,
+        ..Default::default()
+    };
+    let mut k = 0u64;
+    let mut t = 0u64;
+    let mut next_frame = 100_000u64;
+    let mut next_height = 0u64;
+    let mut next_log = 0u64;
+    let mut next_progress = 1_000_000u64;
+    let mut armed = false;
+    let mut motors = [0.0f32; 4];
+    let mut frame_id = 0u16;
+    // Exposure time (wire) of the frame whose estimate is awaited, and when it was sent.
+    let mut in_flight: Option<(u32, Instant)> = None;
+    let mut in_contact = false;
+    let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+    let mut out = Vec::new();
+
+    while t < end_us {
+        // Camera: hold the world at the exposure time until the previous frame is answered.
+        if t >= next_frame {
+            if let Some((_, sent)) = in_flight {
+                let held = Instant::now();
+                let deadline = sent + cfg.frame_timeout;
+                while in_flight.is_some() {
+                    let left = deadline.saturating_duration_since(Instant::now());
+                    if left.is_zero() {
+                        r.frame_timeouts += 1;
+                        break;
+                    }
+                    match cam_rx.rx.recv_timeout(left) {
+                        Ok(BoardToHost::Estimate(e)) => on_estimate(&e, &mut r, &mut in_flight),
+                        Ok(_) => {}
+                        Err(RecvTimeoutError::Timeout) => {}
+                        Err(RecvTimeoutError::Disconnected) => {
+                            bail!("the camera board's link closed")
+                        }
+                    }
+                }
+                r.frame_wait_s += held.elapsed().as_secs_f64();
+            }
+            camera.render(scene, drone.state.pos, drone.state.att, cam_rng, &mut frame);
+            let capture = t as u32;
+            frame_tx
+                .send(encode_frame(&frame, frame_id, capture)?)
+                .map_err(|_| anyhow!("the camera board's link closed"))?;
+            in_flight = Some((capture, Instant::now()));
+            frame_id = frame_id.wrapping_add(1);
+            r.frames_sent += 1;
+            next_frame += frame_period_us;
+        }
+        while let Ok(m) = cam_rx.rx.try_recv() {
+            if let BoardToHost::Estimate(e) = m {
+                on_estimate(&e, &mut r, &mut in_flight);
+            }
+        }
+
+        // Autopilot: height fix, arm, then the IMU sample of this instant.
+        out.clear();
+        if t >= next_height {
+            next_height += height_period_us;
+            let p = drone.state.pos;
+            let z = p.z + gauss(rng) * cfg.world.height_noise_m;
+            push_msg(
+                &HostToBoard::ExternalPosition(ExternalPosition {
+                    timestamp_us: t as u32,
+                    position_m: [p.x as f32, p.y as f32, z as f32],
+                }),
+                &mut out,
+            )?;
+        }
+        if !armed && t >= arm_us {
+            armed = true;
+            push_msg(&HostToBoard::Command(PilotCommand::Arm), &mut out)?;
+        }
+        let s = imu.sample(rng);
+        let stamp = t as u32;
+        push_msg(
+            &HostToBoard::Imu(ImuSample {
+                timestamp_us: stamp,
+                gyro_radps: s.gyro.to_f32(),
+                accel_mps2: s.accel.to_f32(),
+            }),
+            &mut out,
+        )?;
+        ap_tx.write_all(&out).context("writing to the autopilot")?;
+        r.imu_samples += 1;
+        let waiting = Instant::now();
+        let deadline = waiting + cfg.reply_timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match ap_rx.rx.recv_timeout(left) {
+                Ok(BoardToHost::Motors(m)) if m.timestamp_us == stamp => {
+                    motors = m.throttle.map(|v| {
+                        if v.is_finite() {
+                            v.clamp(0.0, 1.0)
+                        } else {
+                            0.0
+                        }
+                    });
+                    r.motor_replies += 1;
+                    break;
+                }
+                Ok(BoardToHost::Telemetry(tel)) => r.last_telemetry = Some(tel),
+                Ok(_) => {}
+                Err(RecvTimeoutError::Timeout) => {
+                    r.reply_timeouts += 1;
+                    break;
+                }
+                Err(RecvTimeoutError::Disconnected) => bail!("the autopilot's link closed"),
+            }
+        }
+        r.imu_wait_s += waiting.elapsed().as_secs_f64();
+        r.max_motor = motors.iter().fold(r.max_motor, |a, &b| a.max(b));
+
+        // World: one IMU period with these motor commands.
+        k += 1;
+        let t_next = k * 1_000_000 / IMU_HZ;
+        let cmd = motors.map(f64::from);
+        while t < t_next {
+            let step = physics_dt_us.min(t_next - t);
+            let dt = step as f64 * 1e-6;
+            drone.step(&cmd, dt);
+            imu.track(drone, dt);
+            t += step;
+            in_contact = collide(scene, drone, in_contact, &mut r.collisions);
+            let h = -drone.state.pos.z;
+            if h > 0.1 {
+                r.airborne_s += dt;
+            }
+        }
+        let p = drone.state.pos;
+        let h = -p.z;
+        r.max_height_m = r.max_height_m.max(h);
+        r.final_height_m = h;
+        let drift = ((p.x - start_xy[0]).powi(2) + (p.y - start_xy[1]).powi(2)).sqrt();
+        r.max_drift_m = r.max_drift_m.max(drift);
+        if t >= next_log {
+            next_log += 20_000;
+            r.log.push(HilRow {
+                t_s: t as f64 * 1e-6,
+                pos: [p.x as f32, p.y as f32, h as f32],
+                vel: [drone.state.vel.x as f32, drone.state.vel.y as f32],
+                motors,
+                mode: r.last_telemetry.map_or(u8::MAX, |t| t.failsafe),
+            });
+        }
+        if t >= next_progress {
+            progress(t as f64 * 1e-6);
+            next_progress += 1_000_000;
+        }
+    }
+    // Late telemetry and estimates.
+    while let Ok(m) = ap_rx.rx.try_recv() {
+        if let BoardToHost::Telemetry(tel) = m {
+            r.last_telemetry = Some(tel);
+        }
+    }
+    while let Ok(m) = cam_rx.rx.try_recv() {
+        if let BoardToHost::Estimate(e) = m {
+            on_estimate(&e, &mut r, &mut in_flight);
+        }
+    }
+    r.sim_s = t as f64 * 1e-6;
+    r.wall_s = wall0.elapsed().as_secs_f64();
+    r.autopilot_link_errors = ap_rx.errors();
+    r.stereo_link_errors = cam_rx.errors();
+    if let Some(relay) = relay {
+        let (n, e) = relay.counts();
+        r.relayed_messages = n;
+        r.relay_errors = e;
+    }
+    Ok(r)
+}
+
+/// Counts an estimate mirrored by the camera board; clears the awaited frame if it is its.
+fn on_estimate(e: &Estimate, r: &mut HilResult, in_flight: &mut Option<(u32, Instant)>) {
+    r.estimates += 1;
+    r.valid_estimates += u64::from(e.is_valid());
+    for (bit, n) in r.flag_counts.iter_mut().enumerate() {
+        *n += u64::from(e.flags.0 >> bit & 1);
+    }
+    if in_flight.is_some_and(|(c, _)| c == e.capture_us) {
+        *in_flight = None;
+    }
+}
+
+/// Wall and obstacle contact at the drone's radius: pushes the drone out and removes its
+/// velocity into the surface. Returns whether it is in contact; counts new contacts.
+fn collide(scene: &Scene, drone: &mut Drone, in_contact: bool, count: &mut u32) -> bool {
+    let p = drone.state.pos;
+    let h = -p.z as f32;
+    let c = scene.clearance(p.x as f32, p.y as f32, h) as f64 - drone.params.radius_m;
+    if c < 0.0 {
+        if !in_contact {
+            *count += 1;
+        }
+        let n = scene.push_out_dir(p.x as f32, p.y as f32, h);
+        let (nx, ny) = (n[0] as f64, n[1] as f64);
+        drone.state.pos = V3::new(p.x - nx * c, p.y - ny * c, p.z);
+        let vn = drone.state.vel.x * nx + drone.state.vel.y * ny;
+        if vn < 0.0 {
+            drone.state.vel.x -= vn * nx;
+            drone.state.vel.y -= vn * ny;
+        }
+        true
+    } else {
+        in_contact && c <= 0.01
+    }
+}
+
+/// Writes the log as CSV.
+pub fn write_log_csv(r: &HilResult, path: &std::path::Path) -> anyhow::Result<()> {
+    let mut s = String::from("t_s,x_m,y_m,h_m,vx_mps,vy_mps,m1,m2,m3,m4,mode\n");
+    for row in &r.log {
+        s.push_str(&format!(
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{}\n",
+            row.t_s,
+            row.pos[0],
+            row.pos[1],
+            row.pos[2],
+            row.vel[0],
+            row.vel[1],
+            row.motors[0],
+            row.motors[1],
+            row.motors[2],
+            row.motors[3],
+            row.mode
+        ));
+    }
+    std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}
+
+/// `sim-host hil`: fly the simulated world with the real boards (or QEMU) in the loop.
+#[derive(Debug, clap::Args)]
+pub struct HilArgs {
+    /// The camera board's host link: a serial device (/dev/ttyUSB0) or tcp:HOST:PORT (a QEMU
+    /// `-chardev socket,server=on`).
+    #[arg(long)]
+    pub stereo: String,
+    /// The autopilot's host link (same forms as --stereo).
+    #[arg(long)]
+    pub autopilot: String,
+    /// Relay the board-to-board UART through this host: the camera board's USART1 ...
+    #[arg(long, requires = "relay_autopilot")]
+    pub relay_stereo: Option<String>,
+    /// ... and the autopilot's USART1 (for two QEMUs; wired boards do not need it).
+    #[arg(long, requires = "relay_stereo")]
+    pub relay_autopilot: Option<String>,
+    /// Baud rate of serial devices.
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
+    /// World time to fly, s.
+    #[arg(long, default_value_t = 10.0)]
+    pub duration: f64,
+    /// Scene preset (room, room-obstacles, corridor).
+    #[arg(long, default_value = "room")]
+    pub scenario: String,
+    /// Seed of the world (textures, sensor noise).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Camera frames per second of world time (the link must carry them; see the docs).
+    #[arg(long, default_value_t = 25.0)]
+    pub fps: f64,
+    /// Longest wait for a reply from a board, s (wall time).
+    #[arg(long, default_value_t = 5.0)]
+    pub reply_timeout: f64,
+    /// Directory for the log (hil_log.csv).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Runs `sim-host hil`.
+pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
+    let cfg = HilConfig {
+        world: FlightConfig {
+            scenario: args.scenario.clone(),
+            seed: args.seed,
+            ..FlightConfig::default()
+        },
+        duration_s: args.duration,
+        fps: args.fps,
+        reply_timeout: Duration::from_secs_f64(args.reply_timeout.max(0.01)),
+        ..HilConfig::default()
+    };
+    let stereo = open_link(&args.stereo, args.baud)?;
+    let autopilot = open_link(&args.autopilot, args.baud)?;
+    let relay = match (&args.relay_stereo, &args.relay_autopilot) {
+        (Some(s), Some(a)) => Some(Relay::start(
+            open_link(s, args.baud)?,
+            open_link(a, args.baud)?,
+        )?),
+        _ => None,
+    };
+    let r = run(&cfg, stereo, autopilot, relay.as_ref(), &mut |t| {
+        eprint!("\rworld time {t:.0} s");
+    })?;
+    eprintln!();
+    println!("{}", r.summary());
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        write_log_csv(&r, &dir.join("hil_log.csv"))?;
+        println!("log               {}", dir.join("hil_log.csv").display());
+    }
+    Ok(())
+}
