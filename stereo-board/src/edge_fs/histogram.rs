@@ -41,11 +41,21 @@ pub fn edge_histograms(
             continue;
         };
         let w = |r: &[[u8; 4]; ROW / 4], j: usize| u32::from_le_bytes(r[j]);
-        for (j, (l, r)) in acc.iter_mut().enumerate() {
+        let step = |(l, r): &mut (u32, u32), j: usize| {
             let g = |row: &[[u8; 4]; ROW / 4]| absdiff_u8x4(w(row, j + 1), w(row, j));
             let (ga, gb, gc) = (g(a), g(b), g(c));
             *l = add_bytes02(add_bytes02(add_bytes02(*l, ga), gb), gc);
             *r = add_bytes13(add_bytes13(add_bytes13(*r, ga), gb), gc);
+        };
+        // Two word columns per iteration (unrolled by hand: the compiler does not unroll
+        // around `asm!`, and carrying the words in rotated registers costs moves otherwise).
+        let (two, rest) = acc.as_chunks_mut::<2>();
+        for (k, [x, y]) in two.iter_mut().enumerate() {
+            step(x, 2 * k);
+            step(y, 2 * k + 1);
+        }
+        for x in rest.iter_mut() {
+            step(x, PAIRS - 1);
         }
     }
     // Border columns: |I(1) - 0| and |0 - I(126)|.
@@ -165,15 +175,19 @@ fn absdiff_u8x4(a: u32, b: u32) -> u32 {
 
 /// Mean intensity of the left image (0..=255), for the too-dark / too-bright flags.
 ///
-/// Sums a row's words in two packed 16-bit lanes (bytes 0 and 2 of each little-endian word are
-/// left pixels; a row's lane total is at most `64 * 255`), then folds the lanes per row.
+/// Sums four rows' words at a time in two packed 16-bit lanes (bytes 0 and 2 of each
+/// little-endian word are left pixels; `UXTAB16` on the M4; a lane's total over four rows is at
+/// most `256 * 255 < 2^16`), then folds the lanes.
 pub fn mean_intensity(frame: &[u8; protocol::STEREO_FRAME_BYTES]) -> u8 {
     let mut sum = 0u32;
-    for row in frame.chunks_exact(2 * IMG_W) {
-        let acc = row
-            .chunks_exact(4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) & 0x00FF_00FF)
-            .sum::<u32>();
+    for rows in frame.chunks_exact(4 * 2 * IMG_W) {
+        // Eight words per step (unrolled by hand: the compiler does not unroll around `asm!`).
+        let acc = rows.as_chunks::<32>().0.iter().fold(0u32, |acc, c| {
+            c.as_chunks::<4>()
+                .0
+                .iter()
+                .fold(acc, |acc, w| add_bytes02(acc, u32::from_le_bytes(*w)))
+        });
         sum += (acc & 0xFFFF) + (acc >> 16);
     }
     (sum / (IMG_W * IMG_H) as u32) as u8
@@ -234,6 +248,16 @@ mod tests {
             let plain: u32 = frame.iter().step_by(2).map(|&p| u32::from(p)).sum();
             prop_assert_eq!(mean_intensity(&frame), (plain / (IMG_W * IMG_H) as u32) as u8);
         }
+    }
+
+    #[test]
+    fn mean_of_saturated_and_dark_frames() {
+        // All-255 fills every packed lane to its largest value (256 * 255): no carry.
+        assert_eq!(mean_intensity(&[255; STEREO_FRAME_BYTES]), 255);
+        assert_eq!(mean_intensity(&[0; STEREO_FRAME_BYTES]), 0);
+        let mut f = [255u8; STEREO_FRAME_BYTES];
+        f.iter_mut().skip(1).step_by(2).for_each(|p| *p = 0);
+        assert_eq!(mean_intensity(&f), 255, "right-image pixels must not count");
     }
 
     #[test]
