@@ -227,14 +227,19 @@ pub struct RcConfig {
     pub timeout_us: u64,
 }
 
+impl RcConfig {
+    /// Arm on channel 5, kill on channel 6, switches high above 1400, 200 ms timeout.
+    pub const DEFAULT: Self = Self {
+        arm_channel: 5,
+        kill_channel: 6,
+        switch_threshold: 1_400,
+        timeout_us: 200_000,
+    };
+}
+
 impl Default for RcConfig {
     fn default() -> Self {
-        Self {
-            arm_channel: 5,
-            kill_channel: 6,
-            switch_threshold: 1_400,
-            timeout_us: 200_000,
-        }
+        Self::DEFAULT
     }
 }
 

@@ -6,6 +6,8 @@
 //! | telemetry / HIL host link (IMU in, motors out) | USART2 | PA2 TX, PA3 RX |
 //! | status LED (active high) | GPIO | PC13 |
 //! | IMU MPU-6000 (SPI mode 3) | SPI1 | PA5 SCK, PA6 MISO, PA7 MOSI, PA4 CS |
+//! | IMU data ready (MPU-6000 INT, rising edge) | EXTI4 | PC4 |
+//! | RC receiver, SBUS (100,000 Bd 8E2, non-inverted) | USART3 RX | PB11 |
 //! | motors 1-4 (FR, RR, RL, FL), 32 kHz PWM | TIM3 CH1-4 | PB4, PB5, PB0, PB1 |
 //!
 //! Wiring between the boards: autopilot PA9 (TX) -> camera PA10 (RX), autopilot PA10 (RX) <-
@@ -49,7 +51,13 @@ pub fn clocks() -> Config {
 /// Independent-watchdog timeout, ms (the 1 Hz heartbeat task feeds it).
 pub const WATCHDOG_MS: u32 = 2_000;
 
-/// Control-loop rate: the TIM2 interrupt that reads the IMU, Hz (real flavour; in HIL and
-/// QEMU the host's IMU samples pace the loop).
+/// Rate of the TIM2 fallback timer, Hz (real flavour): it reads the IMU itself only while the
+/// MPU-6000's data-ready interrupt (500 Hz) is missing. In HIL and QEMU the host's IMU samples
+/// pace the loop.
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
 pub const IMU_RATE_HZ: u32 = 512;
+
+/// The data-ready interrupt counts as missing after this long without one, µs (2.5 sample
+/// periods of the 500 Hz IMU).
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+pub const IMU_DRDY_TIMEOUT_US: u32 = 5_000;

@@ -20,6 +20,8 @@ const GYRO_CONFIG: u8 = 0x1B;
 const ACCEL_CONFIG: u8 = 0x1C;
 const ACCEL_XOUT_H: u8 = 0x3B;
 const WHO_AM_I: u8 = 0x75;
+const INT_PIN_CFG: u8 = 0x37;
+const INT_ENABLE: u8 = 0x38;
 const READ: u8 = 0x80;
 
 /// Gyro scale at ±2000 °/s: 16.4 LSB per °/s, in rad/s per LSB.
@@ -74,11 +76,15 @@ impl<S: SpiBus, CS: OutputPin> Mpu6000<S, CS> {
         if who[1] != 0x68 {
             return Err(ImuError::NotFound(who[1]));
         }
-        // 1 kHz internal rate (DLPF 188 Hz), no further division.
+        // 1 kHz internal rate (DLPF 188 Hz), divided by 2: a new sample (and a data-ready
+        // pulse) every 2 ms. 512 Hz is not reachable with the MPU-6000's dividers.
         self.write(CONFIG, 0x01)?;
-        self.write(SMPLRT_DIV, 0x00)?;
+        self.write(SMPLRT_DIV, 0x01)?;
         self.write(GYRO_CONFIG, 0x18)?;
         self.write(ACCEL_CONFIG, 0x10)?;
+        // INT pin: active high, push-pull, 50 µs pulse per new sample (not latched).
+        self.write(INT_PIN_CFG, 0x00)?;
+        self.write(INT_ENABLE, 0x01)?;
         Ok(())
     }
 

@@ -6,7 +6,8 @@
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
 //! | `usart1`, `usart1_dma`, `usart2` | 6 | USART1 IDLE + DMA2 stream 2 (QEMU: RXNE), USART2 RXNE | bytes into lock-free queues (never wait for a lock) |
-//! | `imu_timer` | 6 | TIM2 at 512 Hz (real) | MPU-6000 burst read over SPI1, spawns `imu_indi` |
+//! | `imu_drdy` | 6 | EXTI4: MPU-6000 data ready, 500 Hz (real) | burst read over SPI1, spawns `imu_indi` |
+//! | `imu_timer` | 6 | TIM2 at 512 Hz (real) | fallback: reads the IMU itself only while data-ready interrupts are missing |
 //! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out (HIL/QEMU: releases the periodic tasks) |
 //! | `stereo_rx` | 4 | woken by `usart1` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `usart2` | IMU / position / command from the host |
@@ -14,6 +15,8 @@
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
 //! | `telemetry` | 1 | 10 Hz | `Autopilot::telemetry` to the host |
 //! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog |
+//! | `usart3` | 6 | USART3 RXNE (real) | SBUS bytes into a lock-free queue |
+//! | `rc_rx` | 4 | woken by `usart3`, and every 20 ms | [`autopilot::rc`]: SBUS frames -> `Autopilot::on_command` (arm/land/kill; RC failsafe or silence => kill) |
 //!
 //! Motors: TIM3 PWM (see [`motors`]); in the HIL and QEMU flavours the commands also leave as
 //! `BoardToHost::Motors` on the host link (the flight logic is the same code as on hardware).
@@ -26,7 +29,9 @@
 //! only after the `Motors` reply to the previous one. `heartbeat` (liveness, LED, watchdog)
 //! stays on the board clock in every flavour.
 //!
-//! Not wired yet: RC input (arm/kill/manual comes from the host link's `PilotCommand` only).
+//! RC input (real flavour): an SBUS receiver on USART3 RX (PB11, 100,000 Bd 8E2, non-inverted
+//! signal; see `docs/hardware.md`); in HIL and QEMU the host link's `PilotCommand` stands in.
+//! Manual flight from the sticks is not wired: `Autopilot` has no manual mode yet.
 
 mod board;
 mod clock;
@@ -59,6 +64,16 @@ type ImuDevice = imu::Mpu6000<
 
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 2048;
+
+/// Board time of the last IMU data-ready interrupt, µs (wrapping `u32`).
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+static LAST_DRDY_US: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
+/// IMU reads done by the fallback timer because data-ready interrupts were missing.
+static IMU_FALLBACK_READS: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
+/// Bytes of the SBUS receive queue (about five frames).
+const RC_QUEUE: usize = 128;
 
 /// Blocking write of whole frames to a UART (a few dozen bytes per message at 921,600 Bd).
 fn write_all<U: stm32f4xx_hal::serial::Instance>(
@@ -101,7 +116,7 @@ type TickChannel = (
 mod app {
     use super::motors::{Motors, PWM_HZ};
     use super::tick::Tick;
-    use super::{board, clock, log, send, ticks, Mono, AP, RX_QUEUE};
+    use super::{board, clock, log, send, ticks, Mono, AP, RC_QUEUE, RX_QUEUE};
     use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
     #[cfg(not(any(feature = "qemu", feature = "hil")))]
     use autopilot::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
@@ -134,6 +149,9 @@ mod app {
         motors: Motors,
         link_in: Producer<'static, u8>,
         link_wake_tx: Sender<'static, (), 1>,
+        /// The IMU, read by the data-ready interrupt and by the fallback timer (real flavour;
+        /// `None` in HIL and QEMU, where the host sends the samples).
+        imu: Option<super::ImuDevice>,
     }
 
     #[local]
@@ -157,7 +175,17 @@ mod app {
         /// Releases of the periodic tasks on the world clock (a no-op on hardware).
         releases: super::tick::Releases,
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        imu: super::ImuDevice,
+        rc_uart: Rx<pac::USART3>,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        rc_in: Producer<'static, u8>,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        rc_out: Consumer<'static, u8>,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        rc_wake_tx: Sender<'static, (), 1>,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        rc_wake_rx: Receiver<'static, (), 1>,
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        imu_int: stm32f4xx_hal::gpio::PC4<stm32f4xx_hal::gpio::Input>,
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
         imu_timer: stm32f4xx_hal::timer::CounterHz<pac::TIM2>,
     }
@@ -165,6 +193,7 @@ mod app {
     #[init(local = [
         link_q: Queue<u8, RX_QUEUE> = Queue::new(),
         host_q: Queue<u8, RX_QUEUE> = Queue::new(),
+        rc_q: Queue<u8, RC_QUEUE> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut rcc = cx.device.RCC.freeze(board::clocks());
@@ -209,6 +238,27 @@ mod app {
         let (host_wake_tx, host_wake_rx) = rtic_sync::make_channel!((), 1);
 
         let gpiob = cx.device.GPIOB.split(&mut rcc);
+        // SBUS receiver on USART3 RX (PB11): 100,000 Bd, 8 data bits + even parity (the 9-bit
+        // word), 2 stop bits.
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        let (rc_uart, rc_in, rc_out, rc_wake_tx, rc_wake_rx) = {
+            let config = serial::Config::default()
+                .baudrate(autopilot::rc::SBUS_BAUD.bps())
+                .wordlength_9()
+                .parity_even()
+                .stopbits(serial::config::StopBits::STOP2);
+            let mut rx: Rx<pac::USART3> = cx
+                .device
+                .USART3
+                .rx(gpiob.pb11, config, &mut rcc)
+                .unwrap_or_else(|_| log::fatal("USART3 configuration"));
+            rx.listen();
+            let (rc_in, rc_out) = cx.local.rc_q.split();
+            let (tx, rx_wake) = rtic_sync::make_channel!((), 1);
+            (rx, rc_in, rc_out, tx, rx_wake)
+        };
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        let _ = cx.local.rc_q;
         let (_, (c1, c2, c3, c4)) = cx.device.TIM3.pwm_hz(PWM_HZ.Hz(), &mut rcc);
         let motors = Motors::new((
             // PB4 leaves its reset function (JTAG NJTRST) first.
@@ -219,7 +269,7 @@ mod app {
         ));
 
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let (imu, imu_timer) = {
+        let (imu, imu_timer, imu_int) = {
             use stm32f4xx_hal::spi::{Mode, Phase, Polarity};
             let mode = Mode {
                 polarity: Polarity::IdleHigh,
@@ -245,8 +295,20 @@ mod app {
                 .start(board::IMU_RATE_HZ.Hz())
                 .unwrap_or_else(|_| log::fatal("TIM2 start"));
             timer.listen(stm32f4xx_hal::timer::Event::Update);
-            (imu, timer)
+            // Data ready: MPU-6000 INT on PC4, rising edge, EXTI4.
+            let mut syscfg = cx.device.SYSCFG.constrain(&mut rcc);
+            let mut exti = cx.device.EXTI;
+            let mut int = gpioc.pc4.into_pull_down_input();
+            {
+                use stm32f4xx_hal::gpio::{Edge, ExtiPin as _};
+                int.make_interrupt_source(&mut syscfg);
+                int.trigger_on_edge(&mut exti, Edge::Rising);
+                int.enable_interrupt(&mut exti);
+            }
+            (Some(imu), timer, int)
         };
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        let imu: Option<super::ImuDevice> = None;
 
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
         let (guidance_tick, gyro_tick, telemetry_tick, releases) = (
@@ -283,6 +345,8 @@ mod app {
         gyro_tx::spawn().ok();
         telemetry::spawn().ok();
         heartbeat::spawn().ok();
+        #[cfg(not(any(feature = "qemu", feature = "hil")))]
+        rc_rx::spawn().ok();
 
         (
             Shared {
@@ -293,6 +357,7 @@ mod app {
                 motors,
                 link_in,
                 link_wake_tx,
+                imu,
             },
             Local {
                 led,
@@ -312,7 +377,17 @@ mod app {
                 world: autopilot::lockstep::WorldClock::new(),
                 releases,
                 #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                imu,
+                rc_uart,
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                rc_in,
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                rc_out,
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                rc_wake_tx,
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                rc_wake_rx,
+                #[cfg(not(any(feature = "qemu", feature = "hil")))]
+                imu_int,
                 #[cfg(not(any(feature = "qemu", feature = "hil")))]
                 imu_timer,
             },
@@ -385,16 +460,98 @@ mod app {
         drain_uart(cx.local.host_rx, cx.local.host_in, cx.local.host_wake_tx);
     }
 
-    /// 512 Hz timer (real flavour): reads the MPU-6000 and hands the sample to `imu_indi`.
+    /// USART3 (SBUS receiver) receive interrupt (real flavour).
     #[cfg(not(any(feature = "qemu", feature = "hil")))]
-    #[task(binds = TIM2, priority = 6, local = [imu, imu_timer])]
-    fn imu_timer(cx: imu_timer::Context) {
+    #[task(binds = USART3, priority = 6, local = [rc_uart, rc_in, rc_wake_tx])]
+    fn usart3(cx: usart3::Context) {
+        drain_uart(cx.local.rc_uart, cx.local.rc_in, cx.local.rc_wake_tx);
+    }
+
+    /// RC (real flavour): SBUS frames to pilot commands; also wakes every 20 ms so that a
+    /// receiver gone silent kills the motors (see [`autopilot::rc`]).
+    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    #[task(priority = 4, shared = [ap], local = [
+        rc_out,
+        rc_wake_rx,
+        sbus: autopilot::rc::SbusDecoder = autopilot::rc::SbusDecoder::new(),
+        rc: autopilot::rc::RcCommands = autopilot::rc::RcCommands::new(autopilot::rc::RcConfig::DEFAULT),
+    ])]
+    async fn rc_rx(mut cx: rc_rx::Context) {
+        loop {
+            let _ = Mono::timeout_after(Duration::from_ticks(20), cx.local.rc_wake_rx.recv()).await;
+            let mut buf = [0u8; 32];
+            loop {
+                let n = take(cx.local.rc_out, &mut buf);
+                if n == 0 {
+                    break;
+                }
+                let now = clock::now_us();
+                let mut cmds = heapless::Vec::<protocol::PilotCommand, 4>::new();
+                let rc = &mut *cx.local.rc;
+                cx.local
+                    .sbus
+                    .feed(buf.get(..n).unwrap_or(&[]), now, |frame| {
+                        if let Some(c) = rc.on_frame(&frame, now) {
+                            // A kill must not be lost to a full list: it replaces the last.
+                            if cmds.push(c).is_err() && c == protocol::PilotCommand::Kill {
+                                if let Some(last) = cmds.last_mut() {
+                                    *last = c;
+                                }
+                            }
+                        }
+                    });
+                for c in cmds {
+                    cx.shared.ap.lock(|ap| ap.on_command(c, now));
+                }
+            }
+            let now = clock::now_us();
+            if let Some(c) = cx.local.rc.poll(now) {
+                cx.shared.ap.lock(|ap| ap.on_command(c, now));
+            }
+        }
+    }
+
+    /// MPU-6000 data ready (real flavour, 500 Hz): reads the sample and hands it to
+    /// `imu_indi`.
+    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    #[task(binds = EXTI4, priority = 6, shared = [imu], local = [imu_int])]
+    fn imu_drdy(mut cx: imu_drdy::Context) {
+        use stm32f4xx_hal::gpio::ExtiPin as _;
+        cx.local.imu_int.clear_interrupt_pending_bit();
+        let now = clock::now_us();
+        super::LAST_DRDY_US.store(now as u32, core::sync::atomic::Ordering::Relaxed);
+        if let Some(Ok(sample)) = cx
+            .shared
+            .imu
+            .lock(|imu| imu.as_mut().map(|imu| imu.read(now as u32)))
+        {
+            // Still busy with the previous sample: skip this one.
+            let _ = imu_indi::spawn((sample, now));
+        }
+    }
+
+    /// 512 Hz timer (real flavour): the fallback when the data-ready interrupt stops (a broken
+    /// INT wire, a sensor reset that lost its interrupt set-up). While data-ready pulses come it
+    /// does nothing; after `board::IMU_DRDY_TIMEOUT_US` without one it reads the IMU itself
+    /// (counted in the status line's `imu_fallback`). If the IMU itself stops answering, the
+    /// library's IMU-stale failsafe turns the motors off.
+    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    #[task(binds = TIM2, priority = 6, shared = [imu], local = [imu_timer])]
+    fn imu_timer(mut cx: imu_timer::Context) {
         cx.local
             .imu_timer
             .clear_flags(stm32f4xx_hal::timer::Flag::Update);
         let now = clock::now_us();
-        if let Ok(sample) = cx.local.imu.read(now as u32) {
-            // Still busy with the previous sample: skip this one.
+        let last = super::LAST_DRDY_US.load(core::sync::atomic::Ordering::Relaxed);
+        if (now as u32).wrapping_sub(last) <= board::IMU_DRDY_TIMEOUT_US {
+            return;
+        }
+        super::IMU_FALLBACK_READS.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
+        if let Some(Ok(sample)) = cx
+            .shared
+            .imu
+            .lock(|imu| imu.as_mut().map(|imu| imu.read(now as u32)))
+        {
             let _ = imu_indi::spawn((sample, now));
         }
     }
@@ -553,12 +710,13 @@ mod app {
                 )
             });
             log::info!(
-                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={}",
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={} imu_fallback={}",
                 uptime_ms,
                 msgs,
                 errors,
                 estimates,
-                peer.unwrap_or(u32::MAX)
+                peer.unwrap_or(u32::MAX),
+                super::IMU_FALLBACK_READS.load(core::sync::atomic::Ordering::Relaxed)
             );
             Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD_US))).await;
         }
