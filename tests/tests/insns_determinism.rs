@@ -29,15 +29,20 @@ fn instruction_counts_are_deterministic_and_complete() {
         "edge_histograms",
         "stereo_match",
         "flow_match",
+        "stereo_row",
+        "flow_row",
         "line_fit",
+        "line_fit_paper",
         "indi_step",
         "guidance_fsm_step",
         "estimate_encode",
         "estimate_decode",
+        "gyro_decode",
+        "camera_board_frame",
     ] {
         let count: u64 = stdout
             .lines()
-            .find_map(|l| l.strip_prefix(name)?.trim().parse().ok())
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
             .unwrap_or_else(|| panic!("no count for {name}"));
         assert!(count > 0, "{name} measured as 0 instructions");
     }

@@ -36,7 +36,20 @@ const REPORT_ORDER: &[&str] = &[
     "guidance_fsm_step",
     "estimate_encode",
     "estimate_decode",
+    "gyro_decode",
 ];
+
+/// Gyro/attitude messages (128 Hz) that can arrive within one 30 Hz frame period.
+const GYRO_PER_FRAME: u64 = 5;
+/// Core clock of the STM32F405, Hz.
+const CPU_HZ: f64 = 168e6;
+/// Frame rate of the per-frame budget, Hz.
+const FRAME_HZ: f64 = 30.0;
+/// Share of a frame period the camera board's per-frame work may use.
+const BUDGET_FRACTION: f64 = 0.25;
+/// Conservative cycles per instruction for this integer/FPU code on the M4 with the ART
+/// accelerator (see docs/performance.md).
+const CYCLES_PER_INSN: f64 = 1.5;
 
 /// Runs `cargo xtask insns`.
 pub fn run(args: &[String]) -> Result<()> {
@@ -80,6 +93,7 @@ pub fn run(args: &[String]) -> Result<()> {
     }
     let samples = first.context("no run")?;
     let skip = frames / 2;
+    let mut counts = BTreeMap::new();
     for name in REPORT_ORDER {
         let values = samples
             .get(*name)
@@ -89,8 +103,23 @@ pub fn run(args: &[String]) -> Result<()> {
         } else {
             &values[..]
         };
-        println!("{name} {}", median(values).context("no samples")?);
+        let count = median(values).context("no samples")?;
+        println!("{name} {count}");
+        counts.insert(*name, count);
     }
+    // The camera board's work per frame: one default Edge-FS frame, one estimate encoded and
+    // the gyro messages of one 30 Hz frame period (128 Hz: at most five) decoded.
+    let per_frame = counts["edge_fs_frame_default"]
+        + counts["estimate_encode"]
+        + GYRO_PER_FRAME * counts["gyro_decode"];
+    println!("camera_board_frame {per_frame}");
+    let budget = BUDGET_FRACTION * CPU_HZ / FRAME_HZ;
+    println!(
+        "budget: camera_board_frame x {CYCLES_PER_INSN} cycles/insn = {:.0} cycles = {:.1} % of \
+         the {budget:.0}-cycle budget (25 % of a 30 Hz frame at 168 MHz)",
+        per_frame as f64 * CYCLES_PER_INSN,
+        100.0 * per_frame as f64 * CYCLES_PER_INSN / budget
+    );
     if runs > 1 {
         println!("deterministic: {runs} runs gave identical counts");
     }

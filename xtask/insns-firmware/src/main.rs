@@ -231,8 +231,16 @@ mod bench {
             decoder.feed(&wire[..n], |_| got += 1);
             got
         });
-        // Keep the other direction's decoder in the image too (the camera board's RX path).
-        let _ = black_box(AutopilotToStereoDecoder::new());
+        // The camera board's RX path: one gyro/attitude message (128 Hz, so about four per
+        // 30 Hz frame) decoded by the streaming decoder.
+        let msg = protocol::AutopilotToStereo::GyroAttitude(gyro(5));
+        let n = protocol::encode(&msg, &mut wire).unwrap_or(0);
+        let mut decoder = AutopilotToStereoDecoder::new();
+        measure("gyro_decode", || {
+            let mut got = 0u32;
+            decoder.feed(&wire[..n], |_| got += 1);
+            got
+        });
 
         hprintln!("done");
         debug::exit(debug::EXIT_SUCCESS);
