@@ -112,7 +112,7 @@ mod serial {
     use anyhow::{bail, Context as _};
     use std::fs::{File, OpenOptions};
 
-    /// Opens `path` raw 8N1 at `baud` (no flow control, blocking reads with a 100 ms timeout).
+    /// Opens `path` raw 8N1 at `baud` (no flow control, blocking reads).
     #[cfg(unix)]
     pub fn open(path: &str, baud: u32) -> anyhow::Result<File> {
         use std::os::fd::AsRawFd;
@@ -144,8 +144,9 @@ mod serial {
             libc::cfmakeraw(&mut tio);
             tio.c_cflag |= libc::CLOCAL | libc::CREAD;
             tio.c_cflag &= !(libc::CSTOPB | libc::PARENB | libc::CRTSCTS);
-            tio.c_cc[libc::VMIN] = 0;
-            tio.c_cc[libc::VTIME] = 1;
+            // Blocking reads of at least one byte (a read of 0 bytes means the end, as on TCP).
+            tio.c_cc[libc::VMIN] = 1;
+            tio.c_cc[libc::VTIME] = 0;
             if libc::cfsetispeed(&mut tio, speed) != 0
                 || libc::cfsetospeed(&mut tio, speed) != 0
                 || libc::tcsetattr(fd, libc::TCSANOW, &tio) != 0
@@ -386,21 +387,19 @@ fn add_errors(a: LinkErrorCounts, b: LinkErrorCounts) -> LinkErrorCounts {
     }
 }
 
-/// Copies `from` to `to` on a thread, showing every chunk to `tap` first.
-fn pump(
+/// Reads `from` on a thread until it ends, fails, `stop` is set, or `on_chunk` returns false.
+fn read_chunks(
     mut from: Box<dyn Link>,
-    mut to: Box<dyn Link>,
-    mut tap: impl FnMut(&[u8]) + Send + 'static,
+    stop: Arc<AtomicBool>,
+    mut on_chunk: impl FnMut(&[u8]) -> bool + Send + 'static,
 ) {
     std::thread::spawn(move || {
         let mut buf = [0u8; 1024];
-        loop {
+        while !stop.load(Ordering::Relaxed) {
             match from.read(&mut buf) {
                 Ok(0) => break,
                 Ok(n) => {
-                    let bytes = buf.get(..n).unwrap_or(&[]);
-                    tap(bytes);
-                    if to.write_all(bytes).is_err() {
+                    if !on_chunk(buf.get(..n).unwrap_or(&[])) {
                         break;
                     }
                 }
@@ -417,6 +416,14 @@ fn pump(
     });
 }
 
+/// Copies `from` to `to` on a thread, showing every chunk to `tap` first.
+fn pump(from: Box<dyn Link>, mut to: Box<dyn Link>, mut tap: impl FnMut(&[u8]) + Send + 'static) {
+    read_chunks(from, Arc::new(AtomicBool::new(false)), move |bytes| {
+        tap(bytes);
+        to.write_all(bytes).is_ok()
+    });
+}
+
 /// A reader thread decoding `BoardToHost` messages from a board into a channel.
 struct BoardRx {
     rx: Receiver<BoardToHost>,
@@ -424,36 +431,16 @@ struct BoardRx {
 }
 
 impl BoardRx {
-    fn start(mut link: Box<dyn Link>, stop: Arc<AtomicBool>) -> Self {
+    fn start(link: Box<dyn Link>, stop: Arc<AtomicBool>) -> Self {
         let (tx, rx) = mpsc::channel();
         let errors = Arc::new(Mutex::new(LinkErrorCounts::default()));
         let errs = Arc::clone(&errors);
-        std::thread::spawn(move || {
-            let mut dec = BoardToHostDecoder::new();
-            let mut buf = [0u8; 1024];
-            while !stop.load(Ordering::Relaxed) {
-                match link.read(&mut buf) {
-                    Ok(0) => break,
-                    Ok(n) => {
-                        let mut closed = false;
-                        dec.feed(buf.get(..n).unwrap_or(&[]), |m| {
-                            closed |= tx.send(m).is_err();
-                        });
-                        *errs.lock().unwrap_or_else(|e| e.into_inner()) = dec.errors();
-                        if closed {
-                            break;
-                        }
-                    }
-                    Err(e)
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::WouldBlock
-                                | std::io::ErrorKind::TimedOut
-                                | std::io::ErrorKind::Interrupted
-                        ) => {}
-                    Err(_) => break,
-                }
-            }
+        let mut dec = BoardToHostDecoder::new();
+        read_chunks(link, stop, move |bytes| {
+            let mut open = true;
+            dec.feed(bytes, |m| open &= tx.send(m).is_ok());
+            *errs.lock().unwrap_or_else(|e| e.into_inner()) = dec.errors();
+            open
         });
         Self { rx, errors }
     }
@@ -907,4 +894,186 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         println!("log               {}", dir.join("hil_log.csv").display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    //! The host side of the lockstep against two software boards on loopback TCP that run the
+    //! boards' own libraries the way the lockstep firmwares do (world clock from the IMU
+    //! timestamps, `autopilot::lockstep::WorldTimers` releasing the periodic tasks, Edge-FS
+    //! at the frames' exposure times). Fast, no QEMU: `tests/tests/hil_hover.rs` runs the
+    //! real firmwares.
+    use super::*;
+    use autopilot::app::{Autopilot, AutopilotConfig};
+    use autopilot::lockstep::{WorldClock, WorldTimers};
+    use protocol::{Heartbeat, HostToBoardDecoder, MotorCommand, Node};
+    use std::net::{TcpListener, TcpStream};
+    use stereo_board::app::{send_to_host, FrameAssembler, StereoBoardApp};
+    use stereo_board::edge_fs::EdgeFsParams;
+
+    type Wire = Arc<Mutex<Vec<u8>>>;
+
+    fn send_host(stream: &mut TcpStream, msg: &BoardToHost) {
+        let mut out = Vec::new();
+        send_to_host(msg, &mut |b| out.extend_from_slice(b));
+        let _ = stream.write_all(&out);
+    }
+
+    fn take(wire: &Wire) -> Vec<u8> {
+        std::mem::take(&mut *wire.lock().unwrap())
+    }
+
+    /// The autopilot firmware's lockstep flavour, in software.
+    fn autopilot_board(mut s: TcpStream, to_camera: Wire, from_camera: Wire) {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let (mut clock, mut timers) = (WorldClock::new(), WorldTimers::new());
+        let mut dec = HostToBoardDecoder::new();
+        send_host(
+            &mut s,
+            &BoardToHost::Heartbeat(Heartbeat::new(Node::Autopilot, 0)),
+        );
+        let mut buf = [0u8; 512];
+        while let Ok(n) = s.read(&mut buf) {
+            if n == 0 {
+                return;
+            }
+            let mut msgs = Vec::new();
+            dec.feed(&buf[..n], |m| msgs.push(m));
+            for m in msgs {
+                let now = clock.now_us();
+                match m {
+                    HostToBoard::Imu(imu) => {
+                        let now = clock.observe(imu.timestamp_us);
+                        ap.on_stereo_bytes(&take(&from_camera), now);
+                        let throttle = ap.on_imu(&imu, now);
+                        let reply = MotorCommand {
+                            timestamp_us: now as u32,
+                            throttle,
+                        };
+                        send_host(&mut s, &BoardToHost::Motors(reply));
+                        let due = timers.due(now);
+                        if due.guidance {
+                            ap.guidance_step(now);
+                        }
+                        if due.gyro_tx {
+                            let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(now));
+                            let mut w = to_camera.lock().unwrap();
+                            crate::sim::boards::send(&msg, &mut |b| w.extend_from_slice(b));
+                        }
+                        if due.telemetry {
+                            send_host(&mut s, &BoardToHost::Telemetry(ap.telemetry(now)));
+                        }
+                    }
+                    HostToBoard::ExternalPosition(p) => ap.on_external_position(&p, now),
+                    HostToBoard::Command(c) => ap.on_command(c, now),
+                    _ => {}
+                }
+            }
+        }
+    }
+
+    /// The camera board firmware's lockstep flavour, in software.
+    fn camera_board(mut s: TcpStream, to_autopilot: Wire, from_autopilot: Wire) {
+        let mut cb = Box::new(StereoBoardApp::new(EdgeFsParams::default_config()));
+        let mut frames = Box::new(FrameAssembler::new());
+        send_host(
+            &mut s,
+            &BoardToHost::Heartbeat(Heartbeat::new(Node::StereoBoard, 0)),
+        );
+        let mut world = 0u64;
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = s.read(&mut buf) {
+            if n == 0 {
+                return;
+            }
+            let mut ready = None;
+            cb.on_host_bytes(&buf[..n], &mut frames, |_, t| ready = Some(t));
+            if let Some(capture) = ready {
+                world = world.max(capture);
+                let mut w = to_autopilot.lock().unwrap();
+                cb.on_rx_bytes(&take(&from_autopilot), world, &mut |b| {
+                    w.extend_from_slice(b)
+                });
+                let out = cb.process_frame(frames.frame(), capture, world);
+                let est = cb.send_estimate(&out, capture, world, &mut |b| w.extend_from_slice(b));
+                drop(w);
+                send_host(&mut s, &BoardToHost::Estimate(est));
+            }
+        }
+    }
+
+    fn pair() -> (TcpStream, TcpStream) {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        let c = TcpStream::connect(l.local_addr().unwrap()).unwrap();
+        let (s, _) = l.accept().unwrap();
+        c.set_nodelay(true).unwrap();
+        s.set_nodelay(true).unwrap();
+        (c, s)
+    }
+
+    #[test]
+    fn lockstep_flies_software_boards_off_the_floor() {
+        let (a2s, s2a): (Wire, Wire) = Default::default();
+        let (ap_host, ap_board) = pair();
+        let (cam_host, cam_board) = pair();
+        {
+            let (a, b) = (Arc::clone(&a2s), Arc::clone(&s2a));
+            std::thread::spawn(move || autopilot_board(ap_board, a, b));
+        }
+        {
+            let (a, b) = (Arc::clone(&s2a), Arc::clone(&a2s));
+            std::thread::spawn(move || camera_board(cam_board, a, b));
+        }
+        let cfg = HilConfig {
+            duration_s: 3.0,
+            fps: 10.0,
+            ..HilConfig::default()
+        };
+        let r = run(
+            &cfg,
+            Box::new(cam_host),
+            Box::new(ap_host),
+            None,
+            &mut |_| {},
+        )
+        .unwrap();
+        let s = r.summary();
+        assert_eq!(r.imu_samples, 3 * 512, "{s}");
+        assert_eq!(r.motor_replies, r.imu_samples, "{s}");
+        assert_eq!(r.reply_timeouts + r.frame_timeouts, 0, "{s}");
+        assert_eq!(r.frames_sent, 29, "{s}");
+        assert!(r.estimates + 1 >= r.frames_sent, "{s}");
+        assert!(r.valid_estimates >= 10, "{s}");
+        assert_eq!(r.total_link_errors(), 0, "{s}");
+        assert!(r.max_height_m > 0.7 && r.max_height_m < 1.4, "{s}");
+        assert_eq!(r.collisions, 0, "{s}");
+        assert!(r.max_drift_m < 0.5, "{s}");
+        assert!(r.last_telemetry.is_some(), "{s}");
+    }
+
+    #[test]
+    fn frame_chunks_reassemble_on_the_board() {
+        let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+        for (i, b) in frame.iter_mut().enumerate() {
+            *b = (i * 7 % 251) as u8;
+        }
+        let bytes = encode_frame(&frame, 3, 123_456).unwrap();
+        let mut cb = Box::new(StereoBoardApp::new(EdgeFsParams::default_config()));
+        let mut asm = Box::new(FrameAssembler::new());
+        let mut got = None;
+        cb.on_host_bytes(&bytes, &mut asm, |f, t| got = Some((f == &*frame, t)));
+        assert_eq!(got, Some((true, 123_456)));
+    }
+
+    #[test]
+    fn addresses_parse() {
+        assert!(
+            open_link("tcp:127.0.0.1:1", 921_600).is_err(),
+            "nothing listens"
+        );
+        let e = open_link("/dev/null", 921_600).err().unwrap().to_string();
+        assert!(e.contains("not a serial device"), "{e}");
+        let e = open_link("/dev/null", 123).err().unwrap().to_string();
+        assert!(e.contains("unsupported baud"), "{e}");
+    }
 }
