@@ -191,10 +191,13 @@ mod bench {
             if k == 512 {
                 ap.on_command(protocol::PilotCommand::Arm, t);
             }
+            // Tilted as in forward flight (roll 0.08 rad, pitch -0.06 rad: the specific force
+            // of that attitude), so that the trigonometry runs its general path, not the
+            // small-angle shortcuts a level attitude would take.
             let imu = ImuSample {
                 timestamp_us: t as u32,
                 gyro_radps: [0.01, 0.0, -0.01],
-                accel_mps2: [0.0, 0.0, -9.81],
+                accel_mps2: [-0.5883, -0.7818, -9.7610],
             };
             if k % 10 == 0 {
                 ap.on_estimate(&estimate(k as u16, t), t);
