@@ -15,41 +15,16 @@
 //! second.
 
 use stm32f4xx_hal::rcc::Config;
-use stm32f4xx_hal::time::Hertz;
 
-/// Baud rate of the board-to-board link and of the host link.
-pub const LINK_BAUD: u32 = 921_600;
+pub use board_support::clocks::{LINK_BAUD, SYSTICK_HZ, WATCHDOG_MS};
 
-/// Crystal of the autopilot, Hz (12 MHz on the Lisa/MX).
-#[cfg(not(feature = "qemu"))]
+/// Crystal of the autopilot (12 MHz on the Lisa/MX), Hz.
 pub const HSE_HZ: u32 = 12_000_000;
 
-/// Core clock, Hz: 168 MHz from the PLL on hardware; the 16 MHz HSI in QEMU (QEMU 7.2 has no
-/// RCC model, so the HSE and PLL ready bits never come up).
-#[cfg(not(feature = "qemu"))]
-pub const SYSCLK_HZ: u32 = 168_000_000;
-/// Core clock, Hz (see the hardware flavour).
-#[cfg(feature = "qemu")]
-pub const SYSCLK_HZ: u32 = 16_000_000;
-
-/// Clock of the SysTick (the RTIC monotonic), Hz: the core clock on hardware. QEMU 7.2 drives
-/// the emulated SysTick from a fixed 168 MHz whatever the RCC says.
-pub const SYSTICK_HZ: u32 = 168_000_000;
-
-/// Clock configuration of this flavour.
+/// Clock configuration of this flavour (HSE + PLL to 168 MHz; the HSI in QEMU).
 pub fn clocks() -> Config {
-    #[cfg(not(feature = "qemu"))]
-    {
-        Config::hse(Hertz::from_raw(HSE_HZ)).sysclk(Hertz::from_raw(SYSCLK_HZ))
-    }
-    #[cfg(feature = "qemu")]
-    {
-        Config::hsi().sysclk(Hertz::from_raw(SYSCLK_HZ))
-    }
+    board_support::clocks::config(HSE_HZ)
 }
-
-/// Independent-watchdog timeout, ms (the 1 Hz heartbeat task feeds it).
-pub const WATCHDOG_MS: u32 = 2_000;
 
 /// Rate of the TIM2 fallback timer, Hz (real flavour): it reads the IMU itself only while the
 /// MPU-6000's data-ready interrupt (500 Hz) is missing. In HIL and QEMU the host's IMU samples

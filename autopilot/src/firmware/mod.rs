@@ -38,11 +38,11 @@ mod clock;
 // Only the real flavour reads the IMU; the type is named in the RTIC resources of every flavour.
 #[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
 mod imu;
-mod log;
+use board_support::log;
 mod motors;
 mod tick;
 #[cfg(not(feature = "qemu"))]
-mod uart_dma;
+use board_support::uart_dma;
 
 use autopilot::app::Autopilot;
 use core::mem::MaybeUninit;

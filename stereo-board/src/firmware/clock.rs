@@ -1,27 +1,13 @@
-//! The board's microsecond clock: the RTIC SysTick monotonic (1 kHz ticks) refined with the
-//! SysTick down-counter, so timestamps have core-clock resolution without another timer
-//! (QEMU emulates SysTick faithfully, unlike the DWT cycle counter).
+//! The board's clocks: its microsecond clock (the RTIC SysTick monotonic refined with the
+//! SysTick down-counter, shared with the other board in `board_support::clock`) and the time
+//! the library sees.
 
 use super::{board, Mono};
-use cortex_m::peripheral::{SCB, SYST};
 use rtic_monotonics::Timebase as _;
 
-/// Microseconds since boot (wraps after 49 days with the 32-bit millisecond tick).
+/// Microseconds since boot (see [`board_support::clock::now_us`]).
 pub fn now_us() -> u64 {
-    let ticks_per_ms = board::SYSTICK_HZ / 1_000;
-    loop {
-        let ms = Mono::now().as_ticks();
-        let val = SYST::get_current();
-        // A SysTick wrap whose interrupt has not run yet (we may be above its priority).
-        let pending = SCB::is_pendst_pending();
-        if Mono::now().as_ticks() != ms {
-            continue;
-        }
-        let into_tick = (ticks_per_ms - 1).saturating_sub(val);
-        let sub_us = u64::from(into_tick) * 1_000 / u64::from(ticks_per_ms);
-        let ms = u64::from(ms) + u64::from(pending && val > ticks_per_ms / 2);
-        return ms * 1_000 + sub_us;
-    }
+    board_support::clock::now_us(|| Mono::now().as_ticks(), board::SYSTICK_HZ)
 }
 
 /// World time of the lockstep flavours, µs, and the extender of the autopilot's `u32` gyro

@@ -31,11 +31,11 @@ mod board;
 mod clock;
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
 mod dcmi;
-mod log;
+use board_support::log;
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
 mod sensor;
 #[cfg(not(feature = "qemu"))]
-mod uart_dma;
+use board_support::uart_dma;
 
 use core::mem::MaybeUninit;
 use defmt_rtt as _;

@@ -4,15 +4,19 @@
 
 /// Logs an info line (defmt over RTT; semihosting too in the `qemu` flavour).
 ///
-/// The arguments must be valid for both `defmt` and `core::fmt` (plain `{}` placeholders).
-macro_rules! info {
+/// The arguments must be valid for both `defmt` and `core::fmt` (plain `{}` placeholders). The
+/// `qemu` check is made in the calling crate (each firmware has a `qemu` feature that enables
+/// this crate's), which must depend on `defmt` and `cortex-m-semihosting`.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! __board_support_info {
     ($($arg:tt)*) => {{
         defmt::info!($($arg)*);
         #[cfg(feature = "qemu")]
         cortex_m_semihosting::hprintln!($($arg)*);
     }};
 }
-pub(crate) use info;
+pub use crate::__board_support_info as info;
 
 /// Stops the firmware after an unrecoverable set-up error (never called on bad input).
 pub fn fatal(what: &str) -> ! {
@@ -40,7 +44,6 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 
 /// Ends a QEMU run successfully (semihosting exit 0).
 #[cfg(feature = "qemu")]
-#[allow(dead_code)]
 pub fn exit_success() -> ! {
     cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
     loop {

@@ -24,7 +24,8 @@ static READ: AtomicUsize = AtomicUsize::new(0);
 /// IDLE interrupt.
 pub fn start() {
     // SAFETY: stream 2 of DMA2 and USART1's CR1/CR3 DMA and IDLE bits are only touched here
-    // and in `on_interrupt`; no other driver uses DMA2 on the autopilot.
+    // and in `on_interrupt`; other DMA2 streams belong to other drivers (the camera board's DCMI
+    // uses stream 1).
     let dma = unsafe { &*pac::DMA2::ptr() };
     let usart = unsafe { &*pac::USART1::ptr() };
     let rcc = unsafe { &*pac::RCC::ptr() };

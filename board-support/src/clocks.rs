@@ -1,0 +1,35 @@
+//! Clock tree and link constants of both boards, per flavour.
+
+use stm32f4xx_hal::rcc::Config;
+use stm32f4xx_hal::time::Hertz;
+
+/// Baud rate of the board-to-board link and of the host link.
+pub const LINK_BAUD: u32 = 921_600;
+
+/// Core clock, Hz: 168 MHz from the PLL on hardware; the 16 MHz HSI in QEMU (QEMU 7.2 has no
+/// RCC model, so the HSE and PLL ready bits never come up).
+#[cfg(not(feature = "qemu"))]
+pub const SYSCLK_HZ: u32 = 168_000_000;
+/// Core clock, Hz (see the hardware flavour).
+#[cfg(feature = "qemu")]
+pub const SYSCLK_HZ: u32 = 16_000_000;
+
+/// Clock of the SysTick (the RTIC monotonic), Hz: the core clock on hardware. QEMU 7.2 drives
+/// the emulated SysTick from a fixed 168 MHz whatever the RCC says.
+pub const SYSTICK_HZ: u32 = 168_000_000;
+
+/// Independent-watchdog timeout, ms (each board's 1 Hz task feeds it).
+pub const WATCHDOG_MS: u32 = 2_000;
+
+/// Clock configuration of this flavour for a board with an `hse_hz` crystal (unused in QEMU).
+pub fn config(hse_hz: u32) -> Config {
+    #[cfg(not(feature = "qemu"))]
+    {
+        Config::hse(Hertz::from_raw(hse_hz)).sysclk(Hertz::from_raw(SYSCLK_HZ))
+    }
+    #[cfg(feature = "qemu")]
+    {
+        let _ = hse_hz;
+        Config::hsi().sysclk(Hertz::from_raw(SYSCLK_HZ))
+    }
+}

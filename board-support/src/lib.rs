@@ -1,0 +1,24 @@
+//! The firmware shell pieces the camera board and the autopilot share (both STM32F405-class,
+//! same clock tree, same board-to-board USART1 on DMA2 stream 2, same QEMU flavour).
+//!
+//! * [`clocks`]: clock tree and link constants per flavour (MCU only).
+//! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
+//! * [`uart_dma`]: USART1 receive by circular DMA with the IDLE-line interrupt (MCU only).
+//! * [`log`]: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
+//!   handler (MCU only).
+//! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
+//!
+//! Each board keeps what is its own: pin map, crystal, drivers, the RTIC app.
+#![cfg_attr(target_os = "none", no_std)]
+#![warn(missing_docs)]
+
+#[cfg(not(target_os = "none"))]
+pub mod build;
+#[cfg(target_os = "none")]
+pub mod clock;
+#[cfg(target_os = "none")]
+pub mod clocks;
+#[cfg(target_os = "none")]
+pub mod log;
+#[cfg(target_os = "none")]
+pub mod uart_dma;
