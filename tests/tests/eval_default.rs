@@ -1,23 +1,39 @@
 //! The `default` Edge-FS configuration's goal on the recorded takes, with the paper's protocol
-//! (`--alignment paper`): a lower MSE than both the paper's Edge-FS and its Farnebäck baseline
-//! on at least 80 % of the takes with published numbers, for both axes.
+//! (`--alignment paper`): the estimator exactly as the camera board emits it
+//! (`EdgeFsParams::default_config()`, no filter outside the estimator) has a lower MSE than
+//! both the paper's Edge-FS and its Farnebäck baseline on at least 10 of the 12 takes with
+//! published numbers, for the forward and for the sideways velocity.
 
 use integration_tests::shared_dataset_dir;
-use sim_host::eval::{dataset::discover_takes, evaluate_take, wins, Alignment, Config};
+use sim_host::eval::{
+    dataset::{discover_takes, stereo_shift},
+    evaluate_take, evaluate_take_with, params_for, wins, Alignment, Config,
+};
+use stereo_board::edge_fs::EdgeFsParams;
 
 #[test]
-fn default_config_beats_both_published_methods_on_80_percent_of_takes() {
+fn raw_board_output_beats_both_published_methods_on_10_of_12_takes() {
     let takes = discover_takes(&shared_dataset_dir()).expect("data set");
-    let results: Vec<_> = takes
-        .iter()
-        .map(|t| evaluate_take(t, Config::Default, Alignment::Paper, &|| {}).expect("evaluate"))
-        .collect();
+    let mut results = Vec::new();
+    for t in &takes {
+        // The evaluation runs the board's configuration untouched (only the calibration).
+        let p = params_for(Config::Default, t).expect("params");
+        let board = EdgeFsParams {
+            stereo_shift_px: stereo_shift(t).expect("calibration"),
+            ..EdgeFsParams::default_config()
+        };
+        assert_eq!(p, board);
+        let r = evaluate_take(t, Config::Default, Alignment::Paper, &|| {}).expect("evaluate");
+        // Same numbers when driven directly with the board's parameters.
+        let direct = evaluate_take_with(t, board, false, Alignment::Paper, &|| {}).unwrap();
+        assert_eq!(r.series.est_x, direct.series.est_x);
+        results.push(r);
+    }
     let w = wins(&results);
     assert_eq!(w.takes, 12);
-    let need = (w.takes * 4).div_ceil(5);
     assert!(
-        w.x_both >= need && w.y_both >= need,
-        "forward wins {}/{}, sideways wins {}/{} (need {need})",
+        w.x_both >= 10 && w.y_both >= 10,
+        "forward wins {}/{}, sideways wins {}/{} (need 10)",
         w.x_both,
         w.takes,
         w.y_both,

@@ -10,7 +10,10 @@
 //! yaw (converted to the body convention: `yaw_body = -yaw_optitrack`) as its attitude and the
 //! image times as capture times; its sideways output (positive right) is compared with the
 //! data set's lateral velocity, which is positive to the left, so it is negated here. Every
-//! estimate is scored as it is, flagged or not (the flags are kept in [`Series::flags`]).
+//! estimate is scored as it is, flagged or not (the flags are kept in [`Series::flags`]); the
+//! default configuration is scored on the board's raw output (its temporal filter is part of
+//! the estimator; no autopilot-side filter is applied here). The data set has no gyro rates,
+//! so the attitude carries the yaw only and the rates are zero.
 
 pub mod dataset;
 pub mod metrics;
@@ -34,8 +37,8 @@ pub use truth::Alignment;
 pub enum Config {
     /// The paper's configuration (reproduces the published numbers with `--alignment paper`).
     Paper,
-    /// Our best estimator ([`EdgeFsParams::default_config`]) followed by the autopilot's
-    /// median over the last 5 estimates.
+    /// Our best estimator exactly as the camera board emits it
+    /// ([`EdgeFsParams::default_config`], temporal filter included; no autopilot-side filter).
     Default,
 }
 
@@ -107,18 +110,14 @@ pub struct TakeResult {
     pub series: Series,
 }
 
-/// Edge-FS parameters for a take (the board's stereo shift from calibration_data.txt). The
-/// default configuration is scored after the autopilot's median-of-5 (the estimator's
-/// `output_median` = 5), as the controller consumes it.
+/// Edge-FS parameters for a take: the configuration as the board runs it, with the board's
+/// stereo shift from calibration_data.txt (the only per-board setting). The default
+/// configuration is scored on the estimator's raw output, exactly what the camera board sends
+/// (no filter the board does not run).
 pub fn params_for(config: Config, take: &Take) -> Result<EdgeFsParams> {
     let mut p = match config {
         Config::Paper => EdgeFsParams::paper(),
-        Config::Default => EdgeFsParams {
-            // The autopilot's median over the last 5 estimates (ARCHITECTURE.md, the paper's
-            // system): score the velocity the controller uses.
-            output_median: 5,
-            ..EdgeFsParams::default_config()
-        },
+        Config::Default => EdgeFsParams::default_config(),
     };
     p.stereo_shift_px = dataset::stereo_shift(take)?;
     Ok(p)

@@ -24,10 +24,36 @@ pub fn edge_histograms(
     left: &mut EdgeHistogram,
     right: &mut EdgeHistogram,
 ) {
+    histogram_pass::<false>(frame, left, right);
+}
+
+/// [`edge_histograms`] and [`mean_intensity`] in one pass over the frame (the mean costs one
+/// more `UXTAB16` per word the histogram pass loads anyway, instead of a second pass).
+/// Returns the mean intensity of the left image.
+// Not re-exported by `edge_fs` yet: `EdgeFs` switches to it in edge_fs/mod.rs (see
+// docs/performance.md).
+#[allow(dead_code)]
+pub fn edge_histograms_and_mean(
+    frame: &[u8; protocol::STEREO_FRAME_BYTES],
+    left: &mut EdgeHistogram,
+    right: &mut EdgeHistogram,
+) -> u8 {
+    let sum = histogram_pass::<true>(frame, left, right);
+    (sum / (IMG_W * IMG_H) as u32) as u8
+}
+
+/// The histogram pass; with `MEAN` it also returns the sum of the left image's pixels (else 0).
+#[inline(always)]
+fn histogram_pass<const MEAN: bool>(
+    frame: &[u8; protocol::STEREO_FRAME_BYTES],
+    left: &mut EdgeHistogram,
+    right: &mut EdgeHistogram,
+) -> u32 {
     const PAIRS: usize = IMG_W / 2 - 1;
     const ROW: usize = 2 * IMG_W;
     // acc[j] = (left cols 2j+1 | 2j+2 << 16, right cols 2j+1 | 2j+2 << 16).
     let mut acc = [(0u32, 0u32); PAIRS];
+    let mut sum = 0u32;
     // A row as its 64 little-endian words (fixed size: no bounds checks in the loop).
     fn words(r: &[u8]) -> Option<&[[u8; 4]; ROW / 4]> {
         r.as_chunks::<4>().0.try_into().ok()
@@ -41,11 +67,20 @@ pub fn edge_histograms(
             continue;
         };
         let w = |r: &[[u8; 4]; ROW / 4], j: usize| u32::from_le_bytes(r[j]);
-        let step = |(l, r): &mut (u32, u32), j: usize| {
+        // Left-pixel sum of words 1..=63 of the three rows in two 16-bit lanes (at most
+        // 3 * 63 * 255 per lane); word 0 is added with the border columns.
+        let mut m = 0u32;
+        let mut step = |(l, r): &mut (u32, u32), j: usize| {
             let g = |row: &[[u8; 4]; ROW / 4]| absdiff_u8x4(w(row, j + 1), w(row, j));
             let (ga, gb, gc) = (g(a), g(b), g(c));
             *l = add_bytes02(add_bytes02(add_bytes02(*l, ga), gb), gc);
             *r = add_bytes13(add_bytes13(add_bytes13(*r, ga), gb), gc);
+            if MEAN {
+                m = add_bytes02(
+                    add_bytes02(add_bytes02(m, w(a, j + 1)), w(b, j + 1)),
+                    w(c, j + 1),
+                );
+            }
         };
         // Two word columns per iteration (unrolled by hand: the compiler does not unroll
         // around `asm!`, and carrying the words in rotated registers costs moves otherwise).
@@ -57,6 +92,7 @@ pub fn edge_histograms(
         for x in rest.iter_mut() {
             step(x, PAIRS - 1);
         }
+        sum += (m & 0xFFFF) + (m >> 16);
     }
     // Border columns: |I(1) - 0| and |0 - I(126)|.
     let (mut first, mut last) = ([0u16; 2], [0u16; 2]);
@@ -70,6 +106,12 @@ pub fn edge_histograms(
             first[1] += u16::from(r1);
             last[0] += u16::from(l126);
             last[1] += u16::from(r126);
+        }
+        if MEAN {
+            // Left pixels 0 and 1 (bytes 0 and 2).
+            if let Some(&[l0, _, l1, _]) = row.first_chunk::<4>() {
+                sum += u32::from(l0) + u32::from(l1);
+            }
         }
     }
     left[0] = first[0];
@@ -85,6 +127,7 @@ pub fn edge_histograms(
         r[0] = ar as u16;
         r[1] = (ar >> 16) as u16;
     }
+    sum
 }
 
 /// Adds bytes 0 and 2 of `g` to the low and high 16-bit lanes of `acc` (lanes never carry:
@@ -247,17 +290,34 @@ mod tests {
             prop_assert_eq!(r, wr);
             let plain: u32 = frame.iter().step_by(2).map(|&p| u32::from(p)).sum();
             prop_assert_eq!(mean_intensity(&frame), (plain / (IMG_W * IMG_H) as u32) as u8);
+            let (mut l2, mut r2) = ([1; IMG_W], [1; IMG_W]);
+            prop_assert_eq!(edge_histograms_and_mean(&frame, &mut l2, &mut r2), mean_intensity(&frame));
+            prop_assert_eq!(l2, wl);
+            prop_assert_eq!(r2, wr);
         }
     }
 
     #[test]
     fn mean_of_saturated_and_dark_frames() {
         // All-255 fills every packed lane to its largest value (256 * 255): no carry.
-        assert_eq!(mean_intensity(&[255; STEREO_FRAME_BYTES]), 255);
-        assert_eq!(mean_intensity(&[0; STEREO_FRAME_BYTES]), 0);
+        let (mut l, mut r) = ([0; IMG_W], [0; IMG_W]);
+        let mut both = |f: &[u8; STEREO_FRAME_BYTES]| {
+            let m = mean_intensity(f);
+            assert_eq!(edge_histograms_and_mean(f, &mut l, &mut r), m);
+            m
+        };
+        assert_eq!(both(&[255; STEREO_FRAME_BYTES]), 255);
+        assert_eq!(both(&[0; STEREO_FRAME_BYTES]), 0);
         let mut f = [255u8; STEREO_FRAME_BYTES];
         f.iter_mut().skip(1).step_by(2).for_each(|p| *p = 0);
-        assert_eq!(mean_intensity(&f), 255, "right-image pixels must not count");
+        assert_eq!(both(&f), 255, "right-image pixels must not count");
+        // Only the first two left pixels of each row bright: the border word counts.
+        let mut f = [0u8; STEREO_FRAME_BYTES];
+        for row in f.chunks_exact_mut(2 * IMG_W) {
+            row[0] = 255;
+            row[2] = 255;
+        }
+        assert_eq!(both(&f), (2 * 255 / IMG_W) as u8);
     }
 
     #[test]

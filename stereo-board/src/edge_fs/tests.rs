@@ -144,6 +144,86 @@ fn yaw_rotation_is_removed_with_the_gyro_and_flagged_without() {
     assert!(out.flags.contains(EstimateFlags::HISTORY_FILLING));
 }
 
+/// Hovers in front of a wall at 1.5 m while yawing at `rate` rad/s (25 fps); the attitude
+/// sent with each frame is `latency_s` old (the board uses the latest sample, not one taken at
+/// the exposure). Returns the outputs after the history has filled.
+fn spin(rate: impl Fn(f32) -> f32, latency_s: f32, frames: u32) -> heapless::Vec<EdgeFsOutput, 64> {
+    let params = EdgeFsParams::default_config();
+    let mut fs = EdgeFs::new(params);
+    let f = params.focal_px();
+    let fps = 25.0;
+    let mut outs = heapless::Vec::new();
+    let (mut yaw, mut yaw_at) = (0.0f32, [0.0f32; 64]);
+    for i in 0..frames {
+        let t = i as f32 / fps;
+        if i > 0 {
+            yaw += 0.5 * (rate(t) + rate(t - 1.0 / fps)) / fps;
+        }
+        yaw_at[i as usize] = yaw;
+        let frame = render(1.5, 0.0, yaw * f, &params);
+        // Attitude and rate as of `latency_s` before the exposure (linear interpolation).
+        let back = latency_s * fps;
+        let k = i as f32 - back;
+        let (k0, fr) = (libm::floorf(k).max(0.0) as usize, k - libm::floorf(k));
+        let old = yaw_at[k0] * (1.0 - fr) + yaw_at[(k0 + 1).min(i as usize)] * fr;
+        let g = GyroAttitude {
+            timestamp_us: 0,
+            rates_radps: [0.0, 0.0, rate(t - latency_s)],
+            attitude_rad: [0.0, 0.0, old],
+        };
+        let out = fs.process(&frame, (t * 1e6) as u64, Some(&g));
+        if i >= 10 {
+            let _ = outs.push(out);
+        }
+    }
+    outs
+}
+
+#[test]
+fn fast_yaw_is_derotated_or_flagged_never_valid_and_absurd() {
+    // 1-2 rad/s (the simulator's avoidance turns) and far beyond: 8 rad/s is 41 px of
+    // rotation per frame, outside any search.
+    for rate in [1.0f32, 2.0, 3.0, 8.0] {
+        let outs = spin(|_| rate, 0.0, 40);
+        let mut valid = 0;
+        for o in &outs {
+            assert!(o.forward_mps.is_finite() && o.sideways_mps.is_finite());
+            if o.flags.is_valid() {
+                valid += 1;
+                assert!(
+                    o.forward_mps.abs() < 0.15 && o.sideways_mps.abs() < 0.15,
+                    "{rate} rad/s: valid but absurd {o:?}"
+                );
+            }
+        }
+        if rate <= 3.0 {
+            assert!(valid * 2 > outs.len(), "{rate} rad/s: only {valid} valid");
+        } else {
+            assert_eq!(
+                valid, 0,
+                "{rate} rad/s: rotation beyond the search must be flagged"
+            );
+        }
+    }
+}
+
+#[test]
+fn yaw_acceleration_with_a_stale_attitude_is_flagged() {
+    // The yaw rate swings between -2 and +2 rad/s (1.25 Hz) and the attitude is 20 ms old:
+    // the derotation is then off by up to 2 px; such frames are flagged, never passed valid
+    // with a large error.
+    let rate = |t: f32| 2.0 * libm::sinf(2.0 * core::f32::consts::PI * 1.25 * t);
+    let outs = spin(rate, 0.02, 60);
+    for o in &outs {
+        if o.flags.is_valid() {
+            assert!(
+                o.forward_mps.abs() < 0.15 && o.sideways_mps.abs() < 0.15,
+                "valid but absurd {o:?}"
+            );
+        }
+    }
+}
+
 #[test]
 fn blank_and_dark_frames_are_flagged_not_panicking() {
     let mut fs = EdgeFs::new(EdgeFsParams::default_config());
