@@ -2,16 +2,19 @@
 //! method of [`Autopilot`], and the task graph is the data in [`TASKS`].
 //!
 //! Data flow: IMU (512 Hz) -> attitude estimate -> INDI -> mixer -> motors;
-//! Edge-FS estimates -> median-5 -> velocity guidance (with the avoidance FSM and the wall force
-//! field making the setpoint) -> roll/pitch setpoints; external height -> height loop -> thrust;
+//! Edge-FS estimates -> plausibility gate -> median-5 -> velocity observer (predicting from the
+//! attitude in between; estimates taken under fast yaw are skipped) -> velocity guidance (with
+//! the avoidance FSM and the wall force field making the setpoint) -> roll/pitch setpoints; external height -> height loop -> thrust;
 //! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
 
-use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat};
+use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
 use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
 use crate::force_field::{backward_velocity, ForceFieldConfig};
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
-use crate::guidance::{GuidanceConfig, TiltSetpoint, VelocityGuidance};
+use crate::guidance::{
+    GuidanceConfig, ObserverConfig, TiltSetpoint, VelocityGuidance, VelocityObserver,
+};
 use crate::height::{tilt_compensate, HeightConfig, HeightController};
 use crate::indi::{Indi, IndiConfig};
 use crate::median::VelocityMedian;
@@ -172,10 +175,30 @@ pub struct AutopilotConfig {
     /// `max_velocity_jump_mps`) the gate restarts the median from the new value (the filter,
     /// not the estimates, lost track).
     pub max_consecutive_outliers: u8,
-    /// Guidance uses the filtered velocity only while the last accepted estimate is younger
-    /// than this, µs; older, it holds the trim attitude (a stale velocity must not keep
-    /// driving the tilt).
+    /// Guidance flies on the observer's velocity only while the last fused estimate is
+    /// younger than this, µs (in between the observer dead-reckons from the attitude, which
+    /// keeps braking through fast yaw and short link outages); older, it holds the trim
+    /// attitude.
     pub velocity_max_age_us: u64,
+    /// Velocity observer (prediction from the attitude, correction by the filtered Edge-FS
+    /// velocity).
+    pub observer: ObserverConfig,
+    /// Estimates are not used for the velocity while the gyro's yaw rate is above this, rad/s
+    /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
+    /// still count as valid for the failsafe (the camera board is alive).
+    pub max_yaw_rate_radps: f32,
+    /// ... nor until this long after the yaw rate was last above the limit, µs (covers the
+    /// exposure-to-arrival latency and the estimator's history).
+    pub yaw_settle_us: u64,
+    /// Ground gyro calibration: while disarmed and still, the mean gyro over this many IMU
+    /// samples becomes the gyro offset (every later sample is corrected by it). The
+    /// MPU-6000's zero-rate offset is ±0.5 deg/s-class even after factory trim; uncorrected,
+    /// the attitude filter's low accelerometer gain leaves a tilt error of `offset / kp`
+    /// (several degrees) that the velocity loop then flies as a trim.
+    pub gyro_calibration_samples: u16,
+    /// A sample counts as still while every gyro axis is below this, rad/s, and the
+    /// specific force is within 5 % of 1 g; anything else restarts the average.
+    pub gyro_calibration_still_radps: f32,
 }
 
 impl Default for AutopilotConfig {
@@ -201,7 +224,12 @@ impl Default for AutopilotConfig {
             max_estimate_mps: 5.0,
             max_velocity_jump_mps: 0.6,
             max_consecutive_outliers: 3,
-            velocity_max_age_us: 150_000,
+            velocity_max_age_us: 2_500_000,
+            observer: ObserverConfig::default(),
+            max_yaw_rate_radps: 0.6,
+            yaw_settle_us: 150_000,
+            gyro_calibration_samples: 256,
+            gyro_calibration_still_radps: 0.1,
         }
     }
 }
@@ -237,6 +265,13 @@ pub struct Autopilot {
     height: HeightController,
     guidance: VelocityGuidance,
     median: VelocityMedian,
+    observer: VelocityObserver,
+    last_fused_us: Option<u64>,
+    last_fast_yaw_us: Option<u64>,
+    yaw_gated_total: u32,
+    gyro_offset: Option<[f32; 3]>,
+    cal_sum: [f32; 3],
+    cal_n: u16,
     fsm: AvoidanceFsm,
     fsm_active: bool,
     failsafe: Failsafe,
@@ -272,6 +307,13 @@ impl Autopilot {
             height: HeightController::new(config.height),
             guidance: VelocityGuidance::new(config.guidance),
             median: VelocityMedian::default(),
+            observer: VelocityObserver::new(config.observer),
+            last_fused_us: None,
+            last_fast_yaw_us: None,
+            yaw_gated_total: 0,
+            gyro_offset: None,
+            cal_sum: [0.0; 3],
+            cal_n: 0,
             fsm: AvoidanceFsm::new(config.fsm, 0, 0.0),
             fsm_active: false,
             failsafe: Failsafe::new(config.failsafe),
@@ -339,6 +381,27 @@ impl Autopilot {
     /// Median-filtered `[forward, sideways]` velocity, m/s (`None` before the first valid one).
     pub fn velocity(&self) -> Option<[f32; 2]> {
         self.velocity
+    }
+
+    /// The observer's `[forward, sideways]` velocity, m/s: what guidance flies on (`None`
+    /// before the first valid estimate). Between estimates it is predicted from the attitude.
+    pub fn velocity_estimate(&self) -> Option<[f32; 2]> {
+        self.observer.velocity()
+    }
+
+    /// The velocity observer (bias, configuration).
+    pub fn observer(&self) -> &VelocityObserver {
+        &self.observer
+    }
+
+    /// Gyro offset from the last ground calibration, rad/s (`None`: not calibrated yet).
+    pub fn gyro_offset(&self) -> Option<[f32; 3]> {
+        self.gyro_offset
+    }
+
+    /// Valid estimates not used for the velocity because of fast yaw since boot (wrapping).
+    pub fn yaw_gated_estimates(&self) -> u32 {
+        self.yaw_gated_total
     }
 
     /// INDI state (G1/G2 estimates etc.).
@@ -435,11 +498,24 @@ impl Autopilot {
             None => 1.0 / self.cfg.indi.rate_hz.max(1.0),
         };
         self.last_imu_us = Some(now_us);
-        self.gyro = imu.gyro_radps;
-        self.att.update(imu.gyro_radps, imu.accel_mps2, dt);
+        if !self.failsafe.mode().motors_enabled() {
+            self.calibrate_gyro(imu);
+        }
+        let off = self.gyro_offset.unwrap_or([0.0; 3]);
+        let gyro = [
+            imu.gyro_radps[0] - off[0],
+            imu.gyro_radps[1] - off[1],
+            imu.gyro_radps[2] - off[2],
+        ];
+        self.gyro = gyro;
+        self.att.update(gyro, imu.accel_mps2, dt);
 
         let q = self.att.quat();
         let [roll, pitch, _] = q.to_euler();
+        self.observer.predict(roll, pitch, gyro[2], dt, now_us);
+        if gyro[2].abs() > self.cfg.max_yaw_rate_radps {
+            self.last_fast_yaw_us = Some(now_us);
+        }
         let thrust = if self.failsafe.mode().motors_enabled() {
             tilt_compensate(self.sp.thrust, roll, pitch, self.cfg.height.max_tilt_factor)
         } else {
@@ -447,16 +523,47 @@ impl Autopilot {
         };
         let [r_sp, p_sp, y_sp] = self.sp.attitude_rad;
         let err = attitude_error(q, Quat::from_euler(r_sp, p_sp, y_sp));
-        let u = self.indi.control(err, imu.gyro_radps, thrust);
+        let u = self.indi.control(err, gyro, thrust);
         if thrust <= 0.0 {
-            self.indi.actuator_update([0.0; 3], imu.gyro_radps);
+            self.indi.actuator_update([0.0; 3], gyro);
             self.motors = MOTORS_OFF;
             return self.motors;
         }
         let m = mixer::mix(thrust, u[0], u[1], u[2]);
-        self.indi.actuator_update(m.achieved, imu.gyro_radps);
+        self.indi.actuator_update(m.achieved, gyro);
         self.motors = m.throttle;
         self.motors
+    }
+
+    /// Ground gyro calibration (disarmed): block averages of still samples.
+    fn calibrate_gyro(&mut self, imu: &ImuSample) {
+        let g = imu.gyro_radps;
+        let a = imu.accel_mps2;
+        let an = libm::sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        let lim = self.cfg.gyro_calibration_still_radps;
+        let still = g.iter().all(|x| x.abs() < lim) && (an - GRAVITY).abs() < 0.05 * GRAVITY;
+        if !still {
+            self.cal_sum = [0.0; 3];
+            self.cal_n = 0;
+            return;
+        }
+        for (s, x) in self.cal_sum.iter_mut().zip(g.iter()) {
+            *s += x;
+        }
+        self.cal_n = self.cal_n.saturating_add(1);
+        let n = self.cfg.gyro_calibration_samples.max(1);
+        if self.cal_n >= n {
+            let k = 1.0 / self.cal_n as f32;
+            let first = self.gyro_offset.is_none();
+            self.gyro_offset = Some(self.cal_sum.map(|s| s * k));
+            self.cal_sum = [0.0; 3];
+            self.cal_n = 0;
+            if first {
+                // Start the attitude again from the accelerometer, without the tilt error the
+                // uncorrected gyro built up.
+                self.att = AttitudeEstimator::new(self.cfg.attitude);
+            }
+        }
     }
 
     /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a
@@ -491,6 +598,17 @@ impl Autopilot {
                 self.median.reset();
                 self.outliers_in_a_row = 0;
             }
+            let yawing = matches!(self.last_fast_yaw_us,
+                Some(t) if now_us.saturating_sub(t) <= self.cfg.yaw_settle_us);
+            if yawing {
+                // Valid for the failsafe, not for the velocity; the median restarts after the
+                // turn (its samples are in the old heading).
+                self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
+                self.median.reset();
+                self.outliers_in_a_row = 0;
+                self.last_valid_estimate_us = Some(now_us);
+                return;
+            }
             let jump = self.cfg.max_velocity_jump_mps;
             let outlier = match self.median.output() {
                 Some([f, s]) => {
@@ -516,6 +634,10 @@ impl Autopilot {
             }
             self.outliers_in_a_row = 0;
             self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
+            if let Some(v) = self.velocity {
+                self.observer.correct(v, now_us);
+                self.last_fused_us = Some(now_us);
+            }
             self.last_valid_estimate_us = Some(now_us);
         }
     }
@@ -572,12 +694,10 @@ impl Autopilot {
             return;
         }
         let yaw = self.att.euler()[2];
-        let est_fresh = matches!(self.last_valid_estimate_us,
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.estimate_timeout_us);
-        let velocity_fresh = matches!(self.last_valid_estimate_us,
+        let velocity_fresh = matches!(self.last_fused_us,
             Some(t) if now_us.saturating_sub(t) <= self.cfg.velocity_max_age_us);
-        let velocity = if est_fresh && velocity_fresh {
-            self.velocity
+        let velocity = if velocity_fresh {
+            self.observer.velocity()
         } else {
             None
         };
@@ -634,7 +754,7 @@ impl Autopilot {
 
         // Velocity guidance.
         let tilt: TiltSetpoint = match velocity {
-            Some(v) if mode != FlightMode::HoverNoEstimate => self.guidance.step(v_sp, v, dt),
+            Some(v) => self.guidance.step(v_sp, v, dt),
             _ => self.guidance.hold(),
         };
         self.sp.attitude_rad = [tilt.roll_rad, tilt.pitch_rad, wrap_pi(yaw_sp)];
@@ -706,7 +826,7 @@ impl Autopilot {
             },
             failsafe: self.failsafe.mode() as u8,
             attitude_rad: self.att.euler(),
-            velocity_mps: self.velocity.unwrap_or([0.0; 2]),
+            velocity_mps: self.observer.velocity().unwrap_or([0.0; 2]),
             velocity_setpoint_mps: self.sp.velocity_mps,
             obstacle_m: self.obstacle.and_then(|o| o.distance_m),
             height_m: self.height.height_m(),

@@ -384,6 +384,101 @@ fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
 }
 
 #[test]
+fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let bias = [0.008, -0.006, 0.004];
+    let mut t = 0;
+    let mut imu = |ap: &mut Autopilot, gyro: [f32; 3]| {
+        t += IMU_US;
+        ap.on_imu(
+            &ImuSample {
+                timestamp_us: t as u32,
+                gyro_radps: gyro,
+                accel_mps2: [0.0, 0.0, -GRAVITY],
+            },
+            t,
+        );
+    };
+    for _ in 0..200 {
+        imu(&mut ap, bias);
+    }
+    // Picked up and turned: the average restarts.
+    imu(&mut ap, [0.0, 0.0, 0.5]);
+    for _ in 0..200 {
+        imu(&mut ap, bias);
+    }
+    assert_eq!(ap.gyro_offset(), None, "256 still samples in a row needed");
+    for _ in 0..56 {
+        imu(&mut ap, bias);
+    }
+    let off = ap.gyro_offset().expect("calibrated");
+    for i in 0..3 {
+        assert!((off[i] - bias[i]).abs() < 1e-6, "{off:?}");
+    }
+    // The corrected gyro goes to the camera board and the attitude stays level.
+    for _ in 0..512 {
+        imu(&mut ap, bias);
+    }
+    assert!(ap
+        .gyro_attitude(t)
+        .rates_radps
+        .iter()
+        .all(|w| w.abs() < 1e-6));
+    assert!(ap.attitude()[..2].iter().all(|a| a.abs() < 1e-3));
+}
+
+#[test]
+fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let est = |f: f32| Estimate {
+        seq: 0,
+        capture_us: 0,
+        forward_mps: f,
+        sideways_mps: 0.0,
+        obstacle_m: None,
+        quality: 200,
+        flags: EstimateFlags::NONE,
+        processing_us: 0,
+    };
+    let imu = |t: u64, yaw_rate: f32| ImuSample {
+        timestamp_us: t as u32,
+        gyro_radps: [0.0, 0.0, yaw_rate],
+        accel_mps2: [0.0, 0.0, -GRAVITY],
+    };
+    let mut t = 0;
+    for _ in 0..20 {
+        t += 20_000;
+        ap.on_imu(&imu(t, 0.0), t);
+        ap.on_estimate(&est(0.2), t);
+    }
+    let v0 = ap.velocity_estimate().unwrap()[0];
+    assert!((v0 - 0.2).abs() < 0.01);
+    // Turning at 1.5 rad/s: the (garbage) estimates are counted valid but not fused.
+    for _ in 0..20 {
+        t += 20_000;
+        ap.on_imu(&imu(t, 1.5), t);
+        ap.on_estimate(&est(2.5), t);
+    }
+    assert_eq!(ap.yaw_gated_estimates(), 20);
+    assert_eq!(ap.velocity_outliers(), 0);
+    let v = ap.velocity_estimate().unwrap();
+    assert!(v.iter().all(|x| x.abs() < 0.25), "{v:?}");
+    // Still turning right after it: the velocity the observer rotated stays, the estimates are
+    // still skipped for the settle time, then fused again.
+    t += 20_000;
+    ap.on_imu(&imu(t, 0.0), t);
+    ap.on_estimate(&est(0.0), t);
+    assert_eq!(ap.yaw_gated_estimates(), 21);
+    for _ in 0..20 {
+        t += 40_000;
+        ap.on_imu(&imu(t, 0.0), t);
+        ap.on_estimate(&est(0.0), t);
+    }
+    assert_eq!(ap.yaw_gated_estimates(), 24);
+    assert!(ap.velocity_estimate().unwrap()[0].abs() < 0.05);
+}
+
+#[test]
 fn kill_stops_motors_at_once() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();

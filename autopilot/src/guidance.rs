@@ -13,6 +13,10 @@
 //! limit and the error would push it further) plus a clamp on the integral's contribution.
 //! [`VelocityGuidance::hold`] gives the trim attitude (integral only) when no velocity estimate
 //! is available, and [`VelocityGuidance::reset`] clears everything (on the ground).
+//!
+//! [`VelocityObserver`] is the velocity guidance flies on: it predicts the velocity from the
+//! attitude and the yaw rate between vision measurements and corrects it with them, so the
+//! loop keeps braking through fast yaw (when Edge-FS is unreliable) and short link outages.
 
 /// Velocity loop tunables.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -128,6 +132,194 @@ impl VelocityGuidance {
     }
 }
 
+/// Velocity observer tunables (see [`VelocityObserver`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObserverConfig {
+    /// Linear drag of the airframe per unit mass, 1/s (horizontal `a = -drag * v`; a 40 g
+    /// pocket drone with ~8e-3 N/(m/s) of rotor-induced drag: 0.2/s).
+    pub drag_per_s: f32,
+    /// Fraction of the velocity innovation applied per measurement (0..=1).
+    pub velocity_gain: f32,
+    /// Acceleration-bias learning per measurement, (m/s²) per (m/s) of innovation.
+    pub bias_gain: f32,
+    /// Largest learned acceleration bias per axis, m/s².
+    pub max_bias_mps2: f32,
+    /// Age of a measurement when it is fused (camera exposure to its filtered value reaching
+    /// the observer: read-out, processing, link and the median-5's two frames), µs. The
+    /// innovation is taken against the prediction of that time.
+    pub measurement_delay_us: u32,
+    /// Tilt used for the predicted acceleration is limited to this, rad.
+    pub max_tilt_rad: f32,
+}
+
+impl Default for ObserverConfig {
+    fn default() -> Self {
+        Self {
+            drag_per_s: 0.2,
+            velocity_gain: 0.25,
+            bias_gain: 0.03,
+            max_bias_mps2: 0.5,
+            measurement_delay_us: 100_000,
+            max_tilt_rad: 0.5,
+        }
+    }
+}
+
+/// Slots of the observer's history (one every [`HISTORY_SPACING_US`]).
+const HISTORY_LEN: usize = 32;
+/// Spacing of the history entries, µs (32 x 6 ms: 192 ms back).
+const HISTORY_SPACING_US: u64 = 6_000;
+
+/// Horizontal velocity observer in the heading frame (level body axes: forward, right).
+///
+/// Between measurements it integrates the acceleration the attitude implies (thrust holding
+/// the height: `a_fwd = -g tan(pitch)`, `a_right = g tan(roll) / cos(pitch)`) minus linear
+/// drag plus a learned bias, and rotates the velocity with the yaw rate (the heading frame
+/// turns under a velocity that is fixed in the room: `dv_fwd/dt = r v_right`,
+/// `dv_right/dt = -r v_fwd`). Each vision measurement corrects it by
+/// [`ObserverConfig::velocity_gain`] of the innovation, taken against the prediction of
+/// [`ObserverConfig::measurement_delay_us`] ago (a short history is kept), and the same
+/// innovation trains the acceleration bias (tilt-estimate offsets, centre-of-gravity trim).
+///
+/// This is what lets guidance keep braking while vision is unusable (fast yaw, a link outage):
+/// the velocity is dead-reckoned instead of frozen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VelocityObserver {
+    cfg: ObserverConfig,
+    v: [f32; 2],
+    bias: [f32; 2],
+    initialised: bool,
+    history: [(u64, [f32; 2]); HISTORY_LEN],
+    head: usize,
+    last_record_us: Option<u64>,
+}
+
+impl VelocityObserver {
+    /// An observer without a velocity yet.
+    pub fn new(cfg: ObserverConfig) -> Self {
+        Self {
+            cfg,
+            v: [0.0; 2],
+            bias: [0.0; 2],
+            initialised: false,
+            history: [(0, [0.0; 2]); HISTORY_LEN],
+            head: 0,
+            last_record_us: None,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ObserverConfig {
+        &self.cfg
+    }
+
+    /// Forgets the velocity (keeps the learned bias).
+    pub fn reset(&mut self) {
+        let bias = self.bias;
+        *self = Self::new(self.cfg);
+        self.bias = bias;
+    }
+
+    /// Current `[forward, right]` velocity, m/s (`None` before the first measurement).
+    pub fn velocity(&self) -> Option<[f32; 2]> {
+        self.initialised.then_some(self.v)
+    }
+
+    /// Learned acceleration bias `[forward, right]`, m/s².
+    pub fn bias(&self) -> [f32; 2] {
+        self.bias
+    }
+
+    /// Prediction over `dt` s ending at `now_us` from the estimated roll and pitch (rad) and
+    /// the yaw rate (rad/s, body z down: positive turns right). Non-finite inputs skip it.
+    pub fn predict(&mut self, roll: f32, pitch: f32, yaw_rate: f32, dt: f32, now_us: u64) {
+        if !(roll.is_finite() && pitch.is_finite() && yaw_rate.is_finite() && dt.is_finite()) {
+            return;
+        }
+        let dt = dt.clamp(0.0, 0.05);
+        if self.initialised {
+            let lim = self.cfg.max_tilt_rad.abs();
+            let (r, p) = (roll.clamp(-lim, lim), pitch.clamp(-lim, lim));
+            let g = crate::attitude::GRAVITY;
+            let a = [
+                -g * libm::tanf(p) + self.bias[0],
+                g * libm::tanf(r) / libm::cosf(p) + self.bias[1],
+            ];
+            let k = self.cfg.drag_per_s.max(0.0);
+            let [vf, vs] = self.v;
+            let w = yaw_rate.clamp(-20.0, 20.0);
+            let nv = [
+                vf + (a[0] - k * vf + w * vs) * dt,
+                vs + (a[1] - k * vs - w * vf) * dt,
+            ];
+            if nv.iter().all(|x| x.is_finite()) {
+                self.v = [nv[0].clamp(-10.0, 10.0), nv[1].clamp(-10.0, 10.0)];
+            }
+        }
+        self.record(now_us);
+    }
+
+    fn record(&mut self, now_us: u64) {
+        let due = match self.last_record_us {
+            Some(t) => now_us.saturating_sub(t) >= HISTORY_SPACING_US || now_us < t,
+            None => true,
+        };
+        if due {
+            self.last_record_us = Some(now_us);
+            self.head = (self.head + 1) % HISTORY_LEN;
+            if let Some(slot) = self.history.get_mut(self.head) {
+                *slot = (now_us, self.v);
+            }
+        }
+    }
+
+    /// The prediction as it was at `t_us` (the newest recorded one not after it; the oldest
+    /// held when the history does not reach back that far).
+    fn predicted_at(&self, t_us: u64) -> [f32; 2] {
+        let mut best = self.v;
+        for i in 0..HISTORY_LEN {
+            let idx = (self.head + HISTORY_LEN - i) % HISTORY_LEN;
+            if let Some(&(t, v)) = self.history.get(idx) {
+                best = v;
+                if t <= t_us {
+                    break;
+                }
+            }
+        }
+        best
+    }
+
+    /// Fuses a `[forward, right]` velocity measurement (m/s) that reached the observer at
+    /// `now_us` (its age is [`ObserverConfig::measurement_delay_us`]). The first one
+    /// initialises the observer. Non-finite measurements are ignored.
+    pub fn correct(&mut self, measured: [f32; 2], now_us: u64) {
+        if !measured.iter().all(|x| x.is_finite()) {
+            return;
+        }
+        if !self.initialised {
+            self.initialised = true;
+            self.v = measured;
+            self.history = [(now_us, measured); HISTORY_LEN];
+            self.last_record_us = Some(now_us);
+            return;
+        }
+        let then = self.predicted_at(now_us.saturating_sub(self.cfg.measurement_delay_us as u64));
+        let kv = self.cfg.velocity_gain.clamp(0.0, 1.0);
+        let blim = self.cfg.max_bias_mps2.abs();
+        for i in 0..2 {
+            let e = (measured[i] - then[i]).clamp(-5.0, 5.0);
+            let dv = kv * e;
+            self.v[i] += dv;
+            // The history moves with the correction, so the next innovation does not count
+            // this one again.
+            for h in self.history.iter_mut() {
+                h.1[i] += dv;
+            }
+            self.bias[i] = (self.bias[i] + self.cfg.bias_gain * e).clamp(-blim, blim);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -178,6 +370,104 @@ mod tests {
             h.pitch_rad < 0.0,
             "trim keeps leaning forward against the disturbance"
         );
+    }
+
+    fn observer(drag: f32) -> VelocityObserver {
+        VelocityObserver::new(ObserverConfig {
+            drag_per_s: drag,
+            ..ObserverConfig::default()
+        })
+    }
+
+    #[test]
+    fn observer_integrates_tilt_and_turns_the_velocity_with_the_heading() {
+        let mut o = observer(0.0);
+        assert_eq!(o.velocity(), None);
+        o.predict(0.0, -0.1, 0.0, 0.002, 0);
+        assert_eq!(o.velocity(), None, "nothing before the first measurement");
+        o.correct([0.0, 0.0], 0);
+        // 1 s nose down 0.1 rad: forward g tan(0.1) = 0.984 m/s.
+        for k in 1..=500 {
+            o.predict(0.0, -0.1, 0.0, 0.002, k * 2_000);
+        }
+        let v = o.velocity().unwrap();
+        assert!((v[0] - 0.984).abs() < 0.01 && v[1].abs() < 1e-6, "{v:?}");
+        // Level, a quarter turn to the right in 1 s: the room-fixed velocity is now to the left.
+        let w = core::f32::consts::FRAC_PI_2;
+        for k in 501..=1000 {
+            o.predict(0.0, 0.0, w, 0.002, k * 2_000);
+        }
+        let v = o.velocity().unwrap();
+        assert!(v[0].abs() < 0.01 && (v[1] + 0.984).abs() < 0.01, "{v:?}");
+        // Drag slows it: 1 s at 0.2/s leaves exp(-0.2).
+        let mut o = observer(0.2);
+        o.correct([1.0, 0.0], 0);
+        for k in 1..=500 {
+            o.predict(0.0, 0.0, 0.0, 0.002, k * 2_000);
+        }
+        assert!((o.velocity().unwrap()[0] - libm::expf(-0.2)).abs() < 0.01);
+    }
+
+    #[test]
+    fn observer_compares_a_delayed_measurement_with_the_past_prediction() {
+        let mut o = observer(0.0);
+        o.correct([0.0, 0.0], 0);
+        // Accelerate forward at ~1 m/s² for 1 s.
+        let pitch = -libm::atanf(1.0 / crate::attitude::GRAVITY);
+        let mut t = 0;
+        for _ in 0..500 {
+            t += 2_000;
+            o.predict(0.0, pitch, 0.0, 0.002, t);
+        }
+        let now = o.velocity().unwrap()[0];
+        assert!((now - 1.0).abs() < 0.01);
+        // A measurement that matches the prediction of 100 ms ago changes nothing.
+        o.correct([0.9, 0.0], t);
+        assert!((o.velocity().unwrap()[0] - now).abs() < 0.01);
+        // One 0.4 m/s higher moves the estimate by the gain's share of it.
+        o.correct([1.3, 0.0], t);
+        let g = ObserverConfig::default().velocity_gain;
+        assert!((o.velocity().unwrap()[0] - now - 0.4 * g).abs() < 0.02);
+    }
+
+    #[test]
+    fn observer_learns_an_acceleration_bias_and_dead_reckons_with_it() {
+        // The attitude says level, but the drone really accelerates at 0.3 m/s² (a tilt
+        // estimate offset): measurements of the true velocity every 40 ms.
+        let mut o = observer(0.0);
+        let (mut t, mut v_true) = (0u64, 0.0f32);
+        o.correct([0.0, 0.0], 0);
+        for _ in 0..(25 * 30) {
+            for _ in 0..20 {
+                t += 2_000;
+                v_true += 0.3 * 0.002;
+                o.predict(0.0, 0.0, 0.0, 0.002, t);
+            }
+            let delayed = v_true - 0.3 * 0.1;
+            o.correct([delayed, 0.0], t);
+        }
+        assert!((o.bias()[0] - 0.3).abs() < 0.05, "bias {:?}", o.bias());
+        // Measurements stop: 1 s of dead reckoning stays within 0.1 m/s of the truth.
+        for _ in 0..500 {
+            t += 2_000;
+            v_true += 0.3 * 0.002;
+            o.predict(0.0, 0.0, 0.0, 0.002, t);
+        }
+        let err = o.velocity().unwrap()[0] - v_true;
+        assert!(err.abs() < 0.1, "error {err}");
+    }
+
+    #[test]
+    fn observer_ignores_garbage() {
+        let mut o = observer(0.2);
+        o.correct([f32::NAN, 0.0], 0);
+        assert_eq!(o.velocity(), None);
+        o.correct([0.1, -0.1], 0);
+        o.predict(f32::NAN, 0.0, 0.0, 0.002, 2_000);
+        o.predict(0.0, f32::INFINITY, 1e30, f32::NAN, 4_000);
+        o.predict(1e9, -1e9, 1e9, 1e9, 6_000);
+        let v = o.velocity().unwrap();
+        assert!(v.iter().all(|x| x.is_finite() && x.abs() <= 10.0), "{v:?}");
     }
 
     #[test]

@@ -233,7 +233,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                     );
                     println!("collisions      {}", r.collisions);
                     println!(
-                        "vel RMSE        {:.3} m/s (autopilot's median-5 estimate vs truth; raw Edge-FS {:.3} m/s)",
+                        "vel RMSE        {:.3} m/s (autopilot's velocity estimate vs truth; raw Edge-FS {:.3} m/s)",
                         r.vel_rmse_mps, r.raw_vel_rmse_mps
                     );
                     println!(

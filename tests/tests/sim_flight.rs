@@ -16,9 +16,10 @@ fn fsm_start(log: &[LogRow]) -> usize {
 }
 
 /// Hover: the FSM asks for zero speed, so the only horizontal feedback is the Edge-FS velocity
-/// (no position or ground truth in the loop). Bound: the drone stays within 2.0 m of where the
-/// hover started for 60 s (measured 1.5-1.6 m for seed 11 as the boards' code evolved), and
-/// never touches a wall.
+/// (no position or ground truth in the loop). Bound: the drone stays within 0.75 m of where the
+/// hover started for 60 s (measured 0.36 m for seed 11 since the autopilot calibrates its gyro
+/// on the ground and flies on the velocity observer; 1.5-1.6 m before), and never touches a
+/// wall.
 #[test]
 fn hover_drift_bounded_with_only_edge_fs_velocity() {
     let mut cfg = FlightConfig {
@@ -38,7 +39,7 @@ fn hover_drift_bounded_with_only_edge_fs_velocity() {
     }
     assert!(r.log.last().unwrap().t_s >= t0 + 59.0, "hovered 60 s");
     println!("hover drift over 60 s: max {max_drift:.3} m");
-    assert!(max_drift < 2.0, "drift {max_drift} m");
+    assert!(max_drift < 0.75, "drift {max_drift} m");
     assert_eq!(r.collisions, 0);
 }
 
@@ -99,23 +100,36 @@ fn velocity_steps_are_tracked() {
     assert!(stop < 0.3, "speed {stop}");
 }
 
-/// The paper's room flight, over a fixed set of seeds: no collision for 120 s each. (Not every
-/// seed is collision-free: see the Monte Carlo numbers in the simulator docs.)
+/// Seeds every room-flight test flies with the default FSM: a contiguous range from 1, not a
+/// hand-picked list (as many as the CI budget allows; each 120 s flight takes ~10-20 s in the
+/// dev profile).
+const ROOM_SEEDS: std::ops::RangeInclusive<u64> = 1..=6;
+
+/// The paper's room flight with the default FSM (turn until clear) over seeds 1..=6: no
+/// collision for 120 s each, and it really flew around (more than 10 m). Nothing was tuned on
+/// these seeds (tuning used seeds 11..=20); seeds 1..=10 all pass at the time of writing, and
+/// the Monte Carlo numbers in the simulator docs give the rate over 600 s flights.
 #[test]
 fn room_flights_without_collision() {
-    for (seed, fsm) in [
-        (1, Fsm::Paper),
-        (4, Fsm::Paper),
-        (1, Fsm::Improved),
-        (10, Fsm::Improved),
-    ] {
-        {
+    let default_fsm = FlightConfig::default().fsm;
+    let mut fsms = vec![(default_fsm, ROOM_SEEDS)];
+    // The paper's FSM too, on fewer seeds (it collides on seed 3 at 71 s at the time of writing:
+    // see the Monte Carlo in the docs).
+    if default_fsm != Fsm::Paper {
+        fsms.push((Fsm::Paper, 1..=2));
+    }
+    for (fsm, seeds) in fsms {
+        for seed in seeds {
             let cfg = FlightConfig {
                 seed,
                 fsm,
                 ..FlightConfig::default()
             };
             let r = fly(&cfg);
+            println!(
+                "seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, {:.1} m flown",
+                r.collisions, r.min_clearance_m, r.distance_m
+            );
             assert_eq!(
                 r.collisions, 0,
                 "seed {seed} {fsm:?}: min clearance {}",
@@ -150,13 +164,14 @@ fn flight_survives_bit_errors() {
     assert!(r.distance_m > 10.0);
 }
 
-/// A 2 s outage of both directions mid-flight (t = 20..22 s): the autopilot's failsafe switches
-/// to hover-without-estimate (mode 2) during the outage, the drone moves less than 2 m while
-/// the link is down (measured 0.7-1.7 m: without velocity feedback the autopilot holds its
-/// trim attitude, so it coasts and drifts), and it never hits a wall in the 40 s flight.
+/// A 2 s outage of both directions mid-flight (t = 20..22 s), seeds 1..=3: the autopilot's
+/// failsafe switches to hover-without-estimate (mode 2) during the outage, the drone stays
+/// within 1.0 m of where the outage began until 0.3 s after it (measured 0.28-0.65 m, release
+/// and dev builds: the velocity observer dead-reckons from the attitude and brakes; before it,
+/// holding the trim attitude drifted 0.7-1.7 m), and it never hits a wall in the 40 s flight.
 #[test]
 fn outage_holds_without_hitting_a_wall() {
-    for seed in [1, 2] {
+    for seed in 1..=3 {
         let outage = (20_000_000, 22_000_000);
         let faults = LinkFaults {
             outages: vec![outage],
@@ -181,11 +196,14 @@ fn outage_holds_without_hitting_a_wall() {
             during.iter().any(|l| l.mode == hover_no_estimate),
             "seed {seed}: failsafe reacted to the outage"
         );
-        let (a, b) = (during[0].pos, during[during.len() - 1].pos);
-        let moved = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
-        println!("outage seed {seed}: moved {moved:.3} m");
+        let a = during[0].pos;
+        let moved = during
+            .iter()
+            .map(|l| ((l.pos[0] - a[0]).powi(2) + (l.pos[1] - a[1]).powi(2)).sqrt())
+            .fold(0.0f32, f32::max);
+        println!("outage seed {seed}: moved up to {moved:.3} m");
         assert!(
-            moved < 2.0,
+            moved < 1.0,
             "seed {seed}: moved {moved} m during the outage"
         );
     }

@@ -69,7 +69,8 @@ pub struct FlightConfig {
     pub height_rate_hz: f64,
     /// Height measurement noise (standard deviation), m.
     pub height_noise_m: f64,
-    /// Arm (take off) at this time, s.
+    /// Arm (take off) at this time, s. The autopilot calibrates its gyro on the ground first
+    /// (256 still samples, 0.5 s), so this must be later than that.
     pub arm_at_s: f64,
     /// Keep one left camera image every this many frames for the GIF (0: none).
     pub keep_image_every: u32,
@@ -101,7 +102,7 @@ impl Default for FlightConfig {
             physics_dt_us: 500,
             height_rate_hz: 100.0,
             height_noise_m: 0.003,
-            arm_at_s: 0.5,
+            arm_at_s: 1.0,
             keep_image_every: 0,
             stop_on_collision: false,
             autopilot: AutopilotConfig::default(),
@@ -121,7 +122,9 @@ pub struct LogRow {
     pub yaw: f32,
     /// True velocity in the body's heading frame: forward, sideways, m/s.
     pub vel_true: [f32; 2],
-    /// Autopilot's filtered velocity (median-5): forward, sideways, m/s (NaN: none yet).
+    /// Autopilot's velocity estimate (its observer: median-5 of the gated Edge-FS estimates,
+    /// predicted from the attitude in between), what guidance flies on: forward, sideways, m/s
+    /// (NaN: none yet).
     pub vel_est: [f32; 2],
     /// Velocity setpoint: forward, sideways, m/s.
     pub vel_sp: [f32; 2],
@@ -150,8 +153,8 @@ pub struct FlightResult {
     pub flight_time_s: f64,
     /// Number of collisions (contacts entered).
     pub collisions: u32,
-    /// RMS error of the autopilot's velocity estimate (median-5 of the valid Edge-FS
-    /// estimates: what it flies on) against the true velocity in the heading frame, forward
+    /// RMS error of the autopilot's velocity estimate (its observer over the median-5 of the
+    /// valid Edge-FS estimates: what it flies on) against the true velocity in the heading frame, forward
     /// and sideways together, sampled at 50 Hz while the avoidance FSM runs, m/s.
     pub vel_rmse_mps: f64,
     /// RMS error of every valid raw Edge-FS estimate (forward and sideways together) against
@@ -512,7 +515,7 @@ fn log_row(
     let vf = s.vel.x * cy + s.vel.y * sy;
     let vs = -s.vel.x * sy + s.vel.y * cy;
     let tel = ap.telemetry(t);
-    let v = ap.velocity();
+    let v = ap.velocity_estimate();
     let h = -s.pos.z as f32;
     LogRow {
         t_s: t as f64 * 1e-6,
