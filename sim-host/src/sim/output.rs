@@ -282,67 +282,108 @@ pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// FSM state (0 check .. 3 turn; -1 inactive) over time in blue, flight mode in red (scaled
-/// 0..5), obstacle distance in gray (m) and clearance in black (m); grid 10 s x 1.
+/// Splits a series at non-finite values into runs, so a gap in the data (no obstacle in
+/// range) is a gap in the line instead of a jump.
+fn runs(points: impl Iterator<Item = (f64, f64)>) -> Vec<Vec<(f64, f64)>> {
+    let mut out: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+    for p in points {
+        if p.1.is_finite() {
+            if let Some(last) = out.last_mut() {
+                last.push(p);
+            }
+        } else if out.last().is_some_and(|l| !l.is_empty()) {
+            out.push(Vec::new());
+        }
+    }
+    out.retain(|r| !r.is_empty());
+    out
+}
+
+/// Two panels over time (grid 10 s): on top the FSM state (blue: -1 inactive, 0 check,
+/// 1 forward, 2 hover, 3 turn) and the flight mode (red, 0..5, see
+/// `autopilot::failsafe::FlightMode`) as step lines; below the obstacle distance the
+/// autopilot holds (gray, m, clipped to 4 m, gaps where nothing is in range) and the true
+/// clearance (black, m).
 pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
     let w = (t_end * 20.0).clamp(800.0, 6000.0) as u32;
     plot_font::register();
-    let root = BitMapBackend::new(path, (w, 450)).into_drawing_area();
+    let root = BitMapBackend::new(path, (w, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let area = root.margin(10, 10, 10, 10);
-    let mut chart = ChartBuilder::on(&area)
+    let (top, bottom) = root.margin(10, 10, 10, 10).split_vertically(300);
+    let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("{e:?}");
+
+    // The state numbers as they are: 255 (inactive) plotted as -1.
+    let mut chart = ChartBuilder::on(&top)
         .caption(
-            "FSM state (-1 inactive, 0 check, 1 forward, 2 hover, 3 turn), flight mode, distances",
+            "FSM state (-1 inactive, 0 check, 1 forward, 2 hover, 3 turn) and flight mode",
             (FAMILY, 16),
         )
-        .x_label_area_size(35)
+        .x_label_area_size(30)
         .y_label_area_size(50)
         .build_cartesian_2d(0.0..t_end, -1.5..5.5)
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    axes(&mut chart, "time [s]", "state / metres")?;
+        .map_err(|e| err(&e))?;
+    axes(&mut chart, "time [s]", "state")?;
     grid(&mut chart, (0.0, t_end, 10.0), (-1.0, 5.0, 1.0))?;
-    let pts = |f: &dyn Fn(&super::flight::LogRow) -> f64| -> Vec<(f64, f64)> {
-        r.log
-            .iter()
-            .map(|l| (l.t_s, f(l)))
-            .filter(|p| p.1.is_finite())
-            .collect()
+    let fsm = |l: &super::flight::LogRow| match l.fsm_state {
+        u8::MAX => -1.0,
+        s => (s as f64).min(5.0),
     };
     chart
         .draw_series(LineSeries::new(
-            pts(&|l| (l.obstacle_m as f64).min(5.0)),
-            RGBColor(160, 160, 160),
+            r.log.iter().map(|l| (l.t_s, (l.mode as f64).min(5.0))),
+            RED,
         ))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?
-        .label("obstacle distance [m]")
-        .legend(line_key(RGBColor(160, 160, 160)));
-    chart
-        .draw_series(LineSeries::new(pts(&|l| l.clearance_m as f64), BLACK))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?
-        .label("true clearance [m]")
-        .legend(line_key(BLACK));
-    chart
-        .draw_series(LineSeries::new(pts(&|l| l.mode as f64), RED))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?
-        .label("flight mode (0 disarmed, 1 flying, 2 hover, 3 landing)")
+        .map_err(|e| err(&e))?
+        .label("flight mode (0 disarmed, 1 flying, 2 hover without estimate, 3 landing)")
         .legend(line_key(RED));
     chart
         .draw_series(LineSeries::new(
-            pts(&|l| {
-                if l.fsm_state == u8::MAX {
-                    -1.0
-                } else {
-                    l.fsm_state as f64
-                }
-            }),
+            r.log.iter().map(|l| (l.t_s, fsm(l))),
             ShapeStyle::from(&BLUE).stroke_width(2),
         ))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?
+        .map_err(|e| err(&e))?
         .label("FSM state")
         .legend(line_key(BLUE));
     legend(&mut chart)?;
-    root.present().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+
+    let mut chart = ChartBuilder::on(&bottom)
+        .caption("obstacle distance and true clearance", (FAMILY, 16))
+        .x_label_area_size(35)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..t_end, 0.0..4.0)
+        .map_err(|e| err(&e))?;
+    axes(&mut chart, "time [s]", "metres")?;
+    grid(&mut chart, (0.0, t_end, 10.0), (0.0, 4.0, 0.5))?;
+    let gray = RGBColor(160, 160, 160);
+    for (i, run) in runs(
+        r.log
+            .iter()
+            .map(|l| (l.t_s, (l.obstacle_m as f64).clamp(0.0, 4.0))),
+    )
+    .into_iter()
+    .enumerate()
+    {
+        let s = chart
+            .draw_series(LineSeries::new(run, gray))
+            .map_err(|e| err(&e))?;
+        if i == 0 {
+            s.label("obstacle distance (Edge-FS) [m]")
+                .legend(line_key(gray));
+        }
+    }
+    chart
+        .draw_series(LineSeries::new(
+            r.log
+                .iter()
+                .map(|l| (l.t_s, (l.clearance_m as f64).clamp(0.0, 4.0))),
+            BLACK,
+        ))
+        .map_err(|e| err(&e))?
+        .label("true clearance [m]")
+        .legend(line_key(BLACK));
+    legend(&mut chart)?;
+    root.present().map_err(|e| err(&e))?;
     Ok(())
 }
 
@@ -460,4 +501,24 @@ pub fn write_gif(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         enc.write_frame(&frame)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn runs_split_at_gaps_and_drop_empty_ones() {
+        let pts = [
+            (0.0, f64::NAN),
+            (1.0, 1.0),
+            (2.0, 2.0),
+            (3.0, f64::NAN),
+            (4.0, f64::NAN),
+            (5.0, 3.0),
+        ];
+        let r = runs(pts.into_iter());
+        assert_eq!(r, vec![vec![(1.0, 1.0), (2.0, 2.0)], vec![(5.0, 3.0)]]);
+        assert!(runs([(0.0, f64::NAN)].into_iter()).is_empty());
+    }
 }
