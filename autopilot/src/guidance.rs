@@ -241,9 +241,16 @@ impl VelocityObserver {
             let lim = self.cfg.max_tilt_rad.abs();
             let (r, p) = (roll.clamp(-lim, lim), pitch.clamp(-lim, lim));
             let g = crate::attitude::GRAVITY;
+            // tan p = sp / cp and tan r / cos p = sr / (cr cp), from the single-precision
+            // `sin_cos` (libm's tanf/cosf run f64 kernels: software on the M4). The cosines
+            // are kept away from 0 (only reachable with a tilt limit near pi/2), keeping
+            // their sign as tan does.
+            let (sr, cr) = crate::attitude::sin_cos(r);
+            let (sp, cp) = crate::attitude::sin_cos(p);
+            let (cr, cp) = (away_from_zero(cr), away_from_zero(cp));
             let a = [
-                -g * libm::tanf(p) + self.bias[0],
-                g * libm::tanf(r) / libm::cosf(p) + self.bias[1],
+                -g * (sp / cp) + self.bias[0],
+                g * (sr / (cr * cp)) + self.bias[1],
             ];
             let k = self.cfg.drag_per_s.max(0.0);
             let [vf, vs] = self.v;
@@ -317,6 +324,16 @@ impl VelocityObserver {
             }
             self.bias[i] = (self.bias[i] + self.cfg.bias_gain * e).clamp(-blim, blim);
         }
+    }
+}
+
+/// `c` with its magnitude at least `1e-6` (sign kept; NaN stays NaN): a divisor for `tan`.
+fn away_from_zero(c: f32) -> f32 {
+    const MIN: f32 = 1e-6;
+    if c.abs() < MIN {
+        MIN.copysign(c)
+    } else {
+        c
     }
 }
 
@@ -455,6 +472,54 @@ mod tests {
         }
         let err = o.velocity().unwrap()[0] - v_true;
         assert!(err.abs() < 0.1, "error {err}");
+    }
+
+    #[test]
+    fn observer_prediction_matches_libm_trigonometry() {
+        // One 50 ms step from rest, no drag or yaw: v = a * dt with the tilt acceleration of
+        // the libm form `-g tan p`, `g tan r / cos p`, over the whole tilt range and beyond.
+        let g = f64::from(crate::attitude::GRAVITY);
+        let cfg = ObserverConfig {
+            drag_per_s: 0.0,
+            max_tilt_rad: 1.2,
+            ..ObserverConfig::default()
+        };
+        let dt = 0.05;
+        for i in -24..=24 {
+            for j in -24..=24 {
+                let (r, p) = (0.05 * i as f32, 0.05 * j as f32);
+                let mut o = VelocityObserver::new(cfg);
+                o.correct([0.0, 0.0], 0);
+                o.predict(r, p, 0.0, dt, 50_000);
+                let v = o.velocity().unwrap();
+                let want = [
+                    -g * libm::tan(f64::from(p)),
+                    g * libm::tan(f64::from(r)) / libm::cos(f64::from(p)),
+                ];
+                for k in 0..2 {
+                    let want = (want[k] * f64::from(dt)).clamp(-10.0, 10.0);
+                    let err = (f64::from(v[k]) - want).abs();
+                    assert!(
+                        err <= 2e-6 * want.abs().max(1.0),
+                        "r {r} p {p}: {v:?} vs {want}"
+                    );
+                }
+            }
+        }
+        // A tilt limit of pi/2 (both cosines round to about 0): the huge accelerations of the
+        // libm form's signs, clamped to the velocity limit.
+        let mut o = VelocityObserver::new(ObserverConfig {
+            max_tilt_rad: core::f32::consts::FRAC_PI_2,
+            ..cfg
+        });
+        o.correct([0.0, 0.0], 0);
+        o.predict(2.0, -2.0, 0.0, dt, 50_000);
+        assert_eq!(o.velocity(), Some([-10.0, 10.0]));
+        assert_eq!(away_from_zero(0.0), 1e-6);
+        assert_eq!(away_from_zero(-0.0), -1e-6);
+        assert_eq!(away_from_zero(-1e-9), -1e-6);
+        assert_eq!(away_from_zero(0.5), 0.5);
+        assert!(away_from_zero(f32::NAN).is_nan());
     }
 
     #[test]

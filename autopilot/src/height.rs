@@ -170,8 +170,11 @@ impl HeightController {
 
 /// Divides a level-flight thrust by `cos(roll) cos(pitch)` (at most `max_factor`), so that a
 /// tilted drone keeps its vertical thrust. Returns 0..=1.
+///
+/// The cosines come from the single-precision [`crate::attitude::sin_cos`] (libm's `cosf` runs
+/// an f64 kernel, software on the M4).
 pub fn tilt_compensate(thrust: f32, roll: f32, pitch: f32, max_factor: f32) -> f32 {
-    let c = libm::cosf(roll) * libm::cosf(pitch);
+    let c = crate::attitude::sin_cos(roll).1 * crate::attitude::sin_cos(pitch).1;
     let factor = if c.is_finite() && c > 1e-3 {
         (1.0 / c).min(max_factor.max(1.0))
     } else {
@@ -251,5 +254,24 @@ mod tests {
         assert!((t - 0.65 / libm::cosf(0.26)).abs() < 1e-5);
         assert!((tilt_compensate(0.65, 1.5, 1.5, 1.3) - 0.845).abs() < 1e-4);
         assert_eq!(tilt_compensate(f32::NAN, 0.0, 0.0, 1.3), 0.0);
+        // Non-finite angles: the largest factor, no panic.
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            assert!((tilt_compensate(0.65, bad, 0.1, 1.3) - 0.845).abs() < 1e-4);
+            assert!((tilt_compensate(0.65, 0.1, bad, 1.3) - 0.845).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn tilt_compensation_matches_libm_cosines() {
+        for i in -40..=40 {
+            for j in -40..=40 {
+                let (r, p) = (0.04 * i as f32, 0.04 * j as f32);
+                let c = libm::cos(f64::from(r)) * libm::cos(f64::from(p));
+                let factor = if c > 1e-3 { (1.0 / c).min(1.3) } else { 1.3 };
+                let want = 0.5 * factor;
+                let got = f64::from(tilt_compensate(0.5, r, p, 1.3));
+                assert!((got - want).abs() < 1e-6, "r {r} p {p}: {got} vs {want}");
+            }
+        }
     }
 }
