@@ -142,8 +142,13 @@ pub fn robust_line_fit(
             }
         }
         let res = scratch.get_mut(..m)?;
-        res.sort_unstable_by(|x, y| x.total_cmp(y));
-        let mad = res.get(m / 2).copied().unwrap_or(0.0);
+        // The element a full sort would put at `m / 2` (under the total order that element is
+        // unique, so the result is the same bit for bit), found by selection: O(m), not a sort.
+        let mad = if m == 0 {
+            0.0
+        } else {
+            *res.select_nth_unstable_by(m / 2, |x, y| x.total_cmp(y)).1
+        };
         let scale = (1.4826 * mad).max(1e-6);
         let cut = huber_k * scale;
         for (p, &w0) in points.iter_mut().zip(prior.iter()) {
@@ -162,6 +167,92 @@ pub fn robust_line_fit(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// The robust fit as first written: the MAD from a full sort of the residuals.
+    fn robust_line_fit_sorting(
+        points: &mut [(f32, f32, f32)],
+        iterations: usize,
+        huber_k: f32,
+    ) -> Option<LineFit> {
+        let prior: [f32; 128] = core::array::from_fn(|i| points.get(i).map_or(0.0, |p| p.2));
+        let mut fit = weighted_line_fit(points)?;
+        for _ in 0..iterations {
+            let (a, b) = (fit.slope as f32, fit.intercept as f32);
+            let mut res = [0.0f32; 128];
+            let mut m = 0;
+            for p in points.iter().filter(|p| p.2 > 0.0) {
+                res[m] = (p.1 - (a * p.0 + b)).abs();
+                m += 1;
+            }
+            res[..m].sort_unstable_by(|x, y| x.total_cmp(y));
+            let mad = res[..m].get(m / 2).copied().unwrap_or(0.0);
+            let cut = huber_k * (1.4826 * mad).max(1e-6);
+            for (p, &w0) in points.iter_mut().zip(prior.iter()) {
+                let r = (p.1 - (a * p.0 + b)).abs();
+                p.2 = if r <= cut { w0 } else { w0 * cut / r };
+            }
+            fit = weighted_line_fit(points)?;
+        }
+        Some(fit)
+    }
+
+    fn bits(f: Option<LineFit>) -> Option<(u64, u64, usize, u32)> {
+        f.map(|f| {
+            (
+                f.slope.to_bits(),
+                f.intercept.to_bits(),
+                f.n,
+                f.r2.to_bits(),
+            )
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        /// Selecting the MAD gives exactly the fit of sorting for it (ties, zero weights,
+        /// exact lines, gross outliers and non-finite values included).
+        #[test]
+        fn selected_mad_equals_sorted_mad(
+            raw in proptest::collection::vec(
+                (
+                    -64i32..64,
+                    prop_oneof![
+                        4 => -50.0f32..50.0,
+                        2 => (-3i32..3).prop_map(|v| v as f32),
+                        1 => Just(f32::NAN),
+                        1 => Just(f32::INFINITY),
+                        1 => -1000.0f32..1000.0,
+                    ],
+                    prop_oneof![4 => Just(1.0f32), 1 => Just(0.0f32), 2 => 0.0f32..3.0],
+                ),
+                0..=128,
+            ),
+            line in any::<bool>(),
+            iterations in 0usize..6,
+            huber_k in prop_oneof![Just(0.0f32), Just(1.0f32), 0.5f32..3.0],
+        ) {
+            let mut pts: [(f32, f32, f32); 128] = [(0.0, 0.0, 0.0); 128];
+            for (p, &(x, v, w)) in pts.iter_mut().zip(raw.iter()) {
+                let v = if line { 0.25 * x as f32 - 2.0 } else { v };
+                *p = (x as f32 + 0.5, v, w);
+            }
+            let n = raw.len();
+            let mut want_pts = pts;
+            let want = robust_line_fit_sorting(&mut want_pts[..n], iterations, huber_k);
+            let (mut prior, mut scratch) = ([0.0f32; 128], [0.0f32; 128]);
+            let before = pts;
+            let got = robust_line_fit(&mut pts[..n], &mut prior, &mut scratch, iterations, huber_k);
+            prop_assert_eq!(bits(got), bits(want));
+            if got.is_some() {
+                // The caller's prior weights are restored.
+                for (a, b) in pts.iter().zip(before.iter()) {
+                    prop_assert_eq!(a.2.to_bits(), b.2.to_bits());
+                }
+            }
+        }
+    }
 
     #[test]
     fn ols_recovers_line_and_handles_degenerate_cases() {
