@@ -29,10 +29,8 @@ pub fn edge_histograms(
 
 /// [`edge_histograms`] and [`mean_intensity`] in one pass over the frame (the mean costs one
 /// more `UXTAB16` per word the histogram pass loads anyway, instead of a second pass).
-/// Returns the mean intensity of the left image.
-// Not re-exported by `edge_fs` yet: `EdgeFs` switches to it in edge_fs/mod.rs (see
-// docs/performance.md).
-#[allow(dead_code)]
+/// Returns the mean intensity of the left image (as [`mean_intensity`]). The default mode of
+/// `EdgeFs` uses this.
 pub fn edge_histograms_and_mean(
     frame: &[u8; protocol::STEREO_FRAME_BYTES],
     left: &mut EdgeHistogram,

@@ -45,7 +45,7 @@ mod matching;
 mod temporal;
 
 pub use fit::{line_fit, robust_line_fit, weighted_line_fit, LineFit};
-pub use histogram::{edge_histograms, mean_intensity, EdgeHistogram};
+pub use histogram::{edge_histograms, edge_histograms_and_mean, mean_intensity, EdgeHistogram};
 pub use matching::{
     best_match, column_costs, flow_match, flow_row, match_column, parabola, sad, stereo_match,
     stereo_row, ColumnMatch,
@@ -520,24 +520,31 @@ impl EdgeFs {
     /// right-image column, so depth and flow of a column come from different scene points
     /// near depth edges); the default mode tracks flow in the right image, the one stereo is
     /// indexed by, so each column's depth and flow belong together.
-    fn compute_histograms(&mut self, frame: &[u8; STEREO_FRAME_BYTES]) {
+    ///
+    /// Returns the mean intensity of the left image in the default mode (computed in the same
+    /// pass, [`edge_histograms_and_mean`]); the paper mode does not use it and gets 0.
+    fn compute_histograms(&mut self, frame: &[u8; STEREO_FRAME_BYTES]) -> u8 {
         let (mut left, mut right) = ([0; IMG_W], [0; IMG_W]);
-        edge_histograms(frame, &mut left, &mut right);
-        let (tracked, other) = match self.params.mode {
-            Mode::Paper => (left, right),
+        let (tracked, other, mean) = match self.params.mode {
+            Mode::Paper => {
+                edge_histograms(frame, &mut left, &mut right);
+                (left, right, 0)
+            }
             Mode::Default => {
+                let mean = edge_histograms_and_mean(frame, &mut left, &mut right);
                 // The zero-padded border bins hold image intensity, not edges: drop them.
                 for h in [&mut left, &mut right] {
                     h[0] = 0;
                     h[IMG_W - 1] = 0;
                 }
-                (right, left)
+                (right, left, mean)
             }
         };
         self.other = other;
         if let Some(slot) = self.ring.get_mut(self.head) {
             slot.hist = tracked;
         }
+        mean
     }
 
     /// The paper-era MATLAB pipeline (spec §4.2), frame `i = self.frames`.
@@ -721,13 +728,12 @@ impl EdgeFs {
         if !has_gyro {
             out.flags.insert(EstimateFlags::NO_GYRO);
         }
-        let mean = mean_intensity(frame);
+        let mean = self.compute_histograms(frame);
         if mean < 12 {
             out.flags.insert(EstimateFlags::TOO_DARK);
         } else if mean > 243 {
             out.flags.insert(EstimateFlags::TOO_BRIGHT);
         }
-        self.compute_histograms(frame);
 
         // Stereo with sub-pixel refinement and confidence masking.
         let mut stereo_ok = [false; IMG_W];
