@@ -982,14 +982,27 @@ impl EdgeFs {
     }
 }
 
-/// Median of a short non-empty slice (mean of the two middle values for even lengths).
+/// Median of a short slice (mean of the two middle values for even lengths, 0 when empty),
+/// under the total order of `f32`.
+///
+/// By selection, not sorting: the element a sort would put at `len / 2` and, for even
+/// lengths, the largest of those before it (the sort's `len / 2 - 1`). Under the total order
+/// both are unique, so the result is bit for bit the sorted form's.
 fn median(v: &mut [f32]) -> f32 {
-    v.sort_unstable_by(|a, b| a.total_cmp(b));
-    let m = v.len() / 2;
-    match v.len() {
-        0 => 0.0,
-        n if n % 2 == 1 => v[m],
-        _ => 0.5 * (v[m - 1] + v[m]),
+    let n = v.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let (lower, &mut upper, _) = v.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b));
+    if n % 2 == 1 {
+        upper
+    } else {
+        let below = lower
+            .iter()
+            .copied()
+            .max_by(|a, b| a.total_cmp(b))
+            .unwrap_or(upper);
+        0.5 * (below + upper)
     }
 }
 

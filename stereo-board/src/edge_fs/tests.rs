@@ -312,3 +312,38 @@ mod no_panic {
         }
     }
 }
+
+mod median_selection {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+        /// The selection median equals the median of a full sort bit for bit (ties, signed
+        /// zeros, NaN and infinities included), for odd, even and empty lengths.
+        #[test]
+        fn selection_median_equals_sorted_median(
+            v in proptest::collection::vec(
+                prop_oneof![
+                    4 => -10.0f32..10.0,
+                    2 => (-2i32..3).prop_map(|x| x as f32),
+                    1 => Just(-0.0f32),
+                    1 => Just(f32::NAN),
+                    1 => Just(f32::INFINITY),
+                ],
+                0..=128,
+            ),
+        ) {
+            let mut sorted = v.clone();
+            sorted.sort_unstable_by(|a, b| a.total_cmp(b));
+            let m = sorted.len() / 2;
+            let want = match sorted.len() {
+                0 => 0.0,
+                n if n % 2 == 1 => sorted[m],
+                _ => 0.5 * (sorted[m - 1] + sorted[m]),
+            };
+            let mut w = v.clone();
+            prop_assert_eq!(median(&mut w).to_bits(), want.to_bits());
+        }
+    }
+}
