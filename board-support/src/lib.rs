@@ -6,6 +6,7 @@
 //! * [`uart_dma`]: USART1 receive by circular DMA with the IDLE-line interrupt (MCU only).
 //! * [`log`]: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
+//! * [`stack`]: stack painting and the low-water headroom of the main stack (MCU only).
 //! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
 //!
 //! Each board keeps what is its own: pin map, crystal, drivers, the RTIC app.
@@ -20,5 +21,7 @@ pub mod clock;
 pub mod clocks;
 #[cfg(target_os = "none")]
 pub mod log;
+#[cfg(target_os = "none")]
+pub mod stack;
 #[cfg(target_os = "none")]
 pub mod uart_dma;
