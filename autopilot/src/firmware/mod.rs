@@ -196,6 +196,8 @@ mod app {
         rc_q: Queue<u8, RC_QUEUE> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
+        // First: the status line's `stack_free` is the headroom left from here on.
+        board_support::stack::paint();
         let mut rcc = cx.device.RCC.freeze(board::clocks());
         Mono::start(cx.core.SYST, board::SYSTICK_HZ);
 
@@ -710,13 +712,14 @@ mod app {
                 )
             });
             log::info!(
-                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={} imu_fallback={}",
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={} imu_fallback={} stack_free={}",
                 uptime_ms,
                 msgs,
                 errors,
                 estimates,
                 peer.unwrap_or(u32::MAX),
-                super::IMU_FALLBACK_READS.load(core::sync::atomic::Ordering::Relaxed)
+                super::IMU_FALLBACK_READS.load(core::sync::atomic::Ordering::Relaxed),
+                board_support::stack::free_bytes()
             );
             Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD_US))).await;
         }

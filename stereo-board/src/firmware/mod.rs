@@ -203,6 +203,8 @@ mod app {
         host_q: Queue<u8, RX_QUEUE> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
+        // First: the status line's `stack_free` is the headroom left from here on.
+        board_support::stack::paint();
         let mut rcc = cx.device.RCC.freeze(board::clocks());
         Mono::start(cx.core.SYST, board::SYSTICK_HZ);
 
@@ -572,7 +574,7 @@ mod app {
                 )
             });
             log::info!(
-                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} gyro_age_us={}",
+                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} gyro_age_us={} stack_free={}",
                 status.uptime_ms,
                 status.frames_processed,
                 status.frames_dropped,
@@ -582,7 +584,8 @@ mod app {
                 host_errors.crc,
                 host_errors.too_long,
                 super::RX_LOST.load(core::sync::atomic::Ordering::Relaxed),
-                gyro_age
+                gyro_age,
+                board_support::stack::free_bytes()
             );
             Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / 1_000)).await;
         }
