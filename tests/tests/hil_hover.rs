@@ -10,7 +10,10 @@
 //! (4 fps of world time) its estimate; at least 3 estimates were valid; no decoding error on any
 //! link (host side, relay, the autopilot's own counter); the drone climbed to 0.8..=1.4 m, was
 //! airborne for at least 4 s and from 3 s on stayed within 0.6..=1.4 m; no collision and at most
-//! 1.6 m horizontal drift from the start; the autopilot still flying at the end.
+//! 1.6 m horizontal drift from the start; the autopilot still flying at the end; and each
+//! board's stack kept at least 4 KiB never touched (`stack_free` of its last status line:
+//! `board_support::stack` paints the stack at boot, and this flight, both boards in closed
+//! loop, is the deepest realistic use).
 //!
 //! Measured (2-core machine, load average about 10 from other builds): 6 s of world time in
 //! 103 s of wall time (frames hold the world 70 s; IMU round trips 11 ms), max height 1.08 m,
@@ -24,13 +27,16 @@ mod support;
 use sim_host::hil::{HilConfig, Relay};
 use sim_host::sim::flight::FlightConfig;
 use std::time::{Duration, Instant};
-use support::{qemu_firmwares, require_qemu, Port, Qemu};
+use support::{last_field, qemu_firmwares, require_qemu, Port, Qemu};
 
 /// World time flown, s.
 const SIM_S: f64 = 6.0;
 /// Camera frames per second of world time (what QEMU's USART carries in reasonable wall time:
 /// a frame takes about 2.3 s; see `sim_host::hil`).
 const FPS: f64 = 4.0;
+/// Least stack headroom each board must have kept over the flight, bytes (the low-water mark
+/// of its painted stack, `stack_free=` in its status log line).
+const MIN_STACK_FREE: u64 = 4096;
 
 #[test]
 fn closed_loop_hover_with_both_firmwares_in_qemu() {
@@ -98,9 +104,16 @@ fn closed_loop_hover_with_both_firmwares_in_qemu() {
     let r = result.unwrap_or_else(|e| {
         panic!("hil run failed: {e:#}\nstereo log:\n{slog}\nautopilot log:\n{alog}")
     });
+    // Stack headroom: the low-water mark of each board's stack over the whole flight.
+    let stack_free = [
+        last_field(&slog, "status", "stack_free"),
+        last_field(&alog, "status", "stack_free"),
+    ];
     let report = format!(
-        "{}\nstereo log tail:\n{}\nautopilot log tail:\n{}",
+        "{}\nstack_free: stereo board {} B, autopilot {} B\nstereo log tail:\n{}\nautopilot log tail:\n{}",
         r.summary(),
+        show(stack_free[0]),
+        show(stack_free[1]),
         tail(&slog),
         tail(&alog)
     );
@@ -141,6 +154,18 @@ fn closed_loop_hover_with_both_firmwares_in_qemu() {
     // Still flying (1) or hovering without estimates (2) at the end: not landing or killed.
     let mode = r.last_telemetry.map(|t| t.failsafe);
     assert!(matches!(mode, Some(1 | 2)), "{report}");
+    // Stack: each board kept a margin (an overflow would corrupt statics silently).
+    for (board, free) in ["stereo board", "autopilot"].iter().zip(stack_free) {
+        let free = free.unwrap_or_else(|| panic!("no stack_free in the {board}'s log: {report}"));
+        assert!(
+            free >= MIN_STACK_FREE,
+            "{board}: only {free} bytes of stack never used (at least {MIN_STACK_FREE}): {report}"
+        );
+    }
+}
+
+fn show(v: Option<u64>) -> String {
+    v.map_or_else(|| "?".into(), |v| v.to_string())
 }
 
 fn tail(log: &str) -> String {
