@@ -5,11 +5,14 @@
 //! ```
 //!
 //! Builds both firmwares in release (unless `--no-build`) and prints one line per firmware,
-//! `NAME flash=BYTES ram=BYTES ccm=BYTES`, read from the ELF section headers (parsed here; no
-//! binutils needed): flash is every allocated section with contents (code, read-only data, the
-//! vector table and the initial values of `.data`); ram is `.data`, `.bss` and `.uninit` in
-//! SRAM; ccm is the `.ccmram` section. The stack is not static: it takes what SRAM is left,
-//! which is printed on stderr and checked against a floor.
+//! `NAME flash=BYTES ram=BYTES ccm=BYTES stack=BYTES`, read from the ELF section headers
+//! (parsed here; no binutils needed): flash is every allocated section with contents (code,
+//! read-only data, the vector table and the initial values of `.data`); ram is `.data`, `.bss`
+//! and `.uninit` in SRAM; ccm is the `.ccmram` section. The stack is not static: it takes what
+//! the `RAM` region of the flavour's memory map (`memory.x`, or `memory-qemu.x` for `qemu`)
+//! leaves, `stack` = RAM length - ram; for the real flavour it is checked against a floor. How
+//! much of it the firmware actually uses is measured at run time (`stack_free=` in each board's
+//! status log line, see `board_support::stack`).
 
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -18,8 +21,6 @@ use std::process::Command;
 /// Firmware packages, in print order.
 pub const FIRMWARES: [&str; 2] = ["stereo-board", "autopilot"];
 
-/// SRAM of the STM32F405 (contiguous SRAM1 + SRAM2), bytes.
-const SRAM_BYTES: u64 = 128 * 1024;
 /// CCM of the STM32F405, bytes.
 const CCM_BYTES: u64 = 64 * 1024;
 /// The least SRAM that must stay free for the stack, bytes.
@@ -58,16 +59,17 @@ pub fn run(args: &[String]) -> Result<()> {
         let elf = firmware_elf(flavour, name);
         let bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
         let usage = usage(&bytes).with_context(|| format!("parsing {}", elf.display()))?;
+        let map = workspace_root().join(name).join(flavour.memory_map());
+        let text =
+            std::fs::read_to_string(&map).with_context(|| format!("reading {}", map.display()))?;
+        let ram_len = ram_length(&text).with_context(|| format!("parsing {}", map.display()))?;
+        let stack = ram_len.saturating_sub(usage.ram);
         println!(
-            "{name} flash={} ram={} ccm={}",
+            "{name} flash={} ram={} ccm={} stack={stack}",
             usage.flash, usage.ram, usage.ccm
         );
-        if flavour == Flavour::Real {
-            let stack = SRAM_BYTES.saturating_sub(usage.ram);
-            eprintln!("  {name}: {stack} bytes of SRAM left for the stack");
-            if stack < MIN_STACK_BYTES || usage.ccm > CCM_BYTES {
-                over.push(name);
-            }
+        if flavour == Flavour::Real && (stack < MIN_STACK_BYTES || usage.ccm > CCM_BYTES) {
+            over.push(name);
         }
     }
     if !over.is_empty() {
@@ -103,6 +105,15 @@ impl Flavour {
             Self::Real => None,
             Self::Qemu => Some("qemu"),
             Self::Hil => Some("hil"),
+        }
+    }
+
+    /// The memory map the firmware's build script links with (as `board_support::build`
+    /// picks it): `memory-qemu.x` for `qemu`, `memory.x` otherwise.
+    pub fn memory_map(self) -> &'static str {
+        match self {
+            Self::Qemu => "memory-qemu.x",
+            Self::Real | Self::Hil => "memory.x",
         }
     }
 
@@ -182,6 +193,53 @@ pub fn usage(elf: &[u8]) -> Result<Usage> {
         }
     }
     Ok(u)
+}
+
+/// Length of the `RAM` region in a cortex-m-rt memory map (the `MEMORY { RAM : ORIGIN = ..,
+/// LENGTH = .. }` line of a `memory.x`), bytes. Accepts decimal or `0x` hexadecimal with an
+/// optional `K` or `M` suffix.
+pub fn ram_length(map: &str) -> Result<u64> {
+    // Comments out first (they may mention RAM too).
+    let mut text = String::with_capacity(map.len());
+    let mut rest = map;
+    while let Some(start) = rest.find("/*") {
+        text.push_str(&rest[..start]);
+        rest = match rest[start..].find("*/") {
+            Some(end) => &rest[start + end + 2..],
+            None => "",
+        };
+    }
+    text.push_str(rest);
+    let line = text
+        .lines()
+        .map(str::trim)
+        .find(|l| {
+            l.strip_prefix("RAM")
+                .is_some_and(|r| r.trim_start().starts_with(':'))
+        })
+        .context("no RAM region in the memory map")?;
+    let value = line
+        .split(',')
+        .find_map(|field| {
+            let (key, value) = field.split_once('=')?;
+            (key.trim().rsplit(':').next()?.trim() == "LENGTH").then(|| value.trim())
+        })
+        .context("the RAM region has no LENGTH")?;
+    let (digits, scale) = match value.chars().last() {
+        Some('K' | 'k') => (&value[..value.len() - 1], 1024),
+        Some('M' | 'm') => (&value[..value.len() - 1], 1024 * 1024),
+        _ => (value, 1),
+    };
+    let digits = digits.trim();
+    let n = match digits
+        .strip_prefix("0x")
+        .or_else(|| digits.strip_prefix("0X"))
+    {
+        Some(hex) => u64::from_str_radix(hex, 16),
+        None => digits.parse(),
+    }
+    .with_context(|| format!("bad RAM LENGTH {value:?}"))?;
+    Ok(n * scale)
 }
 
 /// One section header (the fields used here).
@@ -319,6 +377,31 @@ mod tests {
         // The QEMU map puts ".ccmram" inside SRAM: classified by name.
         let img = elf(&[(".ccmram", 8, 3, 0x2001_0000, 100)]);
         assert_eq!(usage(&img).unwrap().ccm, 100);
+    }
+
+    #[test]
+    fn reads_the_ram_length_of_memory_maps() {
+        let map = "/* RAM : ORIGIN = 0, LENGTH = 1K in a comment */\nMEMORY\n{\n  FLASH : ORIGIN = 0x08000000, LENGTH = 1024K\n  RAM : ORIGIN = 0x20000000, LENGTH = 112K\n  CCMRAM : ORIGIN = 0x10000000, LENGTH = 64K\n}\n";
+        assert_eq!(ram_length(map).unwrap(), 112 * 1024);
+        assert_eq!(
+            ram_length("RAM:ORIGIN=0x20000000,LENGTH=0x10000").unwrap(),
+            0x10000
+        );
+        assert_eq!(
+            ram_length("RAM : ORIGIN = 0, LENGTH = 2M").unwrap(),
+            2 << 20
+        );
+        assert!(ram_length("CCMRAM : ORIGIN = 0, LENGTH = 64K").is_err());
+        assert!(ram_length("RAM : ORIGIN = 0, LENGTH = lots").is_err());
+        // The maps the firmwares link with.
+        for name in FIRMWARES {
+            for flavour in [Flavour::Real, Flavour::Qemu, Flavour::Hil] {
+                let path = workspace_root().join(name).join(flavour.memory_map());
+                let text = std::fs::read_to_string(&path).unwrap();
+                let len = ram_length(&text).unwrap();
+                assert!((64 * 1024..=128 * 1024).contains(&len), "{path:?}: {len}");
+            }
+        }
     }
 
     #[test]
