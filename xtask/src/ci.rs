@@ -82,6 +82,11 @@ pub fn run(args: &[String]) -> Result<()> {
 
     cargo(&["fw"]).context("firmware build (cargo fw) failed")?;
     steps.push("firmware(stereo-board, autopilot)".into());
+    for flavour in ["real", "qemu"] {
+        run_checked(Command::new("cargo").args(["xtask", "size", "--flavour", flavour]))
+            .with_context(|| format!("firmware layout or size check ({flavour}) failed"))?;
+    }
+    steps.push("size and start-up layout (real, qemu)".into());
 
     if fuzz_seconds > 0 {
         for (target, seconds) in [("decoder", fuzz_seconds), ("encoder", fuzz_seconds / 2)] {

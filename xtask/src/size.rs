@@ -59,6 +59,7 @@ pub fn run(args: &[String]) -> Result<()> {
         let elf = firmware_elf(flavour, name);
         let bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
         let usage = usage(&bytes).with_context(|| format!("parsing {}", elf.display()))?;
+        check_layout(&bytes).with_context(|| format!("{}", elf.display()))?;
         let map = workspace_root().join(name).join(flavour.memory_map());
         let text =
             std::fs::read_to_string(&map).with_context(|| format!("reading {}", map.display()))?;
@@ -195,6 +196,54 @@ pub fn usage(elf: &[u8]) -> Result<Usage> {
     Ok(u)
 }
 
+/// Value of the named symbol in the ELF's symbol table (`None` when it is not there).
+pub fn symbol(elf: &[u8], wanted: &str) -> Result<Option<u32>> {
+    const SHT_SYMTAB: u32 = 2;
+    let secs = sections(elf)?;
+    let Some(symtab) = secs.iter().find(|s| s.kind == SHT_SYMTAB) else {
+        bail!("no symbol table");
+    };
+    let strtab = secs
+        .get(symtab.link as usize)
+        .context("symbol table without a string table")?;
+    for i in 0..(symtab.size / 16) as usize {
+        let at = symtab.offset as usize + 16 * i;
+        let name_off = rd_u32(elf, at)? as usize;
+        let name = elf
+            .get(strtab.offset as usize + name_off..)
+            .and_then(|s| s.split(|&c| c == 0).next())
+            .unwrap_or_default();
+        if name == wanted.as_bytes() {
+            return Ok(Some(rd_u32(elf, at + 4)?));
+        }
+    }
+    Ok(None)
+}
+
+/// Checks the start-up layout cortex-m-rt relies on: `__sbss <= __ebss <= _stack_end <
+/// _stack_start`, all in SRAM. The reset handler zeroes `.bss` with a loop that runs until it
+/// meets `__ebss`: a section inserted after `.bss` in another region (CCM is below SRAM) moves
+/// `__ebss` there and the loop runs off the end of SRAM.
+pub fn check_layout(elf: &[u8]) -> Result<()> {
+    let sym =
+        |n: &str| -> Result<u32> { symbol(elf, n)?.with_context(|| format!("no symbol {n}")) };
+    let (sbss, ebss) = (sym("__sbss")?, sym("__ebss")?);
+    let (end, start) = (sym("_stack_end")?, sym("_stack_start")?);
+    let sram = 0x2000_0000..=0x2002_0000;
+    if !(sbss <= ebss
+        && ebss <= end
+        && end < start
+        && sram.contains(&sbss)
+        && sram.contains(&start))
+    {
+        bail!(
+            "bad start-up layout: __sbss {sbss:#x} __ebss {ebss:#x} _stack_end {end:#x} \
+             _stack_start {start:#x} (need __sbss <= __ebss <= _stack_end < _stack_start in SRAM)"
+        );
+    }
+    Ok(())
+}
+
 /// Length of the `RAM` region in a cortex-m-rt memory map (the `MEMORY { RAM : ORIGIN = ..,
 /// LENGTH = .. }` line of a `memory.x`), bytes. Accepts decimal or `0x` hexadecimal with an
 /// optional `K` or `M` suffix.
@@ -255,6 +304,10 @@ pub struct Section {
     pub addr: u32,
     /// `sh_size`.
     pub size: u32,
+    /// `sh_offset`: where the section's bytes start in the file.
+    pub offset: u32,
+    /// `sh_link`: for a symbol table, the index of its string table.
+    pub link: u32,
 }
 
 fn rd_u16(b: &[u8], at: usize) -> Result<u16> {
@@ -303,6 +356,8 @@ pub fn sections(elf: &[u8]) -> Result<Vec<Section>> {
             flags: rd_u32(elf, h + 0x08)?,
             addr: rd_u32(elf, h + 0x0c)?,
             size: rd_u32(elf, h + 0x14)?,
+            offset: rd_u32(elf, h + 0x10)?,
+            link: rd_u32(elf, h + 0x18)?,
         });
     }
     Ok(out)
