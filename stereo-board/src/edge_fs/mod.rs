@@ -741,9 +741,7 @@ impl EdgeFs {
         let mut texture = [0u32; IMG_W];
         {
             let cur = &self.ring[self.idx(0)].hist;
-            for (c, t) in texture.iter_mut().enumerate() {
-                *t = window_sum(cur, c, w);
-            }
+            window_sums(cur, w, &mut texture);
             let ds = usize::from(p.stereo_range);
             let diag = &mut self.diag;
             stereo_row(&self.other, cur, ds, s, w, |c, m| {
@@ -1006,13 +1004,26 @@ fn median(v: &mut [f32]) -> f32 {
     }
 }
 
-/// Sum of the histogram bins of the `2w+1` window centred at `c` (edge energy), 0 outside.
-fn window_sum(h: &EdgeHistogram, c: usize, w: usize) -> u32 {
-    if c < w {
-        return 0;
+/// Edge energy per column: `out[c]` is the sum of the histogram bins of the `2w+1` window
+/// centred at `c`, 0 where the window leaves the image.
+///
+/// A running sum (integers, so exactly the per-window sums): each column adds the bin entering
+/// the window and subtracts the one leaving it.
+fn window_sums(h: &EdgeHistogram, w: usize, out: &mut [u32; IMG_W]) {
+    *out = [0; IMG_W];
+    let Some(first) = h.get(..=2 * w) else {
+        return;
+    };
+    let mut sum: u32 = first.iter().map(|&v| u32::from(v)).sum();
+    if let Some(o) = out.get_mut(w) {
+        *o = sum;
     }
-    h.get(c - w..=c + w)
-        .map_or(0, |s| s.iter().map(|&v| u32::from(v)).sum())
+    // Column `c` (from `w + 1`): bin `c + w` enters, bin `c - w - 1` leaves.
+    let entering = h.iter().skip(2 * w + 1);
+    for ((o, &enter), &leave) in out.iter_mut().skip(w + 1).zip(entering).zip(h.iter()) {
+        sum = sum + u32::from(enter) - u32::from(leave);
+        *o = sum;
+    }
 }
 
 #[cfg(test)]

@@ -347,3 +347,32 @@ mod median_selection {
         }
     }
 }
+
+mod window_sums {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(128))]
+        /// The running window sums equal the per-window sums (0 where the window leaves the
+        /// image) for every half window, saturated bins included.
+        #[test]
+        fn running_sums_equal_per_window_sums(
+            bins in proptest::collection::vec(prop_oneof![0u16..=24_480, Just(24_480u16)], IMG_W),
+            w in 0usize..70,
+        ) {
+            let mut h: EdgeHistogram = [0; IMG_W];
+            h.copy_from_slice(&bins);
+            let mut got = [1u32; IMG_W];
+            window_sums(&h, w, &mut got);
+            for (c, &g) in got.iter().enumerate() {
+                let want = if c < w || c + w >= IMG_W {
+                    0
+                } else {
+                    h[c - w..=c + w].iter().map(|&v| u32::from(v)).sum()
+                };
+                prop_assert_eq!(g, want, "column {}", c);
+            }
+        }
+    }
+}
