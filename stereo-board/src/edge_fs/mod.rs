@@ -890,7 +890,8 @@ impl EdgeFs {
                 *r = (pt.1 - (a * pt.0 + b)).abs();
                 m += 1;
             }
-            let col = libm::roundf(pt.0 + 63.5);
+            // `pt.0` is `c - 63.5` for an integer column `c`: exactly `c` again, no rounding.
+            let col = pt.0 + 63.5;
             if (0.0..IMG_W as f32).contains(&col) {
                 if let Some(u) = self.diag.used.get_mut(col as usize) {
                     *u = true;
