@@ -132,27 +132,34 @@ pub fn robust_line_fit(
     let mut fit = weighted_line_fit(points)?;
     for _ in 0..iterations {
         let (a, b) = (fit.slope as f32, fit.intercept as f32);
+        // Residuals of this round: those of the weighted points into `scratch` for the MAD,
+        // and every point's in its weight slot until the reweighting below (which only needs
+        // the residual and the prior weight), so each residual is computed once.
         let mut m = 0;
-        for p in points.iter() {
+        for p in points.iter_mut() {
+            let r = (p.1 - (a * p.0 + b)).abs();
             if p.2 > 0.0 {
                 if let Some(s) = scratch.get_mut(m) {
-                    *s = (p.1 - (a * p.0 + b)).abs();
+                    *s = r;
                     m += 1;
                 }
             }
+            p.2 = r;
         }
         let res = scratch.get_mut(..m)?;
-        // The element a full sort would put at `m / 2` (under the total order that element is
-        // unique, so the result is the same bit for bit), found by selection: O(m), not a sort.
+        // The element a full sort would put at `m / 2`, found by selection: O(m), not a sort.
+        // The residuals have their sign bit clear (`abs`, NaN included), so ordering their
+        // bit patterns as integers is `total_cmp`'s order (cheaper to compare); under that
+        // total order the element is unique, so the result is the sort's bit for bit.
         let mad = if m == 0 {
             0.0
         } else {
-            *res.select_nth_unstable_by(m / 2, |x, y| x.total_cmp(y)).1
+            *res.select_nth_unstable_by_key(m / 2, |x| x.to_bits()).1
         };
         let scale = (1.4826 * mad).max(1e-6);
         let cut = huber_k * scale;
         for (p, &w0) in points.iter_mut().zip(prior.iter()) {
-            let r = (p.1 - (a * p.0 + b)).abs();
+            let r = p.2;
             p.2 = if r <= cut { w0 } else { w0 * cut / r };
         }
         fit = weighted_line_fit(points)?;
