@@ -826,41 +826,35 @@ impl EdgeFs {
         {
             let (cur_h, old_h) = (&cur.hist, &older.hist);
             let diag = &mut self.diag;
-            column_costs(
-                old_h,
-                cur_h,
-                offset as isize - d as isize,
-                2 * d + 1,
-                w,
-                |c, costs| {
-                    if texture[c] < p.min_texture {
-                        return;
+            // `flow_row`: the first minimum is found while the costs are updated (same
+            // matches as `best_match` of `column_costs`' costs, bit for bit); the parabola and
+            // peak ratio are computed for every column, which still costs less than
+            // scanning the costs again per textured column.
+            flow_row(old_h, cur_h, d, offset, w, |c, m| {
+                if texture[c] < p.min_texture {
+                    return;
+                }
+                textured += 1;
+                if m.best == 0 || m.best == 2 * d {
+                    edge_hits += 1;
+                    return;
+                }
+                let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel;
+                let u = (motion - rot_px) / dt_s;
+                diag.flow_pxps[c] = u;
+                if stereo_ok[c] && m.confidence >= p.min_flow_confidence {
+                    let z = diag.depth_m[c];
+                    if let Some(pt) = pts.get_mut(np) {
+                        let wgt = if p.depth_weight_exp == 0.0 {
+                            1.0
+                        } else {
+                            libm::powf(z.max(0.05), -p.depth_weight_exp)
+                        };
+                        *pt = (c as f32 - 63.5, z * u, wgt);
+                        np += 1;
                     }
-                    let Some(m) = best_match(costs) else {
-                        return;
-                    };
-                    textured += 1;
-                    if m.best == 0 || m.best == 2 * d {
-                        edge_hits += 1;
-                        return;
-                    }
-                    let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel;
-                    let u = (motion - rot_px) / dt_s;
-                    diag.flow_pxps[c] = u;
-                    if stereo_ok[c] && m.confidence >= p.min_flow_confidence {
-                        let z = diag.depth_m[c];
-                        if let Some(pt) = pts.get_mut(np) {
-                            let wgt = if p.depth_weight_exp == 0.0 {
-                                1.0
-                            } else {
-                                libm::powf(z.max(0.05), -p.depth_weight_exp)
-                            };
-                            *pt = (c as f32 - 63.5, z * u, wgt);
-                            np += 1;
-                        }
-                    }
-                },
-            );
+                }
+            });
         }
         // Adaptive horizon: shorten when many searches hit the range end, lengthen when none.
         if edge_hits * 8 > textured && self.horizon > 1 {
