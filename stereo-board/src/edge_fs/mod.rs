@@ -787,7 +787,7 @@ impl EdgeFs {
         }
         // Rotation over the horizon from the attitude (the scene moves left when the yaw
         // grows); shorten the horizon until it fits the search.
-        let cur = self.ring[self.idx(0)];
+        let cur = &self.ring[self.idx(0)];
         let rotation = |older: &Slot| {
             if cur.has_yaw && older.has_yaw {
                 -(cur.yaw_rad - older.yaw_rad) * f
@@ -807,7 +807,7 @@ impl EdgeFs {
             out.flags.insert(EstimateFlags::NO_FLOW_MATCH);
             return (out, None);
         }
-        let older = self.ring[self.idx(n)];
+        let older = &self.ring[self.idx(n)];
         let offset = libm::roundf(rot_px) as i32;
         let dt_s = cur.capture_us.saturating_sub(older.capture_us) as f32 * 1e-6;
         if dt_s.is_nan() || dt_s <= 1e-4 {
