@@ -955,22 +955,28 @@ impl EdgeFs {
         let mut best: Option<f32> = None;
         let (mut run, mut sum) = (0usize, 0.0f32);
         let mut prev = 0.0f32;
-        for &z in depth.iter().chain(core::iter::once(&0.0)) {
+        // A run of at least 5 columns ended: keep its mean if it is the nearest so far.
+        let end_run = |run: usize, sum: f32, best: &mut Option<f32>| {
+            if run >= 5 {
+                let mean = sum / run as f32;
+                if best.is_none_or(|b| mean < b) {
+                    *best = Some(mean);
+                }
+            }
+        };
+        for &z in depth.iter() {
             let continues = z > 0.0 && run > 0 && (z - prev).abs() < 0.3 * prev.max(z);
             if z > 0.0 && (run == 0 || continues) {
                 run += 1;
                 sum += z;
             } else {
-                if run >= 5 {
-                    let mean = sum / run as f32;
-                    if best.is_none_or(|b| mean < b) {
-                        best = Some(mean);
-                    }
-                }
+                end_run(run, sum, &mut best);
                 (run, sum) = if z > 0.0 { (1, z) } else { (0, 0.0) };
             }
             prev = z;
         }
+        // The image edge ends the last run.
+        end_run(run, sum, &mut best);
         best.filter(|&z| z <= self.params.max_obstacle_m)
     }
 }

@@ -376,3 +376,18 @@ mod window_sums {
         }
     }
 }
+
+#[test]
+fn nearest_obstacle_counts_runs_of_five_including_one_at_the_image_edge() {
+    let mut fs = EdgeFs::new(EdgeFsParams::default_config());
+    let depth = &mut fs.diag.depth_m;
+    depth[10..14].fill(0.5); // 4 columns: too short
+    depth[40..45].fill(3.0); // 5 columns
+    depth[50..56].copy_from_slice(&[4.0, 4.1, 1.0, 4.0, 4.1, 4.2]); // broken by a jump
+    depth[IMG_W - 6..].fill(2.0); // 6 columns ending at the image edge
+    assert_eq!(fs.nearest_obstacle(), Some(2.0));
+    fs.diag.depth_m[IMG_W - 6..].fill(0.0);
+    assert_eq!(fs.nearest_obstacle(), Some(3.0));
+    fs.diag.depth_m[40..45].fill(6.0);
+    assert_eq!(fs.nearest_obstacle(), None, "beyond max_obstacle_m");
+}
