@@ -524,27 +524,31 @@ impl EdgeFs {
     /// Returns the mean intensity of the left image in the default mode (computed in the same
     /// pass, [`edge_histograms_and_mean`]); the paper mode does not use it and gets 0.
     fn compute_histograms(&mut self, frame: &[u8; STEREO_FRAME_BYTES]) -> u8 {
-        let (mut left, mut right) = ([0; IMG_W], [0; IMG_W]);
-        let (tracked, other, mean) = match self.params.mode {
+        // Written in place (every bin is overwritten): no copies of the histograms.
+        let mut unused;
+        let tracked = match self.ring.get_mut(self.head) {
+            Some(slot) => &mut slot.hist,
+            None => {
+                unused = [0; IMG_W];
+                &mut unused
+            }
+        };
+        let other = &mut self.other;
+        match self.params.mode {
             Mode::Paper => {
-                edge_histograms(frame, &mut left, &mut right);
-                (left, right, 0)
+                edge_histograms(frame, tracked, other);
+                0
             }
             Mode::Default => {
-                let mean = edge_histograms_and_mean(frame, &mut left, &mut right);
+                let mean = edge_histograms_and_mean(frame, other, tracked);
                 // The zero-padded border bins hold image intensity, not edges: drop them.
-                for h in [&mut left, &mut right] {
+                for h in [tracked, other] {
                     h[0] = 0;
                     h[IMG_W - 1] = 0;
                 }
-                (right, left, mean)
+                mean
             }
-        };
-        self.other = other;
-        if let Some(slot) = self.ring.get_mut(self.head) {
-            slot.hist = tracked;
         }
-        mean
     }
 
     /// The paper-era MATLAB pipeline (spec §4.2), frame `i = self.frames`.
