@@ -335,7 +335,7 @@ impl Autopilot {
             outliers_in_a_row: 0,
             last_outlier: [0.0; 2],
             outliers_total: 0,
-            stereo_rx: StereoToAutopilotDecoder::new(),
+            stereo_rx: StereoToAutopilotDecoder::new_mid_stream(),
             stereo_heartbeat: None,
             stereo_status: None,
             stereo_config_ack: None,

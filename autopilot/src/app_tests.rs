@@ -542,18 +542,21 @@ fn stereo_bytes_are_decoded_in_any_chunking() {
     let quad = Quad::new();
     let mut wire = Vec::new();
     let mut buf = [0u8; 128];
+    let mut first_frame_len = 0;
     for seq in 0..3u16 {
         let mut e = quad.estimate(seq);
         e.forward_mps = 0.1 * seq as f32;
         let n = protocol::encode(&StereoToAutopilot::Estimate(e), &mut buf).unwrap();
         wire.extend_from_slice(&buf[..n]);
+        first_frame_len = first_frame_len.max(n * usize::from(seq == 0));
     }
     let hb = Heartbeat::new(protocol::Node::StereoBoard, 5);
     let n = protocol::encode(&StereoToAutopilot::Heartbeat(hb), &mut buf).unwrap();
     wire.extend_from_slice(&buf[..n]);
-    // Garbage in the middle: counted, and the decoder resynchronises.
+    // Garbage in the middle: counted, and the decoder resynchronises. (Garbage before the
+    // first frame would not be counted: the link decoder joins the stream mid-frame.)
     let mut bad = wire.clone();
-    bad.splice(0..0, [1u8, 2, 3, 0]);
+    bad.splice(first_frame_len..first_frame_len, [1u8, 2, 3, 0]);
     let mut decoded = 0;
     for chunk in bad.chunks(7) {
         decoded += ap.on_stereo_bytes(chunk, 1_000);

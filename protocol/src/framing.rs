@@ -277,6 +277,9 @@ pub struct Decoder<M: Message, const N: usize> {
     buf: [u8; N],
     len: usize,
     overflowed: bool,
+    /// Not yet aligned to the stream: the frame in progress may be the tail of one that began
+    /// before this receiver started listening, so its rejection is not counted.
+    joining: bool,
     errors: LinkErrorCounts,
     frames_ok: u32,
     peer_version: Option<u8>,
@@ -290,12 +293,27 @@ impl<M: Message, const N: usize> Default for Decoder<M, N> {
 }
 
 impl<M: Message, const N: usize> Decoder<M, N> {
-    /// An empty decoder with zeroed counters.
+    /// An empty decoder with zeroed counters, for a stream that starts at a frame boundary (a
+    /// socket or a simulated link open from the first byte). Every rejected frame is counted.
     pub const fn new() -> Self {
+        Self::with_start(false)
+    }
+
+    /// An empty decoder for a stream joined at an unknown point: a UART enabled while the peer
+    /// is already talking (a board booting, or reset by its watchdog, mid-flight). The first
+    /// frame is delivered if it is valid; if it is not, it is taken for the tail of a frame
+    /// that began before this receiver listened and is dropped without being counted. Every
+    /// later rejection is counted as with [`Decoder::new`].
+    pub const fn new_mid_stream() -> Self {
+        Self::with_start(true)
+    }
+
+    const fn with_start(joining: bool) -> Self {
         Self {
             buf: [0; N],
             len: 0,
             overflowed: false,
+            joining,
             errors: LinkErrorCounts {
                 crc: 0,
                 cobs: 0,
@@ -317,7 +335,8 @@ impl<M: Message, const N: usize> Decoder<M, N> {
     }
 
     /// Takes one byte. When `byte` ends a frame, returns the message or why it was rejected
-    /// (the rejection is counted either way).
+    /// (and counted). A rejected first frame of a decoder joining mid-stream is neither
+    /// counted nor returned.
     pub fn push_checked(&mut self, byte: u8) -> Option<Result<M, FrameError>> {
         if byte != DELIMITER {
             match self.buf.get_mut(self.len) {
@@ -340,8 +359,10 @@ impl<M: Message, const N: usize> Decoder<M, N> {
         };
         self.len = 0;
         self.overflowed = false;
+        let joining = core::mem::replace(&mut self.joining, false);
         match &result {
             Ok(_) => self.frames_ok = self.frames_ok.wrapping_add(1),
+            Err(_) if joining => return None,
             Err(error) => self.count(*error),
         }
         Some(result)
@@ -356,10 +377,14 @@ impl<M: Message, const N: usize> Decoder<M, N> {
         }
     }
 
-    /// Drops a partly received frame (e.g. after a UART overrun); it is not counted.
+    /// Drops a partly received frame (e.g. after a UART overrun, which the caller counts as
+    /// it sees fit) and rejoins the stream: the bytes up to the next delimiter are the rest of
+    /// the dropped frame, so their rejection is not counted either (see
+    /// [`Decoder::new_mid_stream`]).
     pub fn reset_frame(&mut self) {
         self.len = 0;
         self.overflowed = false;
+        self.joining = true;
     }
 
     /// Rejected frames since creation, by kind.

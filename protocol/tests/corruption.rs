@@ -253,3 +253,48 @@ fn truncated_oversized_and_empty_frames_are_rejected_and_counted() {
     });
     assert_eq!(decoder.errors().unknown_message, 1);
 }
+
+#[test]
+fn a_decoder_joining_mid_stream_drops_the_partial_first_frame_uncounted() {
+    let mut wire = [0u8; 64];
+    let msg = StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, 7));
+    let n = encode(&msg, &mut wire).unwrap();
+    let frame = &wire[..n];
+
+    // Joined in the middle of a frame: its tail is dropped silently, the next frame decodes,
+    // and from then on every rejection counts.
+    let mut decoder = StereoToAutopilotDecoder::new_mid_stream();
+    let mut out = Vec::new();
+    decoder.feed(&frame[n / 2..], |m| out.push(m));
+    assert_eq!(decoder.errors().total(), 0);
+    decoder.feed(frame, |m| out.push(m));
+    assert_eq!(out, vec![msg.clone()]);
+    decoder.feed(&frame[n / 2..], |m| out.push(m));
+    assert_eq!(
+        decoder.errors().total(),
+        1,
+        "only the first frame is excused"
+    );
+
+    // Joined exactly at a frame boundary: the first frame is delivered, not lost.
+    let mut decoder = StereoToAutopilotDecoder::new_mid_stream();
+    let mut out = Vec::new();
+    decoder.feed(frame, |m| out.push(m));
+    assert_eq!(out, vec![msg.clone()]);
+    assert_eq!(decoder.frames_ok(), 1);
+
+    // A decoder for a stream known to start at a boundary counts the same tail.
+    let mut strict = StereoToAutopilotDecoder::new();
+    strict.feed(&frame[n / 2..], |_| panic!("a tail is not a message"));
+    assert_eq!(strict.errors().total(), 1);
+
+    // After an overrun the rest of the interrupted frame is not counted either.
+    let mut decoder = StereoToAutopilotDecoder::new();
+    let mut out = Vec::new();
+    decoder.feed(&frame[..n / 2], |m| out.push(m));
+    decoder.reset_frame();
+    decoder.feed(&frame[n / 2 + 1..], |m| out.push(m));
+    decoder.feed(frame, |m| out.push(m));
+    assert_eq!(decoder.errors().total(), 0);
+    assert_eq!(out, vec![msg]);
+}

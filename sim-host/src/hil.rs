@@ -344,7 +344,7 @@ impl Relay {
         let (a_r, a_w) = (autopilot.try_clone_link()?, autopilot);
         {
             let seen = Arc::clone(&seen);
-            let mut dec = StereoToAutopilotDecoder::new();
+            let mut dec = StereoToAutopilotDecoder::new_mid_stream();
             pump(s_r, a_w, move |bytes| {
                 let mut g = seen.lock().unwrap_or_else(|e| e.into_inner());
                 let mut n = 0;
@@ -355,7 +355,7 @@ impl Relay {
         }
         {
             let seen = Arc::clone(&seen);
-            let mut dec = AutopilotToStereoDecoder::new();
+            let mut dec = AutopilotToStereoDecoder::new_mid_stream();
             pump(a_r, s_w, move |bytes| {
                 let mut g = seen.lock().unwrap_or_else(|e| e.into_inner());
                 let mut n = 0;
@@ -435,7 +435,7 @@ impl BoardRx {
         let (tx, rx) = mpsc::channel();
         let errors = Arc::new(Mutex::new(LinkErrorCounts::default()));
         let errs = Arc::clone(&errors);
-        let mut dec = BoardToHostDecoder::new();
+        let mut dec = BoardToHostDecoder::new_mid_stream();
         read_chunks(link, stop, move |bytes| {
             let mut open = true;
             dec.feed(bytes, |m| open &= tx.send(m).is_ok());

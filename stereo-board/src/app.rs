@@ -321,8 +321,8 @@ impl StereoBoardApp {
         Self {
             edge_fs: EdgeFs::new(params),
             params,
-            rx: Decoder::new(),
-            host_rx: Decoder::new(),
+            rx: Decoder::new_mid_stream(),
+            host_rx: Decoder::new_mid_stream(),
             host_clock: ClockExtender::new(),
             gyro: None,
             peer_uptime_ms: None,

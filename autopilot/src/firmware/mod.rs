@@ -372,7 +372,7 @@ mod app {
                 host_out,
                 host_wake_tx,
                 host_wake_rx,
-                host_decoder: HostToBoardDecoder::new(),
+                host_decoder: HostToBoardDecoder::new_mid_stream(),
                 guidance_tick,
                 gyro_tick,
                 telemetry_tick,
