@@ -330,6 +330,12 @@ const fn finite_or_zero(v: f32) -> f32 {
     }
 }
 
+/// An angle difference wrapped to [-pi, pi] (NaN stays NaN).
+fn wrap_pi(a: f32) -> f32 {
+    use core::f32::consts::TAU;
+    a - TAU * libm::roundf(a / TAU)
+}
+
 const fn clamp_u8(v: u8, lo: u8, hi: u8) -> u8 {
     if v < lo {
         lo
@@ -790,11 +796,12 @@ impl EdgeFs {
             return (out, None);
         }
         // Rotation over the horizon from the attitude (the scene moves left when the yaw
-        // grows); shorten the horizon until it fits the search.
+        // grows); shorten the horizon until it fits the search. The yaw change is wrapped:
+        // a heading crossing +-pi is a small turn, not a full one.
         let cur = &self.ring[self.idx(0)];
         let rotation = |older: &Slot| {
             if cur.has_yaw && older.has_yaw {
-                -(cur.yaw_rad - older.yaw_rad) * f
+                -wrap_pi(cur.yaw_rad - older.yaw_rad) * f
             } else {
                 0.0
             }

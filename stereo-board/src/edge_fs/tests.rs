@@ -144,6 +144,44 @@ fn yaw_rotation_is_removed_with_the_gyro_and_flagged_without() {
     assert!(out.flags.contains(EstimateFlags::HISTORY_FILLING));
 }
 
+#[test]
+fn a_heading_crossing_pi_is_a_small_turn() {
+    // Sideways flight with a slow right turn, once around heading 0 and once through +-pi
+    // (the attitude yaw wraps from +pi to -pi): the estimates must be the same.
+    let params = EdgeFsParams::default_config();
+    let f = params.focal_px();
+    let run = |heading0: f32| {
+        let mut fs = EdgeFs::new(params);
+        let mut outs = heapless::Vec::<EdgeFsOutput, 16>::new();
+        for i in 0..16u32 {
+            let t = i as f32 / 25.0;
+            let turned = 0.2 * t;
+            let frame = render(1.5, 0.3 * t, turned * f, &params);
+            let yaw = heading0 + turned;
+            let wrapped = yaw - core::f32::consts::TAU * libm::roundf(yaw / core::f32::consts::TAU);
+            let out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(wrapped)));
+            outs.push(out).unwrap();
+        }
+        outs
+    };
+    let around_zero = run(-0.05);
+    let through_pi = run(core::f32::consts::PI - 0.05);
+    let valid = through_pi.iter().filter(|o| o.flags.is_valid()).count();
+    // The history fills for the first 9 frames; the 7 after must all be valid.
+    assert_eq!(valid, 7, "through pi: {through_pi:?}");
+    for (a, b) in around_zero.iter().zip(&through_pi) {
+        assert_eq!(a.flags, b.flags);
+        assert!(
+            (a.sideways_mps - b.sideways_mps).abs() < 1e-3,
+            "{a:?} vs {b:?}"
+        );
+        assert!(
+            (a.forward_mps - b.forward_mps).abs() < 1e-3,
+            "{a:?} vs {b:?}"
+        );
+    }
+}
+
 /// Hovers in front of a wall at 1.5 m while yawing at `rate` rad/s (25 fps); the attitude
 /// sent with each frame is `latency_s` old (the board uses the latest sample, not one taken at
 /// the exposure). Returns the outputs after the history has filled.
