@@ -344,19 +344,24 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
     assert_eq!(ap.mode(), FlightMode::Flying);
 }
 
-#[test]
-fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
-    let mut ap = Autopilot::new(AutopilotConfig::default());
-    let est = |f: f32| Estimate {
+/// A valid estimate of `forward_mps` straight ahead, nothing in range.
+fn forward_estimate(forward_mps: f32) -> Estimate {
+    Estimate {
         seq: 0,
         capture_us: 0,
-        forward_mps: f,
+        forward_mps,
         sideways_mps: 0.0,
         obstacle_m: None,
         quality: 200,
         flags: EstimateFlags::NONE,
         processing_us: 0,
-    };
+    }
+}
+
+#[test]
+fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let est = forward_estimate;
     let mut t = 0;
     let mut feed = |ap: &mut Autopilot, f: f32| {
         t += 40_000;
@@ -430,16 +435,7 @@ fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
 #[test]
 fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
-    let est = |f: f32| Estimate {
-        seq: 0,
-        capture_us: 0,
-        forward_mps: f,
-        sideways_mps: 0.0,
-        obstacle_m: None,
-        quality: 200,
-        flags: EstimateFlags::NONE,
-        processing_us: 0,
-    };
+    let est = forward_estimate;
     let imu = |t: u64, yaw_rate: f32| ImuSample {
         timestamp_us: t as u32,
         gyro_radps: [0.0, 0.0, yaw_rate],
