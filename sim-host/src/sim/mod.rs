@@ -44,17 +44,21 @@
 //! seed, and nothing reads the wall clock, so the same configuration gives the same log bit
 //! for bit (tested).
 //!
-//! # Measured (at commit b1ff862, 2-core machine shared with other builds)
+//! # Measured (at commit a77ebbc, 2-core machine)
 //!
-//! * Speed: `cargo run --release -p sim-host -- fly` (room, 120 s) runs 15-22x faster than
-//!   real time on one core; `--seeds 20 --duration 600` simulated 12,000 s in 363 s of wall
-//!   time on two cores (33x).
-//! * `sim-host fly --seeds 20 --duration 600 --fsm paper`: 7/20 flights without a collision
-//!   for 600 s, mean time to the first collision 321 s (the paper's flights: 91, 101, 122 s);
-//!   RMSE of the autopilot's velocity estimate 0.09-0.44 m/s.
-//! * Same with `--fsm improved` (turn until clear): 0/20, mean 190 s. Most collisions follow
-//!   a turn: at the FSM's turn rate the drone slides up to ~1 m/s while the body-frame
-//!   velocity estimate lags, and turning longer (improved) gives it more time to slide.
+//! * Speed: `cargo run --release -p sim-host -- fly` (room, 120 s) simulates in 5.1 s on one
+//!   core (24x real time); `--seeds 20 --duration 600` simulates 12,000 s in 293-296 s of
+//!   wall time on two cores (41x).
+//! * `sim-host fly --seeds 20 --duration 600 --fsm paper`: 20/20 flights without a collision
+//!   for 600 s (the paper's flights: 91, 101, 122 s); minimum clearance 0.10-0.54 m, RMSE of
+//!   the autopilot's velocity estimate 0.12-0.17 m/s, 164-205 m flown per flight.
+//! * Same with `--fsm improved` (turn until clear): 20/20, minimum clearance 0.17-0.44 m,
+//!   velocity RMSE 0.13-0.16 m/s, 158-194 m.
+//! * Before two fixes found with this Monte Carlo the numbers were 17/20 (paper) and 1/20
+//!   (improved): Edge-FS read a heading crossing +-pi as a full turn (every estimate there
+//!   invalid), and INDI's G2 spin-up term acted on the wrong increment, so a slow yaw
+//!   oscillation grew as G2 was learnt, the yaw-rate gate kept the velocity estimates out of
+//!   the observer and the drone drifted into a wall; turning until clear suffered most.
 //! * Closed-loop results move with every change of the boards' code (the flights are
 //!   chaotic); the tests in `tests/tests/sim_flight.rs` state their bounds and seeds.
 
