@@ -4,6 +4,7 @@
 //! * [`clocks`]: clock tree and link constants per flavour (MCU only).
 //! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
 //! * [`uart_dma`]: USART1 receive by circular DMA with the IDLE-line interrupt (MCU only).
+//! * [`uart_rx`]: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
 //! * [`log`]: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
 //! * [`stack`]: stack painting and the low-water headroom of the main stack (MCU only).
@@ -25,3 +26,5 @@ pub mod log;
 pub mod stack;
 #[cfg(target_os = "none")]
 pub mod uart_dma;
+#[cfg(target_os = "none")]
+pub mod uart_rx;

@@ -130,6 +130,9 @@ fn closed_loop_hover_with_both_firmwares_in_qemu() {
         "the camera board's estimates were usable: {report}"
     );
     assert_eq!(r.total_link_errors(), 0, "{report}");
+    for log in [&slog, &alog] {
+        assert_eq!(last_field(log, "status", "rx_lost"), Some(0), "{report}");
+    }
     assert!(
         r.relayed_messages[0] > 0 && r.relayed_messages[1] > 0,
         "{report}"

@@ -190,6 +190,7 @@ fn both_firmwares_talk_over_loopback_without_errors() {
         Some(0),
         "{report}"
     );
+    assert_eq!(last_field(&alog, "status", "rx_lost"), Some(0), "{report}");
     assert!(
         last_field(&alog, "status", "estimates").unwrap_or(0) >= FRAMES as u64 - 1,
         "{report}"

@@ -99,4 +99,9 @@ fn firmware_estimates_equal_the_host_library_on_real_frames() {
         Some(0),
         "{log}"
     );
+    assert_eq!(
+        support::last_field(&log, "status", "rx_lost"),
+        Some(0),
+        "{log}"
+    );
 }

@@ -45,6 +45,7 @@ mod tick;
 use board_support::uart_dma;
 
 use autopilot::app::Autopilot;
+use board_support::uart_rx::RxFlow;
 use core::mem::MaybeUninit;
 use defmt_rtt as _;
 #[cfg(not(feature = "qemu"))]
@@ -74,6 +75,16 @@ static IMU_FALLBACK_READS: core::sync::atomic::AtomicU32 = core::sync::atomic::A
 
 /// Bytes of the SBUS receive queue (about five frames).
 const RC_QUEUE: usize = 128;
+
+/// Received bytes lost since boot: queue full, or a UART overrun/framing/noise error.
+static RX_LOST: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
+/// Back-pressure of the host link's RXNE interrupt.
+static HOST_FLOW: RxFlow = RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART2);
+
+/// Back-pressure of the SBUS receiver's RXNE interrupt (real flavour).
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+static RC_FLOW: RxFlow = RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART3);
 
 /// Blocking write of whole frames to a UART (a few dozen bytes per message at 921,600 Bd).
 fn write_all<U: stm32f4xx_hal::serial::Instance>(
@@ -120,6 +131,7 @@ mod app {
     use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
     #[cfg(not(any(feature = "qemu", feature = "hil")))]
     use autopilot::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
+    use board_support::uart_rx::{RxFlow, LINK_FLOW};
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::{
         AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
@@ -396,38 +408,16 @@ mod app {
         )
     }
 
-    /// Moves every received byte of a UART into its queue and wakes the decoding task.
+    /// Moves the pending bytes of an RXNE-driven UART into its queue (pausing the interrupt
+    /// at a full queue) and wakes the decoding task.
     fn drain_uart<U: serial::Instance>(
         rx: &mut Rx<U>,
         queue: &mut Producer<'static, u8>,
+        flow: &RxFlow,
         wake: &mut Sender<'static, (), 1>,
     ) {
-        use stm32f4xx_hal::nb;
-        for _ in 0..64 {
-            match rx.read() {
-                Ok(byte) => {
-                    let _ = queue.enqueue(byte);
-                }
-                Err(nb::Error::WouldBlock) => break,
-                Err(nb::Error::Other(_)) => {}
-            }
-        }
+        board_support::uart_rx::drain(rx, queue, flow, &super::RX_LOST);
         let _ = wake.try_send(());
-    }
-
-    /// Takes up to `buf.len()` bytes out of a queue.
-    fn take(queue: &mut Consumer<'static, u8>, buf: &mut [u8]) -> usize {
-        let mut n = 0;
-        for slot in buf.iter_mut() {
-            match queue.dequeue() {
-                Some(b) => {
-                    *slot = b;
-                    n += 1;
-                }
-                None => break,
-            }
-        }
-        n
     }
 
     /// USART1 (camera board) receive interrupt: RXNE in QEMU, IDLE line with DMA otherwise.
@@ -436,11 +426,12 @@ mod app {
         let rx = cx.local.link_rx;
         (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
             #[cfg(feature = "qemu")]
-            drain_uart(rx, queue, wake);
+            drain_uart(rx, queue, &LINK_FLOW, wake);
             #[cfg(not(feature = "qemu"))]
             {
                 let _ = rx;
-                let _ = super::uart_dma::on_interrupt(queue);
+                let lost = super::uart_dma::on_interrupt(queue);
+                super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
                 let _ = wake.try_send(());
             }
         });
@@ -451,7 +442,8 @@ mod app {
     #[task(binds = DMA2_STREAM2, priority = 6, shared = [link_in, link_wake_tx])]
     fn usart1_dma(cx: usart1_dma::Context) {
         (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
-            let _ = super::uart_dma::on_interrupt(queue);
+            let lost = super::uart_dma::on_interrupt(queue);
+            super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
             let _ = wake.try_send(());
         });
     }
@@ -459,14 +451,24 @@ mod app {
     /// USART2 (host) receive interrupt.
     #[task(binds = USART2, priority = 6, local = [host_rx, host_in, host_wake_tx])]
     fn usart2(cx: usart2::Context) {
-        drain_uart(cx.local.host_rx, cx.local.host_in, cx.local.host_wake_tx);
+        drain_uart(
+            cx.local.host_rx,
+            cx.local.host_in,
+            &super::HOST_FLOW,
+            cx.local.host_wake_tx,
+        );
     }
 
     /// USART3 (SBUS receiver) receive interrupt (real flavour).
     #[cfg(not(any(feature = "qemu", feature = "hil")))]
     #[task(binds = USART3, priority = 6, local = [rc_uart, rc_in, rc_wake_tx])]
     fn usart3(cx: usart3::Context) {
-        drain_uart(cx.local.rc_uart, cx.local.rc_in, cx.local.rc_wake_tx);
+        drain_uart(
+            cx.local.rc_uart,
+            cx.local.rc_in,
+            &super::RC_FLOW,
+            cx.local.rc_wake_tx,
+        );
     }
 
     /// RC (real flavour): SBUS frames to pilot commands; also wakes every 20 ms so that a
@@ -483,7 +485,7 @@ mod app {
             let _ = Mono::timeout_after(Duration::from_ticks(20), cx.local.rc_wake_rx.recv()).await;
             let mut buf = [0u8; 32];
             loop {
-                let n = take(cx.local.rc_out, &mut buf);
+                let n = super::RC_FLOW.take(cx.local.rc_out, &mut buf);
                 if n == 0 {
                     break;
                 }
@@ -594,7 +596,7 @@ mod app {
         let mut buf = [0u8; 64];
         while cx.local.link_wake_rx.recv().await.is_ok() {
             loop {
-                let n = take(cx.local.link_out, &mut buf);
+                let n = LINK_FLOW.take(cx.local.link_out, &mut buf);
                 if n == 0 {
                     break;
                 }
@@ -614,7 +616,7 @@ mod app {
         let mut buf = [0u8; 64];
         while cx.local.host_wake_rx.recv().await.is_ok() {
             loop {
-                let n = take(cx.local.host_out, &mut buf);
+                let n = super::HOST_FLOW.take(cx.local.host_out, &mut buf);
                 if n == 0 {
                     break;
                 }
@@ -712,13 +714,14 @@ mod app {
                 )
             });
             log::info!(
-                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={} imu_fallback={} stack_free={}",
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={} imu_fallback={} rx_lost={} stack_free={}",
                 uptime_ms,
                 msgs,
                 errors,
                 estimates,
                 peer.unwrap_or(u32::MAX),
                 super::IMU_FALLBACK_READS.load(core::sync::atomic::Ordering::Relaxed),
+                super::RX_LOST.load(core::sync::atomic::Ordering::Relaxed),
                 board_support::stack::free_bytes()
             );
             Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD_US))).await;

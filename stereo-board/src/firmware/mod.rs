@@ -5,9 +5,9 @@
 //!
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
-//! | `usart1` | 4 | USART1 RXNE | bytes into a lock-free queue (never waits for a lock) |
+//! | `usart1` | 4 | USART1 IDLE + DMA2 stream 2 (QEMU: RXNE) | bytes into a lock-free queue (never waits for a lock; in QEMU a full queue pauses the interrupt, see [`board_support::uart_rx`]) |
 //! | `uart_rx` | 3 | woken by `usart1` | [`StereoBoardApp::on_rx_bytes`] |
-//! | `usart2` / `host_rx` | 4 / 3 | USART2 RXNE (qemu, hil) | [`StereoBoardApp::on_host_bytes`] |
+//! | `usart2` / `host_rx` | 4 / 3 | USART2 RXNE (qemu, hil; back-pressure as for `usart1`) | [`StereoBoardApp::on_host_bytes`] |
 //! | `dcmi_frame` | 4 | DMA2 stream 1 transfer complete (real) | hands the filled buffer on |
 //! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` |
 //! | `status` | 1 | every `app::STATUS_PERIOD_US` | [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
@@ -55,6 +55,11 @@ static RX_LOST: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::n
 
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 4096;
+
+/// Back-pressure of the host link's RXNE interrupt (qemu, hil flavours).
+#[cfg(any(feature = "qemu", feature = "hil"))]
+static HOST_FLOW: board_support::uart_rx::RxFlow =
+    board_support::uart_rx::RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART2);
 
 /// Blocking write of whole frames to a UART (a few dozen bytes per message at 921,600 Bd).
 fn write_all<U: stm32f4xx_hal::serial::Instance>(
@@ -161,6 +166,7 @@ mod app {
     };
 
     use super::{FrameReady, Frames};
+    use board_support::uart_rx::LINK_FLOW;
     use protocol::BoardToHost;
     use stereo_board::app::{send_to_host, FrameAssembler};
 
@@ -356,40 +362,16 @@ mod app {
         )
     }
 
-    #[cfg_attr(not(any(feature = "qemu", feature = "hil")), allow(dead_code))]
-    /// Moves every received byte of a UART into its queue and wakes the decoding task. Bytes
-    /// that do not fit are dropped (the decoder then rejects the frame and counts it).
-    fn drain_uart<U: serial::Instance>(
-        rx: &mut Rx<U>,
-        queue: &mut Producer<'static, u8>,
-        wake: &mut Sender<'static, Wake, 1>,
-    ) {
-        use stm32f4xx_hal::nb;
-        // Bounded: at most a few bytes can be pending in the UART.
-        for _ in 0..64 {
-            match rx.read() {
-                Ok(byte) => {
-                    if queue.enqueue(byte).is_err() {
-                        super::RX_LOST.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
-                    }
-                }
-                // Overrun, framing or noise error: the data register was read to clear it.
-                Err(nb::Error::Other(_)) => {
-                    super::RX_LOST.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
-                }
-                Err(nb::Error::WouldBlock) => break,
-            }
-        }
-        let _ = wake.try_send(());
-    }
-
     /// USART1 (autopilot link) receive interrupt: RXNE in QEMU, IDLE line with DMA otherwise.
     #[task(binds = USART1, priority = 4, shared = [link_in, link_wake_tx], local = [link_rx])]
     fn usart1(cx: usart1::Context) {
         let rx = cx.local.link_rx;
         (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
             #[cfg(feature = "qemu")]
-            drain_uart(rx, queue, wake);
+            {
+                board_support::uart_rx::drain(rx, queue, &LINK_FLOW, &super::RX_LOST);
+                let _ = wake.try_send(());
+            }
             #[cfg(not(feature = "qemu"))]
             {
                 let _ = rx;
@@ -420,18 +402,7 @@ mod app {
             }
             let mut buf = [0u8; 64];
             loop {
-                let mut n = 0;
-                while n < buf.len() {
-                    match cx.local.link_out.dequeue() {
-                        Some(b) => {
-                            if let Some(slot) = buf.get_mut(n) {
-                                *slot = b;
-                            }
-                            n += 1;
-                        }
-                        None => break,
-                    }
-                }
+                let n = LINK_FLOW.take(cx.local.link_out, &mut buf);
                 if n == 0 {
                     break;
                 }
@@ -453,7 +424,13 @@ mod app {
     #[cfg(any(feature = "qemu", feature = "hil"))]
     #[task(binds = USART2, priority = 4, local = [host_rx, host_in, host_wake_tx])]
     fn usart2(cx: usart2::Context) {
-        drain_uart(cx.local.host_rx, cx.local.host_in, cx.local.host_wake_tx);
+        board_support::uart_rx::drain(
+            cx.local.host_rx,
+            cx.local.host_in,
+            &super::HOST_FLOW,
+            &super::RX_LOST,
+        );
+        let _ = cx.local.host_wake_tx.try_send(());
     }
 
     /// Decodes the host's bytes and assembles frame chunks; a completed frame goes to the
@@ -467,18 +444,7 @@ mod app {
             }
             let mut buf = [0u8; 256];
             loop {
-                let mut n = 0;
-                while n < buf.len() {
-                    match cx.local.host_out.dequeue() {
-                        Some(b) => {
-                            if let Some(slot) = buf.get_mut(n) {
-                                *slot = b;
-                            }
-                            n += 1;
-                        }
-                        None => break,
-                    }
-                }
+                let n = super::HOST_FLOW.take(cx.local.host_out, &mut buf);
                 if n == 0 {
                     break;
                 }
