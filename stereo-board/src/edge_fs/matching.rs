@@ -69,6 +69,14 @@ pub fn match_column(
 /// The match of one column from its candidate costs: first minimum, parabola sub-pixel offset
 /// and peak-ratio confidence (see [`ColumnMatch`]). `None` only for an empty slice.
 pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
+    let (best, c0) = first_min(costs)?;
+    Some(finish_match(costs, best, c0))
+}
+
+/// Index and value of the first minimum of `costs` (ties keep the earlier, as MATLAB's
+/// `min`); `None` for an empty slice.
+#[inline]
+fn first_min(costs: &[u32]) -> Option<(usize, u32)> {
     let mut best = 0;
     let mut c0 = *costs.first()?;
     for (k, &c) in costs.iter().enumerate().skip(1) {
@@ -77,20 +85,37 @@ pub fn best_match(costs: &[u32]) -> Option<ColumnMatch> {
             c0 = c;
         }
     }
-    Some(finish_match(costs, best, c0))
+    Some((best, c0))
 }
 
 /// [`best_match`] given its first minimum: `costs[best] == c0`, the first minimum of `costs`.
 #[inline]
 fn finish_match(costs: &[u32], best: usize, c0: u32) -> ColumnMatch {
-    let n = costs.len();
-    let subpixel = match (
+    ColumnMatch {
+        best,
+        subpixel: subpixel_at(costs, best, c0),
+        confidence: peak_ratio(costs, best, c0),
+        cost: c0,
+    }
+}
+
+/// The parabola's sub-pixel offset around the first minimum `costs[best] == c0` (0 at either
+/// end of the range).
+#[inline]
+fn subpixel_at(costs: &[u32], best: usize, c0: u32) -> f32 {
+    match (
         best.checked_sub(1).and_then(|k| costs.get(k)),
         costs.get(best + 1),
     ) {
         (Some(&l), Some(&r)) => parabola(l, c0, r),
         _ => 0.0,
-    };
+    }
+}
+
+/// The peak ratio of the first minimum `costs[best] == c0` (see [`ColumnMatch::confidence`]).
+#[inline]
+fn peak_ratio(costs: &[u32], best: usize, c0: u32) -> f32 {
+    let n = costs.len();
     // Smallest cost at least two candidates away from the minimum (c0 when there is none;
     // real costs are far below u32::MAX).
     let before = costs.get(..best.saturating_sub(1)).unwrap_or(&[]);
@@ -100,7 +125,7 @@ fn finish_match(costs: &[u32], best: usize, c0: u32) -> ColumnMatch {
         u32::MAX => c0,
         s => s,
     };
-    let confidence = if c0 == 0 {
+    if c0 == 0 {
         if second == 0 {
             1.0
         } else {
@@ -108,12 +133,40 @@ fn finish_match(costs: &[u32], best: usize, c0: u32) -> ColumnMatch {
         }
     } else {
         second as f32 / c0 as f32
-    };
-    ColumnMatch {
-        best,
-        subpixel,
-        confidence,
-        cost: c0,
+    }
+}
+
+/// One column's match from a whole-row search ([`stereo_row`], [`flow_row`],
+/// [`column_matches`]): the first minimum, with the sub-pixel offset and the peak ratio
+/// computed only when asked for (the peak ratio scans every candidate again, which a caller
+/// that discards the column, untextured say, need not pay for). The values equal
+/// [`ColumnMatch`]'s of the same costs.
+#[derive(Debug, Clone, Copy)]
+pub struct RowMatch<'a> {
+    /// Index of the first minimum among the candidates (0-based), as [`ColumnMatch::best`].
+    pub best: usize,
+    /// The minimum cost.
+    pub cost: u32,
+    costs: &'a [u32],
+}
+
+impl RowMatch<'_> {
+    /// [`ColumnMatch::subpixel`].
+    #[inline]
+    pub fn subpixel(&self) -> f32 {
+        subpixel_at(self.costs, self.best, self.cost)
+    }
+
+    /// [`ColumnMatch::confidence`] (the peak ratio).
+    #[inline]
+    pub fn confidence(&self) -> f32 {
+        peak_ratio(self.costs, self.best, self.cost)
+    }
+
+    /// Everything, as [`best_match`] of the same costs returns it.
+    #[inline]
+    pub fn finish(&self) -> ColumnMatch {
+        finish_match(self.costs, self.best, self.cost)
     }
 }
 
@@ -406,7 +459,7 @@ pub fn column_matches(
     delta0: isize,
     n: usize,
     w: usize,
-    mut f: impl FnMut(usize, ColumnMatch),
+    mut f: impl FnMut(usize, RowMatch<'_>),
 ) {
     let n = n.min(MAX_CANDIDATES);
     let Some((lo, hi)) = valid_columns(delta0, n, w) else {
@@ -414,9 +467,17 @@ pub fn column_matches(
     };
     if w > MAX_W {
         return column_costs_scalar(reference, target, delta0, n, w, lo, hi, |c, costs| {
-            if let Some(m) = best_match(costs) {
-                f(c, m);
-            }
+            let Some((best, c0)) = first_min(costs) else {
+                return;
+            };
+            f(
+                c,
+                RowMatch {
+                    best,
+                    cost: c0,
+                    costs,
+                },
+            );
         });
     }
     packed_rows::<true>(
@@ -428,7 +489,14 @@ pub fn column_matches(
         lo,
         hi,
         |c, costs, c0, best| {
-            f(c, finish_match(costs, best, c0));
+            f(
+                c,
+                RowMatch {
+                    best,
+                    cost: c0,
+                    costs,
+                },
+            );
         },
     );
 }
@@ -441,7 +509,7 @@ pub fn stereo_row(
     max_d: usize,
     shift: i32,
     w: usize,
-    f: impl FnMut(usize, ColumnMatch),
+    f: impl FnMut(usize, RowMatch<'_>),
 ) {
     column_matches(
         right,
@@ -461,7 +529,7 @@ pub fn flow_row(
     d: usize,
     offset: i32,
     w: usize,
-    f: impl FnMut(usize, ColumnMatch),
+    f: impl FnMut(usize, RowMatch<'_>),
 ) {
     column_matches(
         older,
@@ -631,7 +699,14 @@ mod tests {
         ) {
             // Stereo: per column and whole row.
             let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
-            stereo_row(&a, &b, d, shift, w, |c, m| row[c] = Some(m));
+            stereo_row(&a, &b, d, shift, w, |c, m| {
+                // The lazy parts equal the eager ones.
+                let full = m.finish();
+                assert_eq!((m.best, m.cost), (full.best, full.cost));
+                assert_eq!(m.subpixel().to_bits(), full.subpixel.to_bits());
+                assert_eq!(m.confidence().to_bits(), full.confidence.to_bits());
+                row[c] = Some(full);
+            });
             for c in 0..IMG_W {
                 let want = reference_match(&b, c as isize, &a, c as isize - shift as isize, d + 1, w);
                 prop_assert_eq!(stereo_match(&a, &b, c, d, shift, w), want, "stereo col {}", c);
@@ -639,7 +714,14 @@ mod tests {
             }
             // Flow.
             let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
-            flow_row(&a, &b, d, offset, w, |c, m| row[c] = Some(m));
+            flow_row(&a, &b, d, offset, w, |c, m| {
+                // The lazy parts equal the eager ones.
+                let full = m.finish();
+                assert_eq!((m.best, m.cost), (full.best, full.cost));
+                assert_eq!(m.subpixel().to_bits(), full.subpixel.to_bits());
+                assert_eq!(m.confidence().to_bits(), full.confidence.to_bits());
+                row[c] = Some(full);
+            });
             for c in 0..IMG_W {
                 let tc0 = c as isize + offset as isize - d as isize;
                 let want = reference_match(&a, c as isize, &b, tc0, 2 * d + 1, w);

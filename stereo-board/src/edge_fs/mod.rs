@@ -48,7 +48,7 @@ pub use fit::{line_fit, robust_line_fit, weighted_line_fit, LineFit};
 pub use histogram::{edge_histograms, edge_histograms_and_mean, mean_intensity, EdgeHistogram};
 pub use matching::{
     best_match, column_costs, flow_match, flow_row, match_column, parabola, sad, stereo_match,
-    stereo_row, ColumnMatch,
+    stereo_row, ColumnMatch, RowMatch,
 };
 pub use temporal::{AxisFilter, Update};
 
@@ -755,16 +755,20 @@ impl EdgeFs {
             let ds = usize::from(p.stereo_range);
             let diag = &mut self.diag;
             stereo_row(&self.other, cur, ds, s, w, |c, m| {
-                let disp = m.best as f32 + m.subpixel;
+                let disp = m.best as f32 + m.subpixel();
                 diag.disparity_px[c] = disp;
-                let ok = m.best > 0
+                // The peak ratio (a scan of all candidates) only where the rest holds.
+                let usable = m.best > 0
                     && m.best < ds
                     && disp >= p.min_disparity_px
-                    && m.confidence >= p.min_stereo_confidence
                     && texture[c] >= p.min_texture;
-                if ok {
+                if !usable {
+                    return;
+                }
+                let confidence = m.confidence();
+                if confidence >= p.min_stereo_confidence {
                     diag.depth_m[c] = f * p.baseline_m / disp;
-                    diag.confidence[c] = m.confidence.min(100.0);
+                    diag.confidence[c] = confidence.min(100.0);
                     stereo_ok[c] = true;
                     n_stereo += 1;
                 }
@@ -838,9 +842,8 @@ impl EdgeFs {
             let (cur_h, old_h) = (&cur.hist, &older.hist);
             let diag = &mut self.diag;
             // `flow_row`: the first minimum is found while the costs are updated (same
-            // matches as `best_match` of `column_costs`' costs, bit for bit); the parabola and
-            // peak ratio are computed for every column, which still costs less than
-            // scanning the costs again per textured column.
+            // matches as `best_match` of `column_costs`' costs, bit for bit); the parabola
+            // only for textured columns, the peak ratio only where the stereo depth is valid.
             flow_row(old_h, cur_h, d, offset, w, |c, m| {
                 if texture[c] < p.min_texture {
                     return;
@@ -850,10 +853,10 @@ impl EdgeFs {
                     edge_hits += 1;
                     return;
                 }
-                let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel;
+                let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel();
                 let u = (motion - rot_px) / dt_s;
                 diag.flow_pxps[c] = u;
-                if stereo_ok[c] && m.confidence >= p.min_flow_confidence {
+                if stereo_ok[c] && m.confidence() >= p.min_flow_confidence {
                     let z = diag.depth_m[c];
                     if let Some(pt) = pts.get_mut(np) {
                         let wgt = if p.depth_weight_exp == 0.0 {
