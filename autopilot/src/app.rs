@@ -25,30 +25,7 @@ use protocol::{
     Telemetry,
 };
 
-/// What starts a task.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Trigger {
-    /// Runs every `period_us` µs.
-    Periodic {
-        /// Period, µs.
-        period_us: u32,
-    },
-    /// Runs on the named hardware event.
-    Event(&'static str),
-}
-
-/// One entry of the board's task table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct TaskSpec {
-    /// Task name (the RTIC task and the simulator's scheduler use the same).
-    pub name: &'static str,
-    /// Priority, higher preempts lower (RTIC priority).
-    pub priority: u8,
-    /// What starts it.
-    pub trigger: Trigger,
-    /// Deadline from release to completion, µs.
-    pub deadline_us: u32,
-}
+pub use task_table::{TaskSpec, Trigger};
 
 /// IMU / INDI period: 512 Hz, µs (rounded down).
 pub const IMU_PERIOD_US: u32 = 1_953;

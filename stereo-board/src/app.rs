@@ -21,30 +21,7 @@ use protocol::{
     StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 
-/// What starts a task.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Trigger {
-    /// Runs every `period_us` µs.
-    Periodic {
-        /// Period, µs.
-        period_us: u32,
-    },
-    /// Runs on the named hardware event.
-    Event(&'static str),
-}
-
-/// One entry of the board's task table (same shape as `autopilot::app::TaskSpec`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct TaskSpec {
-    /// Task name (the RTIC task and the simulator's scheduler use the same).
-    pub name: &'static str,
-    /// Priority, higher preempts lower (RTIC priority).
-    pub priority: u8,
-    /// What starts it.
-    pub trigger: Trigger,
-    /// Deadline from release to completion, µs.
-    pub deadline_us: u32,
-}
+pub use task_table::{TaskSpec, Trigger};
 
 /// Period of the status task (Status + Heartbeat to the autopilot), µs.
 pub const STATUS_PERIOD_US: u32 = 1_000_000;
@@ -94,7 +71,7 @@ pub const TASKS: &[TaskSpec] = &[
 
 /// Looks a task up by name.
 pub fn task(name: &str) -> Option<&'static TaskSpec> {
-    TASKS.iter().find(|t| t.name == name)
+    task_table::find(TASKS, name)
 }
 
 /// Receive buffer of the autopilot link decoder, bytes.

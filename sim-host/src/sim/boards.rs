@@ -9,36 +9,27 @@
 use super::sched::{Board, SimTask};
 use protocol::{encode, Message};
 
-/// Scheduler tasks from the autopilot's table (`autopilot::app::TASKS`).
-pub fn autopilot_tasks() -> Vec<SimTask> {
-    autopilot::app::TASKS
+/// Scheduler tasks from a board's task table.
+fn sim_tasks(board: Board, table: &'static [task_table::TaskSpec]) -> Vec<SimTask> {
+    table
         .iter()
         .map(|t| SimTask {
-            board: Board::Autopilot,
+            board,
             name: t.name,
             priority: t.priority,
-            period_us: match t.trigger {
-                autopilot::app::Trigger::Periodic { period_us } => Some(period_us),
-                autopilot::app::Trigger::Event(_) => None,
-            },
+            period_us: t.trigger.period_us(),
         })
         .collect()
 }
 
+/// Scheduler tasks from the autopilot's table (`autopilot::app::TASKS`).
+pub fn autopilot_tasks() -> Vec<SimTask> {
+    sim_tasks(Board::Autopilot, autopilot::app::TASKS)
+}
+
 /// Scheduler tasks from the camera board's table (`stereo_board::app::TASKS`).
 pub fn camera_tasks() -> Vec<SimTask> {
-    stereo_board::app::TASKS
-        .iter()
-        .map(|t| SimTask {
-            board: Board::Stereo,
-            name: t.name,
-            priority: t.priority,
-            period_us: match t.trigger {
-                stereo_board::app::Trigger::Periodic { period_us } => Some(period_us),
-                stereo_board::app::Trigger::Event(_) => None,
-            },
-        })
-        .collect()
+    sim_tasks(Board::Stereo, stereo_board::app::TASKS)
 }
 
 /// Encodes one message and hands the frame bytes to `tx`.
