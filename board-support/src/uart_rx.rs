@@ -60,11 +60,6 @@ impl RxFlow {
         }
     }
 
-    /// Whether the interrupt is paused (the queue was full).
-    pub fn is_paused(&self) -> bool {
-        self.paused.load(Ordering::Acquire)
-    }
-
     /// The decoding task's side: [`take`], then [`RxFlow::resume`] if bytes were taken.
     pub fn take(&self, queue: &mut Consumer<'static, u8>, buf: &mut [u8]) -> usize {
         let n = take(queue, buf);
@@ -76,15 +71,14 @@ impl RxFlow {
 }
 
 /// The receive interrupt's body: moves the pending bytes of `rx` into `queue`, pausing the
-/// interrupt when the queue is full, and counts lost bytes in `lost`. Returns how many bytes
-/// were queued (the caller wakes the decoding task).
+/// interrupt when the queue is full, and counts lost bytes in `lost` (the caller then wakes the
+/// decoding task).
 pub fn drain<U: serial::Instance>(
     rx: &mut serial::Rx<U>,
     queue: &mut Producer<'static, u8>,
     flow: &RxFlow,
     lost: &AtomicU32,
-) -> usize {
-    let mut queued = 0;
+) {
     for _ in 0..MAX_BYTES_PER_INTERRUPT {
         if !queue.ready() {
             flow.pause();
@@ -93,9 +87,7 @@ pub fn drain<U: serial::Instance>(
         match rx.read() {
             Ok(byte) => {
                 // Cannot fail: `ready` said there is room and only this interrupt enqueues.
-                if queue.enqueue(byte).is_ok() {
-                    queued += 1;
-                } else {
+                if queue.enqueue(byte).is_err() {
                     lost.fetch_add(1, Ordering::Relaxed);
                 }
             }
@@ -106,7 +98,6 @@ pub fn drain<U: serial::Instance>(
             Err(nb::Error::WouldBlock) => break,
         }
     }
-    queued
 }
 
 /// Takes up to `buf.len()` bytes out of `queue` into `buf`; returns how many. (A decoding

@@ -659,6 +659,15 @@ mod tests {
     }
 
     /// Histograms with plateaus and repeats (ties) as well as full-range values.
+    /// A row match finished, after checking that its lazy parts equal the eager ones.
+    fn finished(m: &RowMatch<'_>) -> ColumnMatch {
+        let full = m.finish();
+        assert_eq!((m.best, m.cost), (full.best, full.cost));
+        assert_eq!(m.subpixel().to_bits(), full.subpixel.to_bits());
+        assert_eq!(m.confidence().to_bits(), full.confidence.to_bits());
+        full
+    }
+
     fn hist_strategy() -> impl Strategy<Value = EdgeHistogram> {
         (
             proptest::collection::vec(0u16..=24_480, IMG_W),
@@ -699,14 +708,7 @@ mod tests {
         ) {
             // Stereo: per column and whole row.
             let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
-            stereo_row(&a, &b, d, shift, w, |c, m| {
-                // The lazy parts equal the eager ones.
-                let full = m.finish();
-                assert_eq!((m.best, m.cost), (full.best, full.cost));
-                assert_eq!(m.subpixel().to_bits(), full.subpixel.to_bits());
-                assert_eq!(m.confidence().to_bits(), full.confidence.to_bits());
-                row[c] = Some(full);
-            });
+            stereo_row(&a, &b, d, shift, w, |c, m| row[c] = Some(finished(&m)));
             for c in 0..IMG_W {
                 let want = reference_match(&b, c as isize, &a, c as isize - shift as isize, d + 1, w);
                 prop_assert_eq!(stereo_match(&a, &b, c, d, shift, w), want, "stereo col {}", c);
@@ -714,14 +716,7 @@ mod tests {
             }
             // Flow.
             let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
-            flow_row(&a, &b, d, offset, w, |c, m| {
-                // The lazy parts equal the eager ones.
-                let full = m.finish();
-                assert_eq!((m.best, m.cost), (full.best, full.cost));
-                assert_eq!(m.subpixel().to_bits(), full.subpixel.to_bits());
-                assert_eq!(m.confidence().to_bits(), full.confidence.to_bits());
-                row[c] = Some(full);
-            });
+            flow_row(&a, &b, d, offset, w, |c, m| row[c] = Some(finished(&m)));
             for c in 0..IMG_W {
                 let tc0 = c as isize + offset as isize - d as isize;
                 let want = reference_match(&a, c as isize, &b, tc0, 2 * d + 1, w);
