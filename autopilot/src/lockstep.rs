@@ -13,49 +13,35 @@
 //! the real flavour, at the periods of [`crate::TASKS`].
 
 use crate::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
+use timebase::{WireTime, WrapExtender};
 
-/// The world clock: the host's `u32` microsecond sample timestamps extended to a monotonic
-/// `u64` (a decrease of more than half the `u32` range is a wrap; a smaller decrease is an
-/// out-of-order sample and does not move the clock back).
+/// The world clock: the host's wrapping `u32` microsecond sample timestamps extended onto a
+/// monotonic `u64` timeline (by [`timebase::WrapExtender`]: a decrease of more than half the
+/// `u32` range is a wrap; a smaller decrease is an out-of-order sample and does not move the
+/// clock back).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct WorldClock {
-    last_wire: Option<u32>,
-    high: u64,
-    now_us: u64,
-}
+pub struct WorldClock(WrapExtender);
 
 impl WorldClock {
     /// A clock at zero that has seen no sample.
     pub const fn new() -> Self {
-        Self {
-            last_wire: None,
-            high: 0,
-            now_us: 0,
-        }
+        Self(WrapExtender::new())
     }
 
     /// Takes a host timestamp (µs, wrapping `u32`) and returns the world time it stands for
     /// (µs, `u64`). The clock itself never goes back: [`WorldClock::now_us`] is the latest.
     pub fn observe(&mut self, wire_us: u32) -> u64 {
-        if let Some(last) = self.last_wire {
-            if wire_us < last && last - wire_us > u32::MAX / 2 {
-                self.high = self.high.saturating_add(1 << 32);
-            }
-        }
-        self.last_wire = Some(wire_us);
-        let t = self.high | u64::from(wire_us);
-        self.now_us = self.now_us.max(t);
-        t
+        self.0.extend(WireTime(wire_us))
     }
 
     /// The latest world time seen, µs (0 before the first sample).
     pub fn now_us(&self) -> u64 {
-        self.now_us
+        self.0.latest()
     }
 
     /// True once a sample has set the clock.
     pub fn started(&self) -> bool {
-        self.last_wire.is_some()
+        self.0.started()
     }
 }
 

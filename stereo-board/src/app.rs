@@ -20,6 +20,7 @@ use protocol::{
     GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
     StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
+use timebase::{WireTime, WrapExtender};
 
 pub use task_table::{TaskSpec, Trigger};
 
@@ -105,35 +106,6 @@ pub fn send_to_autopilot(msg: &StereoToAutopilot, tx: &mut impl FnMut(&[u8])) ->
 /// Encodes a message to the host (HIL bridge, ground tool) and hands the frame to `tx`.
 pub fn send_to_host(msg: &BoardToHost, tx: &mut impl FnMut(&[u8])) -> bool {
     send::<_, { BoardToHost::MAX_FRAME_BYTES }>(msg, tx)
-}
-
-/// Extends a wrapping `u32` µs clock to `u64` (for frame times stamped by a HIL host).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ClockExtender {
-    last: Option<u32>,
-    high: u64,
-}
-
-impl ClockExtender {
-    /// A fresh extender (the first sample maps to itself).
-    pub const fn new() -> Self {
-        Self {
-            last: None,
-            high: 0,
-        }
-    }
-
-    /// Maps `t` onto the `u64` timeline: a decrease of more than half the range is a wrap; a
-    /// small decrease (out-of-order sample) is kept as is.
-    pub fn extend(&mut self, t: u32) -> u64 {
-        if let Some(last) = self.last {
-            if t < last && last - t > u32::MAX / 2 {
-                self.high = self.high.saturating_add(1 << 32);
-            }
-        }
-        self.last = Some(t);
-        self.high | u64::from(t)
-    }
 }
 
 /// Assembles a stereo frame from [`FrameChunk`]s (HIL: frames arrive over the serial link).
@@ -282,7 +254,7 @@ pub struct StereoBoardApp {
     params: EdgeFsParams,
     rx: Decoder<AutopilotToStereo, A2S_N>,
     host_rx: Decoder<HostToBoard, H2B_N>,
-    host_clock: ClockExtender,
+    host_clock: WrapExtender,
     gyro: Option<(GyroAttitude, u64)>,
     peer_uptime_ms: Option<u32>,
     seq: u16,
@@ -300,7 +272,7 @@ impl StereoBoardApp {
             params,
             rx: Decoder::new_mid_stream(),
             host_rx: Decoder::new_mid_stream(),
-            host_clock: ClockExtender::new(),
+            host_clock: WrapExtender::new(),
             gyro: None,
             peer_uptime_ms: None,
             seq: 0,
@@ -499,7 +471,7 @@ impl StereoBoardApp {
                 let lost = frames.frames_incomplete().wrapping_sub(before);
                 self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(lost);
                 if let Some(capture) = done {
-                    let capture_us = self.host_clock.extend(capture);
+                    let capture_us = self.host_clock.extend(WireTime(capture));
                     on_frame_ready(frames.frame(), capture_us);
                 }
             }

@@ -387,15 +387,6 @@ fn incomplete_host_frames_count_as_dropped() {
 }
 
 #[test]
-fn clock_extender_unwraps() {
-    let mut c = ClockExtender::new();
-    assert_eq!(c.extend(5), 5);
-    assert_eq!(c.extend(u32::MAX), u64::from(u32::MAX));
-    assert_eq!(c.extend(3), (1 << 32) + 3);
-    assert_eq!(c.extend(1), (1 << 32) + 1, "small step back is not a wrap");
-}
-
-#[test]
 fn the_app_fits_a_ccm_static() {
     // Placed in the 64 kB CCM next to nothing else large.
     assert!(core::mem::size_of::<StereoBoardApp>() < 24 * 1024);
