@@ -2,10 +2,14 @@
 //!
 //! * `cargo xtask test`: the CI test command (installs what a fresh machine lacks, then runs
 //!   fmt, clippy on host and thumbv7em, all host tests, firmware builds, a bounded fuzz run).
-//! * `cargo xtask size`: static flash/RAM/CCM use of each firmware.
+//! * `cargo xtask size`: static flash/RAM/CCM use of each firmware, against its budget.
 //! * `cargo xtask qemu`: build a firmware flavour and run it in QEMU.
-//! * `cargo xtask insns`: exact Cortex-M4 instruction counts per call (QEMU plugin).
+//! * `cargo xtask insns`: exact Cortex-M4 instruction counts per call (QEMU plugin), against
+//!   their budgets.
+//!
+//! The budgets are `xtask/budgets.toml` (see [`budget`]).
 
+mod budget;
 mod ci;
 mod insns;
 mod qemu;

@@ -55,6 +55,7 @@ pub fn run(args: &[String]) -> Result<()> {
         build_firmwares(flavour, &FIRMWARES)?;
     }
     let mut over = Vec::new();
+    let mut measured = Vec::new();
     for name in FIRMWARES {
         let elf = firmware_elf(flavour, name);
         let bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
@@ -69,12 +70,39 @@ pub fn run(args: &[String]) -> Result<()> {
             "{name} flash={} ram={} ccm={} stack={stack}",
             usage.flash, usage.ram, usage.ccm
         );
+        if flavour == Flavour::Real {
+            measured.push((name, usage));
+        }
         if flavour == Flavour::Real && (stack < MIN_STACK_BYTES || usage.ccm > CCM_BYTES) {
             over.push(name);
         }
     }
     if !over.is_empty() {
         bail!("firmware does not fit with {MIN_STACK_BYTES} bytes of stack: {over:?}");
+    }
+    if !measured.is_empty() {
+        let budgets = crate::budget::load()?;
+        let mut failed = Vec::new();
+        for (name, usage) in measured {
+            let table = budgets
+                .size
+                .get(name)
+                .with_context(|| format!("budgets.toml has no [size.{name}]"))?;
+            let figures = [
+                ("flash", usage.flash),
+                ("ram", usage.ram),
+                ("ccm", usage.ccm),
+            ]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v as f64))
+            .collect();
+            if let Err(e) = crate::budget::check(&format!("size.{name}"), table, &figures) {
+                failed.push(format!("{e:#}"));
+            }
+        }
+        if !failed.is_empty() {
+            bail!("{}", failed.join("\n"));
+        }
     }
     Ok(())
 }
