@@ -796,12 +796,8 @@ impl Autopilot {
     pub fn telemetry(&self, now_us: u64) -> Telemetry {
         Telemetry {
             timestamp_us: now_us as u32,
-            fsm_state: if self.fsm_active {
-                self.fsm.state() as u8
-            } else {
-                u8::MAX
-            },
-            failsafe: self.failsafe.mode() as u8,
+            fsm_state: self.fsm_active.then(|| self.fsm.state()),
+            flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),
             velocity_mps: self.observer.velocity().unwrap_or([0.0; 2]),
             velocity_setpoint_mps: self.sp.velocity_mps,

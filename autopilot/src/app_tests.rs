@@ -521,8 +521,8 @@ fn telemetry_and_gyro_attitude_reflect_state() {
     r.takeoff();
     r.fly(4.0);
     let t = r.ap.telemetry(r.now);
-    assert_eq!(t.failsafe, FlightMode::Flying as u8);
-    assert!(t.fsm_state <= 3);
+    assert_eq!(t.flight_mode, FlightMode::Flying);
+    assert!(t.fsm_state.is_some());
     assert!((t.height_m - r.quad.height()).abs() < 0.05);
     let g = r.ap.gyro_attitude(r.now);
     assert_eq!(g.timestamp_us, r.now as u32);

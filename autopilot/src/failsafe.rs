@@ -12,37 +12,11 @@
 //!   motors off (nothing can stabilise the drone without rates).
 //! * `Landing` ends in `Disarmed` when the caller reports touchdown.
 //!
-//! The `u8` value of [`FlightMode`] is the telemetry "failsafe" number.
+//! [`FlightMode`] is the protocol's type: telemetry carries it as it is.
 
 use protocol::PilotCommand;
 
-/// Flight mode. `as u8` is the telemetry number.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum FlightMode {
-    /// On the ground, motors off.
-    Disarmed = 0,
-    /// Armed and flying normally (take-off, avoidance).
-    Flying = 1,
-    /// Valid velocity estimates lost: hovering level, waiting for them to come back.
-    HoverNoEstimate = 2,
-    /// Descending to land (commanded or failsafe), then disarm.
-    Landing = 3,
-    /// Killed by command: motors off until the next arm.
-    Killed = 4,
-    /// IMU data stale: motors off until the next arm.
-    ImuFault = 5,
-}
-
-impl FlightMode {
-    /// True when the motors may run.
-    pub fn motors_enabled(self) -> bool {
-        matches!(
-            self,
-            FlightMode::Flying | FlightMode::HoverNoEstimate | FlightMode::Landing
-        )
-    }
-}
+pub use protocol::FlightMode;
 
 /// Failsafe timings.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -24,19 +24,7 @@
 
 use crate::attitude::wrap_pi;
 
-/// Avoidance state. `as u8` is the telemetry number.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum FsmState {
-    /// Evaluate whether the way ahead is clear.
-    Check = 0,
-    /// Fly forward at constant speed.
-    Forward = 1,
-    /// Hold zero velocity before turning.
-    Hover = 2,
-    /// Turn (by a fixed angle, or until clear).
-    Turn = 3,
-}
+pub use protocol::FsmState;
 
 /// Which avoidance logic to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

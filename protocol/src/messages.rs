@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 1;
+pub const PROTOCOL_VERSION: u8 = 2;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -405,19 +405,104 @@ pub struct MotorCommand {
     pub throttle: [f32; 4],
 }
 
+/// The autopilot's flight mode: what its failsafe allows the motors to do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FlightMode {
+    /// On the ground, motors off.
+    Disarmed,
+    /// Armed and flying normally (take-off, avoidance).
+    Flying,
+    /// Valid velocity estimates lost: hovering level, waiting for them to come back.
+    HoverNoEstimate,
+    /// Descending to land (commanded or failsafe), then disarm.
+    Landing,
+    /// Killed by command: motors off until the next arm.
+    Killed,
+    /// IMU data stale or invalid: motors off until the next arm.
+    ImuFault,
+}
+
+impl FlightMode {
+    /// Every mode, in declaration order (plots and tables list them in this order).
+    pub const ALL: [FlightMode; 6] = [
+        FlightMode::Disarmed,
+        FlightMode::Flying,
+        FlightMode::HoverNoEstimate,
+        FlightMode::Landing,
+        FlightMode::Killed,
+        FlightMode::ImuFault,
+    ];
+
+    /// True when the motors may run.
+    pub fn motors_enabled(self) -> bool {
+        matches!(
+            self,
+            FlightMode::Flying | FlightMode::HoverNoEstimate | FlightMode::Landing
+        )
+    }
+
+    /// Short lower-case name for logs, tables and plots.
+    pub fn name(self) -> &'static str {
+        match self {
+            FlightMode::Disarmed => "disarmed",
+            FlightMode::Flying => "flying",
+            FlightMode::HoverNoEstimate => "hover-no-estimate",
+            FlightMode::Landing => "landing",
+            FlightMode::Killed => "killed",
+            FlightMode::ImuFault => "imu-fault",
+        }
+    }
+}
+
+/// The autopilot's avoidance state machine state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FsmState {
+    /// Evaluate whether the way ahead is clear.
+    Check,
+    /// Fly forward at constant speed.
+    Forward,
+    /// Hold zero velocity before turning.
+    Hover,
+    /// Turn (by a fixed angle, or until clear).
+    Turn,
+}
+
+impl FsmState {
+    /// Every state, in declaration order (plots and tables list them in this order).
+    pub const ALL: [FsmState; 4] = [
+        FsmState::Check,
+        FsmState::Forward,
+        FsmState::Hover,
+        FsmState::Turn,
+    ];
+
+    /// Short lower-case name for logs, tables and plots.
+    pub fn name(self) -> &'static str {
+        match self {
+            FsmState::Check => "check",
+            FsmState::Forward => "forward",
+            FsmState::Hover => "hover",
+            FsmState::Turn => "turn",
+        }
+    }
+}
+
 /// Autopilot telemetry for a ground tool (autopilot -> host, about 10 Hz).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Telemetry {
     /// Autopilot time, µs (wrapping `u32`).
     pub timestamp_us: u32,
-    /// Avoidance state machine state (autopilot's numbering, see its docs).
-    pub fsm_state: u8,
-    /// Failsafe state (autopilot's numbering, see its docs).
-    pub failsafe: u8,
+    /// Avoidance state machine state (`None`: the state machine is not running).
+    pub fsm_state: Option<FsmState>,
+    /// Flight mode.
+    pub flight_mode: FlightMode,
     /// Attitude roll, pitch, yaw, rad.
     pub attitude_rad: [f32; 3],
-    /// Median-filtered velocity estimate, forward and sideways, m/s.
+    /// The velocity the guidance flies on (the autopilot's filtered estimate), forward and
+    /// sideways, m/s; zero while it has none.
     pub velocity_mps: [f32; 2],
     /// Velocity setpoint, forward and sideways, m/s.
     pub velocity_setpoint_mps: [f32; 2],

@@ -176,8 +176,8 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
         ),
         (
             any::<u32>(),
-            any::<u8>(),
-            any::<u8>(),
+            proptest::option::of(proptest::sample::select(FsmState::ALL.to_vec())),
+            proptest::sample::select(FlightMode::ALL.to_vec()),
             vec3(),
             [finite(), finite()],
             [finite(), finite()],
@@ -189,7 +189,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                 |(
                     timestamp_us,
                     fsm_state,
-                    failsafe,
+                    flight_mode,
                     attitude_rad,
                     v,
                     sp,
@@ -200,7 +200,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                     BoardToHost::Telemetry(Telemetry {
                         timestamp_us,
                         fsm_state,
-                        failsafe,
+                        flight_mode,
                         attitude_rad,
                         velocity_mps: v,
                         velocity_setpoint_mps: sp,
@@ -314,7 +314,7 @@ proptest! {
     }
 }
 
-/// The size budget of the issue: an `Estimate` fits in 32 bytes on the wire, whatever its values.
+/// The wire-size budget: an `Estimate` fits in 32 bytes on the wire, whatever its values.
 #[test]
 fn estimate_worst_case_fits_in_32_bytes() {
     let worst = Estimate {
@@ -378,8 +378,8 @@ fn declared_maximum_frame_sizes_hold() {
     assert!(encode(&gyro, &mut wire).unwrap() <= AutopilotToStereo::MAX_FRAME_BYTES);
     let telemetry = BoardToHost::Telemetry(Telemetry {
         timestamp_us: u32::MAX,
-        fsm_state: u8::MAX,
-        failsafe: u8::MAX,
+        fsm_state: Some(FsmState::Turn),
+        flight_mode: FlightMode::ImuFault,
         attitude_rad: [f32::MAX; 3],
         velocity_mps: [f32::MAX; 2],
         velocity_setpoint_mps: [f32::MAX; 2],

@@ -61,8 +61,9 @@ use crate::sim::scene::Scene;
 use anyhow::{anyhow, bail, Context as _};
 use protocol::{
     encode, AutopilotToStereo, AutopilotToStereoDecoder, BoardToHost, BoardToHostDecoder, Estimate,
-    ExternalPosition, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message, PilotCommand,
-    StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
+    ExternalPosition, FlightMode, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message,
+    PilotCommand, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, FRAME_CHUNK_BYTES,
+    STEREO_FRAME_BYTES,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -214,8 +215,8 @@ pub struct HilRow {
     pub vel: [f32; 2],
     /// Motor commands applied, 0..=1.
     pub motors: [f32; 4],
-    /// The autopilot's failsafe mode in its latest telemetry (`u8::MAX`: none yet).
-    pub mode: u8,
+    /// The autopilot's flight mode in its latest telemetry (`None`: none yet).
+    pub mode: Option<FlightMode>,
 }
 
 /// What a HIL run measured.
@@ -282,7 +283,9 @@ impl HilResult {
 
     /// A summary like `fly`'s, one fact per line.
     pub fn summary(&self) -> String {
-        let mode = self.last_telemetry.map_or(u8::MAX, |t| t.failsafe);
+        let mode = self
+            .last_telemetry
+            .map_or("none (no telemetry)", |t| t.flight_mode.name());
         format!(
             "world time        {:.2} s in {:.1} s wall ({:.3}x real time)\n\
              airborne          {:.2} s, max height {:.2} m, final height {:.2} m\n\
@@ -292,7 +295,7 @@ impl HilResult {
              camera            {} frames, {} estimates ({} valid; flag bits set {:?}), {} timeouts, world held {:.1} s\n\
              link errors       autopilot host {}, camera host {}, board-to-board relay {}, autopilot's own {}\n\
              relayed messages  camera->autopilot {}, autopilot->camera {}\n\
-             final mode        {} (autopilot failsafe numbering)",
+             final mode        {}",
             self.sim_s,
             self.wall_s,
             if self.wall_s > 0.0 { self.sim_s / self.wall_s } else { 0.0 },
@@ -733,7 +736,7 @@ fn lockstep(
                 pos: [p.x as f32, p.y as f32, h as f32],
                 vel: [drone.state.vel.x as f32, drone.state.vel.y as f32],
                 motors,
-                mode: r.last_telemetry.map_or(u8::MAX, |t| t.failsafe),
+                mode: r.last_telemetry.map(|t| t.flight_mode),
             });
         }
         if t >= next_progress {
@@ -816,7 +819,7 @@ pub fn write_log_csv(r: &HilResult, path: &std::path::Path) -> anyhow::Result<()
             row.motors[1],
             row.motors[2],
             row.motors[3],
-            row.mode
+            row.mode.map_or("none", FlightMode::name)
         ));
     }
     std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))

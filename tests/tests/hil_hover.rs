@@ -24,6 +24,7 @@
 #[path = "qemu_support.rs"]
 mod support;
 
+use protocol::FlightMode;
 use sim_host::hil::{HilConfig, Relay};
 use sim_host::sim::flight::FlightConfig;
 use std::time::{Duration, Instant};
@@ -154,9 +155,12 @@ fn closed_loop_hover_with_both_firmwares_in_qemu() {
     }
     assert_eq!(r.collisions, 0, "{report}");
     assert!(r.max_drift_m <= 1.6, "{report}");
-    // Still flying (1) or hovering without estimates (2) at the end: not landing or killed.
-    let mode = r.last_telemetry.map(|t| t.failsafe);
-    assert!(matches!(mode, Some(1 | 2)), "{report}");
+    // Still flying or hovering without estimates at the end: not landing or killed.
+    let mode = r.last_telemetry.map(|t| t.flight_mode);
+    assert!(
+        matches!(mode, Some(FlightMode::Flying | FlightMode::HoverNoEstimate)),
+        "{report}"
+    );
     // Stack: each board kept a margin (an overflow would corrupt statics silently).
     for (board, free) in ["stereo board", "autopilot"].iter().zip(stack_free) {
         let free = free.unwrap_or_else(|| panic!("no stack_free in the {board}'s log: {report}"));

@@ -1,6 +1,7 @@
 //! Closed-loop simulation tests: both boards' real task logic in the loop, talking over the
 //! simulated UART (sim-host's `sim::flight`). Each test states the bound it checks.
 
+use protocol::FlightMode;
 use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm, LogRow};
 use sim_host::sim::uart::LinkFaults;
 
@@ -11,7 +12,7 @@ fn fly(cfg: &FlightConfig) -> FlightResult {
 /// First log row where the avoidance FSM is active (the drone reached its flight height).
 fn fsm_start(log: &[LogRow]) -> usize {
     log.iter()
-        .position(|l| l.fsm_state != u8::MAX)
+        .position(|l| l.fsm_state.is_some())
         .expect("the FSM starts after take-off")
 }
 
@@ -184,9 +185,8 @@ fn outage_holds_without_hitting_a_wall() {
             .iter()
             .filter(|l| l.t_s >= 20.0 && l.t_s < 22.3)
             .collect();
-        let hover_no_estimate = 2u8; // autopilot::failsafe::FlightMode::HoverNoEstimate
         assert!(
-            during.iter().any(|l| l.mode == hover_no_estimate),
+            during.iter().any(|l| l.mode == FlightMode::HoverNoEstimate),
             "seed {seed}: failsafe reacted to the outage"
         );
         let a = during[0].pos;

@@ -56,7 +56,7 @@ impl DroneParams {
     /// * k_torque = 0.006 m x k_thrust: Crazyflie torque/thrust ratio (Förster: 0.005964 m).
     /// * rotor inertia: 45 mm two-blade prop of 0.2 g as a rod (m L²/12 = 3.4e-8) plus the
     ///   armature (~6e-9): 4e-8 kg m².
-    /// * motor time constant 64 ms: the INDI actuator model of the issue (first-order filter
+    /// * motor time constant 64 ms: the INDI actuator model (first-order filter
     ///   coefficient 0.03 at 512 Hz: tau = 1 / (512 ln(1/0.97)) = 0.064 s).
     /// * drag: Förster's rotor-induced drag (~9.2e-7 N s/m per rad/s of summed rotor speed at
     ///   ~7000 rad/s) gives ~6.5e-3 N/(m/s); scaled up for the heavier 40 g frame to 8e-3

@@ -12,8 +12,8 @@ use super::uart::{LinkFaults, SimUart, UartStats};
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
 use protocol::{
-    AutopilotToStereo, Decoder, ExternalPosition, Heartbeat, ImuSample, Message, Node,
-    PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+    AutopilotToStereo, Decoder, ExternalPosition, FlightMode, FsmState, Heartbeat, ImuSample,
+    Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -134,10 +134,10 @@ pub struct LogRow {
     pub obstacle_m: f32,
     /// Clearance to the nearest wall/obstacle minus the drone radius, m.
     pub clearance_m: f32,
-    /// FSM state (autopilot numbering; 255: not active).
-    pub fsm_state: u8,
-    /// Failsafe / flight mode (autopilot numbering).
-    pub mode: u8,
+    /// FSM state (`None`: the state machine is not running).
+    pub fsm_state: Option<FsmState>,
+    /// Flight mode.
+    pub mode: FlightMode,
     /// Motor throttles.
     pub motors: [f32; 4],
 }
@@ -441,7 +441,7 @@ pub fn run_flight(
                         motors = off.map(|m| m as f64);
                     }
                     let row = log_row(&ap, &drone, &scene, t, last_raw, motors);
-                    if row.fsm_state != u8::MAX && row.vel_est.iter().all(|v| v.is_finite()) {
+                    if row.fsm_state.is_some() && row.vel_est.iter().all(|v| v.is_finite()) {
                         for k in 0..2 {
                             filt_err2 += ((row.vel_est[k] - row.vel_true[k]) as f64).powi(2);
                         }
@@ -529,7 +529,7 @@ fn log_row(
         clearance_m: scene.clearance(s.pos.x as f32, s.pos.y as f32, h)
             - drone.params.radius_m as f32,
         fsm_state: tel.fsm_state,
-        mode: tel.failsafe,
+        mode: tel.flight_mode,
         motors: motors.map(|m| m as f32),
     }
 }

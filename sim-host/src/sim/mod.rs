@@ -49,7 +49,6 @@
 //! * Speed: `cargo run --release -p sim-host -- fly` (room, 120 s) simulates in 3.4 s on one
 //!   core (35x real time, GIF and plots not counted); `--seeds 20 --duration 600` simulates
 //!   12,000 s in 170 s (paper FSM) and 190 s (improved) of wall time on two cores (63-70x).
-//!   (At commit a77ebbc, before the host's vectorised edge-histogram pass: 24x and 41x.)
 //! * `sim-host fly --seeds 20 --duration 600 --fsm paper`: 20/20 flights without a collision
 //!   for 600 s (the paper's flights: 91, 101, 122 s); minimum clearance 0.10-0.54 m, RMSE of
 //!   the autopilot's velocity estimate 0.12-0.17 m/s, 164-205 m flown per flight.

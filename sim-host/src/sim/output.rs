@@ -6,6 +6,7 @@ use super::flight::FlightResult;
 use super::scene::{Obstacle, Scene};
 use crate::plot_font::{self, FAMILY};
 use plotters::prelude::*;
+use protocol::{FlightMode, FsmState};
 use std::io::Write;
 use std::path::Path;
 
@@ -37,8 +38,8 @@ pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             l.vel_raw[1],
             l.obstacle_m,
             l.clearance_m,
-            l.fsm_state,
-            l.mode,
+            l.fsm_state.map_or("inactive", FsmState::name),
+            l.mode.name(),
             l.motors[0],
             l.motors[1],
             l.motors[2],
@@ -299,53 +300,99 @@ fn runs(points: impl Iterator<Item = (f64, f64)>) -> Vec<Vec<(f64, f64)>> {
     out
 }
 
-/// Two panels over time (grid 10 s): on top the FSM state (blue: -1 inactive, 0 check,
-/// 1 forward, 2 hover, 3 turn) and the flight mode (red, 0..5, see
-/// `autopilot::failsafe::FlightMode`) as step lines; below the obstacle distance the
-/// autopilot holds (gray, m, clipped to 4 m, gaps where nothing is in range) and the true
-/// clearance (black, m).
+/// Step lines of a discrete signal on named levels (level `i` at y = `i`, labelled `names[i]`).
+fn plot_levels<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    caption: &str,
+    t_end: f64,
+    names: &[&str],
+    level: impl Fn(&super::flight::LogRow) -> usize,
+    r: &FlightResult,
+    color: RGBColor,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("{e:?}");
+    let top = names.len() as f64 - 0.5;
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, (FAMILY, 16))
+        .x_label_area_size(30)
+        .y_label_area_size(130)
+        .build_cartesian_2d(0.0..t_end, -0.5..top)
+        .map_err(|e| err(&e))?;
+    let label = |y: &f64| {
+        let i = y.round();
+        if (y - i).abs() < 1e-6 && i >= 0.0 {
+            names.get(i as usize).copied().unwrap_or("").to_string()
+        } else {
+            String::new()
+        }
+    };
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc("time [s]")
+        .y_labels(names.len() * 2 + 1)
+        .y_label_formatter(&label)
+        .label_style((FAMILY, 13))
+        .draw()
+        .map_err(|e| err(&e))?;
+    grid(&mut chart, (0.0, t_end, 10.0), (0.0, top - 0.5, 1.0))?;
+    chart
+        .draw_series(LineSeries::new(
+            r.log.iter().map(|l| (l.t_s, level(l) as f64)),
+            ShapeStyle::from(&color).stroke_width(2),
+        ))
+        .map_err(|e| err(&e))?;
+    Ok(())
+}
+
+/// Three panels over time (grid 10 s): the FSM state and the flight mode by name as step
+/// lines, and the obstacle distance the autopilot holds (gray, m, clipped to 4 m, gaps where
+/// nothing is in range) with the true clearance (black, m).
 pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
     let w = (t_end * 20.0).clamp(800.0, 6000.0) as u32;
     plot_font::register();
-    let root = BitMapBackend::new(path, (w, 600)).into_drawing_area();
+    let root = BitMapBackend::new(path, (w, 800)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let (top, bottom) = root.margin(10, 10, 10, 10).split_vertically(300);
+    let (states, bottom) = root.margin(10, 10, 10, 10).split_vertically(460);
+    let (fsm_area, mode_area) = states.split_vertically(200);
     let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("{e:?}");
 
-    // The state numbers as they are: 255 (inactive) plotted as -1.
-    let mut chart = ChartBuilder::on(&top)
-        .caption(
-            "FSM state (-1 inactive, 0 check, 1 forward, 2 hover, 3 turn) and flight mode",
-            (FAMILY, 16),
-        )
-        .x_label_area_size(30)
-        .y_label_area_size(50)
-        .build_cartesian_2d(0.0..t_end, -1.5..5.5)
-        .map_err(|e| err(&e))?;
-    axes(&mut chart, "time [s]", "state")?;
-    grid(&mut chart, (0.0, t_end, 10.0), (-1.0, 5.0, 1.0))?;
-    let fsm = |l: &super::flight::LogRow| match l.fsm_state {
-        u8::MAX => -1.0,
-        s => (s as f64).min(5.0),
+    let mut fsm_names = vec!["inactive"];
+    fsm_names.extend(FsmState::ALL.iter().map(|s| s.name()));
+    let fsm_level = |l: &super::flight::LogRow| {
+        l.fsm_state
+            .and_then(|s| FsmState::ALL.iter().position(|&x| x == s))
+            .map_or(0, |i| i + 1)
     };
-    chart
-        .draw_series(LineSeries::new(
-            r.log.iter().map(|l| (l.t_s, (l.mode as f64).min(5.0))),
-            RED,
-        ))
-        .map_err(|e| err(&e))?
-        .label("flight mode (0 disarmed, 1 flying, 2 hover without estimate, 3 landing)")
-        .legend(line_key(RED));
-    chart
-        .draw_series(LineSeries::new(
-            r.log.iter().map(|l| (l.t_s, fsm(l))),
-            ShapeStyle::from(&BLUE).stroke_width(2),
-        ))
-        .map_err(|e| err(&e))?
-        .label("FSM state")
-        .legend(line_key(BLUE));
-    legend(&mut chart)?;
+    plot_levels(
+        &fsm_area,
+        "FSM state",
+        t_end,
+        &fsm_names,
+        fsm_level,
+        r,
+        BLUE,
+    )?;
+    let mode_names: Vec<&str> = FlightMode::ALL.iter().map(|m| m.name()).collect();
+    let mode_level = |l: &super::flight::LogRow| {
+        FlightMode::ALL
+            .iter()
+            .position(|&m| m == l.mode)
+            .unwrap_or(0)
+    };
+    plot_levels(
+        &mode_area,
+        "flight mode",
+        t_end,
+        &mode_names,
+        mode_level,
+        r,
+        RED,
+    )?;
 
     let mut chart = ChartBuilder::on(&bottom)
         .caption("obstacle distance and true clearance", (FAMILY, 16))

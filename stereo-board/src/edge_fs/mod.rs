@@ -4,8 +4,9 @@
 //!
 //! Steps of one frame ([`EdgeFs::process`]): horizontal gradient summed per column
 //! ([`edge_histograms`]); per-column stereo disparity by SAD block matching with the calibrated
-//! stereo shift ([`stereo_match`]); per-column temporal flow against a history of histograms
-//! with an adaptive time horizon ([`flow_match`]); derotation by the yaw change; depth
+//! stereo shift, all columns at once ([`stereo_row`]; [`stereo_match`] is the same for one
+//! column); per-column temporal flow against a history of histograms with an adaptive time
+//! horizon ([`flow_row`], one column: [`flow_match`]); derotation by the yaw change; depth
 //! `Z = f·b/disparity` with `f = 128 / FOV_x`; depth-scaled flow `Z·u` per column; a line fit
 //! `Z·u = a·x + b` ([`line_fit`], [`robust_line_fit`]) whose slope is the forward velocity and
 //! whose value at the image centre divided by `f` is (minus) the sideways velocity; the nearest

@@ -234,8 +234,8 @@ mod bench {
             decoder.feed(&wire[..n], |_| got += 1);
             got
         });
-        // The camera board's RX path: one gyro/attitude message (128 Hz, so about four per
-        // 30 Hz frame) decoded by the streaming decoder.
+        // The camera board's RX path: one gyro/attitude message (128 Hz, so about five per
+        // 25 fps frame) decoded by the streaming decoder.
         let msg = protocol::AutopilotToStereo::GyroAttitude(gyro(5));
         let n = protocol::encode(&msg, &mut wire).unwrap_or(0);
         let mut decoder = AutopilotToStereoDecoder::new();
