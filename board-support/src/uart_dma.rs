@@ -27,7 +27,9 @@ pub fn start() {
     // and in `on_interrupt`; other DMA2 streams belong to other drivers (the camera board's DCMI
     // uses stream 1).
     let dma = unsafe { &*pac::DMA2::ptr() };
+    // SAFETY: as above, USART1's DMA and IDLE bits belong to this driver.
     let usart = unsafe { &*pac::USART1::ptr() };
+    // SAFETY: one read-modify-write of AHB1ENR at start-up, before interrupts are enabled.
     let rcc = unsafe { &*pac::RCC::ptr() };
     rcc.ahb1enr().modify(|_, w| w.dma2en().set_bit());
     let st = dma.st(2);
@@ -41,8 +43,10 @@ pub fn start() {
         w.cfeif2().set_bit()
     });
     let buf = (&raw mut RX) as u32;
+    // SAFETY: the peripheral address is USART1's data register, a valid DMA source.
     st.par()
         .write(|w| unsafe { w.pa().bits(usart.dr().as_ptr() as u32) });
+    // SAFETY: `RX` is a static buffer of `BUF` bytes that only the DMA writes.
     st.m0ar().write(|w| unsafe { w.m0a().bits(buf) });
     st.ndtr().write(|w| w.ndt().set(BUF as u16));
     st.fcr().write(|w| w.dmdis().disabled());
@@ -70,6 +74,7 @@ pub fn start() {
 pub fn on_interrupt(queue: &mut Producer<'static, u8>) -> u32 {
     // SAFETY: see `start`.
     let dma = unsafe { &*pac::DMA2::ptr() };
+    // SAFETY: see `start`.
     let usart = unsafe { &*pac::USART1::ptr() };
     let isr = dma.lisr().read();
     if isr.htif2().bit_is_set() || isr.tcif2().bit_is_set() {

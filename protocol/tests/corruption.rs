@@ -196,7 +196,7 @@ fn decoder_delivers_the_next_intact_frame_after_garbage() {
             "burst of {burst_len}: the next intact frame must come out"
         );
         assert_eq!(
-            protocol::encode(&out[0], &mut [0u8; 64]).ok(),
+            encode(&out[0], &mut [0u8; 64]).ok(),
             Some(n),
             "and unchanged"
         );

@@ -3,6 +3,8 @@
 //! `cargo bench -p stereo-board --bench edge_fs` prints criterion's time per frame and the
 //! resulting frames per second. Frames are a synthetic textured scene moving between frames
 //! (so every matcher does real work); the history is warm.
+// criterion_main! generates an undocumented `main`.
+#![allow(missing_docs)]
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use protocol::{GyroAttitude, STEREO_FRAME_BYTES};

@@ -389,8 +389,8 @@ fn incomplete_host_frames_count_as_dropped() {
 #[test]
 fn the_app_fits_a_ccm_static() {
     // Placed in the 64 kB CCM next to nothing else large.
-    assert!(core::mem::size_of::<StereoBoardApp>() < 24 * 1024);
-    assert!(core::mem::size_of::<FrameAssembler>() < STEREO_FRAME_BYTES + 64);
+    assert!(size_of::<StereoBoardApp>() < 24 * 1024);
+    assert!(size_of::<FrameAssembler>() < STEREO_FRAME_BYTES + 64);
 }
 
 mod prop {
@@ -447,8 +447,5 @@ mod prop {
 fn autopilot_decoder_type_matches_the_link() {
     // The firmware sizes its RX DMA buffer from this decoder type's frame size.
     let _d: AutopilotToStereoDecoder = AutopilotToStereoDecoder::new();
-    assert_eq!(
-        core::mem::size_of::<[u8; AutopilotToStereo::MAX_FRAME_BYTES]>(),
-        A2S_N
-    );
+    assert_eq!(size_of::<[u8; AutopilotToStereo::MAX_FRAME_BYTES]>(), A2S_N);
 }

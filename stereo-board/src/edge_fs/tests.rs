@@ -311,7 +311,7 @@ fn config_roundtrip_and_rejection() {
 #[test]
 fn estimator_is_small_and_const_constructible() {
     static _FS: EdgeFs = EdgeFs::new(EdgeFsParams::default_config());
-    assert!(core::mem::size_of::<EdgeFs>() < 16 * 1024);
+    assert!(size_of::<EdgeFs>() < 16 * 1024);
 }
 
 mod no_panic {

@@ -117,8 +117,11 @@ pub fn start(dcmi: pac::DCMI, dma2: pac::DMA2, _pins: Pins, polarity: Polarity) 
         )
     };
     let dr = dcmi.dr().as_ptr() as u32;
+    // SAFETY: the DCMI data register is a valid DMA source.
     st.par().write(|w| unsafe { w.pa().bits(dr) });
+    // SAFETY: `m0` and `m1` are the two static frame buffers (above), each FRAME_WORDS long.
     st.m0ar().write(|w| unsafe { w.m0a().bits(m0) });
+    // SAFETY: as for `m0ar`.
     st.m1ar().write(|w| unsafe { w.m1a().bits(m1) });
     st.ndtr().write(|w| w.ndt().set(FRAME_WORDS));
     // FIFO on (DCMI needs it), threshold full.
@@ -170,11 +173,11 @@ pub fn on_transfer_complete(now_us: u64) -> Option<(usize, u64)> {
 
 /// The complete frame in buffer `index` (after [`on_transfer_complete`] returned it).
 pub fn frame(index: usize) -> Option<&'static [u8; STEREO_FRAME_BYTES]> {
-    // SAFETY: the DMA writes the other buffer until this one is released (double-buffer
-    // mode); a shared reference is only handed out for a buffer marked busy.
     if !BUSY.get(index)?.load(Ordering::Acquire) {
         return None;
     }
+    // SAFETY: the DMA writes the other buffer until this one is released (double-buffer
+    // mode); a shared reference is only handed out for a buffer marked busy.
     unsafe { (*core::ptr::addr_of!(FRAMES)).0.get(index) }
 }
 

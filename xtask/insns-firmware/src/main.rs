@@ -44,6 +44,7 @@ mod bench {
     #[inline(never)]
     pub extern "C" fn insns_begin() {
         // Distinct bodies so that the linker cannot fold the two markers into one address.
+        // SAFETY: `nop`s touch no memory, stack or flags.
         unsafe { core::arch::asm!("nop", "nop", options(nomem, nostack)) }
     }
 
@@ -51,6 +52,7 @@ mod bench {
     #[no_mangle]
     #[inline(never)]
     pub extern "C" fn insns_end() {
+        // SAFETY: a `nop` touches no memory, stack or flags.
         unsafe { core::arch::asm!("nop", options(nomem, nostack)) }
     }
 
