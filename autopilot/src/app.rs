@@ -440,7 +440,14 @@ impl Autopilot {
         match msg {
             StereoToAutopilot::Estimate(e) => self.on_estimate(&e, now_us),
             StereoToAutopilot::Heartbeat(h) => self.stereo_heartbeat = Some((now_us, h)),
-            StereoToAutopilot::Status(s) => self.stereo_status = Some(s),
+            StereoToAutopilot::Status(s) => {
+                if s.camera_stopped {
+                    // The camera board sees no frames: fly as blind from now on instead of
+                    // waiting out the estimate timeout (a valid estimate ends it).
+                    self.last_valid_estimate_us = None;
+                }
+                self.stereo_status = Some(s);
+            }
             StereoToAutopilot::ConfigAck(a) => self.stereo_config_ack = Some(a),
         }
     }

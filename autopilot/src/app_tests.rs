@@ -316,6 +316,40 @@ fn estimate_loss_hovers_then_lands_and_disarms() {
 }
 
 #[test]
+fn a_stopped_camera_reported_in_status_hovers_without_waiting_for_the_estimate_timeout() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(2.0);
+    // The last estimate is fresh; then the camera board reports its camera stopped.
+    r.ap.on_estimate(&r.quad.estimate(r.seq.wrapping_add(1)), r.now);
+    r.estimates = false;
+    let status = StereoStatus {
+        uptime_ms: 3_000,
+        frame_rate_hz: 0.0,
+        frames_processed: 50,
+        frames_dropped: 0,
+        link_errors: LinkErrorCounts::default(),
+        max_processing_us: 0,
+        capture: protocol::CaptureCounts::default(),
+        camera_stopped: true,
+    };
+    let stopped_at = r.now;
+    r.ap.on_stereo_message(StereoToAutopilot::Status(status), r.now);
+    r.fly(0.1);
+    let hover = r
+        .modes
+        .iter()
+        .find(|m| m.1 == FlightMode::HoverNoEstimate && m.0 >= stopped_at)
+        .map(|m| m.0)
+        .expect("hovers as blind");
+    assert!(
+        hover - stopped_at < 50_000,
+        "blind after {} us, not the 500 ms estimate timeout",
+        hover - stopped_at
+    );
+}
+
+#[test]
 fn arm_is_refused_until_the_attitude_is_initialised() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
     let pos = ExternalPosition {

@@ -185,6 +185,28 @@ pub struct LinkErrorCounts {
     pub version_mismatch: u32,
 }
 
+/// Counters of the camera capture path (DCMI + DMA) since boot, as the camera board counts them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CaptureCounts {
+    /// Frames that arrived whole: the DMA had moved exactly one frame's bytes at the frame end.
+    pub frames_complete: u32,
+    /// Frames rejected at the frame end because the DMA had moved another byte count (a short
+    /// frame, or a stream misaligned by lost data); never processed.
+    pub frames_torn: u32,
+    /// DCMI overruns (the DMA did not empty the DCMI FIFO in time; the frame is rejected).
+    pub dcmi_overruns: u32,
+    /// DCMI synchronisation errors (embedded sync codes out of order; the frame is rejected).
+    pub dcmi_sync_errors: u32,
+    /// DMA transfer, FIFO or direct-mode errors on the camera stream (the frame is rejected).
+    pub dma_errors: u32,
+    /// Times capture was stopped and restarted to regain frame alignment.
+    pub rearms: u32,
+    /// Frames whose buffer the DMA began to refill before their processing ended (estimate
+    /// discarded, flow history cleared).
+    pub frames_overwritten: u32,
+}
+
 /// Camera-board health, sent once per second.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -201,6 +223,11 @@ pub struct StereoStatus {
     pub link_errors: LinkErrorCounts,
     /// Worst processing time per frame over the last interval, µs.
     pub max_processing_us: u32,
+    /// The capture path's counters.
+    pub capture: CaptureCounts,
+    /// The camera has sent no frame (VSYNC) for several frame periods: no estimates will come,
+    /// the autopilot must fly as blind.
+    pub camera_stopped: bool,
 }
 
 /// Result of a [`AutopilotToStereo::Config`] request.
@@ -229,7 +256,7 @@ pub enum StereoToAutopilot {
 
 impl Message for StereoToAutopilot {
     const VARIANT_COUNT: u32 = 4;
-    const MAX_FRAME_BYTES: usize = 96;
+    const MAX_FRAME_BYTES: usize = 128;
 }
 
 /// Gyro and attitude sample for derotation (autopilot -> camera board, at 100 Hz or more).

@@ -60,6 +60,17 @@ fn link_errors() -> impl Strategy<Value = LinkErrorCounts> {
         version_mismatch: c[6],
     })
 }
+fn capture_counts() -> impl Strategy<Value = CaptureCounts> {
+    any::<[u32; 7]>().prop_map(|c| CaptureCounts {
+        frames_complete: c[0],
+        frames_torn: c[1],
+        dcmi_overruns: c[2],
+        dcmi_sync_errors: c[3],
+        dma_errors: c[4],
+        rearms: c[5],
+        frames_overwritten: c[6],
+    })
+}
 fn config_error() -> impl Strategy<Value = ConfigError> {
     prop_oneof![
         Just(ConfigError::HalfWindow),
@@ -78,7 +89,9 @@ fn stereo_to_autopilot() -> impl Strategy<Value = StereoToAutopilot> {
             any::<u32>(),
             any::<u32>(),
             link_errors(),
-            any::<u32>()
+            any::<u32>(),
+            capture_counts(),
+            any::<bool>()
         )
             .prop_map(
                 |(
@@ -88,6 +101,8 @@ fn stereo_to_autopilot() -> impl Strategy<Value = StereoToAutopilot> {
                     frames_dropped,
                     link_errors,
                     max_processing_us,
+                    capture,
+                    camera_stopped,
                 )| {
                     StereoToAutopilot::Status(StereoStatus {
                         uptime_ms,
@@ -96,6 +111,8 @@ fn stereo_to_autopilot() -> impl Strategy<Value = StereoToAutopilot> {
                         frames_dropped,
                         link_errors,
                         max_processing_us,
+                        capture,
+                        camera_stopped,
                     })
                 }
             ),
@@ -368,6 +385,16 @@ fn declared_maximum_frame_sizes_hold() {
         frames_dropped: u32::MAX,
         link_errors: all_counters_at_max(),
         max_processing_us: u32::MAX,
+        capture: CaptureCounts {
+            frames_complete: u32::MAX,
+            frames_torn: u32::MAX,
+            dcmi_overruns: u32::MAX,
+            dcmi_sync_errors: u32::MAX,
+            dma_errors: u32::MAX,
+            rearms: u32::MAX,
+            frames_overwritten: u32::MAX,
+        },
+        camera_stopped: true,
     });
     assert!(encode(&status, &mut wire).unwrap() <= StereoToAutopilot::MAX_FRAME_BYTES);
     let gyro = AutopilotToStereo::GyroAttitude(GyroAttitude {

@@ -16,8 +16,8 @@
 
 use crate::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
 use protocol::{
-    encode, AutopilotToStereo, BoardToHost, ConfigResult, Decoder, Estimate, FrameChunk,
-    GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
+    encode, AutopilotToStereo, BoardToHost, CaptureCounts, ConfigResult, Decoder, Estimate,
+    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
     StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 use timebase::{WireTime, WrapExtender};
@@ -26,8 +26,9 @@ pub use task_table::{TaskSpec, Trigger};
 
 /// Period of the status task (Status + Heartbeat to the autopilot), µs.
 pub const STATUS_PERIOD_US: u32 = 1_000_000;
-/// Frame period at the camera's 25 Hz, µs: the frame task's deadline.
-pub const FRAME_PERIOD_US: u32 = 40_000;
+/// Frame period of the camera (25 fps, [`crate::board::FRAME_PERIOD_US`]), µs: the frame
+/// task's deadline.
+pub const FRAME_PERIOD_US: u32 = crate::board::FRAME_PERIOD_US;
 /// A gyro/attitude sample older than this is not used for derotation, µs.
 pub const GYRO_TIMEOUT_US: u64 = 100_000;
 
@@ -262,6 +263,8 @@ pub struct StereoBoardApp {
     last_status_us: u64,
     last_status_frames: u32,
     max_processing_us: u32,
+    capture: CaptureCounts,
+    camera_stopped: bool,
 }
 
 impl StereoBoardApp {
@@ -286,6 +289,16 @@ impl StereoBoardApp {
             last_status_us: 0,
             last_status_frames: 0,
             max_processing_us: 0,
+            capture: CaptureCounts {
+                frames_complete: 0,
+                frames_torn: 0,
+                dcmi_overruns: 0,
+                dcmi_sync_errors: 0,
+                dma_errors: 0,
+                rearms: 0,
+                frames_overwritten: 0,
+            },
+            camera_stopped: false,
         }
     }
 
@@ -401,6 +414,22 @@ impl StereoBoardApp {
         self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(1);
     }
 
+    /// Frame task, instead of [`StereoBoardApp::send_estimate`]: the frame just processed was
+    /// not intact (its buffer was being refilled before processing ended). No estimate is
+    /// sent, the flow history (which now holds that frame) is cleared and the frame counts as
+    /// dropped.
+    pub fn discard_processed_frame(&mut self) {
+        self.edge_fs.reset();
+        self.frame_dropped();
+    }
+
+    /// The capture path's state for the next [`StereoBoardApp::status_tick`] (the firmware
+    /// reads it from its DCMI bookkeeping, [`crate::camera::CaptureMonitor`]).
+    pub fn report_capture(&mut self, counts: CaptureCounts, camera_stopped: bool) {
+        self.capture = counts;
+        self.camera_stopped = camera_stopped;
+    }
+
     /// `uart_rx` task: bytes from the autopilot, as they arrive. Gyro/attitude samples are kept
     /// for derotation (non-finite ones are rejected and counted); a `Config` is validated,
     /// applied from the next frame on (clearing the flow history) and answered with a
@@ -503,6 +532,8 @@ impl StereoBoardApp {
             frames_dropped: self.counters.frames_dropped,
             link_errors: self.rx.errors(),
             max_processing_us: self.max_processing_us,
+            capture: self.capture,
+            camera_stopped: self.camera_stopped,
         };
         self.max_processing_us = 0;
         send_to_autopilot(&StereoToAutopilot::Status(status), tx);

@@ -5,4 +5,6 @@
 #![warn(missing_docs)]
 
 pub mod app;
+pub mod board;
+pub mod camera;
 pub mod edge_fs;

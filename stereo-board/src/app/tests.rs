@@ -276,6 +276,107 @@ fn status_tick_reports_rate_counters_and_heartbeat() {
     );
 }
 
+#[test]
+fn status_carries_the_capture_counters_and_a_stopped_camera() {
+    use crate::camera::{CaptureMonitor, DmaAtFrameEnd, FRAME_WORDS};
+    let mut board = app();
+    let mut camera = CaptureMonitor::new();
+    camera.on_capture_started(0);
+    camera.on_dcmi_overrun();
+    let whole = DmaAtFrameEnd {
+        transfer_complete: true,
+        remaining_words: FRAME_WORDS,
+    };
+    camera.on_frame_end(whole);
+    camera.on_rearm();
+    camera.on_frame_end(whole);
+    let now = 1_000_000;
+    board.report_capture(camera.counts(), camera.camera_stopped(now));
+    let mut wire = Vec::new();
+    let status = board.status_tick(now, &mut |b| wire.extend_from_slice(b));
+    assert!(status.camera_stopped, "no VSYNC for a second");
+    assert_eq!(status.capture, camera.counts());
+    let c = status.capture;
+    assert_eq!(
+        (c.dcmi_overruns, c.frames_torn, c.rearms, c.frames_complete),
+        (1, 1, 1, 1)
+    );
+    let (msgs, _) = decode_out(&wire);
+    assert_eq!(msgs.first(), Some(&StereoToAutopilot::Status(status)));
+
+    camera.on_vsync(now);
+    board.report_capture(camera.counts(), camera.camera_stopped(now + 1));
+    assert!(!board.status_tick(now + 1, &mut |_| {}).camera_stopped);
+}
+
+#[test]
+fn a_frame_overwritten_during_processing_sends_nothing_and_clears_the_history() {
+    let mut board = app();
+    let mut wire = Vec::new();
+    for i in 0..12u64 {
+        let t = 40_000 * i;
+        board.on_frame(&frame(i as usize, 4), t, t, &mut |b| {
+            wire.extend_from_slice(b)
+        });
+    }
+    let sent = decode_out(&wire).0.len();
+    let f = frame(12, 4);
+    let _ = board.process_frame(&f, 480_000, 480_000);
+    board.discard_processed_frame();
+    assert_eq!(decode_out(&wire).0.len(), sent, "nothing sent");
+    assert_eq!(board.counters().frames_dropped, 1);
+    // The history restarts: the next estimate is flagged as still filling.
+    let f = frame(13, 4);
+    let est = board.on_frame(&f, 520_000, 520_000, &mut |_| {});
+    assert!(
+        est.flags.contains(EstimateFlags::HISTORY_FILLING),
+        "{:?}",
+        est.flags
+    );
+}
+
+#[test]
+fn config_search_range_bounds_the_default_modes_disparity_search() {
+    // A scene at 12 px disparity: found with the default range (15), out of reach at 8.
+    let run = |cfg: Option<EdgeFsConfig>| {
+        let mut board = app();
+        if let Some(cfg) = cfg {
+            let mut ack = Vec::new();
+            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), 0, &mut |b| {
+                ack.extend_from_slice(b)
+            });
+            assert_eq!(
+                decode_out(&ack).0,
+                vec![StereoToAutopilot::ConfigAck(ConfigResult::Applied)]
+            );
+        }
+        let f = frame(0, 12);
+        board.on_frame(&f, 0, 0, &mut |_| {});
+        let d = board.edge_fs().diagnostics().disparity_px;
+        let max = d.iter().copied().fold(0.0f32, f32::max);
+        (board.params().stereo_range, max)
+    };
+    let (range, wide) = run(None);
+    assert_eq!(range, 15);
+    let narrow_cfg = EdgeFsConfig {
+        search_range: 8,
+        ..app().params().to_config()
+    };
+    let (range, narrow) = run(Some(narrow_cfg));
+    assert_eq!(
+        range, 8,
+        "search_range reaches the default mode's stereo range"
+    );
+    assert!(
+        wide > 11.0,
+        "default range finds the 12 px disparity: {wide}"
+    );
+    assert!(
+        narrow <= 8.5,
+        "no disparity beyond the configured range: {narrow}"
+    );
+}
+
 fn chunks(f: &[u8; STEREO_FRAME_BYTES], frame_id: u16, capture_us: u32) -> Vec<FrameChunk> {
     f.chunks(FRAME_CHUNK_BYTES)
         .enumerate()

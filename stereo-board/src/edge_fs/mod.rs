@@ -102,7 +102,8 @@ pub struct EdgeFsParams {
     /// estimator behaves alike at 7 Hz and at 25 Hz. 0: always use the adaptive cap.
     pub horizon_s: f32,
     /// Default mode: largest stereo disparity searched, px (the paper mode uses
-    /// `search_range`); up to 40. Closer obstacles than `f·b/stereo_range` get no depth.
+    /// `search_range`); up to 40 here, and set to `search_range` by a run-time `Config`
+    /// ([`EdgeFsParams::apply`]). Closer obstacles than `f·b/stereo_range` get no depth.
     pub stereo_range: u8,
     /// Default mode: smallest sub-pixel disparity used for depth, px.
     pub min_disparity_px: f32,
@@ -263,11 +264,16 @@ impl EdgeFsParams {
     }
 
     /// Applies a run-time configuration from the autopilot (validated first; on error nothing
-    /// changes).
+    /// changes). Every field takes effect: `search_range` bounds the disparity search in both
+    /// modes, so in the default mode it also sets `stereo_range` (the wire's "disparity over
+    /// 0..=D").
     pub fn apply(&mut self, cfg: &EdgeFsConfig) -> Result<(), ConfigError> {
         cfg.validate()?;
         self.half_window = cfg.half_window;
         self.search_range = cfg.search_range;
+        if self.mode == Mode::Default {
+            self.stereo_range = cfg.search_range;
+        }
         self.max_horizon = cfg.max_horizon;
         self.stereo_shift_px = i32::from(cfg.stereo_shift);
         Ok(())
