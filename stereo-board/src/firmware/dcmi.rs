@@ -1,26 +1,30 @@
-//! A small DCMI driver on the PAC (stm32f4xx-hal has none): 8-bit parallel camera with
-//! hardware synchronisation, DMA2 stream 1 channel 1 in double-buffer mode, one interrupt per
-//! complete frame.
+//! Camera capture on the PAC (stm32f4xx-hal has no DCMI driver): the cameras' master clock
+//! (TIM3 CH2), the DCMI with hardware sync and a crop window, and DMA2 stream 1 channel 1 in
+//! double-buffer mode, with every frame checked before it is handed on.
 //!
-//! The stereo camera delivers left and right pixels interleaved (`[L0 R0 L1 R1 ...]`, 256 bytes
-//! per line, 96 lines) with pixel clock, HSYNC and VSYNC. The DCMI packs four bytes into each
-//! 32-bit data-register read; the DMA moves `STEREO_FRAME_BYTES / 4` words per frame into one
-//! of two SRAM buffers and switches to the other on its own (double-buffer mode, `CT` tells
-//! which one it is writing). The transfer-complete interrupt therefore marks a frame as
-//! complete in the buffer the DMA just left; the frame task reads it while the next frame
-//! streams into the other buffer, and [`release`]s it when done.
+//! The stereo camera delivers left and right luminance interleaved (`[L0 R0 L1 R1 ...]`, 256
+//! bytes per line, 96 lines). The DCMI packs four bytes into each 32-bit data-register read and
+//! the DMA moves one frame's words into one of two SRAM buffers, then switches to the other on
+//! its own (`CT` names the one it writes).
 //!
-//! Pins (alternate function 13): HSYNC PA4, PIXCLK PA6, VSYNC PB7, D0..D7 = PC6, PC7, PC8,
-//! PC9, PC11, PB6, PE5, PE6. Camera master clock: MCO1 on PA8 (the 12 MHz HSE).
+//! Interrupts (both at the highest task priority):
+//! * DCMI: FRAME (capture of a frame ended), VSYNC (the camera's sign of life), OVR (the DMA
+//!   did not drain the DCMI FIFO in time), ERR (sync error). At FRAME the DMA's state decides
+//!   whether the frame is whole ([`CaptureMonitor::on_frame_end`]): whole frames go to the
+//!   frame task, torn ones are dropped and capture is re-armed. OVR and ERR re-arm at once.
+//! * DMA2 stream 1: transfer error (the stream stops: re-arm at once) and direct-mode error
+//!   (data lost: the frame is torn). The transfer-complete flag is polled at FRAME instead of
+//!   interrupting, so that the frame boundary has one source, the DCMI.
+//!
+//! Re-arming stops the DMA and the DCMI, reloads a full frame's count into the buffer the frame
+//! task does not hold, and restarts capture, which the DCMI begins at the next frame start: the
+//! following frame lands aligned in a buffer.
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use protocol::STEREO_FRAME_BYTES;
-use stm32f4xx_hal::gpio::{Alternate, PA4, PA6, PA8, PB6, PB7, PC11, PC6, PC7, PC8, PC9, PE5, PE6};
+use stereo_board::board;
+use stereo_board::camera::{CaptureMonitor, DmaAtFrameEnd, FrameEnd, FRAME_WORDS};
 use stm32f4xx_hal::pac;
-
-/// 32-bit words per frame (the DMA's item count; must stay below 65,536).
-const FRAME_WORDS: u16 = (STEREO_FRAME_BYTES / 4) as u16;
-const _: () = assert!(STEREO_FRAME_BYTES.is_multiple_of(4) && STEREO_FRAME_BYTES / 4 < 65_536);
 
 /// Two frame buffers in SRAM (DMA-reachable; CCM is not), word-aligned for the DMA.
 #[repr(C, align(4))]
@@ -28,87 +32,113 @@ struct Frames([[u8; STEREO_FRAME_BYTES]; 2]);
 
 static mut FRAMES: Frames = Frames([[0; STEREO_FRAME_BYTES]; 2]);
 
-/// Buffer `i` is being read by the frame task.
+/// Buffer `i` has been handed to the frame task and not released yet.
 static BUSY: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
 
-/// Frames lost since the frame task last looked: overruns and frames arriving while busy.
-pub static DROPPED: AtomicU32 = AtomicU32::new(0);
+/// Frame ends seen since boot (whole or torn): a delivered buffer is intact while this has not
+/// moved on (the DMA refills it only after the next frame end).
+static FRAME_ENDS: AtomicU32 = AtomicU32::new(0);
 
-/// DMA transfer errors since boot.
-pub static DMA_ERRORS: AtomicU32 = AtomicU32::new(0);
-
-/// The DCMI pins, in their alternate function (owned so nothing else can reconfigure them).
-#[allow(missing_docs, dead_code)]
-pub struct Pins {
-    pub hsync: PA4<Alternate<13>>,
-    pub pixclk: PA6<Alternate<13>>,
-    pub vsync: PB7<Alternate<13>>,
-    pub d0: PC6<Alternate<13>>,
-    pub d1: PC7<Alternate<13>>,
-    pub d2: PC8<Alternate<13>>,
-    pub d3: PC9<Alternate<13>>,
-    pub d4: PC11<Alternate<13>>,
-    pub d5: PB6<Alternate<13>>,
-    pub d6: PE5<Alternate<13>>,
-    pub d7: PE6<Alternate<13>>,
-    pub xclk: PA8<Alternate<0>>,
-}
-
-/// Signal polarities of the camera (from its datasheet).
+/// A whole frame handed to the frame task.
 #[derive(Debug, Clone, Copy)]
-pub struct Polarity {
-    /// Sample data on the rising pixel-clock edge.
-    pub pixclk_rising: bool,
-    /// HSYNC is high during blanking (the DCMI's "active high").
-    pub hsync_high: bool,
-    /// VSYNC is high during blanking.
-    pub vsync_high: bool,
+pub struct Delivered {
+    /// Buffer index, 0 or 1.
+    pub index: usize,
+    /// End of the frame's read-out, µs.
+    pub capture_us: u64,
+    /// [`FRAME_ENDS`] when it was delivered.
+    seq: u32,
 }
 
-/// Configures MCO1 (camera clock), DCMI and DMA2 stream 1 and starts continuous capture.
-/// The pins are taken to prove they are in the right mode.
-pub fn start(dcmi: pac::DCMI, dma2: pac::DMA2, _pins: Pins, polarity: Polarity) {
-    // SAFETY: RCC is only touched here after `freeze`, for enable bits no HAL driver owns.
+/// Polls of the DMA's transfer-complete flag at a frame end while the last words are still on
+/// their way from the DCMI FIFO (8 words) to memory.
+const DRAIN_POLLS: u32 = 64;
+
+// SAFETY (for every `unsafe { &*pac::X::ptr() }` below): DMA2 stream 1, the DCMI and TIM3
+// belong to this module alone; its functions run in `init` or in the two interrupt handlers,
+// which share one priority and so never preempt each other.
+fn dma() -> &'static pac::dma2::RegisterBlock {
+    // SAFETY: see above; the register block is always mapped.
+    unsafe { &*pac::DMA2::ptr() }
+}
+fn dcmi() -> &'static pac::dcmi::RegisterBlock {
+    // SAFETY: see above; the register block is always mapped.
+    unsafe { &*pac::DCMI::ptr() }
+}
+
+/// Starts the cameras' master clock: TIM3 channel 2, PWM mode 1, [`board::CAMERA_CLOCK_HZ`]
+/// at 50 % duty (PSC, ARR, CCR2 from the board). The pin (PA7, AF2) is set by the board table.
+pub fn start_camera_clock() {
+    // SAFETY: only TIM3's enable bit is touched here (see the module's ownership note).
+    let rcc = unsafe { &*pac::RCC::ptr() };
+    rcc.apb1enr().modify(|_, w| w.tim3en().set_bit());
+    // SAFETY: TIM3 belongs to this module.
+    let tim = unsafe { &*pac::TIM3::ptr() };
+    tim.cr1().write(|w| w.cen().clear_bit());
+    tim.psc().write(|w| w.psc().set(board::CAMERA_CLOCK_PSC));
+    tim.arr().write(|w| w.arr().set(board::CAMERA_CLOCK_ARR));
+    tim.ccr2().write(|w| w.ccr().set(board::CAMERA_CLOCK_CCR));
+    tim.ccmr1_output()
+        .modify(|_, w| w.cc2s().output().oc2m().pwm_mode1().oc2pe().enabled());
+    tim.ccer()
+        .modify(|_, w| w.cc2p().clear_bit().cc2e().set_bit());
+    tim.cr1().modify(|_, w| w.arpe().enabled());
+    // Load PSC/ARR/CCR2 from their preload registers, then count.
+    tim.egr().write(|w| w.ug().set_bit());
+    tim.cr1().modify(|_, w| w.cen().set_bit());
+}
+
+/// Configures the DCMI (hardware sync, polarities and crop from the board, continuous capture,
+/// 8-bit data) and DMA2 stream 1 (channel 1, words, double buffer, a frame per buffer) and
+/// their interrupts, without starting capture.
+pub fn configure() {
+    // SAFETY: only the DMA2 and DCMI enable bits are touched here.
     let rcc = unsafe { &*pac::RCC::ptr() };
     rcc.ahb1enr().modify(|_, w| w.dma2en().set_bit());
     rcc.ahb2enr().modify(|_, w| w.dcmien().set_bit());
-    // Camera master clock: MCO1 = HSE, undivided.
-    rcc.cfgr().modify(|_, w| w.mco1().hse().mco1pre().div1());
-
+    let dcmi = dcmi();
     dcmi.cr().write(|w| {
         w.cm().continuous();
         w.ess().hardware();
         w.fcrc().all();
         w.edm().bit_width8();
-        if polarity.pixclk_rising {
+        w.crop().set_bit();
+        if board::DCMI_PIXCLK_RISING {
             w.pckpol().rising_edge();
         } else {
             w.pckpol().falling_edge();
         }
-        if polarity.hsync_high {
+        if board::DCMI_HSYNC_BLANKING_HIGH {
             w.hspol().active_high();
         } else {
             w.hspol().active_low();
         }
-        if polarity.vsync_high {
+        if board::DCMI_VSYNC_BLANKING_HIGH {
             w.vspol().active_high()
         } else {
             w.vspol().active_low()
         }
     });
-
-    let st = dma2.st(1);
-    st.cr().modify(|_, w| w.en().disabled());
-    while st.cr().read().en().is_enabled() {}
-    dma2.lifcr().write(|w| {
-        w.ctcif1().set_bit();
-        w.chtif1().set_bit();
-        w.cteif1().set_bit();
-        w.cdmeif1().set_bit();
-        w.cfeif1().set_bit()
+    // Crop window (RM0090 §15.5.7-8): counts minus one; CAPCNT in pixel clocks.
+    dcmi.cwstrt().write(|w| {
+        w.vst().set(board::CROP_FIRST_LINE);
+        w.hoffcnt().set(board::CROP_FIRST_PIXEL_CLOCK)
     });
-    // SAFETY: the buffers are only handed to the DMA here, once; the CPU reads a buffer only
-    // between a transfer-complete interrupt and `release` (see the module docs).
+    dcmi.cwsize().write(|w| {
+        w.vline().set(board::CROP_LINES - 1);
+        w.capcnt().set(board::CROP_PIXEL_CLOCKS - 1)
+    });
+    dcmi.ier().write(|w| {
+        w.frame_ie().set_bit();
+        w.ovr_ie().set_bit();
+        w.err_ie().set_bit();
+        w.vsync_ie().set_bit()
+    });
+
+    let st = dma().st(usize::from(board::DCMI_DMA_STREAM));
+    stop_stream();
+    // SAFETY: the buffers are handed to the DMA here, once; the CPU reads a buffer only between
+    // its delivery and `release`, while the DMA writes the other one (see the module docs).
     let (m0, m1) = unsafe {
         let frames = &raw mut FRAMES;
         (
@@ -116,18 +146,17 @@ pub fn start(dcmi: pac::DCMI, dma2: pac::DMA2, _pins: Pins, polarity: Polarity) 
             (*frames).0.as_mut_ptr().add(1) as u32,
         )
     };
-    let dr = dcmi.dr().as_ptr() as u32;
-    // SAFETY: the DCMI data register is a valid DMA source.
-    st.par().write(|w| unsafe { w.pa().bits(dr) });
-    // SAFETY: `m0` and `m1` are the two static frame buffers (above), each FRAME_WORDS long.
+    // SAFETY: the peripheral address is the DCMI data register, a valid DMA source.
+    st.par()
+        .write(|w| unsafe { w.pa().bits(dcmi.dr().as_ptr() as u32) });
+    // SAFETY: frame buffer 0, a static of one frame that only the DMA writes (see above).
     st.m0ar().write(|w| unsafe { w.m0a().bits(m0) });
-    // SAFETY: as for `m0ar`.
+    // SAFETY: frame buffer 1, as buffer 0.
     st.m1ar().write(|w| unsafe { w.m1a().bits(m1) });
-    st.ndtr().write(|w| w.ndt().set(FRAME_WORDS));
-    // FIFO on (DCMI needs it), threshold full.
-    st.fcr().write(|w| w.dmdis().enabled().fth().full());
+    // Direct mode (no FIFO), as the original: one word per DCMI request.
+    st.fcr().write(|w| w.dmdis().enabled());
     st.cr().write(|w| {
-        w.chsel().set(1);
+        w.chsel().set(board::DCMI_DMA_CHANNEL);
         w.dir().peripheral_to_memory();
         w.psize().bits32();
         w.msize().bits32();
@@ -135,55 +164,189 @@ pub fn start(dcmi: pac::DCMI, dma2: pac::DMA2, _pins: Pins, polarity: Polarity) 
         w.minc().incremented();
         w.circ().enabled();
         w.dbm().enabled();
-        w.ct().memory0();
         w.pl().very_high();
-        w.tcie().enabled();
-        w.teie().enabled()
+        w.teie().enabled();
+        w.dmeie().enabled()
+    });
+}
+
+/// Disables stream 1 (waiting, bounded, for it to stop) and clears its flags.
+fn stop_stream() {
+    let st = dma().st(usize::from(board::DCMI_DMA_STREAM));
+    st.cr().modify(|_, w| w.en().disabled());
+    for _ in 0..10_000 {
+        if st.cr().read().en().is_disabled() {
+            break;
+        }
+    }
+    clear_stream_flags();
+}
+
+fn clear_stream_flags() {
+    dma().lifcr().write(|w| {
+        w.ctcif1().set_bit();
+        w.chtif1().set_bit();
+        w.cteif1().set_bit();
+        w.cdmeif1().set_bit();
+        w.cfeif1().set_bit()
+    });
+}
+
+/// (Re)starts capture: a full frame's count into the buffer the frame task does not hold,
+/// stream on, DCMI flags cleared, DCMI on, CAPTURE set (capture begins at the next frame).
+fn start_capture() {
+    let st = dma().st(usize::from(board::DCMI_DMA_STREAM));
+    let into_m1 = BUSY[0].load(Ordering::Acquire);
+    st.ndtr().write(|w| w.ndt().set(FRAME_WORDS));
+    st.cr().modify(|_, w| {
+        if into_m1 {
+            w.ct().memory1()
+        } else {
+            w.ct().memory0()
+        }
     });
     st.cr().modify(|_, w| w.en().enabled());
-
-    dcmi.cr().modify(|_, w| w.enable().enabled());
+    let dcmi = dcmi();
+    dcmi.icr().write(|w| {
+        w.frame_isc().set_bit();
+        w.ovr_isc().set_bit();
+        w.err_isc().set_bit();
+        w.vsync_isc().set_bit();
+        w.line_isc().set_bit()
+    });
+    dcmi.cr().modify(|_, w| w.enable().set_bit());
     dcmi.cr().modify(|_, w| w.capture().set_bit());
 }
 
-/// Handles the DMA2 stream 1 interrupt: returns the index of the buffer holding a complete
-/// frame and its time stamp (`now_us`: end of read-out), or `None` for an error interrupt.
-pub fn on_transfer_complete(now_us: u64) -> Option<(usize, u64)> {
-    // SAFETY: only this interrupt handler reads and clears stream 1's flags.
-    let dma = unsafe { &*pac::DMA2::ptr() };
-    let isr = dma.lisr().read();
-    if isr.teif1().bit_is_set() {
-        dma.lifcr().write(|w| w.cteif1().set_bit());
-        DMA_ERRORS.fetch_add(1, Ordering::Relaxed);
-    }
-    if isr.tcif1().bit_is_clear() {
-        return None;
-    }
-    dma.lifcr().write(|w| w.ctcif1().set_bit());
-    // CT names the buffer the DMA writes now; the other one was just filled.
-    let writing = usize::from(dma.st(1).cr().read().ct().bit_is_set());
-    let done = 1 - writing;
-    if BUSY.get(writing).is_some_and(|b| b.load(Ordering::Acquire)) {
-        // The frame task was still reading the buffer the DMA now overwrites.
-        DROPPED.fetch_add(1, Ordering::Relaxed);
-    }
-    BUSY.get(done)?.store(true, Ordering::Release);
-    Some((done, now_us))
+/// Starts capture for the first time.
+pub fn start(monitor: &mut CaptureMonitor, now_us: u64) {
+    start_capture();
+    monitor.on_capture_started(now_us);
 }
 
-/// The complete frame in buffer `index` (after [`on_transfer_complete`] returned it).
-pub fn frame(index: usize) -> Option<&'static [u8; STEREO_FRAME_BYTES]> {
-    if !BUSY.get(index)?.load(Ordering::Acquire) {
-        return None;
-    }
-    // SAFETY: the DMA writes the other buffer until this one is released (double-buffer
-    // mode); a shared reference is only handed out for a buffer marked busy.
-    unsafe { (*core::ptr::addr_of!(FRAMES)).0.get(index) }
+/// Stops and restarts capture (after a torn frame, an error, or a stopped camera).
+pub fn rearm(monitor: &mut CaptureMonitor) {
+    let dcmi = dcmi();
+    dcmi.cr().modify(|_, w| w.capture().clear_bit());
+    dcmi.cr().modify(|_, w| w.enable().clear_bit());
+    stop_stream();
+    start_capture();
+    monitor.on_rearm();
 }
 
-/// The frame task is done with buffer `index`.
-pub fn release(index: usize) {
-    if let Some(b) = BUSY.get(index) {
+/// DCMI interrupt: returns a whole frame to hand to the frame task, if one just ended.
+pub fn on_dcmi_interrupt(monitor: &mut CaptureMonitor, now_us: u64) -> Option<Delivered> {
+    let dcmi = dcmi();
+    let mis = dcmi.mis().read();
+    dcmi.icr().write(|w| {
+        w.frame_isc().bit(mis.frame_mis().bit_is_set());
+        w.ovr_isc().bit(mis.ovr_mis().bit_is_set());
+        w.err_isc().bit(mis.err_mis().bit_is_set());
+        w.vsync_isc().bit(mis.vsync_mis().bit_is_set())
+    });
+    if mis.vsync_mis().bit_is_set() {
+        monitor.on_vsync(now_us);
+    }
+    let mut lost = false;
+    if mis.ovr_mis().bit_is_set() {
+        monitor.on_dcmi_overrun();
+        lost = true;
+    }
+    if mis.err_mis().bit_is_set() {
+        monitor.on_dcmi_sync_error();
+        lost = true;
+    }
+    if mis.frame_mis().bit_is_set() {
+        FRAME_ENDS.fetch_add(1, Ordering::AcqRel);
+        let verdict = monitor.on_frame_end(dma_at_frame_end());
+        dma().lifcr().write(|w| w.ctcif1().set_bit());
+        if verdict == FrameEnd::Deliver && !lost {
+            return deliver(now_us);
+        }
+        lost = true;
+    }
+    if lost {
+        rearm(monitor);
+    }
+    None
+}
+
+/// The DMA's state at a frame end, once the last words of the frame have reached memory.
+fn dma_at_frame_end() -> DmaAtFrameEnd {
+    let st = dma().st(usize::from(board::DCMI_DMA_STREAM));
+    let mut snapshot = DmaAtFrameEnd {
+        transfer_complete: false,
+        remaining_words: 0,
+    };
+    for _ in 0..DRAIN_POLLS {
+        snapshot = DmaAtFrameEnd {
+            transfer_complete: dma().lisr().read().tcif1().bit_is_set(),
+            remaining_words: st.ndtr().read().ndt().bits(),
+        };
+        // Still draining: the buffer is all but full and has not switched yet.
+        let draining = !snapshot.transfer_complete && snapshot.remaining_words <= 8;
+        if !draining {
+            break;
+        }
+    }
+    snapshot
+}
+
+/// Hands the buffer the DMA just left to the frame task.
+fn deliver(now_us: u64) -> Option<Delivered> {
+    let writing = usize::from(
+        dma()
+            .st(usize::from(board::DCMI_DMA_STREAM))
+            .cr()
+            .read()
+            .ct()
+            .bit_is_set(),
+    );
+    let index = 1 - writing;
+    BUSY.get(index)?.store(true, Ordering::Release);
+    Some(Delivered {
+        index,
+        capture_us: now_us,
+        seq: FRAME_ENDS.load(Ordering::Acquire),
+    })
+}
+
+/// DMA2 stream 1 interrupt: transfer errors stop the stream (re-arm now); direct-mode errors
+/// lose data (the frame in flight is torn at its end).
+pub fn on_dma_interrupt(monitor: &mut CaptureMonitor) {
+    let isr = dma().lisr().read();
+    let transfer_error = isr.teif1().bit_is_set();
+    if transfer_error || isr.dmeif1().bit_is_set() || isr.feif1().bit_is_set() {
+        dma().lifcr().write(|w| {
+            w.cteif1().set_bit();
+            w.cdmeif1().set_bit();
+            w.cfeif1().set_bit()
+        });
+        monitor.on_dma_error();
+    }
+    if transfer_error {
+        rearm(monitor);
+    }
+}
+
+/// The frame in a delivered buffer.
+pub fn frame(d: &Delivered) -> Option<&'static [u8; STEREO_FRAME_BYTES]> {
+    if !BUSY.get(d.index)?.load(Ordering::Acquire) {
+        return None;
+    }
+    // SAFETY: a shared reference is only handed out for a buffer marked busy, which the DMA
+    // does not write until the next frame end (checked by `intact` after use).
+    unsafe { (*core::ptr::addr_of!(FRAMES)).0.get(d.index) }
+}
+
+/// True while the DMA has not begun to refill a delivered buffer: no frame has ended since.
+pub fn intact(d: &Delivered) -> bool {
+    FRAME_ENDS.load(Ordering::Acquire) == d.seq
+}
+
+/// The frame task is done with a delivered buffer.
+pub fn release(d: &Delivered) {
+    if let Some(b) = BUSY.get(d.index) {
         b.store(false, Ordering::Release);
     }
 }

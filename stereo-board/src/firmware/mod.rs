@@ -1,21 +1,23 @@
 //! RTIC 2 application of the stereo-board firmware (thumbv7em-none-eabihf only).
 //!
 //! A thin shell around [`stereo_board::app`]: the tasks below mirror `app::TASKS` and each body
-//! is one call into [`StereoBoardApp`].
+//! is one call into [`StereoBoardApp`]. Pins, peripherals, clocks and rates come from the board
+//! definition, [`stereo_board::board`].
 //!
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
-//! | `usart1` | 4 | USART1 IDLE + DMA2 stream 2 (QEMU: RXNE) | bytes into a lock-free queue (never waits for a lock; in QEMU a full queue pauses the interrupt, see [`board_support::uart_rx`]) |
-//! | `uart_rx` | 3 | woken by `usart1` | [`StereoBoardApp::on_rx_bytes`] |
-//! | `usart2` / `host_rx` | 4 / 3 | USART2 RXNE (qemu, hil; back-pressure as for `usart1`) | [`StereoBoardApp::on_host_bytes`] |
-//! | `dcmi_frame` | 4 | DMA2 stream 1 transfer complete (real) | hands the filled buffer on |
-//! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` |
-//! | `status` | 1 | every `app::STATUS_PERIOD_US` | [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
+//! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]) |
+//! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] |
+//! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu, hil) | [`StereoBoardApp::on_host_bytes`] |
+//! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
+//! | `dma_irq` | 4 | DMA2 stream 1 transfer / direct-mode error (real) | counts, re-arms |
+//! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` (or `discard_processed_frame` when the buffer was refilled meanwhile) |
+//! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state in, [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
 //!
 //! Edge-FS runs inside a lock of the board state, whose ceiling is the receive tasks'
 //! priority 3: while a frame is processed, received bytes wait in the queues filled at
-//! priority 4 (4 KiB each, 44 ms of a 921,600 Bd line) and are decoded right after. The
-//! gyro sample used for a frame is the latest one when processing starts.
+//! priority 4 and are decoded right after. The gyro sample used for a frame is the latest one
+//! when processing starts. Frames are written to the UARTs with [`write_all`].
 //!
 //! Time: on hardware the library sees the board clock. In the `hil` and `qemu` flavours it
 //! sees the world time of the host's simulation ([`clock::lib_now_us`]): frames carry their
@@ -26,19 +28,24 @@
 //! Memory: the board state (Edge-FS history, decoders) is CPU-only and lives in CCM
 //! ([`APP`]); camera frame buffers are DMA targets in SRAM. `cargo xtask size` prints the
 //! static use.
+//!
+//! Flavours: `real` (the original board: camera on the DCMI, link on UART4), `hil` (the same
+//! board, frames from a host on USART2) and `qemu` (`-M netduinoplus2`: no camera, link on
+//! USART1 and host on USART2, the first two `-serial` ports).
 
 mod board;
 mod clock;
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
 mod dcmi;
-use board_support::log;
+mod pins;
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
-mod sensor;
-#[cfg(not(feature = "qemu"))]
-use board_support::uart_dma;
+mod sccb;
+use board_support::log;
 
 use core::mem::MaybeUninit;
+use core::sync::atomic::AtomicU32;
 use defmt_rtt as _;
+
 #[cfg(not(feature = "qemu"))]
 use panic_probe as _;
 use stereo_board::app::StereoBoardApp;
@@ -51,17 +58,15 @@ rtic_monotonics::systick_monotonic!(Mono, 1_000);
 static mut APP: MaybeUninit<StereoBoardApp> = MaybeUninit::uninit();
 
 /// Received bytes lost since boot: queue full, or a UART overrun/framing/noise error.
-static RX_LOST: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+static RX_LOST: AtomicU32 = AtomicU32::new(0);
+
+/// Frames lost since the frame task last looked (a frame ended while the task was busy).
+static FRAMES_LOST: AtomicU32 = AtomicU32::new(0);
 
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 4096;
 
-/// Back-pressure of the host link's RXNE interrupt (qemu, hil flavours).
-#[cfg(any(feature = "qemu", feature = "hil"))]
-static HOST_FLOW: board_support::uart_rx::RxFlow =
-    board_support::uart_rx::RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART2);
-
-/// Blocking write of whole frames to a UART (a few dozen bytes per message at 921,600 Bd).
+/// Writes whole frames to a UART (a few dozen bytes per message).
 fn write_all<U: stm32f4xx_hal::serial::Instance>(
     tx: &mut stm32f4xx_hal::serial::Tx<U>,
     bytes: &[u8],
@@ -69,6 +74,28 @@ fn write_all<U: stm32f4xx_hal::serial::Instance>(
     use embedded_io::Write as _;
     let _ = tx.write_all(bytes);
 }
+
+/// The link UART: UART4 on the camera board ([`stereo_board::board::LINK_UART`]); USART1 on
+/// QEMU's netduinoplus2 (its first `-serial` port).
+#[cfg(not(feature = "qemu"))]
+type LinkUart = stm32f4xx_hal::pac::UART4;
+/// The link UART (see the hardware flavours').
+#[cfg(feature = "qemu")]
+type LinkUart = stm32f4xx_hal::pac::USART1;
+/// The link UART's interrupt.
+#[cfg(not(feature = "qemu"))]
+const LINK_IRQ: stm32f4xx_hal::pac::Interrupt = stm32f4xx_hal::pac::Interrupt::UART4;
+/// The link UART's interrupt.
+#[cfg(feature = "qemu")]
+const LINK_IRQ: stm32f4xx_hal::pac::Interrupt = stm32f4xx_hal::pac::Interrupt::USART1;
+
+/// Back-pressure of the link's RXNE interrupt.
+static LINK_FLOW: board_support::uart_rx::RxFlow = board_support::uart_rx::RxFlow::new(LINK_IRQ);
+
+/// Back-pressure of the host link's RXNE interrupt (qemu, hil flavours).
+#[cfg(any(feature = "qemu", feature = "hil"))]
+static HOST_FLOW: board_support::uart_rx::RxFlow =
+    board_support::uart_rx::RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART2);
 
 #[cfg(any(feature = "qemu", feature = "hil"))]
 /// A frame handed from the host-link task to the frame task (qemu, hil flavours): the
@@ -110,65 +137,98 @@ type Frames = Camera;
 /// What the frame task is spawned with.
 #[cfg(any(feature = "qemu", feature = "hil"))]
 type FrameReady = ();
-/// What the frame task is spawned with: DMA buffer index and end-of-read-out time, µs.
+/// What the frame task is spawned with: the delivered DMA buffer.
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
-type FrameReady = (usize, u64);
+type FrameReady = dcmi::Delivered;
 
 /// The frame task's view of its frame source.
 trait FrameSource {
     /// The frame and its exposure time, µs.
-    fn take(&mut self, ready: FrameReady) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)>;
+    fn take(&mut self, ready: &FrameReady) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)>;
+    /// True if the frame was not touched while it was being processed.
+    fn intact(&self, ready: &FrameReady) -> bool;
     /// Done with the frame.
-    fn release(&mut self, ready: FrameReady);
-    /// Frames the source lost since the last call.
-    fn dropped_since_last(&mut self) -> u32;
+    fn release(&mut self, ready: &FrameReady);
 }
 
 #[cfg(any(feature = "qemu", feature = "hil"))]
 impl FrameSource for &'static mut FrameSlot {
-    fn take(&mut self, _: ()) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)> {
+    fn take(&mut self, _: &()) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)> {
         let capture = self.capture_us.take()?;
         Some((&self.buf, capture))
     }
-    fn release(&mut self, _: ()) {}
-    fn dropped_since_last(&mut self) -> u32 {
-        0
+    // The slot is written only by `host_rx`, under the same lock as the frame task's.
+    fn intact(&self, _: &()) -> bool {
+        true
     }
+    fn release(&mut self, _: &()) {}
 }
 
 #[cfg(not(any(feature = "qemu", feature = "hil")))]
 impl FrameSource for Camera {
-    fn take(&mut self, ready: FrameReady) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)> {
-        dcmi::frame(ready.0).map(|f| (f, ready.1))
+    fn take(&mut self, ready: &FrameReady) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)> {
+        dcmi::frame(ready).map(|f| (f, ready.capture_us))
     }
-    fn release(&mut self, ready: FrameReady) {
-        dcmi::release(ready.0);
+    fn intact(&self, ready: &FrameReady) -> bool {
+        dcmi::intact(ready)
     }
-    fn dropped_since_last(&mut self) -> u32 {
-        dcmi::DROPPED.swap(0, core::sync::atomic::Ordering::Relaxed)
+    fn release(&mut self, ready: &FrameReady) {
+        dcmi::release(ready);
     }
 }
 
-#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART4, UART5])]
+/// Busy-waits `us` microseconds on the core clock (start-up only).
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+fn delay_us(us: u32) {
+    cortex_m::asm::delay(us.saturating_mul(stereo_board::board::SYSCLK_HZ / 1_000_000));
+}
+
+/// Brings the cameras up as the original board does: CPLD mode and reset are already set by
+/// the pin table (reset held low); clock on, reset released after
+/// [`stereo_board::board::CAMERA_RESET_LOW_US`], registers written after
+/// [`stereo_board::board::CAMERA_RESET_RECOVERY_US`] and each read back. Returns the first
+/// register that failed, if any.
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+fn bring_up_cameras(i2c: stm32f4xx_hal::pac::I2C2) -> Result<(), (u8, sccb::SccbError)> {
+    use stereo_board::board;
+    use stereo_board::camera::tcm8230;
+    dcmi::start_camera_clock();
+    delay_us(board::CAMERA_RESET_LOW_US);
+    pins::set(&board::CAMERA_RESET, true);
+    delay_us(board::CAMERA_RESET_RECOVERY_US);
+    let mut bus = sccb::Sccb::new(i2c);
+    for &(reg, value) in &tcm8230::SETUP {
+        bus.write(reg, value).map_err(|e| (reg, e))?;
+        match bus.read(reg) {
+            Ok(v) if v == value => {}
+            Ok(_) => return Err((reg, sccb::SccbError::Bus)),
+            Err(e) => return Err((reg, e)),
+        }
+    }
+    Ok(())
+}
+
+#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART5])]
 mod app {
-    use super::{board, clock, log, write_all, FrameSource as _, Mono, APP, RX_QUEUE};
+    use super::{board, clock, log, write_all, FrameSource as _, Mono, APP, LINK_FLOW, RX_QUEUE};
+    use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
     use stereo_board::app::{StereoBoardApp, STATUS_PERIOD_US};
     use stereo_board::edge_fs::EdgeFsParams;
     use stm32f4xx_hal::{
-        gpio::{Output, PC13},
         pac,
         prelude::*,
         serial::{self, Rx, Tx},
         watchdog::IndependentWatchdog,
     };
 
-    use super::{FrameReady, Frames};
-    use board_support::uart_rx::LINK_FLOW;
+    use super::{FrameReady, Frames, LinkUart};
     use protocol::BoardToHost;
-    use stereo_board::app::{send_to_host, FrameAssembler};
+    use rtic::mutex::prelude::*;
+    use stereo_board::app::send_to_host;
+    use stereo_board::camera::CaptureMonitor;
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
     type Wake = ();
@@ -176,18 +236,23 @@ mod app {
     #[shared]
     struct Shared {
         board: &'static mut StereoBoardApp,
-        link_tx: Tx<pac::USART1>,
-        host_tx: Tx<pac::USART2>,
+        link_tx: Tx<LinkUart>,
+        /// The host link's transmit side (qemu, hil flavours; the real board leaves its
+        /// USART2 unused).
+        host_tx: Option<Tx<pac::USART2>>,
         frames: Frames,
+        /// The capture path's state (real flavour; idle in the others).
+        capture: CaptureMonitor,
+        // The link interrupt's resources (shared only because the flavours bind different
+        // interrupts; one task uses them).
+        link_rx: Rx<LinkUart>,
         link_in: Producer<'static, u8>,
         link_wake_tx: Sender<'static, Wake, 1>,
     }
 
     #[local]
     struct Local {
-        led: PC13<Output>,
         iwdg: IndependentWatchdog,
-        link_rx: Rx<pac::USART1>,
         link_out: Consumer<'static, u8>,
         link_wake_rx: Receiver<'static, Wake, 1>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -201,7 +266,7 @@ mod app {
         #[cfg(any(feature = "qemu", feature = "hil"))]
         host_wake_rx: Receiver<'static, Wake, 1>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
-        assembler: &'static mut FrameAssembler,
+        assembler: &'static mut stereo_board::app::FrameAssembler,
     }
 
     #[init(local = [
@@ -220,107 +285,78 @@ mod app {
         let board_state: &'static mut StereoBoardApp =
             unsafe { APP.write(StereoBoardApp::new(EdgeFsParams::default_config())) };
 
+        // The HAL's port split resets the port: split before the pin table is applied.
         let gpioa = cx.device.GPIOA.split(&mut rcc);
-        let gpioc = cx.device.GPIOC.split(&mut rcc);
-        let led = gpioc.pc13.into_push_pull_output();
-
+        let link_config = serial::Config::default().baudrate(stereo_board::board::LINK_BAUD.bps());
+        #[cfg(not(feature = "qemu"))]
+        let link = cx
+            .device
+            .UART4
+            .serial::<u8>((gpioa.pa0, gpioa.pa1), link_config, &mut rcc)
+            .unwrap_or_else(|_| log::fatal("UART4 configuration"));
+        #[cfg(feature = "qemu")]
         let link = cx
             .device
             .USART1
-            .serial::<u8>(
-                (gpioa.pa9, gpioa.pa10),
-                serial::Config::default().baudrate(board::LINK_BAUD.bps()),
-                &mut rcc,
-            )
+            .serial::<u8>((gpioa.pa9, gpioa.pa10), link_config, &mut rcc)
             .unwrap_or_else(|_| log::fatal("USART1 configuration"));
-        let (link_tx, link_rx) = link.split();
-        #[cfg(feature = "qemu")]
-        let link_rx = {
-            let mut rx = link_rx;
-            rx.listen();
-            rx
-        };
-        #[cfg(not(feature = "qemu"))]
-        super::uart_dma::start();
+        let (link_tx, mut link_rx) = link.split();
+        link_rx.listen();
         let (link_in, link_out) = cx.local.link_q.split();
         let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!(Wake, 1);
 
-        // The host link: HIL frames in (qemu, hil flavours); estimates mirrored out (all).
-        let (host_tx, mut host_rx) = cx
-            .device
-            .USART2
-            .serial::<u8>(
-                (gpioa.pa2, gpioa.pa3),
-                serial::Config::default().baudrate(board::LINK_BAUD.bps()),
-                &mut rcc,
-            )
-            .unwrap_or_else(|_| log::fatal("USART2 configuration"))
-            .split();
+        // The host link: HIL frames in, estimates mirrored out (qemu, hil flavours).
         #[cfg(any(feature = "qemu", feature = "hil"))]
-        host_rx.listen();
+        let (host_tx, host_rx, host_in, host_out, host_wake_tx, host_wake_rx) = {
+            let (tx, mut rx) = cx
+                .device
+                .USART2
+                .serial::<u8>(
+                    (gpioa.pa2, gpioa.pa3),
+                    serial::Config::default().baudrate(board::HOST_BAUD.bps()),
+                    &mut rcc,
+                )
+                .unwrap_or_else(|_| log::fatal("USART2 configuration"))
+                .split();
+            rx.listen();
+            let (q_in, q_out) = cx.local.host_q.split();
+            let (wake_tx, wake_rx) = rtic_sync::make_channel!(Wake, 1);
+            (tx, rx, q_in, q_out, wake_tx, wake_rx)
+        };
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let _ = &mut host_rx;
+        let (host_tx, _) = (None, cx.local.host_q);
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        let host_tx = Some(host_tx);
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        let capture = CaptureMonitor::new();
         #[cfg(any(feature = "qemu", feature = "hil"))]
         // SAFETY: `init` runs once; these are the only references to the two statics.
         #[allow(static_mut_refs)]
-        let (frames, assembler): (Frames, &'static mut FrameAssembler) = unsafe {
+        let (frames, assembler): (Frames, &'static mut stereo_board::app::FrameAssembler) = unsafe {
             (
                 &mut *core::ptr::addr_of_mut!(super::SLOT),
                 &mut *core::ptr::addr_of_mut!(super::ASSEMBLER),
             )
         };
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let frames: Frames = super::Camera;
-        #[cfg(any(feature = "qemu", feature = "hil"))]
-        let (host_in, host_out) = cx.local.host_q.split();
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let _ = (cx.local.host_q, host_rx);
-        #[cfg(any(feature = "qemu", feature = "hil"))]
-        let (host_wake_tx, host_wake_rx) = rtic_sync::make_channel!(Wake, 1);
 
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        {
-            use super::sensor::{CameraSensor as _, Tcm8230};
-            let gpiob = cx.device.GPIOB.split(&mut rcc);
-            let gpioe = cx.device.GPIOE.split(&mut rcc);
-            let pins = super::dcmi::Pins {
-                hsync: gpioa.pa4.into_alternate(),
-                pixclk: gpioa.pa6.into_alternate(),
-                vsync: gpiob.pb7.into_alternate(),
-                d0: gpioc.pc6.into_alternate(),
-                d1: gpioc.pc7.into_alternate(),
-                d2: gpioc.pc8.into_alternate(),
-                d3: gpioc.pc9.into_alternate(),
-                d4: gpioc.pc11.into_alternate(),
-                d5: gpiob.pb6.into_alternate(),
-                d6: gpioe.pe5.into_alternate(),
-                d7: gpioe.pe6.into_alternate(),
-                xclk: gpioa.pa8.into_alternate(),
-            };
-            let polarity = super::dcmi::Polarity {
-                pixclk_rising: true,
-                hsync_high: false,
-                vsync_high: false,
-            };
-            // The camera clock (MCO1) must run before the sensor answers on the bus.
-            super::dcmi::start(cx.device.DCMI, cx.device.DMA2, pins, polarity);
-            let mut sccb = cx.device.I2C2.i2c(
-                (gpiob.pb10, gpiob.pb11),
-                stm32f4xx_hal::i2c::Mode::standard(100.kHz()),
-                &mut rcc,
-            );
-            let format = Tcm8230::INIT.last().map(|&(reg, value)| (reg, value));
-            let answer = Tcm8230.init(&mut sccb).and_then(|()| match format {
-                Some((reg, _)) => Tcm8230.read(&mut sccb, reg).map(Some),
-                None => Ok(None),
-            });
-            match (answer, format) {
-                (Ok(read), Some((_, written))) if read == Some(written) => {
-                    log::info!("camera configured")
+        let (frames, capture) = {
+            // Every pin of the board table: CPLD in pixel-mux mode, cameras held in reset,
+            // clock, DCMI and SCCB pins, the link's pull-ups, the LED.
+            super::pins::configure_all();
+            match super::bring_up_cameras(cx.device.I2C2) {
+                Ok(()) => log::info!("cameras configured"),
+                Err((reg, e)) => {
+                    defmt::error!("camera set-up failed at register {=u8:#x}: {}", reg, e)
                 }
-                _ => defmt::error!("camera sensor did not answer on SCCB"),
             }
-        }
+            let mut capture = CaptureMonitor::new();
+            super::dcmi::configure();
+            super::dcmi::start(&mut capture, clock::now_us());
+            (super::Camera, capture)
+        };
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        super::pins::configure(&[stereo_board::board::LED]);
 
         let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
         iwdg.start(board::WATCHDOG_MS.millis());
@@ -337,13 +373,13 @@ mod app {
                 link_tx,
                 host_tx,
                 frames,
+                capture,
+                link_rx,
                 link_in,
                 link_wake_tx,
             },
             Local {
-                led,
                 iwdg,
-                link_rx,
                 link_out,
                 link_wake_rx,
                 #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -362,35 +398,18 @@ mod app {
         )
     }
 
-    /// USART1 (autopilot link) receive interrupt: RXNE in QEMU, IDLE line with DMA otherwise.
-    #[task(binds = USART1, priority = 4, shared = [link_in, link_wake_tx], local = [link_rx])]
-    fn usart1(cx: usart1::Context) {
-        let rx = cx.local.link_rx;
-        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
-            #[cfg(feature = "qemu")]
-            {
-                board_support::uart_rx::drain(rx, queue, &LINK_FLOW, &super::RX_LOST);
-                let _ = wake.try_send(());
-            }
-            #[cfg(not(feature = "qemu"))]
-            {
-                let _ = rx;
-                let lost = super::uart_dma::on_interrupt(queue);
-                super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
-                let _ = wake.try_send(());
-            }
-        });
+    /// The link UART's interrupt (UART4; USART1 in QEMU): received bytes into the queue.
+    #[cfg(not(feature = "qemu"))]
+    #[task(binds = UART4, priority = 4, shared = [link_rx, link_in, link_wake_tx])]
+    fn link_irq(cx: link_irq::Context) {
+        (cx.shared.link_rx, cx.shared.link_in, cx.shared.link_wake_tx).lock(super::link_interrupt);
     }
 
-    /// DMA2 stream 2 (USART1 RX) half/full transfer: hand on what arrived so far.
-    #[cfg(not(feature = "qemu"))]
-    #[task(binds = DMA2_STREAM2, priority = 4, shared = [link_in, link_wake_tx])]
-    fn usart1_dma(cx: usart1_dma::Context) {
-        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
-            let lost = super::uart_dma::on_interrupt(queue);
-            super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
-            let _ = wake.try_send(());
-        });
+    /// The link UART's interrupt (see the hardware flavours').
+    #[cfg(feature = "qemu")]
+    #[task(binds = USART1, priority = 4, shared = [link_rx, link_in, link_wake_tx])]
+    fn link_irq_qemu(cx: link_irq_qemu::Context) {
+        (cx.shared.link_rx, cx.shared.link_in, cx.shared.link_wake_tx).lock(super::link_interrupt);
     }
 
     /// Decodes the autopilot's bytes (gyro/attitude, config, heartbeat).
@@ -420,10 +439,10 @@ mod app {
         }
     }
 
-    /// USART2 (host link: HIL frames in) receive interrupt.
+    /// USART2 (host link: HIL frames in, estimates out) interrupt.
     #[cfg(any(feature = "qemu", feature = "hil"))]
     #[task(binds = USART2, priority = 4, local = [host_rx, host_in, host_wake_tx])]
-    fn usart2(cx: usart2::Context) {
+    fn host_irq(cx: host_irq::Context) {
         board_support::uart_rx::drain(
             cx.local.host_rx,
             cx.local.host_in,
@@ -474,63 +493,113 @@ mod app {
         }
     }
 
-    /// Camera frame complete (DMA2 stream 1, DCMI): the filled half of the double buffer goes
-    /// to the frame task; a frame arriving while the previous one is still waiting is dropped
-    /// and counted.
+    /// DCMI interrupt (frame end, VSYNC, overrun, sync error): a whole frame goes to the frame
+    /// task; one ending while the task is still busy is dropped and counted.
     #[cfg(not(any(feature = "qemu", feature = "hil")))]
-    #[task(binds = DMA2_STREAM1, priority = 4)]
-    fn dcmi_frame(_cx: dcmi_frame::Context) {
-        if let Some(ready) = super::dcmi::on_transfer_complete(clock::now_us()) {
+    #[task(binds = DCMI, priority = 4, shared = [capture])]
+    fn dcmi_irq(mut cx: dcmi_irq::Context) {
+        let now = clock::now_us();
+        let ready = cx
+            .shared
+            .capture
+            .lock(|m| super::dcmi::on_dcmi_interrupt(m, now));
+        if let Some(ready) = ready {
             if frame::spawn(ready).is_err() {
-                super::dcmi::release(ready.0);
-                super::dcmi::DROPPED.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
+                super::dcmi::release(&ready);
+                super::FRAMES_LOST.fetch_add(1, Ordering::Relaxed);
             }
         }
     }
 
+    /// DMA2 stream 1 (camera) error interrupt.
+    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    #[task(binds = DMA2_STREAM1, priority = 4, shared = [capture])]
+    fn dma_irq(mut cx: dma_irq::Context) {
+        cx.shared.capture.lock(super::dcmi::on_dma_interrupt);
+    }
+
     /// Edge-FS on the ready frame, then the estimate to the autopilot (and mirrored to the
-    /// host link).
-    #[task(priority = 2, shared = [board, frames, link_tx, host_tx])]
+    /// host link in the qemu and hil flavours). A frame whose buffer was refilled while it was
+    /// processed sends nothing and clears the flow history.
+    #[task(priority = 2, shared = [board, frames, link_tx, host_tx, capture])]
     async fn frame(mut cx: frame::Context, ready: FrameReady) {
-        let start = clock::lib_now_us();
-        let est = (
+        match run_frame(
             &mut cx.shared.board,
             &mut cx.shared.frames,
             &mut cx.shared.link_tx,
-        )
-            .lock(|board, frames, tx| {
-                for _ in 0..frames.dropped_since_last() {
-                    board.frame_dropped();
+            ready,
+        ) {
+            None => cx.shared.capture.lock(|m| m.on_frame_overwritten()),
+            Some(Some(est)) => cx.shared.host_tx.lock(|tx| {
+                if let Some(tx) = tx {
+                    send_to_host(&BoardToHost::Estimate(est), &mut |f| write_all(tx, f));
                 }
-                let (out, capture_us) = {
-                    let (buf, capture_us) = frames.take(ready)?;
-                    (board.process_frame(buf, capture_us, start), capture_us)
-                };
-                frames.release(ready);
-                let done = clock::lib_now_us();
-                Some(board.send_estimate(&out, capture_us, done, &mut |f| write_all(tx, f)))
-            });
-        if let Some(est) = est {
-            cx.shared.host_tx.lock(|tx| {
-                send_to_host(&BoardToHost::Estimate(est), &mut |f| write_all(tx, f));
-            });
+            }),
+            Some(None) => {}
         }
     }
 
-    /// 1 Hz: status and heartbeat to the autopilot, LED, watchdog.
-    #[task(priority = 1, shared = [board, link_tx, host_tx], local = [led, iwdg])]
+    /// The frame task's body: `None` when the frame's buffer was refilled during processing,
+    /// `Some(None)` when there was no frame, `Some(Some(estimate))` when one was sent.
+    fn run_frame(
+        board: &mut impl Mutex<T = &'static mut StereoBoardApp>,
+        frames: &mut impl Mutex<T = Frames>,
+        link_tx: &mut impl Mutex<T = Tx<LinkUart>>,
+        ready: FrameReady,
+    ) -> Option<Option<protocol::Estimate>> {
+        let start = clock::lib_now_us();
+        (board, frames, link_tx).lock(|board, frames, tx| {
+            for _ in 0..super::FRAMES_LOST.swap(0, Ordering::Relaxed) {
+                board.frame_dropped();
+            }
+            let Some((buf, capture_us)) = frames.take(&ready) else {
+                return Some(None);
+            };
+            let out = board.process_frame(buf, capture_us, start);
+            let intact = frames.intact(&ready);
+            frames.release(&ready);
+            if !intact {
+                board.discard_processed_frame();
+                return None;
+            }
+            let done = clock::lib_now_us();
+            Some(Some(board.send_estimate(
+                &out,
+                capture_us,
+                done,
+                &mut |f| write_all(tx, f),
+            )))
+        })
+    }
+
+    /// 1 Hz: capture state, status and heartbeat to the autopilot, LED, watchdog. A stopped
+    /// camera is reported and capture re-armed.
+    #[task(priority = 1, shared = [board, link_tx, host_tx, capture], local = [iwdg])]
     async fn status(mut cx: status::Context) {
         loop {
             let now = clock::now_us();
+            #[cfg(not(any(feature = "qemu", feature = "hil")))]
+            {
+                let (counts, stopped) = cx.shared.capture.lock(|m| {
+                    let stopped = m.camera_stopped(now);
+                    if stopped {
+                        super::dcmi::rearm(m);
+                    }
+                    (m.counts(), stopped)
+                });
+                cx.shared.board.lock(|b| b.report_capture(counts, stopped));
+            }
             let status = (&mut cx.shared.board, &mut cx.shared.link_tx)
                 .lock(|board, tx| board.status_tick(now, &mut |f| write_all(tx, f)));
             // The host link gets a heartbeat too: a HIL host starts streaming once it sees one
             // (bytes sent before the USART is enabled are lost).
             let hb = protocol::Heartbeat::new(protocol::Node::StereoBoard, status.uptime_ms);
             cx.shared.host_tx.lock(|tx| {
-                send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| write_all(tx, f));
+                if let Some(tx) = tx {
+                    send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| write_all(tx, f));
+                }
             });
-            cx.local.led.toggle();
+            super::pins::toggle(&stereo_board::board::LED);
             cx.local.iwdg.feed();
             let (rx_ok, host_errors, gyro_age) = cx.shared.board.lock(|b| {
                 (
@@ -539,8 +608,9 @@ mod app {
                     b.gyro_age_us(clock::lib_now_us()).unwrap_or(u64::MAX),
                 )
             });
+            let c = status.capture;
             log::info!(
-                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} gyro_age_us={} stack_free={}",
+                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} gyro_age_us={} camera_stopped={} frames_complete={} frames_torn={} dcmi_overruns={} dcmi_errors={} dma_errors={} rearms={} frames_overwritten={} stack_free={}",
                 status.uptime_ms,
                 status.frames_processed,
                 status.frames_dropped,
@@ -549,11 +619,30 @@ mod app {
                 host_errors.total(),
                 host_errors.crc,
                 host_errors.too_long,
-                super::RX_LOST.load(core::sync::atomic::Ordering::Relaxed),
+                super::RX_LOST.load(Ordering::Relaxed),
                 gyro_age,
+                status.camera_stopped,
+                c.frames_complete,
+                c.frames_torn,
+                c.dcmi_overruns,
+                c.dcmi_sync_errors,
+                c.dma_errors,
+                c.rearms,
+                c.frames_overwritten,
                 board_support::stack::free_bytes()
             );
             Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / 1_000)).await;
         }
     }
+}
+
+/// The link UART's interrupt body: received bytes into `queue` (pausing at a full queue), the
+/// decoding task woken.
+fn link_interrupt(
+    rx: &mut stm32f4xx_hal::serial::Rx<LinkUart>,
+    queue: &mut heapless::spsc::Producer<'static, u8>,
+    wake: &mut rtic_sync::channel::Sender<'static, (), 1>,
+) {
+    board_support::uart_rx::drain(rx, queue, &LINK_FLOW, &RX_LOST);
+    let _ = wake.try_send(());
 }
