@@ -4,7 +4,8 @@
 //!    nightly toolchain and `cargo-fuzz` (for the bounded fuzz run), and `qemu-system-arm` from
 //!    Debian's main archive (apt-get).
 //! 2. Checks formatting, runs clippy with warnings denied on the host and on thumbv7em, runs all
-//!    host tests, builds both firmwares in release, and fuzzes the protocol decoder briefly.
+//!    host tests, builds both firmwares in release, runs them on the virtual boards
+//!    (`cargo xtask vboard`), and fuzzes the protocol decoder briefly.
 //! 3. Prints a one-line summary and a closing `N passed, N failed` line.
 //!
 //! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
@@ -87,6 +88,11 @@ pub fn run(args: &[String]) -> Result<()> {
             .with_context(|| format!("firmware layout or size check ({flavour}) failed"))?;
     }
     steps.push("size and start-up layout (real, qemu)".into());
+
+    // The virtual boards run the real images just built.
+    let (vb_passed, vb_failed) = crate::vboard::run_tests()?;
+    steps.push(format!("vboard({vb_passed} passed)"));
+    let (passed, failed) = (passed + vb_passed, failed + vb_failed);
 
     if fuzz_seconds > 0 {
         for (target, seconds) in [("decoder", fuzz_seconds), ("encoder", fuzz_seconds / 2)] {
@@ -193,9 +199,14 @@ fn cargo(args: &[&str]) -> Result<()> {
 
 /// Runs a `cargo test` command, streaming its output, and sums the `test result:` lines.
 fn cargo_test(args: &[&str]) -> Result<(u64, u64)> {
-    eprintln!("xtask: running cargo {}", args.join(" "));
-    let mut child = Command::new("cargo")
-        .args(args)
+    cargo_test_with(Command::new("cargo").args(args))
+}
+
+/// Runs a prepared `cargo test` command (arguments, directory, environment set), streaming its
+/// output, and sums the `test result:` lines. Fails on a failed test or when no test ran.
+pub fn cargo_test_with(cmd: &mut Command) -> Result<(u64, u64)> {
+    eprintln!("xtask: running {cmd:?}");
+    let mut child = cmd
         .stdout(Stdio::piped())
         .spawn()
         .context("could not start cargo test")?;

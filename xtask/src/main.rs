@@ -4,6 +4,8 @@
 //!   fmt, clippy on host and thumbv7em, all host tests, firmware builds, a bounded fuzz run).
 //! * `cargo xtask size`: static flash/RAM/CCM use of each firmware, against its budget.
 //! * `cargo xtask qemu`: build a firmware flavour and run it in QEMU.
+//! * `cargo xtask vboard`: build both real firmwares and run them on the virtual boards
+//!   (`virtual-board/`, its own workspace), with a one-line summary.
 //! * `cargo xtask insns`: exact Cortex-M4 instruction counts per call (QEMU plugin), against
 //!   their budgets.
 //!
@@ -14,6 +16,7 @@ mod ci;
 mod insns;
 mod qemu;
 mod size;
+mod vboard;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -26,8 +29,9 @@ fn main() -> anyhow::Result<()> {
         "size" => size::run(rest),
         "qemu" => qemu::run(rest),
         "insns" => insns::run(rest),
+        "vboard" => vboard::run(rest),
         _ => {
-            eprintln!("usage: cargo xtask <test|size|qemu|insns> [ARGS]");
+            eprintln!("usage: cargo xtask <test|size|qemu|insns|vboard> [ARGS]");
             std::process::exit(2)
         }
     }

@@ -1,0 +1,1 @@
+//! The camera board (TU Delft stereoboard, STM32F407). Not wired yet.

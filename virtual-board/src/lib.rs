@@ -1,0 +1,33 @@
+//! Virtual boards: the unmodified `real` firmware images of both boards on emulated STM32F4s
+//! (rigless's STM32F427 core and peripheral models), wired as the original boards
+//! (`../shared/hardware/original-boards.md`), with models of the chips on them.
+//!
+//! * [`soc`]: our SoC type. rigless's STM32F427 models plus what it lacks (EXTI, SYSCFG, a DCMI
+//!   slot), and the part the board really carries ([`soc::Part`]: F407 camera board, F415
+//!   autopilot), so a run that touches a peripheral or memory the real part lacks fails.
+//! * chip models: [`mpu6000`] (IMU), rigless's own MS5611 (barometer), the camera board's
+//!   [`tcm8230`] sensors behind the [`cpld`] on the [`dcmi`].
+//! * [`boards`]: the two boards, each wired as its original.
+//! * [`link`]: two boards' UARTs joined byte for byte, [`bench`]: the harness that loads the
+//!   ELFs, runs them in virtual time (two boards in lockstep), reads their defmt logs over RTT
+//!   ([`rtt`]) and watches for panics and faults; [`motors`] reads PWM duties off timer channels.
+//!
+//! Virtual time is rigless's: 4 ns per instruction at 168 MHz by default (250 M instructions per
+//! virtual second), and a core in WFI skips to its next event.
+
+pub mod bench;
+pub mod boards;
+pub mod clocks;
+pub mod cpld;
+pub mod dcmi;
+pub mod exti;
+pub mod firmware;
+pub mod host;
+pub mod link;
+pub mod motors;
+pub mod mpu6000;
+pub mod pins;
+pub mod rtt;
+pub mod soc;
+pub mod syscfg;
+pub mod tcm8230;

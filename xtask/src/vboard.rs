@@ -1,0 +1,68 @@
+//! `cargo xtask vboard`: the virtual-board bench (`virtual-board/`).
+//!
+//! Builds both `real` firmwares (`cargo fw`), then runs `cargo test --ignore-rust-version
+//! --release` in `virtual-board/`, its own workspace (rigless declares rust-version 1.98; we
+//! build it on 1.95 with that flag, which stays out of the main workspace), and prints a
+//! one-line summary. Extra arguments go to that `cargo test` (a test name filter, `--
+//! --nocapture`).
+
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Instant;
+
+use crate::ci::{FIRMWARE_TARGET, cargo_test_with};
+
+fn workspace_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask sits in the workspace")
+        .to_path_buf()
+}
+
+/// Where `cargo fw` puts the firmwares.
+fn firmware_dir() -> PathBuf {
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map_or_else(|| workspace_root().join("target"), PathBuf::from);
+    target.join(FIRMWARE_TARGET).join("release")
+}
+
+/// Runs `cargo xtask vboard [ARGS]`.
+pub fn run(args: &[String]) -> Result<()> {
+    let started = Instant::now();
+    let (passed, failed) = run_tests_with(args)?;
+    println!(
+        "xtask vboard: OK in {:.0} s: {passed} virtual-board tests passed",
+        started.elapsed().as_secs_f64()
+    );
+    println!("{passed} passed, {failed} failed");
+    Ok(())
+}
+
+/// Builds the firmwares and runs every virtual-board test (for `cargo xtask test`).
+pub fn run_tests() -> Result<(u64, u64)> {
+    run_tests_with(&[])
+}
+
+fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
+    let build = Instant::now();
+    let status = Command::new("cargo")
+        .arg("fw")
+        .current_dir(workspace_root())
+        .status()
+        .context("could not start cargo fw")?;
+    anyhow::ensure!(status.success(), "firmware build (cargo fw) failed");
+    let built = build.elapsed().as_secs_f64();
+    let tests = Instant::now();
+    let mut cmd = Command::new("cargo");
+    cmd.args(["test", "--ignore-rust-version", "--release"])
+        .args(args)
+        .current_dir(workspace_root().join("virtual-board"))
+        .env("VBOARD_FIRMWARE_DIR", firmware_dir());
+    let result = cargo_test_with(&mut cmd).context("virtual-board tests failed");
+    eprintln!(
+        "xtask vboard: firmware build {built:.0} s, bench build and run {:.0} s",
+        tests.elapsed().as_secs_f64()
+    );
+    result
+}
