@@ -70,12 +70,15 @@ pub trait Probe<B: BenchBoard>: Send + 'static {
     fn at(&mut self, at: &mut At<'_, B>) -> Flow;
 }
 
-impl<B: BenchBoard, F> Probe<B> for F
+/// A closure as a probe.
+pub struct Closure<F>(pub F);
+
+impl<B: BenchBoard, F> Probe<B> for Closure<F>
 where
     F: FnMut(&mut At<'_, B>) -> Flow + Send + 'static,
 {
     fn at(&mut self, at: &mut At<'_, B>) -> Flow {
-        self(at)
+        (self.0)(at)
     }
 }
 
@@ -291,8 +294,10 @@ impl<B: BenchBoard, P: Probe<B>> Driver<B> for BenchDriver<B, P> {
                             hit.at.0 as f64 / 1e6
                         ));
                     }
-                } else if let Some((_, name)) =
-                    self.handlers.iter().find(|(address, _)| *address == hit.address)
+                } else if let Some((_, name)) = self
+                    .handlers
+                    .iter()
+                    .find(|(address, _)| *address == hit.address)
                 {
                     self.faults.push(FirmwareFault {
                         at_ns: hit.at.0,

@@ -30,7 +30,11 @@ impl Clocks {
         let rcc = soc.bus().registers("RCC").expect("the part has an RCC");
         let cfgr = rcc.get(Register::Cfgr);
         let pllcfgr = rcc.get(Register::Pllcfgr);
-        let pll_in = if pllcfgr & (1 << 22) != 0 { hse_hz } else { HSI_HZ };
+        let pll_in = if pllcfgr & (1 << 22) != 0 {
+            hse_hz
+        } else {
+            HSI_HZ
+        };
         let m = (pllcfgr & 0x3F).max(1);
         let n = (pllcfgr >> 6) & 0x1FF;
         let p = 2 * (((pllcfgr >> 16) & 3) + 1);

@@ -26,10 +26,7 @@ pub struct Firmware {
 #[must_use]
 pub fn firmware_dir() -> PathBuf {
     std::env::var_os("VBOARD_FIRMWARE_DIR").map_or_else(
-        || {
-            Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../target/thumbv7em-none-eabihf/release")
-        },
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/release"),
         PathBuf::from,
     )
 }

@@ -74,7 +74,11 @@ impl Line {
     /// Every byte sent on the line so far.
     #[must_use]
     pub fn sent_bytes(&self) -> Vec<u8> {
-        self.state().sent.iter().map(|&(_, w)| (w & 0xFF) as u8).collect()
+        self.state()
+            .sent
+            .iter()
+            .map(|&(_, w)| (w & 0xFF) as u8)
+            .collect()
     }
 
     /// Every word sent, with its instant (ns).
@@ -233,7 +237,11 @@ mod tests {
         a.tx.push(100, 0x41);
         assert_eq!(b.rx.pop(1_000), None, "not released yet");
         b.rx.barrier(100);
-        assert_eq!(b.rx.pop(1_000), None, "finished at the barrier instant: next quantum");
+        assert_eq!(
+            b.rx.pop(1_000),
+            None,
+            "finished at the barrier instant: next quantum"
+        );
         b.rx.barrier(200);
         assert_eq!(b.rx.pop(50), None, "not due before it was sent");
         assert_eq!(b.rx.pop(200), Some(0x41));

@@ -39,7 +39,9 @@ pub struct Output {
 }
 
 fn timer_index(name: &str) -> Option<usize> {
-    ["TIM2", "TIM3", "TIM4", "TIM5"].iter().position(|t| *t == name)
+    ["TIM2", "TIM3", "TIM4", "TIM5"]
+        .iter()
+        .position(|t| *t == name)
 }
 
 fn port_index(name: &str) -> Option<usize> {

@@ -274,7 +274,9 @@ impl Mpu6000 {
         let accel_noise = 400e-6 * bandwidth; // g rms
         let key = self.seed.wrapping_mul(0x1000_0000_01B3);
         let word = |value: f64| -> [u8; 2] {
-            let clamped = value.round().clamp(f64::from(i16::MIN), f64::from(i16::MAX));
+            let clamped = value
+                .round()
+                .clamp(f64::from(i16::MIN), f64::from(i16::MAX));
             (clamped as i16).to_be_bytes()
         };
         for axis in 0..3 {
@@ -283,8 +285,8 @@ impl Mpu6000 {
             let [h, l] = word(g * accel_lsb);
             self.regs[ACCEL_XOUT_H + 2 * axis] = h;
             self.regs[ACCEL_XOUT_H + 2 * axis + 1] = l;
-            let deg = (self.rate[axis] + self.bias[axis]).to_degrees()
-                + gyro_noise * normal(key, n + 3);
+            let deg =
+                (self.rate[axis] + self.bias[axis]).to_degrees() + gyro_noise * normal(key, n + 3);
             let [h, l] = word(deg * gyro_lsb);
             self.regs[0x43 + 2 * axis] = h;
             self.regs[0x43 + 2 * axis + 1] = l;
@@ -338,7 +340,9 @@ impl Peer for Mpu6000 {
                 // while the serial interface is active).
                 self.update(now);
                 let first = usize::from(byte & 0x7F);
-                if (ACCEL_XOUT_H..=GYRO_ZOUT_L).contains(&first) && self.sensor_reads.len() < 1 << 20 {
+                if (ACCEL_XOUT_H..=GYRO_ZOUT_L).contains(&first)
+                    && self.sensor_reads.len() < 1 << 20
+                {
                     self.sensor_reads.push((now, self.sample));
                 }
             }

@@ -79,7 +79,9 @@ const DEBUG_PINS: [(&str, u8); 5] = [
 #[must_use]
 pub fn configured(soc: &Soc, port: &str, pin: u8) -> Option<Configured> {
     let registers = soc.bus().registers(port)?;
-    let field = |register: Register, bits: u32| (registers.get(register) >> (bits * u32::from(pin))) & ((1 << bits) - 1);
+    let field = |register: Register, bits: u32| {
+        (registers.get(register) >> (bits * u32::from(pin))) & ((1 << bits) - 1)
+    };
     let mode = match field(Register::Moder, 2) {
         0 => Mode::Input,
         1 => Mode::Output,

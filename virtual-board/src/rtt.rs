@@ -136,11 +136,7 @@ impl RttLog {
     pub fn text(&self) -> String {
         let mut out = String::new();
         for line in &self.lines {
-            out += &format!(
-                "[{:>10.3} ms] {}\n",
-                line.at_ns as f64 / 1e6,
-                line.text
-            );
+            out += &format!("[{:>10.3} ms] {}\n", line.at_ns as f64 / 1e6, line.text);
         }
         if self.decoder.is_none() && !self.raw.is_empty() {
             out += &format!("({} raw RTT bytes, no defmt table)\n", self.raw.len());

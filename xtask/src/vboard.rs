@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
-use crate::ci::{FIRMWARE_TARGET, cargo_test_with};
+use crate::ci::{cargo_test_with, FIRMWARE_TARGET};
 
 fn workspace_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -84,13 +84,34 @@ pub const MOTORS: [MotorPin; 4] = [
 /// firmware: it is what the firmware is checked against.
 pub const WIRING: [Wired; 22] = {
     const fn af(port: &'static str, pin: u8, function: &'static str, af: u8) -> Wired {
-        Wired { port, pin, function, mode: Mode::Alternate(af), pull: None, optional: false }
+        Wired {
+            port,
+            pin,
+            function,
+            mode: Mode::Alternate(af),
+            pull: None,
+            optional: false,
+        }
     }
     const fn out(port: &'static str, pin: u8, function: &'static str, optional: bool) -> Wired {
-        Wired { port, pin, function, mode: Mode::Output, pull: None, optional }
+        Wired {
+            port,
+            pin,
+            function,
+            mode: Mode::Output,
+            pull: None,
+            optional,
+        }
     }
     const fn input(port: &'static str, pin: u8, function: &'static str, mode: Mode) -> Wired {
-        Wired { port, pin, function, mode, pull: None, optional: true }
+        Wired {
+            port,
+            pin,
+            function,
+            mode,
+            pull: None,
+            optional: true,
+        }
     }
     [
         af("GPIOB", 13, "SPI2 SCK (IMU, baro)", 5),
@@ -111,9 +132,24 @@ pub const WIRING: [Wired; 22] = {
         out("GPIOC", 2, "LED3 (active low)", true),
         out("GPIOC", 5, "LED4 (active low)", true),
         out("GPIOC", 15, "LED5 (active low)", true),
-        input("GPIOB", 0, "baro data ready (not to be driven)", Mode::Input),
-        input("GPIOB", 1, "external SPI data ready (not to be driven)", Mode::Input),
-        input("GPIOB", 5, "magnetometer data ready (not to be driven)", Mode::Input),
+        input(
+            "GPIOB",
+            0,
+            "baro data ready (not to be driven)",
+            Mode::Input,
+        ),
+        input(
+            "GPIOB",
+            1,
+            "external SPI data ready (not to be driven)",
+            Mode::Input,
+        ),
+        input(
+            "GPIOB",
+            5,
+            "magnetometer data ready (not to be driven)",
+            Mode::Input,
+        ),
         input("GPIOC", 4, "battery voltage (ADC)", Mode::Analog),
     ]
 };
@@ -127,7 +163,10 @@ pub const BODY_TO_CHIP: [[f64; 3]; 3] = body_to_chip();
 
 const fn body_to_chip() -> [[f64; 3]; 3] {
     // cos/sin of 135 deg and -2 deg.
-    let (cpsi, spsi) = (-core::f64::consts::FRAC_1_SQRT_2, core::f64::consts::FRAC_1_SQRT_2);
+    let (cpsi, spsi) = (
+        -core::f64::consts::FRAC_1_SQRT_2,
+        core::f64::consts::FRAC_1_SQRT_2,
+    );
     let (cphi, sphi) = (0.999_390_827_019_095_7, -0.034_899_496_702_500_97);
     // R_z(psi) body -> intermediate (frame rotation: v' = [[c, s, 0], [-s, c, 0], [0, 0, 1]] v).
     let rz = [[cpsi, spsi, 0.0], [-spsi, cpsi, 0.0], [0.0, 0.0, 1.0]];
