@@ -19,6 +19,7 @@ use crate::height::{tilt_compensate, HeightConfig, HeightController};
 use crate::indi::{Indi, IndiConfig};
 use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
+use crate::ms5611::BaroReading;
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
     LinkErrorCounts, PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder,
@@ -269,6 +270,21 @@ pub struct Autopilot {
     stereo_heartbeat: Option<(u64, Heartbeat)>,
     stereo_status: Option<StereoStatus>,
     stereo_config_ack: Option<ConfigResult>,
+    rc_kill_latched: bool,
+    arm_refused: u32,
+    baro: Option<(u64, BaroReading)>,
+}
+
+/// Why an `Arm` command is refused before the flight-mode checks (see
+/// [`Autopilot::arm_blocker`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ArmBlock {
+    /// The RC kill is engaged (switch, receiver failsafe or silence): only releasing it on the
+    /// transmitter clears it, no other command source can.
+    RcKill,
+    /// The camera board speaks another protocol version (the value): its estimates cannot be
+    /// read, so the drone would fly blind.
+    PeerVersion(u8),
 }
 
 fn finite3(v: &[f32; 3], max_abs: f32) -> bool {
@@ -316,6 +332,9 @@ impl Autopilot {
             stereo_heartbeat: None,
             stereo_status: None,
             stereo_config_ack: None,
+            rc_kill_latched: false,
+            arm_refused: 0,
+            baro: None,
             cfg: config,
         }
     }
@@ -631,10 +650,12 @@ impl Autopilot {
         self.height.on_measurement(-pos.position_m[2], now_us);
     }
 
-    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height and an
-    /// initialised attitude estimate (an accelerometer sample near 1 g).
+    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, an
+    /// initialised attitude estimate (an accelerometer sample near 1 g) and no
+    /// [`Autopilot::arm_blocker`] (refusals are counted in [`Autopilot::arm_refused`]).
     pub fn on_command(&mut self, cmd: PilotCommand, now_us: u64) {
-        if cmd == PilotCommand::Arm && !self.att.initialised() {
+        if cmd == PilotCommand::Arm && (!self.att.initialised() || self.arm_blocker().is_some()) {
+            self.arm_refused = self.arm_refused.wrapping_add(1);
             return;
         }
         let before = self.failsafe.mode();
@@ -654,6 +675,46 @@ impl Autopilot {
             self.motors = MOTORS_OFF;
             self.sp.thrust = 0.0;
         }
+    }
+
+    /// The RC kill input: `engaged` while the transmitter's kill switch is on, the receiver
+    /// reports failsafe or has gone silent (see [`crate::rc::RcCommands::kill_reason`]). Engaging
+    /// kills at once; while engaged, no `Arm` from any source is accepted. Releasing it does not
+    /// arm: the drone stays killed until an explicit `Arm`.
+    pub fn set_rc_kill(&mut self, engaged: bool, now_us: u64) {
+        if engaged && !self.rc_kill_latched {
+            self.on_command(PilotCommand::Kill, now_us);
+        }
+        self.rc_kill_latched = engaged;
+    }
+
+    /// What blocks arming now, if anything.
+    pub fn arm_blocker(&self) -> Option<ArmBlock> {
+        if self.rc_kill_latched {
+            Some(ArmBlock::RcKill)
+        } else {
+            self.stereo_rx
+                .peer_version_mismatch()
+                .map(ArmBlock::PeerVersion)
+        }
+    }
+
+    /// `Arm` commands refused since boot (not ready, or an [`Autopilot::arm_blocker`]).
+    pub fn arm_refused(&self) -> u32 {
+        self.arm_refused
+    }
+
+    /// A barometer reading (pressure, temperature) taken at `now_us`. Kept for the height
+    /// estimator; the height loop does not fuse it yet.
+    pub fn on_baro(&mut self, reading: &BaroReading, now_us: u64) {
+        if reading.pressure_pa.is_finite() && reading.temperature_c.is_finite() {
+            self.baro = Some((now_us, *reading));
+        }
+    }
+
+    /// The last barometer reading and when it was taken, µs.
+    pub fn baro(&self) -> Option<(u64, BaroReading)> {
+        self.baro
     }
 
     /// Guidance step (e.g. 50 Hz): failsafes, avoidance FSM, force field, velocity guidance and

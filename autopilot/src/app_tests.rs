@@ -523,6 +523,115 @@ fn kill_stops_motors_at_once() {
 }
 
 #[test]
+fn an_rc_kill_latches_until_released_and_no_arm_overrides_it() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.takeoff();
+    r.fly(1.0);
+    r.ap.set_rc_kill(true, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Killed);
+    assert_eq!(r.ap.arm_blocker(), Some(ArmBlock::RcKill));
+    r.fly(0.2);
+    // A host (or RC) Arm while the switch is on is refused and counted.
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.set_rc_kill(true, r.now);
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Killed);
+    assert_eq!(r.ap.arm_refused(), 2);
+    assert_eq!(r.ap.on_imu(&r.quad.imu(r.now), r.now), [0.0; 4]);
+    // Releasing the switch does not arm; an explicit Arm afterwards does.
+    r.ap.set_rc_kill(false, r.now);
+    r.fly(0.1);
+    assert_eq!(r.ap.mode(), FlightMode::Killed);
+    assert_eq!(r.ap.arm_blocker(), None);
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Flying);
+}
+
+/// COBS-decodes one frame (without its delimiter).
+fn cobs_decode(frame: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < frame.len() {
+        let code = usize::from(frame[i]);
+        out.extend_from_slice(&frame[i + 1..i + code]);
+        i += code;
+        if code < 0xFF && i < frame.len() {
+            out.push(0);
+        }
+    }
+    out
+}
+
+/// COBS-encodes `raw` and appends the delimiter.
+fn cobs_encode(raw: &[u8]) -> Vec<u8> {
+    let mut out = std::vec![0u8];
+    let mut code_at = 0;
+    for &b in raw {
+        if b == 0 {
+            out[code_at] = (out.len() - code_at) as u8;
+            code_at = out.len();
+            out.push(0);
+        } else {
+            out.push(b);
+            if out.len() - code_at == 0xFF {
+                out[code_at] = 0xFF;
+                code_at = out.len();
+                out.push(0);
+            }
+        }
+    }
+    out[code_at] = (out.len() - code_at) as u8;
+    out.push(0);
+    out
+}
+
+#[test]
+fn a_camera_board_of_another_protocol_version_blocks_arming() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.fly(0.5);
+    // A heartbeat framed as protocol version + 1 (valid CRC): the camera board's estimates
+    // would all be rejected, so the drone must not take off.
+    let hb = StereoToAutopilot::Heartbeat(Heartbeat::new(protocol::Node::StereoBoard, 5));
+    let mut buf = [0u8; 64];
+    let n = protocol::encode(&hb, &mut buf).unwrap();
+    let mut raw = cobs_decode(&buf[..n - 1]);
+    let body = raw.len() - 2;
+    raw[0] = protocol::PROTOCOL_VERSION.wrapping_add(1);
+    let crc = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740).checksum(&raw[..body]);
+    raw[body..].copy_from_slice(&crc.to_le_bytes());
+    let mut wire = buf[..n].to_vec(); // one good frame first (the decoder joins mid-stream)
+    wire.extend(cobs_encode(&raw));
+    assert_eq!(r.ap.on_stereo_bytes(&wire, r.now), 1);
+    assert_eq!(r.ap.link_errors().version_mismatch, 1);
+    let theirs = protocol::PROTOCOL_VERSION.wrapping_add(1);
+    assert_eq!(r.ap.arm_blocker(), Some(ArmBlock::PeerVersion(theirs)));
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+    assert_eq!(r.ap.arm_refused(), 1);
+    // Reported to the host: telemetry carries the link's error counters.
+    assert_eq!(r.ap.telemetry(r.now).link_errors.version_mismatch, 1);
+}
+
+#[test]
+fn barometer_readings_are_kept_and_garbage_is_dropped() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    assert_eq!(ap.baro(), None);
+    let good = BaroReading {
+        pressure_pa: 100_009.0,
+        temperature_c: 20.07,
+    };
+    ap.on_baro(&good, 5);
+    ap.on_baro(
+        &BaroReading {
+            pressure_pa: f32::NAN,
+            temperature_c: 20.0,
+        },
+        6,
+    );
+    assert_eq!(ap.baro(), Some((5, good)));
+}
+
+#[test]
 fn stale_imu_makes_motors_safe() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();

@@ -16,11 +16,16 @@
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
 //! * [`rc`]: SBUS receiver decoding and the RC switches mapped to pilot commands.
 //! * [`lockstep`]: the world clock and task releases of the hardware-in-the-loop flavours.
+//! * [`board`]: the Lisa/MX 2.1 board definition (pins, peripherals, clocks, rates, IMU axes,
+//!   mounting), from the original sources.
+//! * [`mpu6000`], [`ms5611`]: the IMU's set-up and sample checks, the barometer's PROM check
+//!   and compensation (the firmware does the SPI transfers).
 #![no_std]
 #![warn(missing_docs)]
 
 pub mod app;
 pub mod attitude;
+pub mod board;
 pub mod failsafe;
 pub mod force_field;
 pub mod fsm;
@@ -30,8 +35,10 @@ pub mod indi;
 pub mod lockstep;
 pub mod median;
 pub mod mixer;
+pub mod mpu6000;
+pub mod ms5611;
 pub mod rc;
 
-pub use app::{Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
+pub use app::{ArmBlock, Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
 pub use failsafe::FlightMode;
 pub use fsm::{FsmState, FsmVariant};

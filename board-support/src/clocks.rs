@@ -3,8 +3,7 @@
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::time::Hertz;
 
-/// Baud rate of the board-to-board link and of the host link.
-pub const LINK_BAUD: u32 = 921_600;
+pub use crate::link::{HOST_BAUD, LINK_BAUD};
 
 /// Core clock, Hz: 168 MHz from the PLL on hardware; the 16 MHz HSI in QEMU (QEMU 7.2 has no
 /// RCC model, so the HSE and PLL ready bits never come up).

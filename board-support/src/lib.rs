@@ -1,10 +1,15 @@
-//! The firmware shell pieces the camera board and the autopilot share (both STM32F405-class,
-//! same clock tree, same board-to-board USART1 on DMA2 stream 2, same QEMU flavour).
+//! The firmware shell pieces the camera board and the autopilot share (an STM32F407 and an
+//! STM32F415, the same clock tree from a 12 MHz crystal, the same QEMU flavour).
 //!
+//! * [`link`]: the board-to-board link's baud rate, one constant both boards use (host too).
 //! * [`clocks`]: clock tree and link constants per flavour (MCU only).
 //! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
 //! * [`uart_dma`]: USART1 receive by circular DMA with the IDLE-line interrupt (MCU only).
 //! * [`uart_rx`]: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
+//! * [`uart_tx`]: UART transmit from an interrupt-driven queue; never blocks, never panics, a
+//!   full queue drops the frame and counts it (MCU only).
+//! * [`fault`]: panic and HardFault handlers: actuators off first, then log, then the
+//!   watchdog; the reset cause at boot (MCU only).
 //! * [`log`]: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
 //! * [`stack`]: stack painting and the low-water headroom of the main stack (MCU only).
@@ -21,6 +26,9 @@ pub mod clock;
 #[cfg(target_os = "none")]
 pub mod clocks;
 #[cfg(target_os = "none")]
+pub mod fault;
+pub mod link;
+#[cfg(target_os = "none")]
 pub mod log;
 #[cfg(target_os = "none")]
 pub mod stack;
@@ -28,3 +36,5 @@ pub mod stack;
 pub mod uart_dma;
 #[cfg(target_os = "none")]
 pub mod uart_rx;
+#[cfg(target_os = "none")]
+pub mod uart_tx;

@@ -1,6 +1,6 @@
 //! Logging and fatal-stop helpers: defmt over RTT always; in the `qemu` flavour the same lines
-//! also go to the host's stdout through semihosting, and a panic or [`fatal`] ends QEMU with a
-//! failing exit code.
+//! also go to the host's stdout through semihosting, and [`fatal`] ends QEMU with a failing
+//! exit code (a panic does too: [`crate::fault`]).
 
 /// Logs an info line (defmt over RTT; semihosting too in the `qemu` flavour).
 ///
@@ -26,17 +26,6 @@ pub fn fatal(what: &str) -> ! {
         cortex_m_semihosting::hprintln!("fatal: {}", what);
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
     }
-    loop {
-        cortex_m::asm::nop();
-    }
-}
-
-/// In QEMU a panic prints through semihosting and exits QEMU with a failure code.
-#[cfg(feature = "qemu")]
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    cortex_m_semihosting::hprintln!("panic: {}", info);
-    cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
     loop {
         cortex_m::asm::nop();
     }

@@ -10,6 +10,6 @@ mod firmware;
 
 #[cfg(not(target_os = "none"))]
 fn main() {
-    eprintln!("the stereo-board firmware only builds for thumbv7em-none-eabihf (run `cargo fw`)");
+    eprintln!("the stereo-board firmware only builds for thumbv7em-none-eabihf (run `cargo xtask fw camera`)");
     std::process::exit(2);
 }

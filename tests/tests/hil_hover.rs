@@ -49,7 +49,7 @@ fn closed_loop_hover_with_both_firmwares_in_qemu() {
         &s_link.chardev("link"),
         &s_host.chardev("host"),
     );
-    let mut autopilot = Qemu::start(
+    let mut autopilot = Qemu::start_autopilot(
         &autopilot_elf,
         &a_link.chardev("link"),
         &a_host.chardev("host"),

@@ -77,7 +77,7 @@ fn both_firmwares_talk_over_loopback_without_errors() {
         &s_host.chardev("host"),
     );
     let a_host = Port::bind();
-    let mut autopilot = Qemu::start(
+    let mut autopilot = Qemu::start_autopilot(
         &autopilot_elf,
         &a_link.chardev("link"),
         &a_host.chardev("host"),

@@ -70,16 +70,19 @@ pub fn qemu_firmwares() -> (PathBuf, PathBuf) {
         .get_or_init(|| {
             let dir = target_dir().join("fw-qemu");
             let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-            let status = Command::new(cargo)
-                .current_dir(workspace_root())
-                .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
-                .args(["-p", "stereo-board", "-p", "autopilot"])
-                .args(["--features", "stereo-board/qemu,autopilot/qemu"])
-                .arg("--target-dir")
-                .arg(&dir)
-                .status()
-                .expect("running cargo build for the qemu firmwares");
-            assert!(status.success(), "qemu firmware build failed");
+            // One invocation per board: each selects its own part's HAL feature.
+            for package in ["stereo-board", "autopilot"] {
+                let status = Command::new(&cargo)
+                    .current_dir(workspace_root())
+                    .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
+                    .args(["-p", package])
+                    .args(["--features", &format!("{package}/qemu")])
+                    .arg("--target-dir")
+                    .arg(&dir)
+                    .status()
+                    .expect("running cargo build for the qemu firmwares");
+                assert!(status.success(), "qemu firmware build of {package} failed");
+            }
             let out = dir.join("thumbv7em-none-eabihf").join("release");
             (out.join("stereo-board"), out.join("autopilot"))
         })
@@ -142,6 +145,18 @@ pub struct Qemu {
 impl Qemu {
     /// Starts `elf` with USART1 and USART2 on the given chardev specs (ids `link` and `host`).
     pub fn start(elf: &Path, usart1: &str, usart2: &str) -> Self {
+        Self::start_serials(elf, [(usart1, "link"), (usart2, "host")])
+    }
+
+    /// Starts the autopilot: its USART1 is the telemetry (host) port, USART2 the link to the
+    /// camera board (the Lisa/MX's wiring). `link` and `host` are `-chardev` specs with ids
+    /// `link` and `host`.
+    pub fn start_autopilot(elf: &Path, link: &str, host: &str) -> Self {
+        Self::start_serials(elf, [(host, "host"), (link, "link")])
+    }
+
+    /// Starts QEMU with `serials` as USART1 and USART2: each a `-chardev` spec and its id.
+    fn start_serials(elf: &Path, serials: [(&str, &str); 2]) -> Self {
         static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let n = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let log_path =
@@ -151,8 +166,10 @@ impl Qemu {
             .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
             .args(["-semihosting-config", "enable=on,target=native"])
             .args(["-icount", "shift=auto"])
-            .args(["-chardev", usart1, "-serial", "chardev:link"])
-            .args(["-chardev", usart2, "-serial", "chardev:host"])
+            .args(["-chardev", serials[0].0, "-serial"])
+            .arg(format!("chardev:{}", serials[0].1))
+            .args(["-chardev", serials[1].0, "-serial"])
+            .arg(format!("chardev:{}", serials[1].1))
             .arg("-kernel")
             .arg(elf)
             .stdin(Stdio::null())

@@ -1,6 +1,7 @@
 //! `cargo xtask test`: the CI test command, runnable on a fresh machine.
 //!
-//! 1. Installs what a fresh machine lacks: the `thumbv7em-none-eabihf` target (rustup), a
+//! 1. Installs what a fresh machine lacks: the `thumbv7em-none-eabihf` target (rustup),
+//!    `flip-link` (the firmware linker; cargo install), a
 //!    nightly toolchain and `cargo-fuzz` (for the bounded fuzz run), and `qemu-system-arm` from
 //!    Debian's main archive (apt-get).
 //! 2. Checks formatting, runs clippy with warnings denied on the host and on thumbv7em, runs all
@@ -52,36 +53,29 @@ pub fn run(args: &[String]) -> Result<()> {
         "warnings",
     ])?;
     steps.push("clippy(host)".into());
-    for features in [
-        "",
-        "stereo-board/qemu,autopilot/qemu",
-        "stereo-board/hil,autopilot/hil",
-    ] {
-        let mut clippy = vec![
-            "clippy",
-            "--target",
-            FIRMWARE_TARGET,
-            "-p",
-            "protocol",
-            "-p",
-            "stereo-board",
-            "-p",
-            "autopilot",
-            "-p",
-            "insns-firmware",
-        ];
-        if !features.is_empty() {
-            clippy.extend(["--features", features]);
+    // One invocation per firmware package: each selects its own part's HAL feature, and cargo
+    // unifies features within an invocation (insns-firmware builds both libraries for QEMU's
+    // STM32F405).
+    for flavour in ["", "qemu", "hil"] {
+        for package in ["protocol", "stereo-board", "autopilot", "insns-firmware"] {
+            let mut clippy = vec!["clippy", "--target", FIRMWARE_TARGET, "-p", package];
+            let features = format!("{package}/{flavour}");
+            if !flavour.is_empty() {
+                if package == "protocol" || package == "insns-firmware" {
+                    continue;
+                }
+                clippy.extend(["--features", &features]);
+            }
+            clippy.extend(["--", "-D", "warnings"]);
+            cargo(&clippy)?;
         }
-        clippy.extend(["--", "-D", "warnings"]);
-        cargo(&clippy)?;
     }
     steps.push("clippy(thumbv7em: real, qemu, hil)".into());
 
     let (passed, failed) = cargo_test(&["test", "--workspace"])?;
     steps.push(format!("tests({passed} passed)"));
 
-    cargo(&["fw"]).context("firmware build (cargo fw) failed")?;
+    cargo(&["xtask", "fw"]).context("firmware build (cargo xtask fw) failed")?;
     steps.push("firmware(stereo-board, autopilot)".into());
     for flavour in ["real", "qemu"] {
         run_checked(Command::new("cargo").args(["xtask", "size", "--flavour", flavour]))
@@ -126,6 +120,11 @@ pub fn run(args: &[String]) -> Result<()> {
 fn install_prerequisites(need_fuzz: bool) -> Result<()> {
     run_checked(Command::new("rustup").args(["target", "add", FIRMWARE_TARGET]))
         .context("rustup target add thumbv7em-none-eabihf")?;
+    // The firmware linker (.cargo/config.toml): stack below the statics, so an overflow faults.
+    if !succeeds(Command::new("flip-link").arg("--version")) {
+        run_checked(Command::new("cargo").args(["install", "flip-link", "--locked"]))
+            .context("cargo install flip-link --locked")?;
+    }
     if !succeeds(Command::new("qemu-system-arm").arg("--version")) {
         eprintln!("xtask: installing qemu-system-arm from Debian's main archive");
         let sudo = if is_root() { None } else { Some("sudo") };

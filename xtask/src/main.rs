@@ -2,6 +2,8 @@
 //!
 //! * `cargo xtask test`: the CI test command (installs what a fresh machine lacks, then runs
 //!   fmt, clippy on host and thumbv7em, all host tests, firmware builds, a bounded fuzz run).
+//! * `cargo xtask fw [camera|autopilot]`: build the firmwares (one cargo invocation per board).
+//! * `cargo xtask flash camera|autopilot`: build and flash one board with probe-rs.
 //! * `cargo xtask size`: static flash/RAM/CCM use of each firmware, against its budget.
 //! * `cargo xtask qemu`: build a firmware flavour and run it in QEMU.
 //! * `cargo xtask vboard`: build both real firmwares and run them on the virtual boards
@@ -13,6 +15,7 @@
 
 mod budget;
 mod ci;
+mod fw;
 mod insns;
 mod qemu;
 mod size;
@@ -26,12 +29,14 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or(("help", &[]));
     match command {
         "test" => ci::run(rest),
+        "fw" => fw::run(rest),
+        "flash" => fw::flash(rest),
         "size" => size::run(rest),
         "qemu" => qemu::run(rest),
         "insns" => insns::run(rest),
         "vboard" => vboard::run(rest),
         _ => {
-            eprintln!("usage: cargo xtask <test|size|qemu|insns|vboard> [ARGS]");
+            eprintln!("usage: cargo xtask <test|fw|flash|size|qemu|insns|vboard> [ARGS]");
             std::process::exit(2)
         }
     }

@@ -21,7 +21,7 @@ use std::process::Command;
 /// Firmware packages, in print order.
 pub const FIRMWARES: [&str; 2] = ["stereo-board", "autopilot"];
 
-/// CCM of the STM32F405, bytes.
+/// CCM of the STM32F405/407/415, bytes.
 const CCM_BYTES: u64 = 64 * 1024;
 /// The least SRAM that must stay free for the stack, bytes.
 const MIN_STACK_BYTES: u64 = 8 * 1024;
@@ -176,24 +176,24 @@ pub fn firmware_elf(flavour: Flavour, name: &str) -> PathBuf {
         .join(name)
 }
 
-/// Builds the named firmwares of a flavour in release.
+/// Builds the named firmwares of a flavour in release, one cargo invocation per firmware: each
+/// board selects its own part's HAL feature, and cargo unifies features within an invocation.
 pub fn build_firmwares(flavour: Flavour, names: &[&str]) -> Result<()> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut cmd = Command::new(cargo);
-    cmd.current_dir(workspace_root())
-        .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
-        .arg("--target-dir")
-        .arg(flavour.target_dir());
     for name in names {
-        cmd.args(["-p", name]);
-    }
-    if let Some(feature) = flavour.feature() {
-        let features: Vec<String> = names.iter().map(|n| format!("{n}/{feature}")).collect();
-        cmd.args(["--features", &features.join(",")]);
-    }
-    let status = cmd.status().context("running cargo build")?;
-    if !status.success() {
-        bail!("firmware build failed ({flavour:?}: {names:?})");
+        let mut cmd = Command::new(&cargo);
+        cmd.current_dir(workspace_root())
+            .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
+            .arg("--target-dir")
+            .arg(flavour.target_dir())
+            .args(["-p", name]);
+        if let Some(feature) = flavour.feature() {
+            cmd.args(["--features", &format!("{name}/{feature}")]);
+        }
+        let status = cmd.status().context("running cargo build")?;
+        if !status.success() {
+            bail!("firmware build failed ({flavour:?}: {name})");
+        }
     }
     Ok(())
 }
@@ -248,25 +248,30 @@ pub fn symbol(elf: &[u8], wanted: &str) -> Result<Option<u32>> {
     Ok(None)
 }
 
-/// Checks the start-up layout cortex-m-rt relies on: `__sbss <= __ebss <= _stack_end <
-/// _stack_start`, all in SRAM. The reset handler zeroes `.bss` with a loop that runs until it
+/// Checks the start-up layout: flip-link's (the stack at the bottom of SRAM, `_stack_end <
+/// _stack_start <= __sdata`) and what cortex-m-rt relies on (`__sbss <= __ebss`, in SRAM). The
+/// reset handler zeroes `.bss` with a loop that runs until it
 /// meets `__ebss`: a section inserted after `.bss` in another region (CCM is below SRAM) moves
 /// `__ebss` there and the loop runs off the end of SRAM.
 pub fn check_layout(elf: &[u8]) -> Result<()> {
     let sym =
         |n: &str| -> Result<u32> { symbol(elf, n)?.with_context(|| format!("no symbol {n}")) };
-    let (sbss, ebss) = (sym("__sbss")?, sym("__ebss")?);
+    let (sdata, sbss, ebss) = (sym("__sdata")?, sym("__sbss")?, sym("__ebss")?);
     let (end, start) = (sym("_stack_end")?, sym("_stack_start")?);
     let sram = 0x2000_0000..=0x2002_0000;
-    if !(sbss <= ebss
-        && ebss <= end
-        && end < start
-        && sram.contains(&sbss)
-        && sram.contains(&start))
+    // flip-link's layout: the stack from the bottom of SRAM up to `_stack_start`, the statics
+    // above it, so an overflow runs off the start of SRAM and faults.
+    if !(end < start
+        && start <= sdata
+        && sdata <= sbss
+        && sbss <= ebss
+        && sram.contains(&end)
+        && sram.contains(&ebss))
     {
         bail!(
-            "bad start-up layout: __sbss {sbss:#x} __ebss {ebss:#x} _stack_end {end:#x} \
-             _stack_start {start:#x} (need __sbss <= __ebss <= _stack_end < _stack_start in SRAM)"
+            "bad start-up layout: _stack_end {end:#x} _stack_start {start:#x} __sdata {sdata:#x} \
+             __sbss {sbss:#x} __ebss {ebss:#x} (need _stack_end < _stack_start <= __sdata <= \
+             __sbss <= __ebss in SRAM: the stack below the statics, as flip-link links it)"
         );
     }
     Ok(())

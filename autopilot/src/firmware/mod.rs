@@ -1,55 +1,51 @@
 //! RTIC 2 application of the autopilot firmware (thumbv7em-none-eabihf only).
 //!
-//! A thin shell around [`autopilot::app::Autopilot`]; the tasks mirror `autopilot::app::TASKS`
-//! (same names and relative priorities) and each body is one call into the library.
+//! A thin shell around [`autopilot::app::Autopilot`] on the board of [`autopilot::board`]; the
+//! tasks mirror `autopilot::app::TASKS` (same names and relative priorities) and each body is
+//! one call into the library. What differs between flavours is in one module each: [`real`]
+//! (own sensors, board clock) and [`lockstep`] (`hil`, `qemu`: the host's IMU samples and world
+//! time), selected as `flavour`.
 //!
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
-//! | `usart1`, `usart1_dma`, `usart2` | 6 | USART1 IDLE + DMA2 stream 2 (QEMU: RXNE), USART2 RXNE | bytes into lock-free queues (never wait for a lock) |
-//! | `imu_drdy` | 6 | EXTI4: MPU-6000 data ready, 500 Hz (real) | burst read over SPI1, spawns `imu_indi` |
-//! | `imu_timer` | 6 | TIM2 at 512 Hz (real) | fallback: reads the IMU itself only while data-ready interrupts are missing |
-//! | `imu_indi` | 5 | IMU sample (HIL/QEMU: from the host link) | `Autopilot::on_imu`, motors out (HIL/QEMU: releases the periodic tasks) |
-//! | `stereo_rx` | 4 | woken by `usart1` | `Autopilot::on_stereo_bytes` |
-//! | `host_rx` | 4 | woken by `usart2` | IMU / position / command from the host |
-//! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety` |
+//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]); transmit queued frames ([`board_support::uart_tx`]) |
+//! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]), `Autopilot::on_imu`, motors |
+//! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
+//! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
+//! | `host_rx` | 4 | woken by `telemetry_uart` | position / command from the host (IMU samples: lockstep only) |
+//! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
+//! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`, watchdog (real) |
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
+//! | `baro` | 2 | its conversions (real) | MS5611 on SPI2 -> `Autopilot::on_baro` |
 //! | `telemetry` | 1 | 10 Hz | `Autopilot::telemetry` to the host |
-//! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog |
-//! | `usart3` | 6 | USART3 RXNE (real) | SBUS bytes into a lock-free queue |
-//! | `rc_rx` | 4 | woken by `usart3`, and every 20 ms | [`autopilot::rc`]: SBUS frames -> `Autopilot::on_command` (arm/land/kill; RC failsafe or silence => kill) |
+//! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog (lockstep), status line |
 //!
-//! Motors: TIM3 PWM (see [`motors`]); in the HIL and QEMU flavours the commands also leave as
-//! `BoardToHost::Motors` on the host link (the flight logic is the same code as on hardware).
+//! No task ever waits for a UART: frames are queued whole or dropped and counted
+//! (`tx_dropped` in the status line), and the UART's interrupt sends them. A lock on a transmit
+//! queue is held for the copy of one frame.
 //!
-//! Time (see [`tick`]): on hardware the library clock is the board's SysTick and the periodic
-//! tasks run on SysTick periods. In the `hil` and `qemu` flavours the board runs in lockstep
-//! with the host's world simulation ([`autopilot::lockstep`]): the library clock is the world
-//! time carried by the host's IMU samples, `imu_indi` releases `guidance`, `gyro_tx` and
-//! `telemetry` when the world clock passes their periods, and the host sends the next sample
-//! only after the `Motors` reply to the previous one. `heartbeat` (liveness, LED, watchdog)
-//! stays on the board clock in every flavour.
-//!
-//! RC input (real flavour): an SBUS receiver on USART3 RX (PB11, 100,000 Bd 8E2, non-inverted
-//! signal; see `docs/hardware.md`); in HIL and QEMU the host link's `PilotCommand` stands in.
-//! Manual flight from the sticks is not wired: `Autopilot` has no manual mode yet.
+//! Faults: the panic and HardFault handlers force the motor outputs off at the timer and GPIO
+//! registers first ([`autopilot::board::hw::motors_off`]), then log, then wait for the
+//! watchdog. After any reset the library starts disarmed and the PWM at 0.
 
-mod board;
 mod clock;
-// Only the real flavour reads the IMU; the type is named in the RTIC resources of every flavour.
-#[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
-mod imu;
-use board_support::log;
-mod motors;
-mod tick;
-#[cfg(not(feature = "qemu"))]
-use board_support::uart_dma;
+#[cfg(any(feature = "qemu", feature = "hil"))]
+#[path = "lockstep.rs"]
+mod flavour;
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+#[path = "real.rs"]
+mod flavour;
+mod sensors;
 
 use autopilot::app::Autopilot;
+use autopilot::board::hw;
 use board_support::uart_rx::RxFlow;
 use core::mem::MaybeUninit;
+use core::sync::atomic::AtomicU32;
 use defmt_rtt as _;
-#[cfg(not(feature = "qemu"))]
-use panic_probe as _;
+
+// Panic and HardFault: motors off at the registers first, then log, then the watchdog.
+board_support::fault_handlers!(autopilot::board::hw::motors_off);
 
 rtic_monotonics::systick_monotonic!(Mono, 1_000);
 
@@ -57,52 +53,38 @@ rtic_monotonics::systick_monotonic!(Mono, 1_000);
 #[link_section = ".ccmram"]
 static mut AP: MaybeUninit<Autopilot> = MaybeUninit::uninit();
 
-/// The IMU of the real flavour: MPU-6000 on SPI1 with chip select PA4.
-type ImuDevice = imu::Mpu6000<
-    stm32f4xx_hal::spi::Spi<stm32f4xx_hal::pac::SPI1>,
-    stm32f4xx_hal::gpio::PA4<stm32f4xx_hal::gpio::Output>,
->;
-
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 2048;
-
-/// Board time of the last IMU data-ready interrupt, µs (wrapping `u32`).
-#[cfg(not(any(feature = "qemu", feature = "hil")))]
-static LAST_DRDY_US: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
-
-/// IMU reads done by the fallback timer because data-ready interrupts were missing.
-static IMU_FALLBACK_READS: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
-
 /// Bytes of the SBUS receive queue (about five frames).
 const RC_QUEUE: usize = 128;
+/// Bytes of each transmit queue: the link's 128 Hz gyro messages and the host link's
+/// telemetry each take a small part of it between two interrupts' worth of sending.
+const TX_QUEUE: usize = 1024;
 
-/// Received bytes lost since boot: queue full, or a UART overrun/framing/noise error.
-static RX_LOST: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+/// Received bytes lost since boot: a UART overrun, framing or noise error.
+static RX_LOST: AtomicU32 = AtomicU32::new(0);
+/// IMU samples rejected since boot (see [`autopilot::mpu6000`]; real flavour).
+static IMU_INVALID: AtomicU32 = AtomicU32::new(0);
+/// Largest deviation of the control loop's start from its period, µs (real flavour).
+static LOOP_JITTER_MAX_US: AtomicU32 = AtomicU32::new(0);
 
-/// Back-pressure of the host link's RXNE interrupt.
-static HOST_FLOW: RxFlow = RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART2);
+/// Back-pressure of the camera link's receive interrupt.
+static LINK_FLOW: RxFlow = RxFlow::new(hw::LINK_IRQ);
+/// Back-pressure of the telemetry port's receive interrupt.
+static HOST_FLOW: RxFlow = RxFlow::new(hw::TELEMETRY_IRQ);
+/// Back-pressure of the RC receiver's interrupt.
+static RC_FLOW: RxFlow = RxFlow::new(hw::RC_IRQ);
 
-/// Back-pressure of the SBUS receiver's RXNE interrupt (real flavour).
-#[cfg(not(any(feature = "qemu", feature = "hil")))]
-static RC_FLOW: RxFlow = RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART3);
-
-/// Blocking write of whole frames to a UART (a few dozen bytes per message at 921,600 Bd).
-fn write_all<U: stm32f4xx_hal::serial::Instance>(
-    tx: &mut stm32f4xx_hal::serial::Tx<U>,
-    bytes: &[u8],
-) {
-    use embedded_io::Write as _;
-    let _ = tx.write_all(bytes);
-}
-
-/// Encodes one message and writes it.
-fn send<M: protocol::Message, U: stm32f4xx_hal::serial::Instance, const N: usize>(
-    tx: &mut stm32f4xx_hal::serial::Tx<U>,
+/// Encodes one message (outside any lock) and queues it on a UART's transmit queue: the lock
+/// is held for the copy only, a full queue drops the frame and counts it.
+fn send<M: protocol::Message, const N: usize>(
+    tx: &mut impl rtic::Mutex<T = board_support::uart_tx::TxWriter>,
     msg: &M,
 ) {
     let mut buf = [0u8; N];
     if let Ok(n) = protocol::encode(msg, &mut buf) {
-        write_all(tx, buf.get(..n).unwrap_or(&[]));
+        let frame = buf.get(..n).unwrap_or(&[]);
+        tx.lock(|tx| tx.send(frame));
     }
 }
 
@@ -116,22 +98,24 @@ const fn ticks(period_us: u32) -> u32 {
     }
 }
 
-/// The release channels of the lockstep flavours: (to `imu_indi`, to the periodic task).
-#[cfg(any(feature = "qemu", feature = "hil"))]
-type TickChannel = (
-    rtic_sync::channel::Sender<'static, u64, 1>,
-    rtic_sync::channel::Receiver<'static, u64, 1>,
-);
-
-#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART4, UART5, TIM8_UP_TIM13])]
+#[rtic::app(
+    device = stm32f4xx_hal::pac,
+    peripherals = true,
+    dispatchers = [SPI3, UART4, TIM8_UP_TIM13, TIM8_BRK_TIM12, TIM8_TRG_COM_TIM14]
+)]
 mod app {
-    use super::motors::{Motors, PWM_HZ};
-    use super::tick::Tick;
-    use super::{board, clock, log, send, ticks, Mono, AP, RC_QUEUE, RX_QUEUE};
+    use super::flavour::{self, Releases, Tick};
+    use super::sensors::SensorBus;
+    use super::{clock, send, ticks, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
+    use super::{HOST_FLOW, IMU_INVALID, LINK_FLOW, LOOP_JITTER_MAX_US, RC_FLOW, RX_LOST};
     use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
-    #[cfg(not(any(feature = "qemu", feature = "hil")))]
-    use autopilot::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
-    use board_support::uart_rx::{RxFlow, LINK_FLOW};
+    use autopilot::board::{self, hw};
+    use autopilot::mpu6000::SampleCheck;
+    use autopilot::ms5611::{self, Calibration, Osr};
+    use board_support::log;
+    use board_support::uart_rx::RxFlow;
+    use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
+    use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::{
         AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
@@ -140,10 +124,9 @@ mod app {
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
     use stm32f4xx_hal::{
-        gpio::{Output, PC13},
-        pac,
         prelude::*,
-        serial::{self, Rx, Tx},
+        serial::{self, Rx},
+        timer::CounterHz,
         watchdog::IndependentWatchdog,
     };
 
@@ -154,213 +137,119 @@ mod app {
     #[shared]
     struct Shared {
         ap: &'static mut Autopilot,
-        link_tx: Tx<pac::USART1>,
-        host_tx: Tx<pac::USART2>,
+        /// Transmit queue of the camera-board link.
+        link_tx: TxWriter,
+        /// Transmit queue of the telemetry port.
+        host_tx: TxWriter,
         /// Messages decoded from the camera board since boot.
         stereo_msgs: u32,
-        motors: Motors,
-        link_in: Producer<'static, u8>,
-        link_wake_tx: Sender<'static, (), 1>,
-        /// The IMU, read by the data-ready interrupt and by the fallback timer (real flavour;
-        /// `None` in HIL and QEMU, where the host sends the samples).
-        imu: Option<super::ImuDevice>,
+        motors: hw::Motors,
+        /// SPI2 with the IMU and the barometer (`None` in the lockstep flavours).
+        sensors: Option<SensorBus>,
+        iwdg: IndependentWatchdog,
     }
 
     #[local]
     struct Local {
-        led: PC13<Output>,
-        iwdg: IndependentWatchdog,
-        link_rx: Rx<pac::USART1>,
+        led: hw::Led,
+        link_rx: Rx<hw::LinkUart>,
+        link_pump: TxPump<hw::LinkUart>,
+        link_in: Producer<'static, u8>,
         link_out: Consumer<'static, u8>,
+        link_wake_tx: Sender<'static, (), 1>,
         link_wake_rx: Receiver<'static, (), 1>,
-        host_rx: Rx<pac::USART2>,
+        host_rx: Rx<hw::TelemetryUart>,
+        host_pump: TxPump<hw::TelemetryUart>,
         host_in: Producer<'static, u8>,
         host_out: Consumer<'static, u8>,
         host_wake_tx: Sender<'static, (), 1>,
         host_wake_rx: Receiver<'static, (), 1>,
         host_decoder: HostToBoardDecoder,
+        rc_uart: Rx<hw::RcUart>,
+        rc_in: Producer<'static, u8>,
+        rc_out: Consumer<'static, u8>,
+        rc_wake_tx: Sender<'static, (), 1>,
+        rc_wake_rx: Receiver<'static, (), 1>,
+        loop_timer: CounterHz<hw::LoopTimer>,
+        imu_check: SampleCheck,
         guidance_tick: Tick,
         gyro_tick: Tick,
         telemetry_tick: Tick,
-        /// The world clock from the host's IMU timestamps (used by the lockstep flavours).
         world: autopilot::lockstep::WorldClock,
-        /// Releases of the periodic tasks on the world clock (a no-op on hardware).
-        releases: super::tick::Releases,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        rc_uart: Rx<pac::USART3>,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        rc_in: Producer<'static, u8>,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        rc_out: Consumer<'static, u8>,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        rc_wake_tx: Sender<'static, (), 1>,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        rc_wake_rx: Receiver<'static, (), 1>,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        imu_int: stm32f4xx_hal::gpio::PC4<stm32f4xx_hal::gpio::Input>,
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        imu_timer: stm32f4xx_hal::timer::CounterHz<pac::TIM2>,
+        releases: Releases,
     }
 
     #[init(local = [
         link_q: Queue<u8, RX_QUEUE> = Queue::new(),
         host_q: Queue<u8, RX_QUEUE> = Queue::new(),
         rc_q: Queue<u8, RC_QUEUE> = Queue::new(),
+        link_txq: TxQueue<TX_QUEUE> = TxQueue::new(),
+        host_txq: TxQueue<TX_QUEUE> = TxQueue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         // First: the status line's `stack_free` is the headroom left from here on.
         board_support::stack::paint();
-        let mut rcc = cx.device.RCC.freeze(board::clocks());
-        Mono::start(cx.core.SYST, board::SYSTICK_HZ);
+        let reset_cause = board_support::fault::take_reset_cause();
+        let b = hw::take(cx.device);
+        Mono::start(cx.core.SYST, board_support::clocks::SYSTICK_HZ);
 
         // SAFETY: `init` runs once, before any task; this is the only reference ever made to
-        // AP, and it is handed to RTIC as a shared resource.
+        // AP, and it is handed to RTIC as a shared resource. The autopilot starts disarmed.
         #[allow(static_mut_refs)]
         let ap: &'static mut Autopilot =
             unsafe { AP.write(Autopilot::new(AutopilotConfig::default())) };
 
-        let gpioa = cx.device.GPIOA.split(&mut rcc);
-        let gpioc = cx.device.GPIOC.split(&mut rcc);
-        let led = gpioc.pc13.into_push_pull_output();
-
-        let config = serial::Config::default().baudrate(board::LINK_BAUD.bps());
-        let (link_tx, link_rx) = cx
-            .device
-            .USART1
-            .serial::<u8>((gpioa.pa9, gpioa.pa10), config, &mut rcc)
-            .unwrap_or_else(|_| log::fatal("USART1 configuration"))
-            .split();
-        // The camera-board link: circular DMA + IDLE on hardware, RXNE in QEMU (no DMA model).
-        #[cfg(feature = "qemu")]
-        let link_rx = {
-            let mut rx = link_rx;
-            rx.listen();
-            rx
-        };
-        #[cfg(not(feature = "qemu"))]
-        super::uart_dma::start();
-        let (host_tx, mut host_rx) = cx
-            .device
-            .USART2
-            .serial::<u8>((gpioa.pa2, gpioa.pa3), config, &mut rcc)
-            .unwrap_or_else(|_| log::fatal("USART2 configuration"))
-            .split();
+        let (link_tx, mut link_rx) = b.link.split();
+        link_rx.listen();
+        let (link_tx, link_pump) = cx.local.link_txq.split(link_tx, hw::LINK_IRQ);
+        let (host_tx, mut host_rx) = b.telemetry.split();
         host_rx.listen();
+        let (host_tx, host_pump) = cx.local.host_txq.split(host_tx, hw::TELEMETRY_IRQ);
         let (link_in, link_out) = cx.local.link_q.split();
         let (host_in, host_out) = cx.local.host_q.split();
+        let (rc_in, rc_out) = cx.local.rc_q.split();
         let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!((), 1);
         let (host_wake_tx, host_wake_rx) = rtic_sync::make_channel!((), 1);
+        let (rc_wake_tx, rc_wake_rx) = rtic_sync::make_channel!((), 1);
 
-        let gpiob = cx.device.GPIOB.split(&mut rcc);
-        // SBUS receiver on USART3 RX (PB11): 100,000 Bd, 8 data bits + even parity (the 9-bit
-        // word), 2 stop bits.
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let (rc_uart, rc_in, rc_out, rc_wake_tx, rc_wake_rx) = {
-            let config = serial::Config::default()
-                .baudrate(autopilot::rc::SBUS_BAUD.bps())
-                .wordlength_9()
-                .parity_even()
-                .stopbits(serial::config::StopBits::STOP2);
-            let mut rx: Rx<pac::USART3> = cx
-                .device
-                .USART3
-                .rx(gpiob.pb11, config, &mut rcc)
-                .unwrap_or_else(|_| log::fatal("USART3 configuration"));
-            rx.listen();
-            let (rc_in, rc_out) = cx.local.rc_q.split();
-            let (tx, rx_wake) = rtic_sync::make_channel!((), 1);
-            (rx, rc_in, rc_out, tx, rx_wake)
-        };
-        #[cfg(any(feature = "qemu", feature = "hil"))]
-        let _ = cx.local.rc_q;
-        let (_, (c1, c2, c3, c4)) = cx.device.TIM3.pwm_hz(PWM_HZ.Hz(), &mut rcc);
-        let motors = Motors::new((
-            // PB4 leaves its reset function (JTAG NJTRST) first.
-            c1.with(gpiob.pb4.into_floating_input()),
-            c2.with(gpiob.pb5),
-            c3.with(gpiob.pb0),
-            c4.with(gpiob.pb1),
-        ));
-
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let (imu, imu_timer, imu_int) = {
-            use stm32f4xx_hal::spi::{Mode, Phase, Polarity};
-            let mode = Mode {
-                polarity: Polarity::IdleHigh,
-                phase: Phase::CaptureOnSecondTransition,
-            };
-            let spi = cx.device.SPI1.spi(
-                (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
-                mode,
-                1.MHz(),
-                &mut rcc,
-            );
-            let cs = gpioa
-                .pa4
-                .into_push_pull_output_in_state(stm32f4xx_hal::gpio::PinState::High);
-            let mut imu = super::imu::Mpu6000::new(spi, cs);
-            let sysclk = rcc.clocks.sysclk().raw();
-            match imu.init(|ms| cortex_m::asm::delay(ms.saturating_mul(sysclk / 1_000))) {
-                Ok(()) => log::info!("IMU configured"),
-                Err(_) => defmt::error!("MPU-6000 not found on SPI1"),
+        let mut rc_uart = b.rc;
+        let mut loop_timer = b.loop_timer;
+        let sysclk = b.rcc.clocks.sysclk().raw();
+        let sensors = if flavour::OWN_SENSORS {
+            let mut bus = SensorBus::new(b.spi, b.imu_cs, b.baro_cs);
+            match bus.imu_init(|ms| cortex_m::asm::delay(ms.saturating_mul(sysclk / 1_000))) {
+                Ok(autopilot::mpu6000::WHO_AM_I_VALUE) => log::info!("MPU-6000 configured"),
+                Ok(who) => defmt::error!("MPU-6000 not found: WHO_AM_I = {=u8:#x}", who),
+                Err(_) => defmt::error!("MPU-6000: SPI transfer failed"),
             }
-            let mut timer = cx.device.TIM2.counter_hz(&mut rcc);
-            timer
-                .start(board::IMU_RATE_HZ.Hz())
-                .unwrap_or_else(|_| log::fatal("TIM2 start"));
-            timer.listen(stm32f4xx_hal::timer::Event::Update);
-            // Data ready: MPU-6000 INT on PC4, rising edge, EXTI4.
-            let mut syscfg = cx.device.SYSCFG.constrain(&mut rcc);
-            let mut exti = cx.device.EXTI;
-            let mut int = gpioc.pc4.into_pull_down_input();
-            {
-                use stm32f4xx_hal::gpio::{Edge, ExtiPin as _};
-                int.make_interrupt_source(&mut syscfg);
-                int.trigger_on_edge(&mut exti, Edge::Rising);
-                int.enable_interrupt(&mut exti);
-            }
-            (Some(imu), timer, int)
+            rc_uart.listen();
+            loop_timer
+                .start(board::LOOP_RATE_HZ.Hz())
+                .unwrap_or_else(|_| panic!("TIM2 start"));
+            loop_timer.listen(stm32f4xx_hal::timer::Event::Update);
+            Some(bus)
+        } else {
+            None
         };
-        #[cfg(any(feature = "qemu", feature = "hil"))]
-        let imu: Option<super::ImuDevice> = None;
+        let (guidance_tick, gyro_tick, telemetry_tick, releases) = Releases::new();
 
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let (guidance_tick, gyro_tick, telemetry_tick, releases) = (
-            Tick::every(GUIDANCE_PERIOD_US),
-            Tick::every(GYRO_TX_PERIOD_US),
-            Tick::every(TELEMETRY_PERIOD_US),
-            super::tick::Releases,
-        );
-        #[cfg(any(feature = "qemu", feature = "hil"))]
-        let (guidance_tick, gyro_tick, telemetry_tick, releases) = {
-            let g: super::TickChannel = rtic_sync::make_channel!(u64, 1);
-            let y: super::TickChannel = rtic_sync::make_channel!(u64, 1);
-            let t: super::TickChannel = rtic_sync::make_channel!(u64, 1);
-            (
-                Tick(g.1),
-                Tick(y.1),
-                Tick(t.1),
-                super::tick::Releases {
-                    guidance: g.0,
-                    gyro_tx: y.0,
-                    telemetry: t.0,
-                    timers: autopilot::lockstep::WorldTimers::new(),
-                },
-            )
-        };
-
-        let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
+        let mut iwdg = IndependentWatchdog::new(b.iwdg);
         iwdg.start(board::WATCHDOG_MS.millis());
 
-        log::info!("autopilot up, sysclk {} Hz", rcc.clocks.sysclk().raw());
+        log::info!(
+            "autopilot up, sysclk {} Hz, reset cause {}",
+            sysclk,
+            reset_cause as u8
+        );
+        defmt::info!("reset cause: {}", reset_cause);
         stereo_rx::spawn().ok();
         host_rx::spawn().ok();
         guidance::spawn().ok();
         gyro_tx::spawn().ok();
         telemetry::spawn().ok();
         heartbeat::spawn().ok();
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
         rc_rx::spawn().ok();
+        baro::spawn().ok();
 
         (
             Shared {
@@ -368,112 +257,90 @@ mod app {
                 link_tx,
                 host_tx,
                 stereo_msgs: 0,
-                motors,
-                link_in,
-                link_wake_tx,
-                imu,
+                motors: b.motors,
+                sensors,
+                iwdg,
             },
             Local {
-                led,
-                iwdg,
+                led: b.led,
                 link_rx,
+                link_pump,
+                link_in,
                 link_out,
+                link_wake_tx,
                 link_wake_rx,
                 host_rx,
+                host_pump,
                 host_in,
                 host_out,
                 host_wake_tx,
                 host_wake_rx,
                 host_decoder: HostToBoardDecoder::new_mid_stream(),
+                rc_uart,
+                rc_in,
+                rc_out,
+                rc_wake_tx,
+                rc_wake_rx,
+                loop_timer,
+                imu_check: SampleCheck::new(board::IMU_AXES, board::Mounting::default()),
                 guidance_tick,
                 gyro_tick,
                 telemetry_tick,
                 world: autopilot::lockstep::WorldClock::new(),
                 releases,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                rc_uart,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                rc_in,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                rc_out,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                rc_wake_tx,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                rc_wake_rx,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                imu_int,
-                #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                imu_timer,
             },
         )
     }
 
-    /// Moves the pending bytes of an RXNE-driven UART into its queue (pausing the interrupt
-    /// at a full queue) and wakes the decoding task.
+    /// Moves the pending bytes of a UART into its queue (pausing the interrupt at a full
+    /// queue) and wakes the decoding task.
     fn drain_uart<U: serial::Instance>(
         rx: &mut Rx<U>,
         queue: &mut Producer<'static, u8>,
         flow: &RxFlow,
         wake: &mut Sender<'static, (), 1>,
     ) {
-        board_support::uart_rx::drain(rx, queue, flow, &super::RX_LOST);
+        board_support::uart_rx::drain(rx, queue, flow, &RX_LOST);
         let _ = wake.try_send(());
     }
 
-    /// USART1 (camera board) receive interrupt: RXNE in QEMU, IDLE line with DMA otherwise.
-    #[task(binds = USART1, priority = 6, shared = [link_in, link_wake_tx], local = [link_rx])]
-    fn usart1(cx: usart1::Context) {
-        let rx = cx.local.link_rx;
-        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
-            #[cfg(feature = "qemu")]
-            drain_uart(rx, queue, &LINK_FLOW, wake);
-            #[cfg(not(feature = "qemu"))]
-            {
-                let _ = rx;
-                let lost = super::uart_dma::on_interrupt(queue);
-                super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
-                let _ = wake.try_send(());
-            }
-        });
+    /// USART2, the camera-board link: transmit queued frames, receive bytes.
+    #[task(binds = USART2, priority = 6, local = [link_rx, link_in, link_wake_tx, link_pump])]
+    fn link_uart(cx: link_uart::Context) {
+        cx.local.link_pump.pump();
+        drain_uart(
+            cx.local.link_rx,
+            cx.local.link_in,
+            &LINK_FLOW,
+            cx.local.link_wake_tx,
+        );
     }
 
-    /// DMA2 stream 2 (USART1 RX) half/full transfer: hand on what arrived so far.
-    #[cfg(not(feature = "qemu"))]
-    #[task(binds = DMA2_STREAM2, priority = 6, shared = [link_in, link_wake_tx])]
-    fn usart1_dma(cx: usart1_dma::Context) {
-        (cx.shared.link_in, cx.shared.link_wake_tx).lock(|queue, wake| {
-            let lost = super::uart_dma::on_interrupt(queue);
-            super::RX_LOST.fetch_add(lost, core::sync::atomic::Ordering::Relaxed);
-            let _ = wake.try_send(());
-        });
-    }
-
-    /// USART2 (host) receive interrupt.
-    #[task(binds = USART2, priority = 6, local = [host_rx, host_in, host_wake_tx])]
-    fn usart2(cx: usart2::Context) {
+    /// USART1, the telemetry port: transmit queued frames, receive bytes.
+    #[task(binds = USART1, priority = 6, local = [host_rx, host_in, host_wake_tx, host_pump])]
+    fn telemetry_uart(cx: telemetry_uart::Context) {
+        cx.local.host_pump.pump();
         drain_uart(
             cx.local.host_rx,
             cx.local.host_in,
-            &super::HOST_FLOW,
+            &HOST_FLOW,
             cx.local.host_wake_tx,
         );
     }
 
-    /// USART3 (SBUS receiver) receive interrupt (real flavour).
-    #[cfg(not(any(feature = "qemu", feature = "hil")))]
-    #[task(binds = USART3, priority = 6, local = [rc_uart, rc_in, rc_wake_tx])]
-    fn usart3(cx: usart3::Context) {
+    /// UART5, the RC receiver (enabled in the real flavour only).
+    #[task(binds = UART5, priority = 6, local = [rc_uart, rc_in, rc_wake_tx])]
+    fn rc_uart(cx: rc_uart::Context) {
         drain_uart(
             cx.local.rc_uart,
             cx.local.rc_in,
-            &super::RC_FLOW,
+            &RC_FLOW,
             cx.local.rc_wake_tx,
         );
     }
 
-    /// RC (real flavour): SBUS frames to pilot commands; also wakes every 20 ms so that a
-    /// receiver gone silent kills the motors (see [`autopilot::rc`]).
-    #[cfg(not(any(feature = "qemu", feature = "hil")))]
+    /// RC: SBUS frames to pilot commands and the RC kill latch; also wakes every 20 ms so that
+    /// a receiver gone silent kills the motors (see [`autopilot::rc`]).
     #[task(priority = 4, shared = [ap], local = [
         rc_out,
         rc_wake_rx,
@@ -485,7 +352,7 @@ mod app {
             let _ = Mono::timeout_after(Duration::from_ticks(20), cx.local.rc_wake_rx.recv()).await;
             let mut buf = [0u8; 32];
             loop {
-                let n = super::RC_FLOW.take(cx.local.rc_out, &mut buf);
+                let n = RC_FLOW.take(cx.local.rc_out, &mut buf);
                 if n == 0 {
                     break;
                 }
@@ -509,85 +376,91 @@ mod app {
                 }
             }
             let now = clock::now_us();
-            if let Some(c) = cx.local.rc.poll(now) {
-                cx.shared.ap.lock(|ap| ap.on_command(c, now));
+            let poll = cx.local.rc.poll(now);
+            let engaged = cx.local.rc.kill_reason().is_some();
+            cx.shared.ap.lock(|ap| {
+                if let Some(c) = poll {
+                    ap.on_command(c, now);
+                }
+                ap.set_rc_kill(engaged, now);
+            });
+        }
+    }
+
+    /// 512 Hz (real flavour): reads and checks the IMU, then attitude -> INDI -> motors. An
+    /// invalid sample is not flown on: the IMU failsafe counts from the last valid one.
+    #[task(binds = TIM2, priority = 5, shared = [ap, motors, sensors], local = [
+        loop_timer,
+        imu_check,
+        last_start_us: Option<u64> = None,
+    ])]
+    fn control_loop(mut cx: control_loop::Context) {
+        cx.local
+            .loop_timer
+            .clear_flags(stm32f4xx_hal::timer::Flag::Update);
+        let now = clock::now_us();
+        if let Some(last) = cx.local.last_start_us.replace(now) {
+            let period = 1_000_000 / u64::from(board::LOOP_RATE_HZ);
+            let jitter = now.saturating_sub(last).abs_diff(period) as u32;
+            LOOP_JITTER_MAX_US.fetch_max(jitter, Ordering::Relaxed);
+        }
+        let reads = cx
+            .shared
+            .sensors
+            .lock(|bus| bus.as_mut().map(|bus| bus.imu_read()));
+        let check = &mut *cx.local.imu_check;
+        let sample = match reads {
+            Some(Ok((who, pwr, data))) => check.check(who, pwr, &data, now as u32).ok(),
+            Some(Err(_)) => {
+                check.bus_error();
+                None
+            }
+            None => None,
+        };
+        IMU_INVALID.store(check.faults().total(), Ordering::Relaxed);
+        match sample {
+            Some(imu) => {
+                fly(&mut cx.shared.ap, &mut cx.shared.motors, &imu, now);
+            }
+            None => {
+                if let Some(off) = cx.shared.ap.lock(|ap| ap.motor_safety(now)) {
+                    cx.shared.motors.lock(|m| m.set(off));
+                }
             }
         }
     }
 
-    /// MPU-6000 data ready (real flavour, 500 Hz): reads the sample and hands it to
-    /// `imu_indi`.
-    #[cfg(not(any(feature = "qemu", feature = "hil")))]
-    #[task(binds = EXTI4, priority = 6, shared = [imu], local = [imu_int])]
-    fn imu_drdy(mut cx: imu_drdy::Context) {
-        use stm32f4xx_hal::gpio::ExtiPin as _;
-        cx.local.imu_int.clear_interrupt_pending_bit();
-        let now = clock::now_us();
-        super::LAST_DRDY_US.store(now as u32, core::sync::atomic::Ordering::Relaxed);
-        if let Some(Ok(sample)) = cx
-            .shared
-            .imu
-            .lock(|imu| imu.as_mut().map(|imu| imu.read(now as u32)))
-        {
-            // Still busy with the previous sample: skip this one.
-            let _ = imu_indi::spawn((sample, now));
-        }
+    /// One control step on a valid sample: the library's 512 Hz loop, then the motors.
+    fn fly(
+        ap: &mut impl rtic::Mutex<T = &'static mut Autopilot>,
+        motors: &mut impl rtic::Mutex<T = hw::Motors>,
+        imu: &ImuSample,
+        now: u64,
+    ) -> [f32; 4] {
+        let throttle = ap.lock(|ap| ap.on_imu(imu, now));
+        motors.lock(|m| m.set(throttle));
+        throttle
     }
 
-    /// 512 Hz timer (real flavour): the fallback when the data-ready interrupt stops (a broken
-    /// INT wire, a sensor reset that lost its interrupt set-up). While data-ready pulses come it
-    /// does nothing; after `board::IMU_DRDY_TIMEOUT_US` without one it reads the IMU itself
-    /// (counted in the status line's `imu_fallback`). If the IMU itself stops answering, the
-    /// library's IMU-stale failsafe turns the motors off.
-    #[cfg(not(any(feature = "qemu", feature = "hil")))]
-    #[task(binds = TIM2, priority = 6, shared = [imu], local = [imu_timer])]
-    fn imu_timer(mut cx: imu_timer::Context) {
-        cx.local
-            .imu_timer
-            .clear_flags(stm32f4xx_hal::timer::Flag::Update);
-        let now = clock::now_us();
-        let last = super::LAST_DRDY_US.load(core::sync::atomic::Ordering::Relaxed);
-        if (now as u32).wrapping_sub(last) <= board::IMU_DRDY_TIMEOUT_US {
-            return;
-        }
-        super::IMU_FALLBACK_READS.fetch_add(1, core::sync::atomic::Ordering::Relaxed);
-        if let Some(Ok(sample)) = cx
-            .shared
-            .imu
-            .lock(|imu| imu.as_mut().map(|imu| imu.read(now as u32)))
-        {
-            let _ = imu_indi::spawn((sample, now));
-        }
-    }
-
-    /// 512 Hz: IMU sample (and its library time, µs) -> attitude -> INDI -> motors. In the
-    /// lockstep flavours it then releases the periodic tasks due at the sample's world time.
+    /// The lockstep flavours' control step: a host IMU sample (and its world time, µs) ->
+    /// attitude -> INDI -> motors, the command back to the host, then the periodic tasks due.
     #[task(priority = 5, shared = [ap, motors, host_tx], local = [releases])]
     async fn imu_indi(mut cx: imu_indi::Context, sample: (ImuSample, u64)) {
         let (imu, now) = sample;
-        let throttle = cx.shared.ap.lock(|ap| ap.on_imu(&imu, now));
-        motors_out(&mut cx.shared.motors, &mut cx.shared.host_tx, now, throttle);
+        let throttle = fly(&mut cx.shared.ap, &mut cx.shared.motors, &imu, now);
+        motors_to_host(&mut cx.shared.host_tx, now, throttle);
         cx.local.releases.release(now);
     }
 
-    /// Motor command out: PWM, and the host link in HIL/QEMU.
-    fn motors_out(
-        motors: &mut impl rtic::Mutex<T = Motors>,
-        host_tx: &mut impl rtic::Mutex<T = Tx<pac::USART2>>,
-        now: u64,
-        throttle: [f32; 4],
-    ) {
-        motors.lock(|m| m.set(throttle));
-        #[cfg(any(feature = "qemu", feature = "hil"))]
-        {
+    /// The motor command to the host as well, in the flavours whose host flies on it.
+    fn motors_to_host(host_tx: &mut impl rtic::Mutex<T = TxWriter>, now: u64, throttle: [f32; 4]) {
+        if flavour::MOTORS_TO_HOST {
             let msg = BoardToHost::Motors(protocol::MotorCommand {
                 timestamp_us: now as u32,
                 throttle,
             });
-            host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
+            send::<_, B2H>(host_tx, &msg);
         }
-        #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let _ = (host_tx, now);
     }
 
     /// Camera-board bytes: estimates, status, heartbeats, config acks.
@@ -600,7 +473,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = clock::lib_now_us();
+                let now = flavour::lib_now_us();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 let decoded = cx.shared.ap.lock(|ap| ap.on_stereo_bytes(bytes, now));
                 cx.shared
@@ -610,13 +483,14 @@ mod app {
         }
     }
 
-    /// Host bytes: IMU samples (HIL), external position, pilot commands.
+    /// Host bytes: external position (motion capture), pilot commands, and IMU samples (only
+    /// the lockstep flavours take them; the real flavour refuses and counts them).
     #[task(priority = 4, shared = [ap], local = [host_out, host_wake_rx, host_decoder, world])]
     async fn host_rx(mut cx: host_rx::Context) {
         let mut buf = [0u8; 64];
         while cx.local.host_wake_rx.recv().await.is_ok() {
             loop {
-                let n = super::HOST_FLOW.take(cx.local.host_out, &mut buf);
+                let n = HOST_FLOW.take(cx.local.host_out, &mut buf);
                 if n == 0 {
                     break;
                 }
@@ -626,25 +500,18 @@ mod app {
                     };
                     match msg {
                         HostToBoard::Imu(sample) => {
-                            // Lockstep flavours: the sample's timestamp is the world time.
-                            #[cfg(any(feature = "qemu", feature = "hil"))]
-                            let at = {
-                                let at = cx.local.world.observe(sample.timestamp_us);
-                                clock::set_world_us(cx.local.world.now_us());
-                                at
-                            };
-                            #[cfg(not(any(feature = "qemu", feature = "hil")))]
-                            let at = clock::now_us();
-                            // A sample arriving while the previous one is still being
-                            // processed is skipped (the IMU failsafe watches the rate).
-                            let _ = imu_indi::spawn((sample, at));
+                            if let Some(at) = flavour::host_imu(cx.local.world, &sample) {
+                                // A sample arriving while the previous one is still being
+                                // processed is skipped (the IMU failsafe watches the rate).
+                                let _ = imu_indi::spawn((sample, at));
+                            }
                         }
                         HostToBoard::ExternalPosition(pos) => {
-                            let now = clock::lib_now_us();
+                            let now = flavour::lib_now_us();
                             cx.shared.ap.lock(|ap| ap.on_external_position(&pos, now))
                         }
                         HostToBoard::Command(cmd) => {
-                            let now = clock::lib_now_us();
+                            let now = flavour::lib_now_us();
                             cx.shared.ap.lock(|ap| ap.on_command(cmd, now))
                         }
                         HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => {}
@@ -654,8 +521,9 @@ mod app {
         }
     }
 
-    /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be.
-    #[task(priority = 3, shared = [ap, motors, host_tx], local = [guidance_tick])]
+    /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be; the
+    /// watchdog in the real flavour.
+    #[task(priority = 3, shared = [ap, motors, host_tx, iwdg], local = [guidance_tick])]
     async fn guidance(mut cx: guidance::Context) {
         loop {
             let now = cx.local.guidance_tick.wait().await;
@@ -664,7 +532,11 @@ mod app {
                 ap.motor_safety(now)
             });
             if let Some(throttle) = off {
-                motors_out(&mut cx.shared.motors, &mut cx.shared.host_tx, now, throttle);
+                cx.shared.motors.lock(|m| m.set(throttle));
+                motors_to_host(&mut cx.shared.host_tx, now, throttle);
+            }
+            if flavour::FEED_WATCHDOG_IN_GUIDANCE {
+                cx.shared.iwdg.lock(|w| w.feed());
             }
         }
     }
@@ -676,7 +548,70 @@ mod app {
             let now = cx.local.gyro_tick.wait().await;
             let msg =
                 AutopilotToStereo::GyroAttitude(cx.shared.ap.lock(|ap| ap.gyro_attitude(now)));
-            cx.shared.link_tx.lock(|tx| send::<_, _, A2S>(tx, &msg));
+            send::<_, A2S>(&mut cx.shared.link_tx, &msg);
+        }
+    }
+
+    /// The MS5611 (real flavour): reset, PROM (CRC-checked; retried every second until it
+    /// passes), then pressure and temperature conversions at OSR 4096, each waited for its
+    /// datasheet maximum with the bus free, compensated and handed to the library.
+    #[task(priority = 2, shared = [ap, sensors])]
+    async fn baro(mut cx: baro::Context) {
+        const OSR: Osr = Osr::X4096;
+        let wait = Duration::from_ticks(OSR.conversion_time_us().div_ceil(1_000));
+        let cal = loop {
+            let prom = cx.shared.sensors.lock(|bus| {
+                let bus = bus.as_mut()?;
+                bus.baro_command(ms5611::CMD_RESET).ok()?;
+                Some(())
+            });
+            if prom.is_none() {
+                return; // lockstep flavours: no bus
+            }
+            Mono::delay(Duration::from_ticks(ms5611::RESET_TIME_US.div_ceil(1_000))).await;
+            let mut words = [0u16; 8];
+            let read = cx.shared.sensors.lock(|bus| {
+                let bus = bus.as_mut()?;
+                for (i, w) in words.iter_mut().enumerate() {
+                    *w = bus.baro_prom(i as u8).ok()?;
+                }
+                Some(())
+            });
+            match read.map(|()| Calibration::from_prom(&words)) {
+                Some(Ok(cal)) => break cal,
+                Some(Err(e)) => defmt::error!("MS5611 PROM refused: {}", defmt::Debug2Format(&e)),
+                None => defmt::error!("MS5611: SPI transfer failed"),
+            }
+            Mono::delay(Duration::from_ticks(1_000)).await;
+        };
+        log::info!("MS5611 calibrated");
+        loop {
+            let mut d = [0u32; 2];
+            for (cmd, out) in [
+                ms5611::convert_d1_command(OSR),
+                ms5611::convert_d2_command(OSR),
+            ]
+            .into_iter()
+            .zip(d.iter_mut())
+            {
+                cx.shared.sensors.lock(|bus| {
+                    if let Some(bus) = bus.as_mut() {
+                        let _ = bus.baro_command(cmd);
+                    }
+                });
+                Mono::delay(wait).await;
+                *out = cx
+                    .shared
+                    .sensors
+                    .lock(|bus| bus.as_mut().and_then(|b| b.baro_adc().ok()))
+                    .unwrap_or(0);
+            }
+            // A result of 0 is a conversion the chip did not finish (or a read too early).
+            if d[0] != 0 && d[1] != 0 {
+                let reading = cal.compensate(d[0], d[1]);
+                let now = flavour::lib_now_us();
+                cx.shared.ap.lock(|ap| ap.on_baro(&reading, now));
+            }
         }
     }
 
@@ -686,42 +621,50 @@ mod app {
         loop {
             let now = cx.local.telemetry_tick.wait().await;
             let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| ap.telemetry(now)));
-            cx.shared.host_tx.lock(|tx| send::<_, _, B2H>(tx, &msg));
+            send::<_, B2H>(&mut cx.shared.host_tx, &msg);
         }
     }
 
-    /// 1 Hz: heartbeats to both links, LED, watchdog, a status log line.
-    #[task(priority = 1, shared = [ap, link_tx, host_tx, stereo_msgs], local = [led, iwdg])]
+    /// 1 Hz: heartbeats to both links, LED, watchdog (lockstep flavours), a status log line.
+    #[task(priority = 1, shared = [ap, link_tx, host_tx, stereo_msgs, iwdg], local = [led])]
     async fn heartbeat(mut cx: heartbeat::Context) {
         loop {
             let now = clock::now_us();
             let uptime_ms = (now / 1_000) as u32;
             let hb = Heartbeat::new(Node::Autopilot, uptime_ms);
-            cx.shared
-                .link_tx
-                .lock(|tx| send::<_, _, A2S>(tx, &AutopilotToStereo::Heartbeat(hb)));
-            cx.shared
-                .host_tx
-                .lock(|tx| send::<_, _, B2H>(tx, &BoardToHost::Heartbeat(hb)));
+            send::<_, A2S>(&mut cx.shared.link_tx, &AutopilotToStereo::Heartbeat(hb));
+            send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Heartbeat(hb));
             cx.local.led.toggle();
-            cx.local.iwdg.feed();
+            if !flavour::FEED_WATCHDOG_IN_GUIDANCE {
+                cx.shared.iwdg.lock(|w| w.feed());
+            }
             let msgs = cx.shared.stereo_msgs.lock(|c| *c);
-            let (errors, estimates, peer) = cx.shared.ap.lock(|ap| {
+            let tx_dropped = cx.shared.link_tx.lock(|t| t.dropped_frames())
+                + cx.shared.host_tx.lock(|t| t.dropped_frames());
+            let (errors, estimates, peer, refused, blocked) = cx.shared.ap.lock(|ap| {
                 (
-                    ap.link_errors().total(),
+                    ap.link_errors(),
                     ap.estimates_received(),
                     ap.stereo_heartbeat().map(|(_, h)| h.uptime_ms),
+                    ap.arm_refused(),
+                    ap.arm_blocker().is_some(),
                 )
             });
             log::info!(
-                "status uptime_ms={} stereo_rx_ok={} link_errors={} estimates={} stereo_uptime_ms={} imu_fallback={} rx_lost={} stack_free={}",
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} version_mismatch={} estimates={} stereo_uptime_ms={} imu_invalid={} rx_lost={} tx_dropped={} host_sensor_rejected={} arm_refused={} arm_blocked={} loop_jitter_max_us={} stack_free={}",
                 uptime_ms,
                 msgs,
-                errors,
+                errors.total(),
+                errors.version_mismatch,
                 estimates,
                 peer.unwrap_or(u32::MAX),
-                super::IMU_FALLBACK_READS.load(core::sync::atomic::Ordering::Relaxed),
-                super::RX_LOST.load(core::sync::atomic::Ordering::Relaxed),
+                IMU_INVALID.load(Ordering::Relaxed),
+                RX_LOST.load(Ordering::Relaxed),
+                tx_dropped,
+                flavour::HOST_SENSOR_REJECTED.load(Ordering::Relaxed),
+                refused,
+                blocked as u8,
+                LOOP_JITTER_MAX_US.load(Ordering::Relaxed),
                 board_support::stack::free_bytes()
             );
             Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD_US))).await;

@@ -6,7 +6,7 @@ use stm32f4xx_hal::rcc::Config;
 
 /// Baud rate of the host link (USART2, `hil` and `qemu` flavours).
 #[cfg(any(feature = "qemu", feature = "hil"))]
-pub use board_support::clocks::LINK_BAUD as HOST_BAUD;
+pub use board_support::clocks::HOST_BAUD;
 pub use board_support::clocks::{SYSTICK_HZ, WATCHDOG_MS};
 
 /// Clock configuration of this flavour (the board's 12 MHz crystal and PLL to 168 MHz; the HSI

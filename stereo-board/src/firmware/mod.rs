@@ -46,8 +46,11 @@ use core::mem::MaybeUninit;
 use core::sync::atomic::AtomicU32;
 use defmt_rtt as _;
 
-#[cfg(not(feature = "qemu"))]
-use panic_probe as _;
+// Panic and HardFault: log, then wait for the watchdog (the camera board drives no actuator).
+board_support::fault_handlers!(no_actuators);
+
+/// The camera board's actuator stop for the fault path: it has none.
+fn no_actuators() {}
 use stereo_board::app::StereoBoardApp;
 
 rtic_monotonics::systick_monotonic!(Mono, 1_000);

@@ -1,0 +1,99 @@
+//! The lockstep flavours, `hil` and `qemu`: the autopilot in lockstep with a host's world
+//! simulation (see [`autopilot::lockstep`]).
+//!
+//! * IMU samples arrive over the host link; each one runs the control loop at its world time
+//!   ([`host_imu`]), and the motor command goes back over the link as well as to the PWM.
+//! * The library clock is the world time of those samples ([`lib_now_us`]); the loop releases
+//!   the periodic tasks when the world clock passes their periods ([`Releases`]).
+//! * The board's own IMU and barometer are not read, and the RC receiver is not listened to.
+//! * The world clock may stall while the host computes, so the 1 Hz heartbeat (board clock)
+//!   feeds a 2 s watchdog.
+
+use core::cell::Cell;
+use core::sync::atomic::AtomicU32;
+use cortex_m::interrupt::Mutex;
+use protocol::ImuSample;
+
+/// The host sends the sensor data; the board's own sensors stay unused.
+pub const OWN_SENSORS: bool = false;
+/// The heartbeat feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
+pub const FEED_WATCHDOG_IN_GUIDANCE: bool = false;
+/// Motor commands also go to the host (the simulated drone flies on them).
+pub const MOTORS_TO_HOST: bool = true;
+
+/// IMU samples from the host link refused (none are in these flavours).
+pub static HOST_SENSOR_REJECTED: AtomicU32 = AtomicU32::new(0);
+
+/// World time, µs (set by the host link's IMU samples).
+static WORLD_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
+
+/// A host IMU sample: its timestamp moves the world clock; returns the world time to run the
+/// control loop at.
+pub fn host_imu(world: &mut autopilot::lockstep::WorldClock, sample: &ImuSample) -> Option<u64> {
+    let at = world.observe(sample.timestamp_us);
+    let now = world.now_us();
+    cortex_m::interrupt::free(|cs| WORLD_US.borrow(cs).set(now));
+    Some(at)
+}
+
+/// The time the flight library sees, µs: the host's world time.
+pub fn lib_now_us() -> u64 {
+    cortex_m::interrupt::free(|cs| WORLD_US.borrow(cs).get())
+}
+
+/// Release of one periodic task: world times sent by the control loop.
+pub struct Tick(rtic_sync::channel::Receiver<'static, u64, 1>);
+
+impl Tick {
+    /// Waits for the next release; returns its world time, µs.
+    pub async fn wait(&mut self) -> u64 {
+        match self.0.recv().await {
+            Ok(t) => t,
+            // The sender lives as long as the program; without one, never release again.
+            Err(_) => core::future::pending().await,
+        }
+    }
+}
+
+/// The senders the control loop releases the periodic tasks with. A release that finds its
+/// task still busy with the previous one is skipped (an overrun, as on hardware).
+pub struct Releases {
+    guidance: rtic_sync::channel::Sender<'static, u64, 1>,
+    gyro_tx: rtic_sync::channel::Sender<'static, u64, 1>,
+    telemetry: rtic_sync::channel::Sender<'static, u64, 1>,
+    timers: autopilot::lockstep::WorldTimers,
+}
+
+impl Releases {
+    /// The periodic tasks' ticks (guidance, gyro_tx, telemetry) and the loop's releases.
+    pub fn new() -> (Tick, Tick, Tick, Self) {
+        let (g_tx, g_rx) = rtic_sync::make_channel!(u64, 1);
+        let (y_tx, y_rx) = rtic_sync::make_channel!(u64, 1);
+        let (t_tx, t_rx) = rtic_sync::make_channel!(u64, 1);
+        (
+            Tick(g_rx),
+            Tick(y_rx),
+            Tick(t_rx),
+            Self {
+                guidance: g_tx,
+                gyro_tx: y_tx,
+                telemetry: t_tx,
+                timers: autopilot::lockstep::WorldTimers::new(),
+            },
+        )
+    }
+
+    /// Releases what is due at world time `now_us`.
+    pub fn release(&mut self, now_us: u64) {
+        let due = self.timers.due(now_us);
+        if due.guidance {
+            let _ = self.guidance.try_send(now_us);
+        }
+        if due.gyro_tx {
+            let _ = self.gyro_tx.try_send(now_us);
+        }
+        if due.telemetry {
+            let _ = self.telemetry.try_send(now_us);
+        }
+    }
+}

@@ -1,0 +1,86 @@
+//! The `real` flavour: the autopilot on its own sensors.
+//!
+//! * The control loop runs on TIM2 at [`autopilot::board::LOOP_RATE_HZ`] and reads the IMU
+//!   itself; the barometer task and the RC receiver run.
+//! * The library clock is the board clock (SysTick); the periodic tasks release themselves on
+//!   SysTick periods ([`Tick`]).
+//! * Sensor data from the host link is refused and counted ([`host_imu`]): the telemetry port
+//!   carries commands and the motion-capture position, never IMU samples.
+//! * The 50 Hz guidance task feeds the 50 ms watchdog.
+
+use super::{clock, Mono};
+use core::sync::atomic::{AtomicU32, Ordering};
+use protocol::ImuSample;
+use rtic_monotonics::Timebase as _;
+
+/// The board reads its own IMU and barometer and listens to its RC receiver.
+pub const OWN_SENSORS: bool = true;
+/// The guidance task feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
+pub const FEED_WATCHDOG_IN_GUIDANCE: bool = true;
+/// Motor commands go to the PWM outputs only.
+pub const MOTORS_TO_HOST: bool = false;
+
+/// IMU samples from the host link refused since boot.
+pub static HOST_SENSOR_REJECTED: AtomicU32 = AtomicU32::new(0);
+
+/// A host IMU sample: refused and counted (returns no time to run the loop at).
+pub fn host_imu(_world: &mut autopilot::lockstep::WorldClock, _sample: &ImuSample) -> Option<u64> {
+    HOST_SENSOR_REJECTED.fetch_add(1, Ordering::Relaxed);
+    None
+}
+
+/// The time the flight library sees, µs: the board clock.
+pub fn lib_now_us() -> u64 {
+    clock::now_us()
+}
+
+/// Release of one periodic task: a SysTick period.
+pub struct Tick {
+    period: <Mono as rtic_monotonics::Timebase>::Duration,
+    next: Option<<Mono as rtic_monotonics::Timebase>::Instant>,
+}
+
+impl Tick {
+    /// Every `period_us` µs (rounded to the 1 ms SysTick tick, at least one tick); the first
+    /// release is immediate.
+    pub fn every(period_us: u32) -> Self {
+        Self {
+            period: <Mono as rtic_monotonics::Timebase>::Duration::from_ticks(
+                (period_us / 1_000).max(1),
+            ),
+            next: None,
+        }
+    }
+
+    /// Waits for the next release; returns the library time (board µs).
+    pub async fn wait(&mut self) -> u64 {
+        let at = match self.next {
+            Some(t) => {
+                Mono::delay_until(t).await;
+                t
+            }
+            None => Mono::now(),
+        };
+        self.next = Some(at + self.period);
+        clock::now_us()
+    }
+}
+
+/// The periodic tasks' releases: each its own SysTick [`Tick`].
+pub struct Releases;
+
+impl Releases {
+    /// The periodic tasks' ticks (guidance, gyro_tx, telemetry) and the loop's releases.
+    pub fn new() -> (Tick, Tick, Tick, Self) {
+        use autopilot::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
+        (
+            Tick::every(GUIDANCE_PERIOD_US),
+            Tick::every(GYRO_TX_PERIOD_US),
+            Tick::every(TELEMETRY_PERIOD_US),
+            Self,
+        )
+    }
+
+    /// Nothing to release: SysTick releases the periodic tasks.
+    pub fn release(&mut self, _now_us: u64) {}
+}

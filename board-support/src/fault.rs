@@ -1,0 +1,140 @@
+//! The fault path both firmwares share: on a panic or a HardFault the board's actuators are
+//! forced off first, then the fault is logged, then the board waits for the independent
+//! watchdog to reset it (MCU only).
+//!
+//! A board installs the handlers with [`fault_handlers!`], naming its actuator stop: a plain
+//! `fn()` that writes the output registers directly (no lock, no allocation, no HAL state; it
+//! must be safe to call at any instant, also before the outputs were configured). The order:
+//!
+//! 1. interrupts off (`cpsid i`), so that no higher-priority task can drive the outputs again;
+//! 2. the board's stop;
+//! 3. the independent watchdog started if it was not yet (an early fault still resets, within
+//!    the watchdog's reset-default period of 512 ms);
+//! 4. one defmt line (skipped when the fault happened inside the logger itself, or when a
+//!    second fault arrives while the first is being logged);
+//! 5. wait (WFI) until the watchdog resets the part. In the `qemu` flavour the fault is printed
+//!    through semihosting and QEMU exits with a failure code instead.
+//!
+//! After the reset nothing is remembered: the firmware starts from its reset state, outputs
+//! off, until it is armed again.
+
+use core::sync::atomic::{AtomicBool, Ordering};
+
+/// Set by the first fault; a fault while it is being handled (a panic inside the logger)
+/// skips logging and goes straight to the wait.
+static FAULTED: AtomicBool = AtomicBool::new(false);
+
+/// Installs the panic handler and the HardFault handler of a firmware. `$stop` is the path of
+/// the board's `fn()` that forces every actuator output off at the registers.
+///
+/// The firmware crate must depend on `cortex-m-rt` (for `#[exception]`).
+#[macro_export]
+macro_rules! fault_handlers {
+    ($stop:path) => {
+        #[panic_handler]
+        fn board_support_panic(info: &core::panic::PanicInfo) -> ! {
+            $crate::fault::on_panic($stop, info)
+        }
+
+        #[cortex_m_rt::exception]
+        unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+            $crate::fault::on_hard_fault($stop, frame.pc())
+        }
+    };
+}
+
+/// The panic path (see the module documentation).
+pub fn on_panic(stop: fn(), info: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    stop();
+    start_watchdog();
+    if !FAULTED.swap(true, Ordering::AcqRel) {
+        defmt::error!("panic: {}", defmt::Display2Format(info));
+        #[cfg(feature = "qemu")]
+        {
+            cortex_m_semihosting::hprintln!("panic: {}", info);
+            cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+        }
+    }
+    wait_for_watchdog()
+}
+
+/// The HardFault path (see the module documentation); `pc` is the faulting instruction's
+/// address from the exception frame.
+pub fn on_hard_fault(stop: fn(), pc: u32) -> ! {
+    cortex_m::interrupt::disable();
+    stop();
+    start_watchdog();
+    if !FAULTED.swap(true, Ordering::AcqRel) {
+        defmt::error!("HardFault at pc={=u32:#010x}", pc);
+        #[cfg(feature = "qemu")]
+        {
+            cortex_m_semihosting::hprintln!("HardFault at pc={:#010x}", pc);
+            cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+        }
+    }
+    wait_for_watchdog()
+}
+
+/// Starts the independent watchdog (key 0xCCCC, RM0090 section 21.3.2). If the firmware had
+/// started it, this changes nothing; if not, it runs with its reset prescaler and reload
+/// (/4, 0xFFF at 32 kHz: 512 ms).
+fn start_watchdog() {
+    #[cfg(not(feature = "qemu"))]
+    {
+        // SAFETY: a write of the start key to IWDG_KR; the watchdog cannot be stopped, so
+        // this cannot undo anything the firmware set.
+        let iwdg = unsafe { &*stm32f4xx_hal::pac::IWDG::ptr() };
+        iwdg.kr().write(|w| unsafe { w.key().bits(0xCCCC) });
+    }
+}
+
+/// Sleeps until the watchdog resets the part (interrupts are off, so WFI only idles).
+fn wait_for_watchdog() -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// What caused the last reset, from the RCC's reset flags (RM0090 section 7.3.21).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, defmt::Format)]
+pub enum ResetCause {
+    /// The independent watchdog expired (a hung task or a fault waiting for it).
+    Watchdog,
+    /// The window watchdog expired.
+    WindowWatchdog,
+    /// Software reset (`SYSRESETREQ`, e.g. a debugger).
+    Software,
+    /// Low-power management reset.
+    LowPower,
+    /// Power-on or brown-out.
+    PowerOn,
+    /// The NRST pin (button or probe).
+    Pin,
+    /// No flag set.
+    Unknown,
+}
+
+/// Reads and clears the reset flags: call once at boot (to log, and to report in status).
+pub fn take_reset_cause() -> ResetCause {
+    // SAFETY: RCC_CSR's reset flags are read and cleared here only, once at boot.
+    let rcc = unsafe { &*stm32f4xx_hal::pac::RCC::ptr() };
+    let csr = rcc.csr().read();
+    let cause = if csr.wdgrstf().bit_is_set() {
+        ResetCause::Watchdog
+    } else if csr.wwdgrstf().bit_is_set() {
+        ResetCause::WindowWatchdog
+    } else if csr.sftrstf().bit_is_set() {
+        ResetCause::Software
+    } else if csr.lpwrrstf().bit_is_set() {
+        ResetCause::LowPower
+    } else if csr.porrstf().bit_is_set() || csr.borrstf().bit_is_set() {
+        ResetCause::PowerOn
+    } else if csr.padrstf().bit_is_set() {
+        ResetCause::Pin
+    } else {
+        ResetCause::Unknown
+    };
+    rcc.csr().modify(|_, w| w.rmvf().set_bit());
+    cause
+}
