@@ -85,6 +85,7 @@ fn start_watchdog() {
         // SAFETY: a write of the start key to IWDG_KR; the watchdog cannot be stopped, so
         // this cannot undo anything the firmware set.
         let iwdg = unsafe { &*stm32f4xx_hal::pac::IWDG::ptr() };
+        // SAFETY: 0xCCCC is a valid key value (the start key).
         iwdg.kr().write(|w| unsafe { w.key().bits(0xCCCC) });
     }
 }

@@ -45,7 +45,7 @@ use core::sync::atomic::AtomicU32;
 use defmt_rtt as _;
 
 // Panic and HardFault: motors off at the registers first, then log, then the watchdog.
-board_support::fault_handlers!(autopilot::board::hw::motors_off);
+board_support::fault_handlers!(hw::motors_off);
 
 rtic_monotonics::systick_monotonic!(Mono, 1_000);
 
