@@ -22,7 +22,7 @@ pub struct Firmware {
 }
 
 /// The directory the bench takes the firmwares from: `VBOARD_FIRMWARE_DIR` if set, else the
-/// main workspace's `target/thumbv7em-none-eabihf/release` (what `cargo fw` builds).
+/// main workspace's `target/thumbv7em-none-eabihf/release` (what `cargo xtask fw` builds).
 #[must_use]
 pub fn firmware_dir() -> PathBuf {
     std::env::var_os("VBOARD_FIRMWARE_DIR").map_or_else(
@@ -33,14 +33,14 @@ pub fn firmware_dir() -> PathBuf {
 
 impl Firmware {
     /// The `real`-flavour image of package `name` (`autopilot` or `stereo-board`), as built by
-    /// `cargo fw` (`cargo xtask vboard` builds it first).
+    /// `cargo xtask fw` (`cargo xtask vboard` builds it first).
     ///
     /// # Errors
     /// The ELF is missing or unreadable.
     pub fn real(name: &str) -> Result<Self, String> {
         let path = firmware_dir().join(name);
         Self::load(&path).map_err(|e| {
-            format!("{e} (build the firmwares first: `cargo fw`, or run `cargo xtask vboard`)")
+            format!("{e} (build the firmwares first: `cargo xtask fw`, or run `cargo xtask vboard`)")
         })
     }
 

@@ -1,6 +1,6 @@
 //! `cargo xtask vboard`: the virtual-board bench (`virtual-board/`).
 //!
-//! Builds both `real` firmwares (`cargo fw`), then runs `cargo test --ignore-rust-version
+//! Builds both `real` firmwares (`cargo xtask fw`), then runs `cargo test --ignore-rust-version
 //! --release` in `virtual-board/`, its own workspace (rigless declares rust-version 1.98; we
 //! build it on 1.95 with that flag, which stays out of the main workspace), and prints a
 //! one-line summary. Extra arguments go to that `cargo test` (a test name filter, `--
@@ -20,7 +20,7 @@ fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// Where `cargo fw` puts the firmwares.
+/// Where `cargo xtask fw` puts the firmwares.
 fn firmware_dir() -> PathBuf {
     let target = std::env::var_os("CARGO_TARGET_DIR")
         .map_or_else(|| workspace_root().join("target"), PathBuf::from);
@@ -46,12 +46,8 @@ pub fn run_tests() -> Result<(u64, u64)> {
 
 fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
     let build = Instant::now();
-    let status = Command::new("cargo")
-        .arg("fw")
-        .current_dir(workspace_root())
-        .status()
-        .context("could not start cargo fw")?;
-    anyhow::ensure!(status.success(), "firmware build (cargo fw) failed");
+    crate::size::build_firmwares(crate::size::Flavour::Real, &crate::size::FIRMWARES)
+        .context("firmware build (cargo xtask fw) failed")?;
     let built = build.elapsed().as_secs_f64();
     let tests = Instant::now();
     let mut cmd = Command::new("cargo");
