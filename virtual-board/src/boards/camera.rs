@@ -1,1 +1,286 @@
-//! The camera board (TU Delft stereoboard, STM32F407). Not wired yet.
+//! The camera board (TU Delft stereoboard) as `../shared/hardware/original-boards.md` wires it:
+//! an STM32F407 with a 12 MHz crystal, the two TCM8230 sensors behind the CPLD on the DCMI, their
+//! SCCB on I2C2, their master clock from TIM3 CH2 on PA7, their reset on PD2, the CPLD's mode pins
+//! PC10, PC12, PB5, and the link to the autopilot on UART4 (PA0 TX, PA1 RX).
+//!
+//! | function | pins | source ([SB], see original-boards.md) |
+//! |---|---|---|
+//! | DCMI sync | HSYNC PA4, PIXCLK PA6, VSYNC PB7 (AF13) | dcmi.c:187-199 |
+//! | DCMI data | D0 PC6, D1 PC7, D2 PC8, D3 PC9, D4 PC11, D5 PB6, D6 PB8, D7 PB9 (AF13) | dcmi.c:187-199 |
+//! | sensor master clock | TIM3 CH2 on PA7 (AF2) | dcmi.c:116-177 |
+//! | sensor reset | PD2, output, low = reset | dcmi.c:84-114 |
+//! | CPLD mode | PC10, PC12, PB5, outputs | cpld.c:17-69 |
+//! | SCCB | I2C2: PB10 SCL, PB11 SDA, address 0x3C | tcm8230.c:54-85 |
+//! | link | UART4: PA0 TX, PA1 RX | edgeFS.h:24-31 |
+//!
+//! A data line of the DCMI reaches the camera only through the pin the board wires it to: a
+//! firmware that puts `DCMI_D6` on PE5 (the F407's other choice) reads 0 on that bit.
+
+use rigless::machine::{Board, Crystal, Supply, Target};
+use rigless::snapshot::Store;
+use rigless::soc::Error;
+use rigless::soc::st::tim::Channel;
+use rigless::soc::stm32f427::Stm32f427;
+use rigless::soc::stm32f427::generated::{gpioa, rcc as rcc_regs, tim3};
+use rigless::soc::stm32f427::peripherals::gpio::{Gpio, Pin};
+use rigless::soc::stm32f427::peripherals::rcc::Apb;
+
+use rigless::time::VirtualNanos;
+
+use crate::bench::BenchBoard;
+use crate::clocks::Clocks;
+use crate::cpld::Mode;
+use crate::dcmi::{Camera, DcmiInputs, DcmiStats};
+use crate::frames::FrameSource;
+use crate::link::WireEnd;
+use crate::soc::{Part, Soc};
+use crate::tcm8230::{SensorHandle, SensorPins};
+
+/// The machine's name.
+pub const NAME: &str = "pocket-drone-camera";
+/// The rail, mV.
+pub const SUPPLY_MV: u32 = 3300;
+/// I2C2 in rigless's order of I2C interfaces.
+const I2C2: usize = 1;
+/// UART4 in rigless's order of serial ports (USART1, USART2, USART3, USART6, UART7, UART8,
+/// UART4, UART5).
+const UART4: usize = 6;
+
+/// The camera board's crystal, Hz ([SB] system_stm32f4xx.c: HSE 12 MHz).
+pub const HSE_HZ: u64 = 12_000_000;
+
+/// A pin: port index (A = 0) and number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BoardPin {
+    /// Port name, as the vendor names the instance.
+    pub port: &'static str,
+    /// Pin number, 0 to 15.
+    pub pin: u8,
+}
+
+const fn pin(port: &'static str, pin: u8) -> BoardPin {
+    BoardPin { port, pin }
+}
+
+/// The DCMI's alternate function number (DS8626 table 9: AF13).
+pub const AF_DCMI: u8 = 13;
+/// TIM3's alternate function number (DS8626 table 9: AF2).
+pub const AF_TIM3: u8 = 2;
+
+/// HSYNC, PIXCLK, VSYNC.
+pub const DCMI_SYNC: [BoardPin; 3] = [pin("GPIOA", 4), pin("GPIOA", 6), pin("GPIOB", 7)];
+/// D0 to D7.
+pub const DCMI_DATA: [BoardPin; 8] = [
+    pin("GPIOC", 6),
+    pin("GPIOC", 7),
+    pin("GPIOC", 8),
+    pin("GPIOC", 9),
+    pin("GPIOC", 11),
+    pin("GPIOB", 6),
+    pin("GPIOB", 8),
+    pin("GPIOB", 9),
+];
+/// The sensors' master clock input: TIM3 CH2.
+pub const SENSOR_CLOCK: BoardPin = pin("GPIOA", 7);
+/// The sensors' reset (low = reset).
+pub const SENSOR_RESET: BoardPin = pin("GPIOD", 2);
+/// The CPLD's mode pins, in the order [`Mode::from_pins`] takes them.
+pub const CPLD_MODE: [BoardPin; 3] = [pin("GPIOC", 10), pin("GPIOC", 12), pin("GPIOB", 5)];
+
+/// TIM3 in rigless's [`Stm32f427::tim`] (TIM2, TIM3, TIM4, TIM5).
+const TIM3_INDEX: usize = 1;
+
+/// The instances the sampler reads, by name.
+const SAMPLED: [&str; 6] = ["GPIOA", "GPIOB", "GPIOC", "GPIOD", "RCC", "TIM3"];
+
+/// Their bus slots, resolved once: every part is built from the one description, so a slot's
+/// index is the same on every bus (the sampler runs on every DMA read of `DR`).
+static SLOTS: std::sync::OnceLock<[usize; SAMPLED.len()]> = std::sync::OnceLock::new();
+
+fn registers<'a>(mcu: &'a Stm32f427, instance: &str) -> &'a rigless::device::RegisterFile {
+    let bus = rigless::mcu::Mcu::bus(mcu);
+    let slots = SLOTS.get_or_init(|| {
+        SAMPLED.map(|name| {
+            bus.slot_of(name)
+                .unwrap_or_else(|| panic!("the part carries {name}"))
+        })
+    });
+    let nth = SAMPLED
+        .iter()
+        .position(|name| *name == instance)
+        .unwrap_or_else(|| panic!("{instance} is not among the sampled instances"));
+    bus.slots()[slots[nth]].registers()
+}
+
+/// The pin's alternate function, if it is in alternate-function mode.
+fn function(mcu: &Stm32f427, p: BoardPin) -> Option<u8> {
+    Gpio::function(Pin::new(p.pin)?, registers(mcu, p.port))
+}
+
+/// The level the MCU drives on `p`, if it drives it as an output (RM0090 8.4.1, 8.4.6).
+fn output(mcu: &Stm32f427, p: BoardPin) -> Option<bool> {
+    let r = registers(mcu, p.port);
+    let mode = (r.get(gpioa::Register::Moder) >> (2 * p.pin)) & 0b11;
+    (mode == 0b01).then(|| r.get(gpioa::Register::Odr) >> p.pin & 1 == 1)
+}
+
+/// The frequency of the clock TIM3 CH2 puts on PA7, Hz, if PA7 carries it: PA7 in AF2 and the
+/// channel running a PWM (rigless's pulse read-back); the frequency from the timer's kernel clock
+/// (RCC, APB1 timers) and its period in counts.
+fn sensor_clock_hz(mcu: &Stm32f427) -> Option<u64> {
+    if function(mcu, SENSOR_CLOCK) != Some(AF_TIM3) {
+        return None;
+    }
+    let tim = registers(mcu, "TIM3");
+    let pulse = mcu.tim[TIM3_INDEX].pulse(Channel::new(2)?, tim)?;
+    if pulse.width.0 == 0 || pulse.width.0 >= pulse.period.0 {
+        return None;
+    }
+    let kernel = mcu.rcc.timer_clock(registers(mcu, "RCC"), Apb::One);
+    let counts = (tim.get(tim3::Register::Psc) + 1) * (tim.get(tim3::Register::Arr) + 1);
+    let hz = kernel / counts.max(1);
+    // The read-back period (whole ns) must agree with the registers to within a nanosecond.
+    let expected = 1_000_000_000 / hz.max(1);
+    (expected.abs_diff(pulse.period.0) <= 1).then_some(hz)
+}
+
+/// What the camera board's pins carry for the DCMI and its camera, read off the part.
+#[must_use]
+pub fn sample(mcu: &Stm32f427) -> DcmiInputs {
+    let rcc = registers(mcu, "RCC");
+    let clock_enabled = rcc_regs::ahb2enr::DCMIEN.is_set(rcc.get(rcc_regs::Register::Ahb2enr));
+    let sync_connected = DCMI_SYNC.iter().all(|p| function(mcu, *p) == Some(AF_DCMI));
+    let data_mask = DCMI_DATA
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| function(mcu, **p) == Some(AF_DCMI))
+        .fold(0u8, |mask, (bit, _)| mask | 1 << bit);
+    DcmiInputs {
+        sensor: SensorPins {
+            extclk_hz: sensor_clock_hz(mcu),
+            reset_released: output(mcu, SENSOR_RESET) == Some(true),
+        },
+        cpld: Mode::from_pins(CPLD_MODE.map(|p| output(mcu, p))),
+        clock_enabled,
+        sync_connected,
+        data_mask,
+    }
+}
+
+/// The camera board.
+#[derive(Debug)]
+pub struct CameraBoard {
+    /// The STM32F407 (rigless's F427 models and ours); the camera hangs on its DCMI and I2C2.
+    pub soc: Soc,
+    /// The 12 MHz crystal.
+    pub hse: Crystal,
+    /// The 3.3 V rail.
+    pub rail: Supply,
+    /// The far end of UART4, the link to the autopilot.
+    pub link: WireEnd,
+    /// The sensor pair (its SCCB port is on I2C2, its pixel port on the DCMI).
+    pub sensor: SensorHandle,
+    /// The clock tree as last read.
+    pub clocks: Option<Clocks>,
+}
+
+impl Store for CameraBoard {}
+
+impl CameraBoard {
+    /// The board with its camera seeing what `source` gives and its link end open (a test
+    /// feeds and reads it).
+    ///
+    /// # Errors
+    /// rigless's part fails to assemble.
+    pub fn new(source: Box<dyn FrameSource>) -> Result<Self, Error> {
+        Self::with_link(source, WireEnd::open())
+    }
+
+    /// The same, with `link` on UART4 (one end of [`crate::link::join`]).
+    ///
+    /// # Errors
+    /// rigless's part fails to assemble.
+    pub fn with_link(source: Box<dyn FrameSource>, link: WireEnd) -> Result<Self, Error> {
+        let mut soc = Soc::new(Part::Stm32f407)?;
+        soc.mcu.rcc.attach_crystals(HSE_HZ, Crystal::NONE.0);
+        soc.mcu.set_supply(SUPPLY_MV);
+        let sensor = SensorHandle::new();
+        soc.mcu.i2c[I2C2].attach(sensor.sccb_port());
+        soc.dcmi.attach(Camera::new(sensor.clone(), source), sample);
+        soc.mcu.usart[UART4].attach(link.clone());
+        let mut board = Self {
+            soc,
+            hse: Crystal(HSE_HZ),
+            rail: Supply(SUPPLY_MV),
+            link,
+            sensor,
+            clocks: None,
+        };
+        // The camera's pins are watched from power-up (a fresh part drives none of them).
+        board
+            .soc
+            .drive_dcmi(VirtualNanos(0), |dcmi, registers, context| {
+                dcmi.start(registers, context);
+            });
+        Ok(board)
+    }
+
+    /// What happened on the DCMI.
+    #[must_use]
+    pub fn dcmi_stats(&self) -> DcmiStats {
+        self.soc.dcmi.stats()
+    }
+
+    /// Every frame the DCMI captured whole: the camera frame's number and the instant, ns.
+    #[must_use]
+    pub fn captured(&self) -> Vec<(u64, u64)> {
+        self.soc
+            .dcmi
+            .captured()
+            .iter()
+            .map(|(frame, at)| (*frame, at.0))
+            .collect()
+    }
+
+    /// Fault: the camera stops for good (no VSYNC, no data).
+    pub fn stop_camera(&mut self) {
+        self.soc.dcmi.stop_camera();
+    }
+}
+
+impl BenchBoard for CameraBoard {
+    fn soc(&self) -> &Soc {
+        &self.soc
+    }
+
+    fn soc_mut(&mut self) -> &mut Soc {
+        &mut self.soc
+    }
+
+    /// Tells the link how the firmware drives UART4 now (its baud).
+    fn advance(&mut self, _now: VirtualNanos) {
+        let clocks = Clocks::read(&self.soc, HSE_HZ);
+        self.clocks = Some(clocks);
+        let baud = clocks.usart_baud(&self.soc, "UART4");
+        self.link.tx.set_sender_baud(baud);
+        self.link.rx.set_receiver_baud(baud);
+    }
+}
+
+impl Board for CameraBoard {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn target_names(&self) -> Vec<&'static str> {
+        vec!["stm32f407"]
+    }
+
+    fn mcu(&mut self, target: usize) -> Option<&mut dyn rigless::mcu::Mcu> {
+        (target == 0).then_some(&mut self.soc)
+    }
+
+    fn targets(&mut self) -> Vec<Target<'_>> {
+        vec![super::target("stm32f407", &mut self.soc)]
+    }
+}
