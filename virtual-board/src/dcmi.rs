@@ -48,10 +48,13 @@ pub const FIFO_WORDS: usize = 8;
 /// Position of the DCMI's interrupt in its table (line 78).
 const INTERRUPT: usize = 0;
 
-/// Sampling period of the camera's pins while its reset is being timed, ns.
-const CLOSE_WATCH_NS: u64 = 1_000;
-/// Sampling period of the camera's pins otherwise while it does not stream, ns.
-const WATCH_NS: u64 = 100_000;
+/// Sampling period of the camera's pins while its reset is being timed, ns (420 periods of a
+/// 21 MHz clock: a reset pulse counts once two samples 100 periods apart saw it, so a pulse
+/// shorter than one sampling period may be missed and one of 100 periods needs two samples).
+const CLOSE_WATCH_NS: u64 = 20_000;
+/// Sampling period of the camera's pins otherwise while it does not stream, ns (each sample is
+/// an emulator stop: a stream starts up to this late after the sensor is set up).
+const WATCH_NS: u64 = 1_000_000;
 
 const NANOS: u128 = 1_000_000_000;
 
@@ -900,7 +903,7 @@ mod tests {
             b.single.drive(VirtualNanos(0), |m, r, c| m.start(r, c));
             b.run(20_000, false);
             b.single.model.set_inputs(pins());
-            b.run(40_000, false);
+            b.run(80_000, false);
             {
                 let mut s = b.sensor.lock();
                 let t = VirtualNanos(b.now);

@@ -348,8 +348,8 @@ impl Sensor {
         })
     }
 
-    /// Nanoseconds from `from` until the power-up next needs a sample taken to be timed to within
-    /// about one microsecond: while RESET is held with the clock running, or while starting.
+    /// Whether the power-up needs its pins sampled closely now: while RESET is held with the
+    /// clock running, or while starting.
     #[must_use]
     pub fn needs_close_watch(&self) -> bool {
         match self.power {

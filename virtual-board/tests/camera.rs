@@ -20,9 +20,18 @@ use virtual_board::frames::Recorded;
 /// Recorded frames streamed: a second of the camera's output.
 const FRAMES: usize = 24;
 
+/// Take 1 of the data set: `VBOARD_DATASET` if set, else `../shared/data/stereoboard_testing`
+/// beside the checkout.
 fn take() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/stereoboard_testing/database_stereoboard_1/forward_camera/take1")
+    std::env::var_os("VBOARD_DATASET")
+        .map_or_else(
+            || {
+                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                    .join("../../shared/data/stereoboard_testing")
+            },
+            PathBuf::from,
+        )
+        .join("database_stereoboard_1/forward_camera/take1")
 }
 
 fn decode(bytes: &[u8]) -> (Vec<StereoToAutopilot>, u32) {
