@@ -22,6 +22,7 @@ pub mod cpld;
 pub mod dcmi;
 pub mod exti;
 pub mod firmware;
+pub mod frames;
 pub mod host;
 pub mod link;
 pub mod motors;

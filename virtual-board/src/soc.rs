@@ -236,6 +236,7 @@ struct Slots {
     exti: usize,
     syscfg: usize,
     dcmi: usize,
+    i2c2: usize,
 }
 
 impl Store for Soc {}
@@ -253,6 +254,7 @@ impl Soc {
             exti: bus.slot("EXTI")?,
             syscfg: bus.slot("SYSCFG")?,
             dcmi: bus.slot("DCMI")?,
+            i2c2: bus.slot("I2C2")?,
         };
         Ok(Self {
             part,
@@ -340,8 +342,14 @@ impl Mcu for Soc {
         } else if slot == self.slots.syscfg {
             (self.mcu.bus_mut(), Some(&mut self.syscfg))
         } else if slot == self.slots.dcmi {
+            // The camera's pins, read off the part before every call into the DCMI.
+            self.dcmi.sample(&self.mcu);
             (self.mcu.bus_mut(), Some(&mut self.dcmi))
         } else {
+            if slot == self.slots.i2c2 {
+                // The camera's SCCB port times its reset from the same pins.
+                self.dcmi.sample(&self.mcu);
+            }
             self.mcu.split(slot)
         }
     }
