@@ -7,6 +7,7 @@
 
 use crate::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm};
 use crate::sim::output;
+use crate::sim::scene_spec::SceneSpec;
 use crate::sim::uart::LinkFaults;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -35,9 +36,13 @@ pub enum Format {
 /// Command-line arguments of `sim-host fly`.
 #[derive(Debug, clap::Args)]
 pub struct FlyArgs {
-    /// Scene preset: room (the paper's 4 x 4 m room), room-obstacles, corridor.
+    /// Scene preset: room (the paper's 4 x 4 m room), room-obstacles, corridor, plain-room,
+    /// office (the files in sim-host/scenes/).
     #[arg(long, default_value = "room")]
     pub scenario: String,
+    /// Scene file (TOML, see docs/scenes.md) instead of a preset.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
     /// Simulated flight duration, s.
     #[arg(long, default_value_t = 120.0)]
     pub duration: f64,
@@ -109,8 +114,8 @@ fn parse_outage(s: &str) -> Result<(f64, f64), String> {
 }
 
 impl FlyArgs {
-    /// The flight configuration these arguments describe, for `seed`.
-    pub fn config(&self, seed: u64) -> FlightConfig {
+    /// The flight configuration these arguments describe, for `seed`, in `scene`.
+    pub fn config(&self, scene: &SceneSpec, seed: u64) -> FlightConfig {
         let faults = LinkFaults {
             bit_error_rate: self.ber,
             drop_rate: self.drop_rate,
@@ -121,7 +126,7 @@ impl FlyArgs {
                 .collect(),
         };
         let mut cfg = FlightConfig {
-            scenario: self.scenario.clone(),
+            scene: scene.clone(),
             duration_s: self.duration,
             seed,
             fsm: match self.fsm {
@@ -186,17 +191,12 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
         args.fps > 0.0 && args.fps <= 200.0,
         "--fps must be in (0, 200]"
     );
-    anyhow::ensure!(
-        crate::sim::scene::PRESETS.contains(&args.scenario.as_str()),
-        "unknown --scenario {:?} (one of {:?})",
-        args.scenario,
-        crate::sim::scene::PRESETS
-    );
+    let scene = SceneSpec::from_cli(args.scene.as_deref(), &args.scenario)?;
     std::fs::create_dir_all(&args.out)?;
     let wall = Instant::now();
     match args.seeds {
         None | Some(1) => {
-            let mut cfg = args.config(args.seed);
+            let mut cfg = args.config(&scene, args.seed);
             cfg.keep_image_every = (cfg.camera.fps / 2.5).round().max(1.0) as u32;
             let pb = bar(
                 args.duration.ceil() as u64,
@@ -218,8 +218,8 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 }
                 Format::Table => {
                     println!(
-                        "scenario        {}  (seed {}, fsm {:?})",
-                        args.scenario, r.seed, args.fsm
+                        "scene           {}  (seed {}, fsm {:?})",
+                        scene.name, r.seed, args.fsm
                     );
                     println!(
                         "duration        {:.1} s simulated in {:.1} s ({:.1}x real time)",
@@ -260,7 +260,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
             let mut results: Vec<FlightResult> = (args.seed..args.seed + n)
                 .into_par_iter()
                 .map(|seed| {
-                    let r = run_flight(&args.config(seed), &mut |_| {});
+                    let r = run_flight(&args.config(&scene, seed), &mut |_| {});
                     pb.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
                     r.map(|mut r| {
                         r.log = Vec::new();

@@ -52,21 +52,15 @@
 //! unchanged and decodes them on the way, so the test can check for decode errors on the
 //! inter-board link too.
 
-use crate::sim::camera::StereoCamera;
-use crate::sim::dynamics::Drone;
 use crate::sim::flight::FlightConfig;
-use crate::sim::imu::{gauss, Imu};
-use crate::sim::math::V3;
-use crate::sim::scene::Scene;
+use crate::sim::scene_spec::SceneSpec;
+use crate::sim::world::World;
 use anyhow::{anyhow, bail, Context as _};
 use protocol::{
     encode, AutopilotToStereo, AutopilotToStereoDecoder, BoardToHost, BoardToHostDecoder, Estimate,
-    ExternalPosition, FlightMode, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message,
-    PilotCommand, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, FRAME_CHUNK_BYTES,
-    STEREO_FRAME_BYTES,
+    FlightMode, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message, PilotCommand,
+    StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -246,7 +240,7 @@ pub struct HilResult {
     pub imu_wait_s: f64,
     /// Wall time the world was held for a frame's estimate, s.
     pub frame_wait_s: f64,
-    /// Time with the drone above 0.1 m, s.
+    /// Time with the drone airborne (above 2 cm), s.
     pub airborne_s: f64,
     /// Highest height reached, m.
     pub max_height_m: f64,
@@ -515,18 +509,8 @@ pub fn run(
     if !positive(cfg.fps) || !positive(cfg.height_rate_hz) {
         bail!("fps and height rate must be positive");
     }
-    let w = &cfg.world;
-    let scene = Scene::preset(&w.scenario, w.seed)
-        .ok_or_else(|| anyhow!("unknown scenario {:?}", w.scenario))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(w.seed);
-    let mut cam_rng = ChaCha8Rng::seed_from_u64(w.seed ^ 0xca3ea);
-    let yaw0 = w.start_yaw_rad.unwrap_or(scene.start[2] as f64);
-    let [x0, y0] = w
-        .start_xy
-        .unwrap_or([scene.start[0] as f64, scene.start[1] as f64]);
-    let mut drone = Drone::on_floor(w.drone.clone(), x0, y0, yaw0);
-    let mut imu = Imu::new(w.imu.clone(), &mut rng);
-    let mut camera = StereoCamera::new(w.camera.clone());
+    let mut world = World::new(&cfg.world)?;
+    let start_xy = [world.start[0], world.start[1]];
 
     let stop = Arc::new(AtomicBool::new(false));
     let ap_rx = BoardRx::start(autopilot.try_clone_link()?, Arc::clone(&stop));
@@ -548,19 +532,7 @@ pub fn run(
         wait_heartbeat(&ap_rx, "autopilot", cfg.boot_timeout)?;
         wait_heartbeat(&cam_rx, "camera board", cfg.boot_timeout)?;
         lockstep(
-            cfg,
-            &scene,
-            &mut drone,
-            &mut imu,
-            &mut camera,
-            (&mut rng, &mut cam_rng),
-            &mut ap_tx,
-            &ap_rx,
-            &cam_rx,
-            &frame_tx,
-            relay,
-            [x0, y0],
-            progress,
+            cfg, &mut world, &mut ap_tx, &ap_rx, &cam_rx, &frame_tx, relay, start_xy, progress,
         )
     })();
     stop.store(true, Ordering::Relaxed);
@@ -571,11 +543,7 @@ pub fn run(
 #[allow(clippy::too_many_arguments)]
 fn lockstep(
     cfg: &HilConfig,
-    scene: &Scene,
-    drone: &mut Drone,
-    imu: &mut Imu,
-    camera: &mut StereoCamera,
-    (rng, cam_rng): (&mut ChaCha8Rng, &mut ChaCha8Rng),
+    world: &mut World,
     ap_tx: &mut Box<dyn Link>,
     ap_rx: &BoardRx,
     cam_rx: &BoardRx,
@@ -606,7 +574,6 @@ fn lockstep(
     let mut frame_id = 0u16;
     // Exposure time (wire) of the frame whose estimate is awaited, and when it was sent.
     let mut in_flight: Option<(u32, Instant)> = None;
-    let mut in_contact = false;
     let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
     let mut out = Vec::new();
 
@@ -633,7 +600,7 @@ fn lockstep(
                 }
                 r.frame_wait_s += held.elapsed().as_secs_f64();
             }
-            camera.render(scene, drone.state.pos, drone.state.att, cam_rng, &mut frame);
+            world.render(&mut frame);
             let capture = t as u32;
             frame_tx
                 .send(encode_frame(&frame, frame_id, capture)?)
@@ -653,13 +620,8 @@ fn lockstep(
         out.clear();
         if t >= next_height {
             next_height += height_period_us;
-            let p = drone.state.pos;
-            let z = p.z + gauss(rng) * cfg.world.height_noise_m;
             push_msg(
-                &HostToBoard::ExternalPosition(ExternalPosition {
-                    timestamp_us: t as u32,
-                    position_m: [p.x as f32, p.y as f32, z as f32],
-                }),
+                &HostToBoard::ExternalPosition(world.height_fix(t)),
                 &mut out,
             )?;
         }
@@ -667,7 +629,7 @@ fn lockstep(
             armed = true;
             push_msg(&HostToBoard::Command(PilotCommand::Arm), &mut out)?;
         }
-        let s = imu.sample(rng);
+        let s = world.imu_sample();
         let stamp = t as u32;
         push_msg(
             &HostToBoard::Imu(ImuSample {
@@ -714,16 +676,12 @@ fn lockstep(
         while t < t_next {
             let step = physics_dt_us.min(t_next - t);
             let dt = step as f64 * 1e-6;
-            drone.step(&cmd, dt);
-            imu.track(drone, dt);
             t += step;
-            in_contact = collide(scene, drone, in_contact, &mut r.collisions);
-            let h = -drone.state.pos.z;
-            if h > 0.1 {
-                r.airborne_s += dt;
-            }
+            world.step(&cmd, dt, t);
         }
-        let p = drone.state.pos;
+        r.collisions = world.collisions;
+        r.airborne_s = world.airborne_s;
+        let p = world.drone.state.pos;
         let h = -p.z;
         r.max_height_m = r.max_height_m.max(h);
         r.final_height_m = h;
@@ -734,7 +692,10 @@ fn lockstep(
             r.log.push(HilRow {
                 t_s: t as f64 * 1e-6,
                 pos: [p.x as f32, p.y as f32, h as f32],
-                vel: [drone.state.vel.x as f32, drone.state.vel.y as f32],
+                vel: [
+                    world.drone.state.vel.x as f32,
+                    world.drone.state.vel.y as f32,
+                ],
                 motors,
                 mode: r.last_telemetry.map(|t| t.flight_mode),
             });
@@ -776,30 +737,6 @@ fn on_estimate(e: &Estimate, r: &mut HilResult, in_flight: &mut Option<(u32, Ins
     }
     if in_flight.is_some_and(|(c, _)| c == e.capture_us) {
         *in_flight = None;
-    }
-}
-
-/// Wall and obstacle contact at the drone's radius: pushes the drone out and removes its
-/// velocity into the surface. Returns whether it is in contact; counts new contacts.
-fn collide(scene: &Scene, drone: &mut Drone, in_contact: bool, count: &mut u32) -> bool {
-    let p = drone.state.pos;
-    let h = -p.z as f32;
-    let c = scene.clearance(p.x as f32, p.y as f32, h) as f64 - drone.params.radius_m;
-    if c < 0.0 {
-        if !in_contact {
-            *count += 1;
-        }
-        let n = scene.push_out_dir(p.x as f32, p.y as f32, h);
-        let (nx, ny) = (n[0] as f64, n[1] as f64);
-        drone.state.pos = V3::new(p.x - nx * c, p.y - ny * c, p.z);
-        let vn = drone.state.vel.x * nx + drone.state.vel.y * ny;
-        if vn < 0.0 {
-            drone.state.vel.x -= vn * nx;
-            drone.state.vel.y -= vn * ny;
-        }
-        true
-    } else {
-        in_contact && c <= 0.01
     }
 }
 
@@ -847,9 +784,12 @@ pub struct HilArgs {
     /// World time to fly, s.
     #[arg(long, default_value_t = 10.0)]
     pub duration: f64,
-    /// Scene preset (room, room-obstacles, corridor).
+    /// Scene preset (room, room-obstacles, corridor, plain-room, office).
     #[arg(long, default_value = "room")]
     pub scenario: String,
+    /// Scene file (TOML, see docs/scenes.md) instead of a preset.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
     /// Seed of the world (textures, sensor noise).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -868,7 +808,7 @@ pub struct HilArgs {
 pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
     let cfg = HilConfig {
         world: FlightConfig {
-            scenario: args.scenario.clone(),
+            scene: SceneSpec::from_cli(args.scene.as_deref(), &args.scenario)?,
             seed: args.seed,
             ..FlightConfig::default()
         },

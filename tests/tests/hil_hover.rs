@@ -75,7 +75,6 @@ fn closed_loop_hover_with_both_firmwares_in_qemu() {
         .unwrap_or(FPS);
     let cfg = HilConfig {
         world: FlightConfig {
-            scenario: "room".into(),
             seed: 3,
             ..FlightConfig::default()
         },

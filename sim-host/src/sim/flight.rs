@@ -3,20 +3,20 @@
 //! same [`FlightResult`], bit for bit.
 
 use super::boards::{autopilot_tasks, camera_tasks, send};
-use super::camera::{CameraParams, StereoCamera};
+use super::camera::CameraParams;
 use super::dynamics::{Drone, DroneParams};
-use super::imu::{gauss, Imu, ImuParams};
+use super::imu::ImuParams;
 use super::scene::Scene;
+use super::scene_spec::SceneSpec;
 use super::sched::{Board, Release, Scheduler};
 use super::uart::{LinkFaults, SimUart, UartStats};
+use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
 use protocol::{
-    AutopilotToStereo, Decoder, ExternalPosition, FlightMode, FsmState, Heartbeat, ImuSample,
-    Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+    AutopilotToStereo, Decoder, FlightMode, FsmState, Heartbeat, ImuSample, Message, Node,
+    PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
 };
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
 use stereo_board::edge_fs::{EdgeFsOutput, EdgeFsParams};
@@ -33,14 +33,14 @@ pub enum Fsm {
 /// Everything that defines a flight.
 #[derive(Debug, Clone)]
 pub struct FlightConfig {
-    /// Scene preset name (see [`super::scene::PRESETS`]).
-    pub scenario: String,
+    /// The room (a scene file or a preset, see [`SceneSpec`]).
+    pub scene: SceneSpec,
     /// Simulated duration, s.
     pub duration_s: f64,
     /// Seed of every random process (textures, start heading, sensor noise, link faults).
     pub seed: u64,
-    /// Start heading, rad; `None`: the scene's heading, plus a seed-dependent angle in scenes
-    /// with [`Scene::random_heading`].
+    /// Start heading, rad; `None`: the scene's `start.yaw_deg`, else a heading drawn from the
+    /// seed.
     pub start_yaw_rad: Option<f64>,
     /// Start position (x, y), m; `None`: the scene's start.
     pub start_xy: Option<[f64; 2]>,
@@ -85,7 +85,7 @@ pub struct FlightConfig {
 impl Default for FlightConfig {
     fn default() -> Self {
         Self {
-            scenario: "room".into(),
+            scene: SceneSpec::preset("room").expect("the room preset"),
             duration_s: 120.0,
             seed: 1,
             start_yaw_rad: None,
@@ -192,25 +192,7 @@ pub fn run_flight(
     cfg: &FlightConfig,
     progress: &mut dyn FnMut(f64),
 ) -> anyhow::Result<FlightResult> {
-    let scene = Scene::preset(&cfg.scenario, cfg.seed)
-        .ok_or_else(|| anyhow::anyhow!("unknown scenario {:?}", cfg.scenario))?;
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
-    let mut cam_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xca3ea);
-    // Start heading varies with the seed.
-    let yaw0 = cfg.start_yaw_rad.unwrap_or_else(|| {
-        let spin = if scene.random_heading {
-            (cfg.seed as f64 * 2.399_963).rem_euclid(std::f64::consts::TAU)
-        } else {
-            0.0
-        };
-        scene.start[2] as f64 + spin
-    });
-    let [x0, y0] = cfg
-        .start_xy
-        .unwrap_or([scene.start[0] as f64, scene.start[1] as f64]);
-    let mut drone = Drone::on_floor(cfg.drone.clone(), x0, y0, yaw0);
-    let mut imu = Imu::new(cfg.imu.clone(), &mut rng);
-    let mut camera = StereoCamera::new(cfg.camera.clone());
+    let mut world = World::new(cfg)?;
     let mut ap_cfg = cfg.autopilot;
     ap_cfg.fsm.variant = match cfg.fsm {
         Fsm::Paper => FsmVariant::Paper,
@@ -246,16 +228,11 @@ pub fn run_flight(
     let mut log = Vec::new();
     let mut images = Vec::new();
     let mut frames = 0u32;
-    let mut collisions = 0u32;
-    let mut in_contact = false;
-    let mut first_collision: Option<f64> = None;
     let mut err2 = 0.0f64;
     let mut n_err = 0u64;
     let mut filt_err2 = 0.0f64;
     let mut n_filt = 0u64;
     let mut estimates = [0u64; 2];
-    let mut min_clear = f64::INFINITY;
-    let mut distance = 0.0f64;
     let mut next_progress = 1_000_000u64;
 
     let mut t = 0u64;
@@ -278,41 +255,10 @@ pub fn run_flight(
         let next = next.max(t);
         // Physics up to the event.
         if next > t {
-            let dt = (next - t) as f64 * 1e-6;
-            let before = drone.state.pos;
-            drone.step(&motors, dt);
-            imu.track(&drone, dt);
-            let after = drone.state.pos;
-            // Collisions with walls and obstacles (horizontal, the drone's radius).
-            let h = -after.z as f32;
-            let c = scene.clearance(after.x as f32, after.y as f32, h) as f64 - cfg.drone.radius_m;
-            if h > 0.02 {
-                let dxy = ((after.x - before.x).powi(2) + (after.y - before.y).powi(2)).sqrt();
-                distance += dxy;
-                min_clear = min_clear.min(c);
-            }
-            if c < 0.0 {
-                if !in_contact {
-                    collisions += 1;
-                    first_collision.get_or_insert(next as f64 * 1e-6);
-                }
-                in_contact = true;
-                // Push out to contact and remove the velocity into the surface.
-                let n = scene.push_out_dir(after.x as f32, after.y as f32, h);
-                let (nx, ny) = (n[0] as f64, n[1] as f64);
-                drone.state.pos.x -= nx * c;
-                drone.state.pos.y -= ny * c;
-                let vn = drone.state.vel.x * nx + drone.state.vel.y * ny;
-                if vn < 0.0 {
-                    drone.state.vel.x -= vn * nx;
-                    drone.state.vel.y -= vn * ny;
-                }
-            } else if c > 0.01 {
-                in_contact = false;
-            }
+            world.step(&motors, (next - t) as f64 * 1e-6, next);
         }
         t = next;
-        if cfg.stop_on_collision && first_collision.is_some() {
+        if cfg.stop_on_collision && world.first_contact_s.is_some() {
             break;
         }
         if t >= next_progress {
@@ -337,7 +283,7 @@ pub fn run_flight(
                         if let Some(&(_, v)) =
                             truth_at_capture.iter().find(|(c, _)| *c == e.capture_us)
                         {
-                            if -drone.state.pos.z > 0.3 {
+                            if -world.drone.state.pos.z > 0.3 {
                                 err2 += ((e.forward_mps - v[0]) as f64).powi(2)
                                     + ((e.sideways_mps - v[1]) as f64).powi(2);
                                 n_err += 2;
@@ -374,14 +320,8 @@ pub fn run_flight(
         if t >= next_capture {
             next_capture += frame_period_us;
             let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
-            camera.render(
-                &scene,
-                drone.state.pos,
-                drone.state.att,
-                &mut cam_rng,
-                &mut frame,
-            );
-            let vb = drone.state.att.rotate_inv(drone.state.vel);
+            world.render(&mut frame);
+            let vb = world.drone.state.att.rotate_inv(world.drone.state.vel);
             truth_at_capture.push_back((t as u32, [vb.x as f32, vb.y as f32]));
             if truth_at_capture.len() > 32 {
                 truth_at_capture.pop_front();
@@ -404,15 +344,8 @@ pub fn run_flight(
         // Height fix (motion capture) to the autopilot's host link.
         if t >= next_height {
             next_height += height_period_us;
-            let p = drone.state.pos;
-            let z = p.z + gauss(&mut rng) * cfg.height_noise_m;
-            ap.on_external_position(
-                &ExternalPosition {
-                    timestamp_us: t as u32,
-                    position_m: [p.x as f32, p.y as f32, z as f32],
-                },
-                t,
-            );
+            let fix = world.height_fix(t);
+            ap.on_external_position(&fix, t);
         }
         if !armed && t >= arm_us {
             armed = true;
@@ -424,7 +357,7 @@ pub fn run_flight(
         for r in &releases {
             match (r.board, r.name) {
                 (Board::Autopilot, "imu_indi") => {
-                    let s = imu.sample(&mut rng);
+                    let s = world.imu_sample();
                     let out = ap.on_imu(
                         &ImuSample {
                             timestamp_us: t as u32,
@@ -440,7 +373,7 @@ pub fn run_flight(
                     if let Some(off) = ap.motor_safety(t) {
                         motors = off.map(|m| m as f64);
                     }
-                    let row = log_row(&ap, &drone, &scene, t, last_raw, motors);
+                    let row = log_row(&ap, &world.drone, &world.scene, t, last_raw, motors);
                     if row.fsm_state.is_some() && row.vel_est.iter().all(|v| v.is_finite()) {
                         for k in 0..2 {
                             filt_err2 += ((row.vel_est[k] - row.vel_true[k]) as f64).powi(2);
@@ -477,22 +410,22 @@ pub fn run_flight(
     Ok(FlightResult {
         seed: cfg.seed,
         duration_s: cfg.duration_s,
-        flight_time_s: first_collision.unwrap_or(cfg.duration_s),
-        collisions,
+        flight_time_s: world.first_contact_s.unwrap_or(cfg.duration_s),
+        collisions: world.collisions,
         vel_rmse_mps: rms(filt_err2, n_filt),
         raw_vel_rmse_mps: rms(err2, n_err),
-        min_clearance_m: if min_clear.is_finite() {
-            min_clear
+        min_clearance_m: if world.min_clearance_m.is_finite() {
+            world.min_clearance_m
         } else {
             f64::NAN
         },
-        distance_m: distance,
+        distance_m: world.distance_m,
         log,
         images,
         uart: [s2a.stats(), a2s.stats()],
         estimates,
         frames_dropped: cb.counters().frames_dropped,
-        scene,
+        scene: world.scene,
     })
 }
 

@@ -8,8 +8,15 @@
 //!   parameters with their derivations ([`dynamics::DroneParams::pocket_drone`]).
 //! * [`imu`]: MPU-6000-class IMU at 512 Hz (white noise, bias random walk, turn-on bias,
 //!   rotor-frequency vibration, DLPF).
-//! * [`scene`]: rooms (the paper's 4 x 4 m room, one with obstacles, a corridor), seeded
-//!   procedural textures rich in vertical edges, ray intersection, clearance.
+//! * [`scene_spec`]: scene files (TOML, `docs/scenes.md`) and the presets shipped with
+//!   sim-host (`sim-host/scenes/`: the paper's 4 x 4 m room, one with obstacles, a corridor,
+//!   a plain room, an office).
+//! * [`texture`]: seeded surface textures (plain, stripes, posters, bricks, wood, tiles,
+//!   carpet, lamps, pictures) at a given albedo and contrast.
+//! * [`scene`]: a room built from a spec: walls, floor, ceiling, cylinders, panels, boxes;
+//!   ray intersection, clearance.
+//! * [`world`]: the one world `fly`, `hil` and the virtual boards fly in: scene, drone, IMU,
+//!   camera, seeded noise, collisions.
 //! * [`camera`]: the stereo camera renderer (two pinholes 6 cm apart, 128 x 96, 57.4 deg,
 //!   per-pixel rays from the true pose, supersampling, blur, gain mismatch, noise, 8 bit,
 //!   interleaved `[L0 R0 L1 R1 ...]`, optional misalignment).
@@ -70,5 +77,8 @@ pub mod imu;
 pub mod math;
 pub mod output;
 pub mod scene;
+pub mod scene_spec;
 pub mod sched;
+pub mod texture;
 pub mod uart;
+pub mod world;

@@ -191,6 +191,15 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
                     ))
                     .map_err(|e| anyhow::anyhow!("{e:?}"))?;
             }
+            Obstacle::Box { min, max, .. } => {
+                let (x0, y0, x1, y1) = (min[0] as f64, min[1] as f64, max[0] as f64, max[1] as f64);
+                chart
+                    .draw_series(LineSeries::new(
+                        [(y0, x0), (y1, x0), (y1, x1), (y0, x1), (y0, x0)],
+                        wall,
+                    ))
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            }
         }
     }
     let airborne: Vec<(f64, f64)> = r

@@ -1,11 +1,13 @@
-//! Scenes: a box-shaped room (walls, floor, ceiling) with optional vertical cylinders and
-//! panels, procedurally textured from a seed with textures rich in vertical edges (what
-//! Edge-FS needs), ray intersection for the camera renderer, and clearance / collision queries.
+//! Scenes: a box-shaped room (walls, floor, ceiling) with vertical obstacles (cylinders, panels,
+//! boxes) standing on the floor, built from a [`SceneSpec`] (a scene file) with textures drawn
+//! from a seed; ray intersection for the camera renderer, and clearance / collision queries.
 //!
 //! World frame: x north, y east, z down; the floor is `z = 0`, the room spans
 //! `0..=size_x` in x and `0..=size_y` in y.
 
-use rand::{Rng, SeedableRng};
+use super::scene_spec::{SceneSpec, Shape};
+use super::texture::Texture;
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 /// A vertical obstacle standing on the floor.
@@ -31,110 +33,93 @@ pub enum Obstacle {
         /// Height, m.
         height: f32,
     },
+    /// An axis-aligned box (a cupboard, a desk down to the floor) from `min` to `max`.
+    Box {
+        /// Corner with the smallest x and y, m.
+        min: [f32; 2],
+        /// Corner with the largest x and y, m.
+        max: [f32; 2],
+        /// Height, m.
+        height: f32,
+    },
 }
 
-/// A gray-level texture on a regular grid (nearest-neighbour lookup, clamped).
-#[derive(Debug, Clone)]
-pub struct Texture {
-    nx: usize,
-    ny: usize,
-    /// Cells per metre along s and h.
-    res: [f32; 2],
-    data: Vec<f32>,
-}
-
-impl Texture {
-    /// Albedo 0..1 at surface coordinates `s` (along) and `h` (up), m.
-    #[inline]
-    pub fn sample(&self, s: f32, h: f32) -> f32 {
-        let i = ((s * self.res[0]).max(0.0) as usize).min(self.nx - 1);
-        let j = ((h * self.res[1]).max(0.0) as usize).min(self.ny - 1);
-        self.data[j * self.nx + i]
+impl Obstacle {
+    fn from_shape(shape: Shape, height: f32) -> Self {
+        match shape {
+            Shape::Cylinder { centre, radius } => Self::Cylinder {
+                x: centre[0],
+                y: centre[1],
+                radius,
+                height,
+            },
+            Shape::Panel { a, b } => Self::Panel { a, b, height },
+            Shape::Box { min, max } => Self::Box { min, max, height },
+        }
     }
 
-    /// Wall texture: vertical stripes of random width and gray level, some "posters" with
-    /// their own finer stripes, a mild vertical shading and horizontal trim near floor/ceiling.
-    fn wall(length: f32, height: f32, rng: &mut ChaCha8Rng) -> Self {
-        let res = [100.0f32, 25.0];
-        let nx = (length * res[0]).ceil() as usize + 1;
-        let ny = (height * res[1]).ceil() as usize + 1;
-        let mut col = vec![0.0f32; nx];
-        let mut i = 0;
-        while i < nx {
-            let w = 2 + (rng.random::<f32>().powi(2) * 25.0) as usize;
-            let v = 0.15 + 0.75 * rng.random::<f32>();
-            for c in col.iter_mut().skip(i).take(w) {
-                *c = v;
-            }
-            i += w;
+    /// Height above the floor, m.
+    pub fn height(&self) -> f32 {
+        match self {
+            Self::Cylinder { height, .. }
+            | Self::Panel { height, .. }
+            | Self::Box { height, .. } => *height,
         }
-        let mut data = vec![0.0f32; nx * ny];
-        for j in 0..ny {
-            let h = j as f32 / res[1];
-            let shade = 0.9 + 0.1 * (h / height.max(0.1));
-            let trim = h < 0.1 || h > height - 0.1;
-            for i in 0..nx {
-                data[j * nx + i] = if trim { 0.35 } else { col[i] * shade };
-            }
+    }
+
+    /// Length of the surface a texture is wrapped around (circumference, panel length,
+    /// box perimeter), m.
+    fn surface_length(&self) -> f32 {
+        match self {
+            Self::Cylinder { radius, .. } => core::f32::consts::TAU * radius,
+            Self::Panel { a, b, .. } => (a[0] - b[0]).hypot(a[1] - b[1]),
+            Self::Box { min, max, .. } => 2.0 * ((max[0] - min[0]) + (max[1] - min[1])),
         }
-        // Posters: rectangles with their own stripe pattern.
-        let n_posters = (length / 1.2) as usize + 1;
-        for _ in 0..n_posters {
-            let w = 0.3 + 0.6 * rng.random::<f32>();
-            let hgt = 0.4 + 0.6 * rng.random::<f32>();
-            let s0 = rng.random::<f32>() * (length - w).max(0.0);
-            let h0 = 0.3 + rng.random::<f32>() * (height - hgt - 0.6).max(0.0);
-            let period = 3 + rng.random_range(0..8usize);
-            let (lo, hi) = (
-                0.1 + 0.2 * rng.random::<f32>(),
-                0.7 + 0.25 * rng.random::<f32>(),
-            );
-            let i0 = (s0 * res[0]) as usize;
-            let i1 = (((s0 + w) * res[0]) as usize).min(nx);
-            let j0 = (h0 * res[1]) as usize;
-            let j1 = (((h0 + hgt) * res[1]) as usize).min(ny);
-            for j in j0..j1 {
-                for i in i0..i1 {
-                    data[j * nx + i] = if ((i - i0) / period).is_multiple_of(2) {
-                        lo
-                    } else {
-                        hi
-                    };
+    }
+
+    /// Signed horizontal distance from `(x, y)` to the obstacle's surface, m (negative inside).
+    fn distance(&self, x: f32, y: f32) -> f32 {
+        match self {
+            Self::Cylinder {
+                x: cx,
+                y: cy,
+                radius,
+                ..
+            } => (x - cx).hypot(y - cy) - radius,
+            Self::Panel { a, b, .. } => {
+                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                let l2 = (ex * ex + ey * ey).max(1e-12);
+                let u = (((x - a[0]) * ex + (y - a[1]) * ey) / l2).clamp(0.0, 1.0);
+                (x - a[0] - u * ex).hypot(y - a[1] - u * ey)
+            }
+            Self::Box { min, max, .. } => {
+                let dx = (min[0] - x).max(x - max[0]);
+                let dy = (min[1] - y).max(y - max[1]);
+                if dx <= 0.0 && dy <= 0.0 {
+                    dx.max(dy)
+                } else {
+                    dx.max(0.0).hypot(dy.max(0.0))
                 }
             }
         }
-        Self { nx, ny, res, data }
     }
+}
 
-    /// Floor texture: 30 cm tiles of random gray with fine grain.
-    fn floor(size_x: f32, size_y: f32, rng: &mut ChaCha8Rng) -> Self {
-        let res = [50.0f32, 50.0];
-        let nx = (size_x * res[0]).ceil() as usize + 1;
-        let ny = (size_y * res[1]).ceil() as usize + 1;
-        let tiles_x = nx / 15 + 1;
-        let tiles: Vec<f32> = (0..tiles_x * (ny / 15 + 1))
-            .map(|_| 0.3 + 0.4 * rng.random::<f32>())
-            .collect();
-        let mut data = vec![0.0; nx * ny];
-        for j in 0..ny {
-            for i in 0..nx {
-                data[j * nx + i] =
-                    tiles[(j / 15) * tiles_x + i / 15] + 0.08 * (rng.random::<f32>() - 0.5);
-            }
-        }
-        Self { nx, ny, res, data }
-    }
-
-    /// Ceiling: light, with darker lamp rows.
-    fn ceiling(size_x: f32, size_y: f32) -> Self {
-        let res = [10.0f32, 10.0];
-        let nx = (size_x * res[0]).ceil() as usize + 1;
-        let ny = (size_y * res[1]).ceil() as usize + 1;
-        let data = (0..nx * ny)
-            .map(|k| if (k % nx) % 10 < 2 { 0.55 } else { 0.8 })
-            .collect();
-        Self { nx, ny, res, data }
-    }
+/// Horizontal clearance from `(x, y)` at height `h` to the walls of a room of `size` and to
+/// the given obstacles that reach above `h`, m.
+pub fn clearance_of(
+    size: &[f32; 3],
+    obstacles: &[super::scene_spec::ObstacleSpec],
+    x: f32,
+    y: f32,
+    h: f32,
+) -> f32 {
+    let walls = x.min(size[0] - x).min(y).min(size[1] - y);
+    obstacles
+        .iter()
+        .filter(|o| h <= o.height)
+        .map(|o| Obstacle::from_shape(o.shape, o.height).distance(x, y))
+        .fold(walls, f32::min)
 }
 
 /// Which surface a ray hit.
@@ -153,7 +138,7 @@ pub enum Surface {
 /// A room with obstacles and textures.
 #[derive(Debug, Clone)]
 pub struct Scene {
-    /// Preset name.
+    /// Name (the scene file's `name`).
     pub name: String,
     /// Room extent along x (north), m.
     pub size_x: f32,
@@ -163,105 +148,72 @@ pub struct Scene {
     pub height: f32,
     /// Obstacles.
     pub obstacles: Vec<Obstacle>,
-    /// Start position (x, y), m, and heading, rad.
-    pub start: [f32; 3],
-    /// Whether flights start at a seed-dependent heading (rooms) or at `start`'s (corridor).
-    pub random_heading: bool,
+    /// Start position (x, y), m.
+    pub start_xy: [f32; 2],
+    /// Start heading, rad; `None`: each flight draws one from its seed.
+    pub start_yaw_rad: Option<f32>,
+    /// Brightness relative to the default lighting (the camera's exposure and gain act on it).
+    pub light: f32,
     walls: [Texture; 4],
     floor: Texture,
     ceiling: Texture,
     obstacle_tex: Vec<Texture>,
 }
 
-/// Names accepted by [`Scene::preset`].
-pub const PRESETS: &[&str] = &["room", "room-obstacles", "corridor"];
-
 impl Scene {
-    /// A room of the given size with seeded textures.
-    pub fn new(
-        name: &str,
-        size: [f32; 3],
-        obstacles: Vec<Obstacle>,
-        start: [f32; 3],
-        texture_seed: u64,
-    ) -> Self {
+    /// Builds the room a spec describes, its textures drawn from `texture_seed`. Fails only
+    /// if a picture cannot be read (the error names it).
+    pub fn build(spec: &SceneSpec, texture_seed: u64) -> anyhow::Result<Self> {
         let mut rng = ChaCha8Rng::seed_from_u64(texture_seed ^ 0x5ce1e);
-        let [sx, sy, h] = size;
-        let walls = [
-            Texture::wall(sy, h, &mut rng),
-            Texture::wall(sy, h, &mut rng),
-            Texture::wall(sx, h, &mut rng),
-            Texture::wall(sx, h, &mut rng),
-        ];
-        let obstacle_tex = obstacles
+        let [sx, sy, h] = spec.size_m;
+        let ctx = |what: &str| format!("scene {:?}: {what}", spec.name);
+        let mut walls = Vec::with_capacity(4);
+        for (k, w) in spec.walls.iter().enumerate() {
+            let len = if k < 2 { sy } else { sx };
+            walls.push(
+                Texture::vertical(w, len, h, &mut rng)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", ctx("walls")))?,
+            );
+        }
+        let obstacles: Vec<Obstacle> = spec
+            .obstacles
             .iter()
-            .map(|o| match o {
-                Obstacle::Cylinder { radius, height, .. } => {
-                    Texture::wall(core::f32::consts::TAU * radius, *height, &mut rng)
-                }
-                Obstacle::Panel { a, b, height } => {
-                    let len = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
-                    Texture::wall(len, *height, &mut rng)
-                }
-            })
+            .map(|o| Obstacle::from_shape(o.shape, o.height))
             .collect();
-        Self {
-            name: name.to_string(),
+        let mut obstacle_tex = Vec::with_capacity(obstacles.len());
+        for (o, os) in obstacles.iter().zip(&spec.obstacles) {
+            obstacle_tex.push(
+                Texture::vertical(&os.surface, o.surface_length(), o.height(), &mut rng)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", ctx("obstacles")))?,
+            );
+        }
+        let floor = Texture::floor(&spec.floor, sx, sy, &mut rng)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", ctx("floor")))?;
+        let ceiling = Texture::ceiling(&spec.ceiling, sx, sy)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", ctx("ceiling")))?;
+        Ok(Self {
+            name: spec.name.clone(),
             size_x: sx,
             size_y: sy,
             height: h,
             obstacles,
-            start,
-            random_heading: true,
-            walls,
-            floor: Texture::floor(sx, sy, &mut rng),
-            ceiling: Texture::ceiling(sx, sy),
+            start_xy: spec.start_xy,
+            start_yaw_rad: spec.start_yaw_rad,
+            light: spec.light,
+            walls: walls.try_into().expect("four walls"),
+            floor,
+            ceiling,
             obstacle_tex,
-        }
+        })
     }
 
-    /// A named preset (see [`PRESETS`]): `room` is the paper's empty 4 x 4 m room (2.5 m
-    /// ceiling); `room-obstacles` adds a pillar and a panel; `corridor` is 12 x 1.8 m.
+    /// A preset shipped with sim-host (see [`SceneSpec::preset_names`]): `room` is the
+    /// paper's empty 4 x 4 m room (2.5 m ceiling); `room-obstacles` adds a pillar and a panel;
+    /// `corridor` is 12 x 1.8 m; `plain-room` is `room` painted plain grey; `office` mixes
+    /// every texture and obstacle kind.
     pub fn preset(name: &str, texture_seed: u64) -> Option<Self> {
-        Some(match name {
-            "room" => Self::new(
-                "room",
-                [4.0, 4.0, 2.5],
-                vec![],
-                [2.0, 2.0, 0.0],
-                texture_seed,
-            ),
-            "room-obstacles" => Self::new(
-                "room-obstacles",
-                [4.0, 4.0, 2.5],
-                vec![
-                    Obstacle::Cylinder {
-                        x: 3.0,
-                        y: 1.0,
-                        radius: 0.15,
-                        height: 2.5,
-                    },
-                    Obstacle::Panel {
-                        a: [1.0, 3.0],
-                        b: [1.6, 3.4],
-                        height: 1.8,
-                    },
-                ],
-                [2.0, 2.0, 0.0],
-                texture_seed,
-            ),
-            "corridor" => Self {
-                random_heading: false,
-                ..Self::new(
-                    "corridor",
-                    [12.0, 1.8, 2.5],
-                    vec![],
-                    [1.0, 0.9, 0.0],
-                    texture_seed,
-                )
-            },
-            _ => return None,
-        })
+        let spec = SceneSpec::preset(name)?;
+        Some(Self::build(&spec, texture_seed).expect("presets have no pictures"))
     }
 
     /// Albedo seen along the ray `o + t d` (t > 0), and the hit distance `t`. The origin must
@@ -291,6 +243,20 @@ impl Scene {
             }
             Obstacle::Panel { a, .. } => {
                 let s = ((p[0] - a[0]).powi(2) + (p[1] - a[1]).powi(2)).sqrt();
+                tex.sample(s, -p[2])
+            }
+            Obstacle::Box { min, max, .. } => {
+                // Around the perimeter: south side (x = min), east, north, west.
+                let (w, d) = (max[1] - min[1], max[0] - min[0]);
+                let s = if (p[0] - min[0]).abs() < 1e-3 {
+                    p[1] - min[1]
+                } else if (p[1] - max[1]).abs() < 1e-3 {
+                    w + p[0] - min[0]
+                } else if (p[0] - max[0]).abs() < 1e-3 {
+                    w + d + max[1] - p[1]
+                } else {
+                    2.0 * w + d + max[0] - p[0]
+                };
                 tex.sample(s, -p[2])
             }
         }
@@ -367,6 +333,27 @@ impl Scene {
                     }
                     (tt, *height)
                 }
+                Obstacle::Box { min, max, height } => {
+                    // Slabs in x and y: the entry distance where the ray is inside both.
+                    let mut t0 = f32::NEG_INFINITY;
+                    let mut t1 = f32::INFINITY;
+                    let mut hit = true;
+                    for k in 0..2 {
+                        if d[k].abs() < 1e-9 {
+                            if o[k] < min[k] || o[k] > max[k] {
+                                hit = false;
+                            }
+                        } else {
+                            let (a, b) = ((min[k] - o[k]) / d[k], (max[k] - o[k]) / d[k]);
+                            t0 = t0.max(a.min(b));
+                            t1 = t1.min(a.max(b));
+                        }
+                    }
+                    if !hit || t0 > t1 {
+                        continue;
+                    }
+                    (t0, *height)
+                }
             };
             if to > 1e-4 && to < t {
                 let z = o[2] + to * d[2];
@@ -382,33 +369,12 @@ impl Scene {
     /// Horizontal distance from `(x, y)` to the nearest wall or obstacle surface, m (for a point
     /// at height `h` m: obstacles lower than `h` do not count).
     pub fn clearance(&self, x: f32, y: f32, h: f32) -> f32 {
-        let mut c = x.min(self.size_x - x).min(y).min(self.size_y - y);
-        for ob in &self.obstacles {
-            let dist = match ob {
-                Obstacle::Cylinder {
-                    x: cx,
-                    y: cy,
-                    radius,
-                    height,
-                } => {
-                    if h > *height {
-                        continue;
-                    }
-                    ((x - cx).powi(2) + (y - cy).powi(2)).sqrt() - radius
-                }
-                Obstacle::Panel { a, b, height } => {
-                    if h > *height {
-                        continue;
-                    }
-                    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-                    let l2 = (ex * ex + ey * ey).max(1e-12);
-                    let u = (((x - a[0]) * ex + (y - a[1]) * ey) / l2).clamp(0.0, 1.0);
-                    ((x - a[0] - u * ex).powi(2) + (y - a[1] - u * ey).powi(2)).sqrt()
-                }
-            };
-            c = c.min(dist);
-        }
-        c
+        let walls = x.min(self.size_x - x).min(y).min(self.size_y - y);
+        self.obstacles
+            .iter()
+            .filter(|o| h <= o.height())
+            .map(|o| o.distance(x, y))
+            .fold(walls, f32::min)
     }
 
     /// Outward unit normal (x, y) of the nearest surface at `(x, y)`: the direction that pushes
@@ -464,5 +430,46 @@ mod tests {
             prev = v;
         }
         assert!(edges > 20, "{edges} edges along 4 m");
+        let plain = Scene::preset("plain-room", 7).unwrap();
+        assert!(plain.walls[1].edge_energy(4.0, 1.0, 0.01) < 1e-6);
+    }
+
+    #[test]
+    fn boxes_are_hit_from_every_side_and_push_out() {
+        let spec = SceneSpec::parse(
+            "name = \"b\"\nsize_m = [6.0, 6.0, 2.5]\nstart = { x = 1.0, y = 1.0 }\n\
+             [[obstacles]]\nkind = \"box\"\nmin = [2.0, 2.0]\nmax = [3.0, 4.0]\nheight = 1.0\n",
+            "b.toml",
+            std::path::Path::new("."),
+        )
+        .unwrap();
+        let s = Scene::build(&spec, 1).unwrap();
+        // From the south, west, north and east, at 0.5 m height.
+        for (o, d, t_exp) in [
+            ([1.0, 3.0, -0.5], [1.0, 0.0, 0.0], 1.0),
+            ([2.5, 1.0, -0.5], [0.0, 1.0, 0.0], 1.0),
+            ([5.0, 3.0, -0.5], [-1.0, 0.0, 0.0], 2.0),
+            ([2.5, 5.5, -0.5], [0.0, -1.0, 0.0], 1.5),
+        ] {
+            let (t, surf) = s.intersect(o, d);
+            assert_eq!(surf, Surface::Obstacle(0), "{o:?}");
+            assert!((t - t_exp).abs() < 1e-5, "{o:?}: {t}");
+            let v = s.trace(o, d).0;
+            assert!((0.0..=1.0).contains(&v));
+        }
+        // Over the top (1 m high) the ray reaches the far wall.
+        assert_eq!(
+            s.intersect([1.0, 3.0, -1.5], [1.0, 0.0, 0.0]).1,
+            Surface::Wall(1)
+        );
+        assert!((s.clearance(1.5, 3.0, 0.5) - 0.5).abs() < 1e-6);
+        assert!((s.clearance(3.5, 4.5, 0.5) - 0.5f32.hypot(0.5)).abs() < 1e-5);
+        assert!(s.clearance(2.1, 3.0, 0.5) < 0.0, "inside is negative");
+        assert!(
+            (s.clearance(1.5, 3.0, 1.5) - 1.5).abs() < 1e-6,
+            "above the box"
+        );
+        let n = s.push_out_dir(2.05, 3.0, 0.5);
+        assert!((n[0] + 1.0).abs() < 1e-3, "{n:?}");
     }
 }
