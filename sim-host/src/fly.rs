@@ -8,6 +8,7 @@
 use crate::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm};
 use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
+use crate::sim::suite::{self, FlightFigures, RoomClass, SuiteRoom};
 use crate::sim::uart::LinkFaults;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -50,8 +51,17 @@ pub struct FlyArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Monte Carlo: fly seeds `seed..seed+N` in parallel on all cores (no plots or GIF).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "suite")]
     pub seeds: Option<u64>,
+    /// Room suite: fly N rooms generated from `--seed` (sides 3-8 m, 0-4 obstacles,
+    /// textured, mixed, low-contrast and featureless walls, light 0.1-2) in parallel; a table
+    /// by class of room, or one CSV row per flight.
+    #[arg(long, conflicts_with_all = ["scene"])]
+    pub suite: Option<u64>,
+    /// With `--suite`: fly only shard I of N (`I/N`, 0-based: rooms I, I+N, I+2N, ...), for
+    /// splitting a large suite over machines.
+    #[arg(long, value_parser = parse_shard, requires = "suite")]
+    pub shard: Option<(u64, u64)>,
     /// Avoidance FSM.
     #[arg(long, value_enum, default_value_t = FsmArg::Paper)]
     pub fsm: FsmArg,
@@ -99,6 +109,18 @@ fn parse_start(s: &str) -> Result<[f64; 3], String> {
         [x, y, yaw] if v.iter().all(|a| a.is_finite()) => Ok([*x, *y, *yaw]),
         _ => Err(format!("expected X,Y,YAW_DEG, got {s:?}")),
     }
+}
+
+fn parse_shard(s: &str) -> Result<(u64, u64), String> {
+    let (i, n) = s
+        .split_once('/')
+        .ok_or_else(|| format!("expected I/N, got {s:?}"))?;
+    let i: u64 = i.trim().parse().map_err(|e| format!("{e} in {s:?}"))?;
+    let n: u64 = n.trim().parse().map_err(|e| format!("{e} in {s:?}"))?;
+    if n == 0 || i >= n {
+        return Err(format!("shard I/N needs 0 <= I < N, got {s:?}"));
+    }
+    Ok((i, n))
 }
 
 fn parse_outage(s: &str) -> Result<(f64, f64), String> {
@@ -193,6 +215,9 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
     );
     let scene = SceneSpec::from_cli(args.scene.as_deref(), &args.scenario)?;
     std::fs::create_dir_all(&args.out)?;
+    if let Some(n) = args.suite {
+        return run_suite(args, n);
+    }
     let wall = Instant::now();
     match args.seeds {
         None | Some(1) => {
@@ -307,5 +332,120 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// CSV header of the suite (`--suite N --format csv`): the summary columns, then the room's.
+pub const SUITE_CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
+min_clearance_m,distance_m,room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,\
+hovering_s,landed_s";
+
+/// Runs `sim-host fly --suite N`.
+fn run_suite(args: &FlyArgs, n: u64) -> anyhow::Result<()> {
+    anyhow::ensure!(n > 0, "--suite must be at least 1");
+    let (shard, of) = args.shard.unwrap_or((0, 1));
+    let rooms: Vec<SuiteRoom> = suite::shard_indices(n, shard, of)
+        .map(|i| suite::room(args.seed, i))
+        .collect();
+    let wall = Instant::now();
+    let pb = bar(
+        rooms.len() as u64,
+        args.quiet || args.format == Format::Csv,
+        "flights",
+    );
+    let done = AtomicU64::new(0);
+    let results: Vec<(FlightResult, FlightFigures)> = rooms
+        .par_iter()
+        .map(|room| {
+            let r = run_flight(&args.config(&room.spec, room.seed), &mut |_| {});
+            pb.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
+            r.map(|mut r| {
+                let f = suite::figures(&r);
+                r.log = Vec::new();
+                (r, f)
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    pb.finish_and_clear();
+    let mut csv = format!("{SUITE_CSV_HEADER}\n");
+    for (room, (r, f)) in rooms.iter().zip(&results) {
+        csv.push_str(&format!(
+            "{},{},{},{:.2},{:.2},{},{:.3},{:.3},{:.1},{:.1}\n",
+            csv_row(r),
+            room.spec.name,
+            room.class.name(),
+            room.spec.size_m[0],
+            room.spec.size_m[1],
+            room.spec.obstacles.len(),
+            room.spec.light,
+            f.mean_speed_mps,
+            f.hovering_s,
+            f.landed_s
+        ));
+    }
+    std::fs::write(args.out.join("suite.csv"), &csv)?;
+    if args.format == Format::Csv {
+        print!("{csv}");
+        return Ok(());
+    }
+    println!(
+        "{:<13} {:>7} {:>9} {:>13} {:>11} {:>10} {:>10} {:>9}",
+        "class", "flights", "contact", "first_contact", "min_clr", "speed", "hovering", "landed"
+    );
+    let mut rows: Vec<(&str, Vec<usize>)> = RoomClass::ALL
+        .iter()
+        .map(|c| {
+            let idx = (0..rooms.len()).filter(|&k| rooms[k].class == *c).collect();
+            (c.name(), idx)
+        })
+        .collect();
+    rows.push(("all", (0..rooms.len()).collect()));
+    for (name, idx) in rows {
+        if idx.is_empty() {
+            continue;
+        }
+        let k = idx.len() as f64;
+        let contact: Vec<&FlightResult> = idx
+            .iter()
+            .map(|&i| &results[i].0)
+            .filter(|r| r.collisions > 0)
+            .collect();
+        let first = if contact.is_empty() {
+            "-".to_string()
+        } else {
+            let min = contact
+                .iter()
+                .map(|r| r.flight_time_s)
+                .fold(f64::INFINITY, f64::min);
+            format!("{min:.1} s")
+        };
+        let min_clr = idx
+            .iter()
+            .map(|&i| results[i].0.min_clearance_m)
+            .filter(|c| c.is_finite())
+            .fold(f64::INFINITY, f64::min);
+        let mean = |f: &dyn Fn(&FlightFigures) -> f64| {
+            idx.iter().map(|&i| f(&results[i].1)).sum::<f64>() / k
+        };
+        println!(
+            "{:<13} {:>7} {:>9} {:>13} {:>9.3} m {:>6.2} m/s {:>8.1} s {:>7.1} s",
+            name,
+            idx.len(),
+            contact.len(),
+            first,
+            min_clr,
+            mean(&|f| f.mean_speed_mps),
+            mean(&|f| f.hovering_s),
+            mean(&|f| f.landed_s),
+        );
+    }
+    let sim_s: f64 = results.iter().map(|(r, _)| r.duration_s).sum();
+    println!(
+        "contact = flights with a wall or obstacle contact; first_contact = earliest; min_clr = \
+         smallest clearance; speed, hovering, landed = means per flight. {sim_s:.0} s simulated \
+         in {:.0} s wall; rows in {}",
+        wall.elapsed().as_secs_f64(),
+        args.out.join("suite.csv").display()
+    );
     Ok(())
 }

@@ -15,6 +15,7 @@
 //!   carpet, lamps, pictures) at a given albedo and contrast.
 //! * [`scene`]: a room built from a spec: walls, floor, ceiling, cylinders, panels, boxes;
 //!   ray intersection, clearance.
+//! * [`suite`]: the room suite (`fly --suite N`): generated rooms by class, flight figures.
 //! * [`world`]: the one world `fly`, `hil` and the virtual boards fly in: scene, drone, IMU,
 //!   camera, seeded noise, collisions.
 //! * [`camera`]: the stereo camera renderer (two pinholes 6 cm apart, 128 x 96, 57.4 deg,
@@ -79,6 +80,7 @@ pub mod output;
 pub mod scene;
 pub mod scene_spec;
 pub mod sched;
+pub mod suite;
 pub mod texture;
 pub mod uart;
 pub mod world;

@@ -6,7 +6,7 @@
 //! the world for sensor data when its boards need them (IMU samples, rendered frames, height
 //! fixes).
 
-use super::camera::StereoCamera;
+use super::camera::{Motion, StereoCamera};
 use super::dynamics::Drone;
 use super::flight::FlightConfig;
 use super::imu::{gauss, Imu, ImuReading};
@@ -139,11 +139,15 @@ impl World {
         self.imu.sample(&mut self.rng)
     }
 
-    /// Renders the stereo frame exposed now.
+    /// Renders the stereo frame exposed now (centred on now, blurred by the drone's motion).
     pub fn render(&mut self, out: &mut [u8; STEREO_FRAME_BYTES]) {
         let s = &self.drone.state;
+        let motion = Motion {
+            vel: s.vel,
+            rates: s.rates,
+        };
         self.camera
-            .render(&self.scene, s.pos, s.att, &mut self.cam_rng, out);
+            .render_moving(&self.scene, s.pos, s.att, motion, &mut self.cam_rng, out);
     }
 
     /// A height fix (the motion capture's position, with its noise on z) at `t_us`.

@@ -59,6 +59,12 @@ use protocol::{ConfigError, EdgeFsConfig, EstimateFlags, GyroAttitude, STEREO_FR
 pub const IMG_W: usize = 128;
 /// Image height, px.
 pub const IMG_H: usize = 96;
+/// The camera's horizontal field of view, rad (57.4 deg, the paper's hardware value).
+pub const CAMERA_HFOV_RAD: f32 = 57.4 * core::f32::consts::PI / 180.0;
+/// The camera's calibrated focal length, px per rad of view angle: `IMG_W / CAMERA_HFOV_RAD`
+/// (127.8 px). Edge-FS's default configuration converts disparities and flow with it, and the
+/// simulator's pinhole renderer uses it as its focal length, so both agree on the geometry.
+pub const CAMERA_FOCAL_PX: f32 = IMG_W as f32 / CAMERA_HFOV_RAD;
 /// History ring length: the longest horizon plus the current frame.
 const RING: usize = EdgeFsConfig::MAX_HORIZON as usize + 1;
 /// Longest output median filter.
@@ -238,7 +244,7 @@ impl EdgeFsParams {
             search_range: 15,
             max_horizon: 9,
             stereo_shift_px: 0,
-            fov_x_rad: 57.4 * core::f32::consts::PI / 180.0,
+            fov_x_rad: CAMERA_HFOV_RAD,
             baseline_m: 0.06,
             horizon_s: 0.25,
             stereo_range: 15,
