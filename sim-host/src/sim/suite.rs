@@ -3,7 +3,7 @@
 //! the per-flight figures its table and CSV report.
 
 use super::flight::FlightResult;
-use super::scene_spec::{ObstacleSpec, SceneSpec, Shape, Surface, TextureKind, START_CLEARANCE_M};
+use super::scene_spec::{ObstacleSpec, SceneSpec, Shape, Surface, TextureKind};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
