@@ -1,11 +1,14 @@
 //! `sim-host fly`: closed-loop simulated flight of the pocket drone with both boards' task
 //! graphs in the loop (see [`crate::sim`]).
 //!
-//! One seed: prints a summary and writes `log.csv`, `trajectory.png`, `velocity.png`,
-//! `fsm.png` and `flight.gif` to `--out`. `--seeds N`: Monte Carlo over seeds `seed..seed+N`
+//! One seed: prints a summary and writes `log.csv`, `flight.mcap` (the MCAP flight log of
+//! [`crate::log`], or at `--mcap PATH`), `trajectory.png`, `velocity.png`, `fsm.png` and
+//! `flight.gif` to `--out`. `--seeds N`: Monte Carlo over seeds `seed..seed+N`
 //! on all cores, one summary row per seed (and `montecarlo.csv` in `--out`).
 
-use crate::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm};
+use crate::log::sim::{LogRates, SimRecorder};
+use crate::log::FlightLog;
+use crate::sim::flight::{run_flight, run_flight_observed, FlightConfig, FlightResult, Fsm};
 use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
 use crate::sim::suite::{self, FlightFigures, RoomClass, SuiteRoom};
@@ -68,6 +71,9 @@ pub struct FlyArgs {
     /// Output directory.
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
+    /// Where to write the MCAP flight log (default: flight.mcap in --out; one seed only).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
     /// Summary format.
     #[arg(long, value_enum, default_value_t = Format::Table)]
     pub format: Format,
@@ -228,9 +234,16 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 args.quiet || args.format == Format::Csv,
                 "s",
             );
-            let r = run_flight(&cfg, &mut |t| pb.set_position(t as u64))?;
+            let mcap_path = args
+                .mcap
+                .clone()
+                .unwrap_or_else(|| args.out.join("flight.mcap"));
+            let mut recorder =
+                SimRecorder::new(FlightLog::create(&mcap_path)?, LogRates::default());
+            let r = run_flight_observed(&cfg, &mut |t| pb.set_position(t as u64), &mut recorder)?;
             pb.finish_and_clear();
             let secs = wall.elapsed().as_secs_f64();
+            let mcap = recorder.finish()?;
             output::write_log_csv(&r, &args.out.join("log.csv"))?;
             output::plot_trajectory(&r, &args.out.join("trajectory.png"))?;
             output::plot_velocity(&r, &args.out.join("velocity.png"))?;
@@ -275,6 +288,12 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         r.uart[0], r.uart[1]
                     );
                     println!("wrote           {}/{{log.csv,trajectory.png,velocity.png,fsm.png,flight.gif}}", args.out.display());
+                    println!(
+                        "flight log      {} ({} messages on {} channels, MCAP)",
+                        mcap.path.display(),
+                        mcap.total(),
+                        mcap.counts.len()
+                    );
                 }
             }
         }

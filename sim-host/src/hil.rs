@@ -52,6 +52,12 @@
 //! unchanged and decodes them on the way, so the test can check for decode errors on the
 //! inter-board link too.
 
+use crate::log::records::{
+    AttitudeRecord, EstimateRecord, HeightRecord, LinkRecord, MotorsRecord, SetpointRecord,
+    StateRecord, TruthRecord, VelocityRecord,
+};
+use crate::log::{ns as log_ns, FlightLog, Thinner};
+use crate::sim::dynamics::Drone;
 use crate::sim::flight::FlightConfig;
 use crate::sim::scene_spec::SceneSpec;
 use crate::sim::world::World;
@@ -80,15 +86,9 @@ impl Link for std::net::TcpStream {
     }
 }
 
-impl Link for std::fs::File {
-    fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>> {
-        Ok(Box::new(self.try_clone()?))
-    }
-}
-
 /// Opens `addr`: `tcp:HOST:PORT` (or `HOST:PORT`) connects to a TCP server such as a QEMU
-/// `-chardev socket,server=on,...`; anything else is a serial device path opened raw 8N1 at
-/// `baud`.
+/// `-chardev socket,server=on,...`; anything else is a serial port (`/dev/ttyUSB0`, `COM3`)
+/// opened raw 8N1, no flow control, at `baud` bit/s (any rate the adapter supports).
 pub fn open_link(addr: &str, baud: u32) -> anyhow::Result<Box<dyn Link>> {
     let tcp = addr
         .strip_prefix("tcp:")
@@ -99,63 +99,91 @@ pub fn open_link(addr: &str, baud: u32) -> anyhow::Result<Box<dyn Link>> {
         s.set_nodelay(true).ok();
         return Ok(Box::new(s));
     }
-    Ok(Box::new(serial::open(addr, baud)?))
+    Ok(Box::new(SerialLink::open(addr, baud)?))
 }
 
-/// Raw serial ports through termios.
-mod serial {
-    use anyhow::{bail, Context as _};
-    use std::fs::{File, OpenOptions};
+/// A serial port (through the `serialport` crate) as a [`Link`].
+///
+/// Reads wait at most [`SerialLink::POLL`] and then report `TimedOut`, so reader threads can
+/// notice that they should stop; writes go on waiting for the port's transmit buffer for up
+/// to [`SerialLink::WRITE_TIMEOUT`] in all before they fail.
+pub struct SerialLink {
+    port: Box<dyn serialport::SerialPort>,
+}
 
-    /// Opens `path` raw 8N1 at `baud` (no flow control, blocking reads).
-    #[cfg(unix)]
-    pub fn open(path: &str, baud: u32) -> anyhow::Result<File> {
-        use std::os::fd::AsRawFd;
-        let file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(path)
-            .with_context(|| format!("opening serial device {path}"))?;
-        let speed = match baud {
-            115_200 => libc::B115200,
-            230_400 => libc::B230400,
-            460_800 => libc::B460800,
-            921_600 => libc::B921600,
-            1_000_000 => libc::B1000000,
-            1_500_000 => libc::B1500000,
-            2_000_000 => libc::B2000000,
-            3_000_000 => libc::B3000000,
-            4_000_000 => libc::B4000000,
-            _ => bail!("unsupported baud rate {baud}"),
-        };
-        let fd = file.as_raw_fd();
-        // SAFETY: `fd` is an open descriptor owned by `file` for the whole block; `tio` is a
-        // plain C struct that tcgetattr fills before it is read.
-        unsafe {
-            let mut tio: libc::termios = std::mem::zeroed();
-            if libc::tcgetattr(fd, &mut tio) != 0 {
-                bail!("{path} is not a serial device (tcgetattr failed)");
-            }
-            libc::cfmakeraw(&mut tio);
-            tio.c_cflag |= libc::CLOCAL | libc::CREAD;
-            tio.c_cflag &= !(libc::CSTOPB | libc::PARENB | libc::CRTSCTS);
-            // Blocking reads of at least one byte (a read of 0 bytes means the end, as on TCP).
-            tio.c_cc[libc::VMIN] = 1;
-            tio.c_cc[libc::VTIME] = 0;
-            if libc::cfsetispeed(&mut tio, speed) != 0
-                || libc::cfsetospeed(&mut tio, speed) != 0
-                || libc::tcsetattr(fd, libc::TCSANOW, &tio) != 0
-            {
-                bail!("configuring {path} at {baud} Bd failed");
+impl SerialLink {
+    /// Longest single wait of a read.
+    pub const POLL: Duration = Duration::from_millis(100);
+    /// Longest time a write may wait for room in the transmit buffer.
+    pub const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
+
+    /// Opens `path` raw 8N1 at `baud` bit/s without flow control; errors name the port.
+    pub fn open(path: &str, baud: u32) -> anyhow::Result<Self> {
+        if baud == 0 {
+            bail!("serial port {path}: baud rate 0 (give the board's rate, e.g. 921600)");
+        }
+        let port = serialport::new(path, baud)
+            .data_bits(serialport::DataBits::Eight)
+            .parity(serialport::Parity::None)
+            .stop_bits(serialport::StopBits::One)
+            .flow_control(serialport::FlowControl::None)
+            .timeout(Self::POLL)
+            .open()
+            .map_err(|e| anyhow!("serial port {path} at {baud} Bd: {}", describe(&e)))?;
+        Ok(Self { port })
+    }
+}
+
+/// A serialport error in words a user can act on.
+fn describe(e: &serialport::Error) -> String {
+    match e.kind() {
+        serialport::ErrorKind::NoDevice => format!("no such device or it is busy ({e})"),
+        serialport::ErrorKind::InvalidInput => format!("not accepted ({e})"),
+        serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => {
+            format!("no such device ({e})")
+        }
+        serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied) => {
+            format!("permission denied (is the user in the dialout group?) ({e})")
+        }
+        // ENOTTY from the terminal set-up calls (nix words it "Not a typewriter").
+        serialport::ErrorKind::Unknown
+            if ["typewriter", "ioctl", "tty"]
+                .iter()
+                .any(|w| e.description.to_ascii_lowercase().contains(w)) =>
+        {
+            format!("not a serial device ({e})")
+        }
+        _ => e.to_string(),
+    }
+}
+
+impl Read for SerialLink {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.port.read(buf)
+    }
+}
+
+impl Write for SerialLink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let deadline = Instant::now() + Self::WRITE_TIMEOUT;
+        loop {
+            match self.port.write(buf) {
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut && Instant::now() < deadline => {
+                }
+                other => return other,
             }
         }
-        Ok(file)
     }
 
-    /// Serial devices are only supported on Unix hosts.
-    #[cfg(not(unix))]
-    pub fn open(path: &str, _baud: u32) -> anyhow::Result<File> {
-        bail!("serial devices are not supported on this host ({path}); use tcp:HOST:PORT")
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.port.flush()
+    }
+}
+
+impl Link for SerialLink {
+    fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>> {
+        let port = self.port.try_clone().map_err(std::io::Error::from)?;
+        Ok(Box::new(SerialLink { port }))
     }
 }
 
@@ -264,6 +292,8 @@ pub struct HilResult {
     pub last_telemetry: Option<Telemetry>,
     /// The log (50 Hz of world time).
     pub log: Vec<HilRow>,
+    /// Why the MCAP flight log stopped being written, if it did.
+    pub log_error: Option<String>,
 }
 
 impl HilResult {
@@ -505,6 +535,19 @@ pub fn run(
     relay: Option<&Relay>,
     progress: &mut dyn FnMut(f64),
 ) -> anyhow::Result<HilResult> {
+    run_logged(cfg, stereo, autopilot, relay, progress, None)
+}
+
+/// [`run`], recording the flight into `log` (see [`HilRecorder`] for what goes in). A failed
+/// write stops the recording and is reported in [`HilResult::log_error`]; the flight goes on.
+pub fn run_logged(
+    cfg: &HilConfig,
+    stereo: Box<dyn Link>,
+    autopilot: Box<dyn Link>,
+    relay: Option<&Relay>,
+    progress: &mut dyn FnMut(f64),
+    log: Option<&mut FlightLog>,
+) -> anyhow::Result<HilResult> {
     let positive = |v: f64| v.is_finite() && v > 0.0;
     if !positive(cfg.fps) || !positive(cfg.height_rate_hz) {
         bail!("fps and height rate must be positive");
@@ -532,7 +575,16 @@ pub fn run(
         wait_heartbeat(&ap_rx, "autopilot", cfg.boot_timeout)?;
         wait_heartbeat(&cam_rx, "camera board", cfg.boot_timeout)?;
         lockstep(
-            cfg, &mut world, &mut ap_tx, &ap_rx, &cam_rx, &frame_tx, relay, start_xy, progress,
+            cfg,
+            &mut world,
+            &mut ap_tx,
+            &ap_rx,
+            &cam_rx,
+            &frame_tx,
+            relay,
+            start_xy,
+            progress,
+            HilRecorder::new(log),
         )
     })();
     stop.store(true, Ordering::Relaxed);
@@ -551,6 +603,7 @@ fn lockstep(
     relay: Option<&Relay>,
     start_xy: [f64; 2],
     progress: &mut dyn FnMut(f64),
+    mut rec: HilRecorder<'_>,
 ) -> anyhow::Result<HilResult> {
     const IMU_HZ: u64 = 512;
     let wall0 = Instant::now();
@@ -590,7 +643,10 @@ fn lockstep(
                         break;
                     }
                     match cam_rx.rx.recv_timeout(left) {
-                        Ok(BoardToHost::Estimate(e)) => on_estimate(&e, &mut r, &mut in_flight),
+                        Ok(BoardToHost::Estimate(e)) => {
+                            rec.estimate(t, &e);
+                            on_estimate(&e, &mut r, &mut in_flight)
+                        }
                         Ok(_) => {}
                         Err(RecvTimeoutError::Timeout) => {}
                         Err(RecvTimeoutError::Disconnected) => {
@@ -605,6 +661,7 @@ fn lockstep(
             frame_tx
                 .send(encode_frame(&frame, frame_id, capture)?)
                 .map_err(|_| anyhow!("the camera board's link closed"))?;
+            rec.frame(t, &frame);
             in_flight = Some((capture, Instant::now()));
             frame_id = frame_id.wrapping_add(1);
             r.frames_sent += 1;
@@ -612,6 +669,7 @@ fn lockstep(
         }
         while let Ok(m) = cam_rx.rx.try_recv() {
             if let BoardToHost::Estimate(e) = m {
+                rec.estimate(t, &e);
                 on_estimate(&e, &mut r, &mut in_flight);
             }
         }
@@ -655,9 +713,13 @@ fn lockstep(
                         }
                     });
                     r.motor_replies += 1;
+                    rec.motors(t, motors);
                     break;
                 }
-                Ok(BoardToHost::Telemetry(tel)) => r.last_telemetry = Some(tel),
+                Ok(BoardToHost::Telemetry(tel)) => {
+                    rec.telemetry(t, &tel, s.gyro.to_f32(), &world.drone, &r, [ap_rx, cam_rx]);
+                    r.last_telemetry = Some(tel);
+                }
                 Ok(_) => {}
                 Err(RecvTimeoutError::Timeout) => {
                     r.reply_timeouts += 1;
@@ -689,6 +751,7 @@ fn lockstep(
         r.max_drift_m = r.max_drift_m.max(drift);
         if t >= next_log {
             next_log += 20_000;
+            rec.truth(t, &world.drone, r.collisions);
             r.log.push(HilRow {
                 t_s: t as f64 * 1e-6,
                 pos: [p.x as f32, p.y as f32, h as f32],
@@ -718,6 +781,7 @@ fn lockstep(
     }
     r.sim_s = t as f64 * 1e-6;
     r.wall_s = wall0.elapsed().as_secs_f64();
+    r.log_error = rec.error.map(|e| format!("{e:#}"));
     r.autopilot_link_errors = ap_rx.errors();
     r.stereo_link_errors = cam_rx.errors();
     if let Some(relay) = relay {
@@ -726,6 +790,149 @@ fn lockstep(
         r.relay_errors = e;
     }
     Ok(r)
+}
+
+/// What `sim-host hil` records into its MCAP flight log, on world time: every estimate the
+/// camera board mirrors, the autopilot's telemetry (state and mode by name, attitude with the
+/// gyro sample last sent, velocity and its setpoint, height, link counters of the board and of
+/// this host) with the true velocity and height beside it, the motor duties at 128 Hz, the true
+/// pose at 50 Hz, and the left and right images of the frames sent, about 5 per second.
+pub struct HilRecorder<'a> {
+    log: Option<&'a mut FlightLog>,
+    error: Option<anyhow::Error>,
+    images: Thinner,
+    motors: Thinner,
+}
+
+impl<'a> HilRecorder<'a> {
+    fn new(log: Option<&'a mut FlightLog>) -> Self {
+        Self {
+            log,
+            error: None,
+            images: Thinner::new(5.0),
+            motors: Thinner::new(128.0),
+        }
+    }
+
+    fn with(&mut self, f: impl FnOnce(&mut FlightLog) -> anyhow::Result<()>) {
+        if let Some(log) = self.log.as_deref_mut() {
+            if let Err(e) = f(log) {
+                self.error = Some(e);
+                self.log = None;
+            }
+        }
+    }
+
+    fn estimate(&mut self, t_us: u64, e: &Estimate) {
+        self.with(|log| log.write(log_ns(t_us), &EstimateRecord::from(e)));
+    }
+
+    fn frame(&mut self, t_us: u64, frame: &[u8; STEREO_FRAME_BYTES]) {
+        if self.images.take(t_us) {
+            self.with(|log| log.stereo_frame(log_ns(t_us), frame));
+        }
+    }
+
+    fn motors(&mut self, t_us: u64, motors: [f32; 4]) {
+        if self.motors.take(t_us) {
+            self.with(|log| log.write(log_ns(t_us), &MotorsRecord::from(motors)));
+        }
+    }
+
+    fn truth(&mut self, t_us: u64, drone: &Drone, collisions: u32) {
+        let s = &drone.state;
+        let (_, _, yaw) = s.att.to_euler();
+        self.with(|log| {
+            log.write(
+                log_ns(t_us),
+                &TruthRecord {
+                    x_m: s.pos.x as f32,
+                    y_m: s.pos.y as f32,
+                    height_m: -s.pos.z as f32,
+                    yaw_rad: Some(yaw as f32),
+                    clearance_m: None,
+                    collisions,
+                },
+            )
+        });
+    }
+
+    fn telemetry(
+        &mut self,
+        t_us: u64,
+        tel: &Telemetry,
+        gyro_radps: [f32; 3],
+        drone: &Drone,
+        r: &HilResult,
+        host: [&BoardRx; 2],
+    ) {
+        let s = &drone.state;
+        let (_, _, yaw) = s.att.to_euler();
+        let (sy, cy) = yaw.sin_cos();
+        let true_v = [
+            (s.vel.x * cy + s.vel.y * sy) as f32,
+            (-s.vel.x * sy + s.vel.y * cy) as f32,
+        ];
+        let host_errors = add_errors(host[0].errors(), host[1].errors());
+        let t = log_ns(t_us);
+        self.with(|log| {
+            log.write(t, &StateRecord::new(tel.fsm_state, tel.flight_mode))?;
+            log.write(
+                t,
+                &AttitudeRecord {
+                    roll_rad: tel.attitude_rad[0],
+                    pitch_rad: tel.attitude_rad[1],
+                    yaw_rad: tel.attitude_rad[2],
+                    roll_rate_radps: Some(gyro_radps[0]),
+                    pitch_rate_radps: Some(gyro_radps[1]),
+                    yaw_rate_radps: Some(gyro_radps[2]),
+                },
+            )?;
+            log.write(
+                t,
+                &SetpointRecord {
+                    forward_mps: tel.velocity_setpoint_mps[0],
+                    sideways_mps: tel.velocity_setpoint_mps[1],
+                    roll_rad: None,
+                    pitch_rad: None,
+                    yaw_rad: None,
+                    height_m: None,
+                    thrust: None,
+                },
+            )?;
+            log.write(
+                t,
+                &VelocityRecord {
+                    forward_mps: Some(tel.velocity_mps[0]),
+                    sideways_mps: Some(tel.velocity_mps[1]),
+                    true_forward_mps: Some(true_v[0]),
+                    true_sideways_mps: Some(true_v[1]),
+                },
+            )?;
+            log.write(
+                t,
+                &HeightRecord {
+                    height_m: tel.height_m,
+                    setpoint_m: None,
+                    true_m: Some(-s.pos.z as f32),
+                },
+            )?;
+            log.write(
+                t,
+                &LinkRecord {
+                    camera_link_errors: tel.link_errors.into(),
+                    host_link_errors: Some(host_errors.into()),
+                    estimates_received: r.estimates,
+                    estimates_valid: r.valid_estimates,
+                    frames_dropped: None,
+                    camera_to_autopilot_bytes_lost: None,
+                    camera_to_autopilot_bytes_corrupted: None,
+                    autopilot_to_camera_bytes_lost: None,
+                    timeouts: Some(r.reply_timeouts + r.frame_timeouts),
+                },
+            )
+        });
+    }
 }
 
 /// Counts an estimate mirrored by the camera board; clears the awaited frame if it is its.
@@ -799,9 +1006,12 @@ pub struct HilArgs {
     /// Longest wait for a reply from a board, s (wall time).
     #[arg(long, default_value_t = 5.0)]
     pub reply_timeout: f64,
-    /// Directory for the log (hil_log.csv).
+    /// Directory for the logs (hil_log.csv, and flight.mcap unless --mcap says otherwise).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Where to write the MCAP flight log (default: flight.mcap in --out, if given).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
 }
 
 /// Runs `sim-host hil`.
@@ -826,15 +1036,41 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         )?),
         _ => None,
     };
-    let r = run(&cfg, stereo, autopilot, relay.as_ref(), &mut |t| {
-        eprint!("\rworld time {t:.0} s");
-    })?;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let mcap_path = args
+        .mcap
+        .clone()
+        .or_else(|| args.out.as_ref().map(|d| d.join("flight.mcap")));
+    let mut mcap = mcap_path.as_deref().map(FlightLog::create).transpose()?;
+    let r = run_logged(
+        &cfg,
+        stereo,
+        autopilot,
+        relay.as_ref(),
+        &mut |t| {
+            eprint!("\rworld time {t:.0} s");
+        },
+        mcap.as_mut(),
+    )?;
     eprintln!();
     println!("{}", r.summary());
     if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         write_log_csv(&r, &dir.join("hil_log.csv"))?;
         println!("log               {}", dir.join("hil_log.csv").display());
+    }
+    if let Some(log) = mcap {
+        let summary = log.finish()?;
+        println!(
+            "flight log        {} ({} messages on {} channels, MCAP)",
+            summary.path.display(),
+            summary.total(),
+            summary.counts.len()
+        );
+    }
+    if let Some(e) = &r.log_error {
+        bail!("the flight log stopped early: {e}");
     }
     Ok(())
 }
@@ -972,15 +1208,60 @@ mod tests {
             fps: 10.0,
             ..HilConfig::default()
         };
-        let r = run(
+        let mcap_path =
+            std::env::temp_dir().join(format!("hil-lockstep-{}.mcap", std::process::id()));
+        let mut log = FlightLog::create(&mcap_path).unwrap();
+        let r = run_logged(
             &cfg,
             Box::new(cam_host),
             Box::new(ap_host),
             None,
             &mut |_| {},
+            Some(&mut log),
         )
         .unwrap();
+        let logged = log.finish().unwrap();
         let s = r.summary();
+        assert_eq!(r.log_error, None);
+        // The log holds what the run saw, channel by channel, in time order.
+        let bytes = std::fs::read(&mcap_path).unwrap();
+        let _ = std::fs::remove_file(&mcap_path);
+        let mut counts = std::collections::BTreeMap::new();
+        let mut last_ns = 0;
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            assert!(m.log_time >= last_ns, "{} out of order", m.channel.topic);
+            last_ns = m.log_time;
+            *counts.entry(m.channel.topic.clone()).or_insert(0u64) += 1;
+        }
+        let count = |t: &str| counts.get(t).copied().unwrap_or(0);
+        assert_eq!(count("/estimate"), r.estimates, "{counts:?}");
+        assert_eq!(
+            count("/camera/left"),
+            15,
+            "frames at 0.1 s, 0.3 s ... 2.9 s"
+        );
+        assert_eq!(count("/camera/right"), 15);
+        assert_eq!(count("/truth"), r.log.len() as u64);
+        assert!(
+            (380..=386).contains(&count("/motors")),
+            "128 Hz: {counts:?}"
+        );
+        assert!(
+            (25..=31).contains(&count("/state")),
+            "10 Hz telemetry: {counts:?}"
+        );
+        for t in ["/attitude", "/setpoint", "/velocity", "/height", "/link"] {
+            assert_eq!(count(t), count("/state"), "{t}");
+        }
+        assert_eq!(
+            logged
+                .counts
+                .iter()
+                .map(|(t, n)| (t.to_string(), *n))
+                .collect::<Vec<_>>(),
+            counts.into_iter().collect::<Vec<_>>()
+        );
         assert_eq!(r.imu_samples, 3 * 512, "{s}");
         assert_eq!(r.motor_replies, r.imu_samples, "{s}");
         assert_eq!(r.reply_timeouts + r.frame_timeouts, 0, "{s}");
@@ -1010,13 +1291,61 @@ mod tests {
 
     #[test]
     fn addresses_parse() {
-        assert!(
-            open_link("tcp:127.0.0.1:1", 921_600).is_err(),
-            "nothing listens"
-        );
+        let e = open_link("tcp:127.0.0.1:1", 921_600)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("127.0.0.1:1"), "nothing listens: {e}");
         let e = open_link("/dev/null", 921_600).err().unwrap().to_string();
-        assert!(e.contains("not a serial device"), "{e}");
-        let e = open_link("/dev/null", 123).err().unwrap().to_string();
-        assert!(e.contains("unsupported baud"), "{e}");
+        assert!(
+            e.contains("/dev/null") && e.contains("not a serial device"),
+            "{e}"
+        );
+        let e = open_link("/dev/ttyNOSUCH7", 921_600)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("/dev/ttyNOSUCH7") && e.contains("no such device"),
+            "{e}"
+        );
+        let e = open_link("/dev/null", 0).err().unwrap().to_string();
+        assert!(e.contains("baud rate 0"), "{e}");
+    }
+
+    /// A pseudo-terminal is a real tty: open it at rates the old termios table refused (below
+    /// 115,200 and off the standard list) and pass a message through it both ways.
+    #[cfg(unix)]
+    #[test]
+    fn serial_ports_open_at_any_baud_rate_and_carry_bytes() {
+        use serialport::SerialPort as _;
+        for baud in [9_600, 57_600, 250_000, 921_600] {
+            let (mut master, slave) = serialport::TTYPort::pair().unwrap();
+            let path = slave.name().unwrap();
+            drop(slave);
+            master.set_timeout(Duration::from_secs(2)).unwrap();
+            let mut link = open_link(&path, baud).unwrap_or_else(|e| panic!("{path}: {e:#}"));
+            let mut reader = link.try_clone_link().unwrap();
+            let msg = BoardToHost::Heartbeat(Heartbeat::new(Node::Autopilot, 7));
+            let mut bytes = Vec::new();
+            send_to_host(&msg, &mut |b| bytes.extend_from_slice(b));
+            master.write_all(&bytes).unwrap();
+            let mut got = Vec::new();
+            let mut dec = BoardToHostDecoder::new();
+            let mut buf = [0u8; 64];
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while got.is_empty() && Instant::now() < deadline {
+                match reader.read(&mut buf) {
+                    Ok(n) => dec.feed(&buf[..n], |m| got.push(m)),
+                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                    Err(e) => panic!("{path} at {baud}: {e}"),
+                }
+            }
+            assert_eq!(got, vec![msg], "{path} at {baud} Bd");
+            link.write_all(b"pong").unwrap();
+            let mut back = [0u8; 4];
+            master.read_exact(&mut back).unwrap();
+            assert_eq!(&back, b"pong");
+        }
     }
 }

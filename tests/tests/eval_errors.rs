@@ -35,7 +35,7 @@ fn scratch_dataset() -> PathBuf {
     for t in 1..=5 {
         copy_take(&src, &fwd.join(format!("take{t}")), 40);
     }
-    // take2: a BMP of the wrong bit depth (byte 28 = bits per pixel).
+    // take2: a BMP whose header claims 24 bits per pixel (byte 28) over 8-bit pixel data.
     let bmp = fwd.join("take2/7.bmp");
     let mut b = fs::read(&bmp).unwrap();
     b[28] = 24;
@@ -65,7 +65,7 @@ fn bad_takes_fail_with_clear_errors_and_good_ones_still_evaluate() {
     let errs: Vec<Result<(), String>> = takes.iter().map(eval).collect();
     assert!(errs[0].is_ok(), "{:?}", errs[0]);
     let e = errs[1].as_ref().unwrap_err();
-    assert!(e.contains("7.bmp") && e.contains("24 bits"), "{e}");
+    assert!(e.contains("7.bmp") && e.contains("truncated"), "{e}");
     let e = errs[2].as_ref().unwrap_err();
     assert!(e.contains("position.dat"), "{e}");
     let e = errs[3].as_ref().unwrap_err();

@@ -12,7 +12,7 @@
 mod support;
 
 use protocol::STEREO_FRAME_BYTES;
-use sim_host::eval::dataset::{discover_takes, load_bmp};
+use sim_host::eval::dataset::{discover_takes, load_frame};
 use std::time::Duration;
 use stereo_board::app::{FrameAssembler, StereoBoardApp};
 use stereo_board::edge_fs::EdgeFsParams;
@@ -27,7 +27,7 @@ fn firmware_estimates_equal_the_host_library_on_real_frames() {
     let takes = discover_takes(&integration_tests::shared_dataset_dir()).expect("data set");
     let take = &takes[0];
     let frames: Vec<Box<[u8; STEREO_FRAME_BYTES]>> = (1..=FRAMES)
-        .map(|i| load_bmp(&take.image_path(i)).expect("frame loads"))
+        .map(|i| load_frame(&take.image_path(i)).expect("frame loads"))
         .collect();
 
     let (stereo_elf, _) = qemu_firmwares();

@@ -1,9 +1,10 @@
 //! `cargo xtask test`: the CI test command, runnable on a fresh machine.
 //!
 //! 1. Installs what a fresh machine lacks: the `thumbv7em-none-eabihf` target (rustup),
-//!    `flip-link` (the firmware linker; cargo install), a
-//!    nightly toolchain and `cargo-fuzz` (for the bounded fuzz run), and `qemu-system-arm` from
-//!    Debian's main archive (apt-get).
+//!    `flip-link` (the firmware linker; cargo install), a nightly toolchain and `cargo-fuzz`
+//!    (for the bounded fuzz run), `qemu-system-arm` (and `python3-pip` if there is no pip)
+//!    from Debian's main archive (apt-get), and the `mcap` Python package (pip), the
+//!    independent reader the flight-log test checks MCAP files with.
 //! 2. Checks formatting, runs clippy with warnings denied on the host and on thumbv7em, runs all
 //!    host tests, builds both firmwares in release, runs them on the virtual boards
 //!    (`cargo xtask vboard`), and fuzzes the protocol decoder briefly.
@@ -18,6 +19,9 @@ use std::time::Instant;
 
 /// The firmware target.
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
+
+/// The Python MCAP reader the flight-log test uses (pip requirement).
+const MCAP_PYTHON: &str = "mcap>=1.1,<2";
 
 /// Runs `cargo xtask test`.
 pub fn run(args: &[String]) -> Result<()> {
@@ -125,28 +129,48 @@ fn install_prerequisites(need_fuzz: bool) -> Result<()> {
         run_checked(Command::new("cargo").args(["install", "flip-link", "--locked"]))
             .context("cargo install flip-link --locked")?;
     }
-    if !succeeds(Command::new("qemu-system-arm").arg("--version")) {
-        eprintln!("xtask: installing qemu-system-arm from Debian's main archive");
-        let sudo = if is_root() { None } else { Some("sudo") };
-        let apt = |args: &[&str]| -> Result<()> {
-            let mut cmd = match sudo {
-                Some(s) => {
-                    let mut c = Command::new(s);
-                    c.arg("apt-get");
-                    c
-                }
-                None => Command::new("apt-get"),
-            };
-            cmd.args(args).env("DEBIAN_FRONTEND", "noninteractive");
-            run_checked(&mut cmd)
+    let sudo = if is_root() { None } else { Some("sudo") };
+    let apt = |args: &[&str]| -> Result<()> {
+        let mut cmd = match sudo {
+            Some(s) => {
+                let mut c = Command::new(s);
+                c.arg("apt-get");
+                c
+            }
+            None => Command::new("apt-get"),
         };
-        apt(&["update"])?;
-        apt(&[
-            "install",
-            "-y",
-            "--no-install-recommends",
-            "qemu-system-arm",
-        ])?;
+        cmd.args(args).env("DEBIAN_FRONTEND", "noninteractive");
+        run_checked(&mut cmd)
+    };
+    let mut apt_updated = false;
+    let mut apt_install = |package: &str| -> Result<()> {
+        eprintln!("xtask: installing {package} from Debian's main archive");
+        if !apt_updated {
+            apt(&["update"])?;
+            apt_updated = true;
+        }
+        apt(&["install", "-y", "--no-install-recommends", package])
+    };
+    if !succeeds(Command::new("qemu-system-arm").arg("--version")) {
+        apt_install("qemu-system-arm")?;
+    }
+    if !succeeds(Command::new("python3").args(["-c", "import mcap.reader"])) {
+        if !succeeds(Command::new("python3").args(["-m", "pip", "--version"])) {
+            apt_install("python3-pip")?;
+        }
+        eprintln!("xtask: installing the mcap Python package (pip)");
+        let pip = |extra: &[&str]| {
+            let mut cmd = Command::new("python3");
+            cmd.args(["-m", "pip", "install", "--quiet", MCAP_PYTHON])
+                .args(extra);
+            succeeds(&mut cmd)
+        };
+        // Debian's own Python refuses pip outside a virtual environment (PEP 668) unless told.
+        if !pip(&[]) && !pip(&["--break-system-packages"]) {
+            bail!(
+                "installing the mcap Python package failed (python3 -m pip install {MCAP_PYTHON})"
+            );
+        }
     }
     if need_fuzz {
         if !succeeds(Command::new("cargo").args(["+nightly", "--version"])) {

@@ -22,7 +22,7 @@ pub mod plot;
 pub mod truth;
 
 use anyhow::{bail, ensure, Context, Result};
-use dataset::{discover_takes, load_bmp, Take};
+use dataset::{discover_takes, load_frame, Take};
 use indicatif::{ProgressBar, ProgressStyle};
 use metrics::{metrics, Metrics};
 use paper_table::paper_row;
@@ -144,7 +144,11 @@ pub fn evaluate_take_with(
     on_frame: &(dyn Fn() + Sync),
 ) -> Result<TakeResult> {
     let n = take.image_count();
-    ensure!(n > 0, "{}: no images (1.bmp ...)", take.dir.display());
+    ensure!(
+        n > 0,
+        "{}: no images (1.bmp or 1.png ...)",
+        take.dir.display()
+    );
     ensure!(
         n >= 22,
         "{}: only {n} images; the evaluation window 10..N-11 needs at least 22",
@@ -161,7 +165,7 @@ pub fn evaluate_take_with(
     };
     let h = params.max_horizon as usize;
     for i in 1..n {
-        let frame = load_bmp(&take.image_path(i))?;
+        let frame = load_frame(&take.image_path(i))?;
         let t = truth.time_s[i - 1];
         let yaw_body = -(truth.yaw_deg[i - 1] * std::f64::consts::PI / 180.0);
         let motion = GyroAttitude {

@@ -14,8 +14,8 @@ use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
 use protocol::{
-    AutopilotToStereo, Decoder, FlightMode, FsmState, Heartbeat, ImuSample, Message, Node,
-    PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+    AutopilotToStereo, Decoder, Estimate, FlightMode, FsmState, Heartbeat, ImuSample, Message,
+    Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
@@ -179,6 +179,51 @@ pub struct FlightResult {
     pub scene: Scene,
 }
 
+/// Counters of a flight so far, as an observer sees them.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FlightCounters {
+    /// Estimates received / valid by the autopilot.
+    pub estimates: [u64; 2],
+    /// Frames dropped by the camera board.
+    pub frames_dropped: u32,
+    /// Contacts with walls and obstacles.
+    pub collisions: u32,
+    /// Link statistics camera -> autopilot and autopilot -> camera.
+    pub uart: [UartStats; 2],
+}
+
+/// What a flight shows as it happens (a flight log records it). Times are simulated, µs.
+pub trait FlightObserver {
+    /// An estimate as the autopilot received it (decoded from the wire).
+    fn on_estimate(&mut self, _t_us: u64, _estimate: &Estimate) {}
+    /// A stereo frame exposed at `t_us` (interleaved `[L0 R0 L1 R1 ...]`).
+    fn on_frame(&mut self, _t_us: u64, _frame: &[u8; STEREO_FRAME_BYTES]) {}
+    /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
+    /// duties applied (0..=1).
+    fn on_control(
+        &mut self,
+        _t_us: u64,
+        _ap: &Autopilot,
+        _gyro_radps: [f32; 3],
+        _motors: [f32; 4],
+    ) {
+    }
+    /// After each 50 Hz guidance step, with the log row of that instant.
+    fn on_guidance(
+        &mut self,
+        _t_us: u64,
+        _ap: &Autopilot,
+        _row: &LogRow,
+        _counters: &FlightCounters,
+    ) {
+    }
+}
+
+/// An observer that ignores everything.
+pub struct NoObserver;
+
+impl FlightObserver for NoObserver {}
+
 /// A frame waiting for the camera board.
 struct PendingFrame {
     ready_us: u64,
@@ -191,6 +236,15 @@ struct PendingFrame {
 pub fn run_flight(
     cfg: &FlightConfig,
     progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<FlightResult> {
+    run_flight_observed(cfg, progress, &mut NoObserver)
+}
+
+/// [`run_flight`], showing the flight to `observer` as it happens.
+pub fn run_flight_observed(
+    cfg: &FlightConfig,
+    progress: &mut dyn FnMut(f64),
+    observer: &mut dyn FlightObserver,
 ) -> anyhow::Result<FlightResult> {
     let mut world = World::new(cfg)?;
     let mut ap_cfg = cfg.autopilot;
@@ -275,6 +329,7 @@ pub fn run_flight(
             ap.on_stereo_bytes(&rxbuf, t);
             tap.feed(&rxbuf, |m| {
                 if let StereoToAutopilot::Estimate(e) = m {
+                    observer.on_estimate(t, &e);
                     estimates[0] += 1;
                     last_raw = [f32::NAN; 2];
                     if e.is_valid() {
@@ -321,6 +376,7 @@ pub fn run_flight(
             next_capture += frame_period_us;
             let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
             world.render(&mut frame);
+            observer.on_frame(t, &frame);
             let vb = world.drone.state.att.rotate_inv(world.drone.state.vel);
             truth_at_capture.push_back((t as u32, [vb.x as f32, vb.y as f32]));
             if truth_at_capture.len() > 32 {
@@ -367,6 +423,7 @@ pub fn run_flight(
                         t,
                     );
                     motors = out.map(|m| m as f64);
+                    observer.on_control(t, &ap, s.gyro.to_f32(), out);
                 }
                 (Board::Autopilot, "guidance") => {
                     ap.guidance_step(t);
@@ -380,6 +437,13 @@ pub fn run_flight(
                         }
                         n_filt += 2;
                     }
+                    let counters = FlightCounters {
+                        estimates,
+                        frames_dropped: cb.counters().frames_dropped,
+                        collisions: world.collisions,
+                        uart: [s2a.stats(), a2s.stats()],
+                    };
+                    observer.on_guidance(t, &ap, &row, &counters);
                     log.push(row);
                 }
                 (Board::Autopilot, "gyro_tx") => {

@@ -1,0 +1,419 @@
+//! Flight logs in MCAP (written with the `mcap` crate), readable by PlotJuggler, Foxglove and
+//! Lichtblick.
+//!
+//! Every channel carries JSON messages described by a JSON Schema: the typed records of
+//! [`records`] (estimates with their flags and quality, attitude and body rates, setpoints,
+//! motor duties, FSM state and flight mode by name, velocity, height, link and status
+//! counters, the simulated truth) and the camera's left and right images as
+//! `foxglove.RawImage` (`mono8`, pixels base64-encoded as that schema's JSON form asks).
+//! Message times (`log_time`) are nanoseconds of the flight's clock: world time from 0 in the
+//! simulator and HIL, wall time since the Unix epoch for a live board. Chunks are
+//! zstd-compressed.
+//!
+//! A channel appears with its first message, so a log only lists what its source reports.
+
+pub mod records;
+pub mod sim;
+
+use anyhow::{anyhow, Context as _};
+use base64::Engine as _;
+use protocol::STEREO_FRAME_BYTES;
+use records::Record;
+use schemars::JsonSchema;
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{BufWriter, Seek, Write};
+use std::path::{Path, PathBuf};
+
+/// Topic of the left camera's images.
+pub const LEFT_IMAGE_TOPIC: &str = "/camera/left";
+/// Topic of the right camera's images.
+pub const RIGHT_IMAGE_TOPIC: &str = "/camera/right";
+/// Width of one camera's image, px.
+pub const IMAGE_WIDTH: u32 = 128;
+/// Height of one camera's image, px.
+pub const IMAGE_HEIGHT: u32 = 96;
+
+/// The `foxglove.RawImage` JSON Schema (the schema Foxglove publishes for that type).
+const RAW_IMAGE_SCHEMA: &str = r#"{
+  "title": "foxglove.RawImage",
+  "description": "A raw image",
+  "type": "object",
+  "properties": {
+    "timestamp": {
+      "type": "object",
+      "title": "time",
+      "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}
+      },
+      "description": "Timestamp of image"
+    },
+    "frame_id": {"type": "string", "description": "Frame of reference for the image."},
+    "width": {"type": "integer", "minimum": 0, "description": "Image width"},
+    "height": {"type": "integer", "minimum": 0, "description": "Image height"},
+    "encoding": {"type": "string", "description": "Encoding of the raw image data"},
+    "step": {"type": "integer", "minimum": 0, "description": "Byte length of a single row"},
+    "data": {"type": "string", "contentEncoding": "base64", "description": "Raw image data"}
+  }
+}"#;
+
+/// A `foxglove.RawImage` in its JSON form.
+#[derive(Serialize)]
+struct RawImage<'a> {
+    timestamp: FoxgloveTime,
+    frame_id: &'a str,
+    width: u32,
+    height: u32,
+    encoding: &'a str,
+    step: u32,
+    data: String,
+}
+
+#[derive(Serialize)]
+struct FoxgloveTime {
+    sec: u64,
+    nsec: u32,
+}
+
+/// An MCAP flight log being written.
+pub struct FlightLog<W: Write + Seek = BufWriter<File>> {
+    writer: mcap::Writer<W>,
+    channels: HashMap<&'static str, u16>,
+    counts: BTreeMap<&'static str, u64>,
+    last_ns: u64,
+    path: PathBuf,
+}
+
+/// What a finished log holds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogSummary {
+    /// Messages per topic.
+    pub counts: BTreeMap<&'static str, u64>,
+    /// Where it was written.
+    pub path: PathBuf,
+}
+
+impl LogSummary {
+    /// All messages.
+    pub fn total(&self) -> u64 {
+        self.counts.values().sum()
+    }
+}
+
+impl FlightLog {
+    /// Creates (or replaces) the log file at `path`.
+    pub fn create(path: &Path) -> anyhow::Result<Self> {
+        let file =
+            File::create(path).with_context(|| format!("creating the log {}", path.display()))?;
+        Self::new(BufWriter::new(file), path)
+    }
+}
+
+impl<W: Write + Seek> FlightLog<W> {
+    /// A log written to `w`; `path` names it in errors.
+    pub fn new(w: W, path: &Path) -> anyhow::Result<Self> {
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .profile("")
+            .library(concat!("pocket-drone sim-host ", env!("CARGO_PKG_VERSION")))
+            .create(w)
+            .map_err(|e| anyhow!("starting the log {}: {e}", path.display()))?;
+        Ok(Self {
+            writer,
+            channels: HashMap::new(),
+            counts: BTreeMap::new(),
+            last_ns: 0,
+            path: path.to_path_buf(),
+        })
+    }
+
+    fn channel(
+        &mut self,
+        topic: &'static str,
+        schema: &str,
+        schema_json: &dyn Fn() -> String,
+    ) -> anyhow::Result<u16> {
+        if let Some(&id) = self.channels.get(topic) {
+            return Ok(id);
+        }
+        let path = &self.path;
+        let schema_id = self
+            .writer
+            .add_schema(schema, "jsonschema", schema_json().as_bytes())
+            .map_err(|e| anyhow!("{}: adding schema {schema}: {e}", path.display()))?;
+        let id = self
+            .writer
+            .add_channel(schema_id, topic, "json", &BTreeMap::new())
+            .map_err(|e| anyhow!("{}: adding channel {topic}: {e}", path.display()))?;
+        self.channels.insert(topic, id);
+        Ok(id)
+    }
+
+    fn put(
+        &mut self,
+        channel: u16,
+        topic: &'static str,
+        t_ns: u64,
+        data: &[u8],
+    ) -> anyhow::Result<()> {
+        let count = self.counts.entry(topic).or_insert(0);
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: *count as u32,
+            log_time: t_ns,
+            publish_time: t_ns,
+        };
+        *count += 1;
+        self.last_ns = self.last_ns.max(t_ns);
+        self.writer
+            .write_to_known_channel(&header, data)
+            .map_err(|e| anyhow!("writing {topic} to {}: {e}", self.path.display()))
+    }
+
+    /// Writes `record` on its channel at `t_ns`.
+    pub fn write<R: Record>(&mut self, t_ns: u64, record: &R) -> anyhow::Result<()> {
+        let id = self.channel(R::TOPIC, R::SCHEMA, &schema_of::<R>)?;
+        let data = serde_json::to_vec(record).context("serialising a log record")?;
+        self.put(id, R::TOPIC, t_ns, &data)
+    }
+
+    /// Writes an interleaved stereo frame (`[L0 R0 L1 R1 ...]`, 128x96 each) as two
+    /// `foxglove.RawImage` messages, left and right camera.
+    pub fn stereo_frame(
+        &mut self,
+        t_ns: u64,
+        frame: &[u8; STEREO_FRAME_BYTES],
+    ) -> anyhow::Result<()> {
+        for (topic, eye) in [(LEFT_IMAGE_TOPIC, 0), (RIGHT_IMAGE_TOPIC, 1)] {
+            let pixels: Vec<u8> = frame.iter().skip(eye).step_by(2).copied().collect();
+            let image = RawImage {
+                timestamp: FoxgloveTime {
+                    sec: t_ns / 1_000_000_000,
+                    nsec: (t_ns % 1_000_000_000) as u32,
+                },
+                frame_id: if eye == 0 {
+                    "camera_left"
+                } else {
+                    "camera_right"
+                },
+                width: IMAGE_WIDTH,
+                height: IMAGE_HEIGHT,
+                encoding: "mono8",
+                step: IMAGE_WIDTH,
+                data: base64::engine::general_purpose::STANDARD.encode(&pixels),
+            };
+            let id = self.channel(topic, "foxglove.RawImage", &|| RAW_IMAGE_SCHEMA.to_string())?;
+            let data = serde_json::to_vec(&image).context("serialising an image")?;
+            self.put(id, topic, t_ns, &data)?;
+        }
+        Ok(())
+    }
+
+    /// Time of the latest message, ns.
+    pub fn last_time_ns(&self) -> u64 {
+        self.last_ns
+    }
+
+    /// Messages written so far, per topic.
+    pub fn counts(&self) -> &BTreeMap<&'static str, u64> {
+        &self.counts
+    }
+
+    /// Writes the summary and index records and closes the file.
+    pub fn finish(mut self) -> anyhow::Result<LogSummary> {
+        let path = self.path.clone();
+        self.writer
+            .finish()
+            .map_err(|e| anyhow!("finishing the log {}: {e}", path.display()))?;
+        let mut w = self.writer.into_inner();
+        w.flush()
+            .with_context(|| format!("writing the log {}", path.display()))?;
+        Ok(LogSummary {
+            counts: self.counts,
+            path,
+        })
+    }
+}
+
+/// The JSON Schema of a record type.
+fn schema_of<R: JsonSchema>() -> String {
+    serde_json::to_string_pretty(&schemars::schema_for!(R)).unwrap_or_else(|_| "{}".into())
+}
+
+/// Thins a stream of samples out to one per period: a sample is taken when at least 95 % of
+/// the period has passed since the last one taken, so samples on a slightly irregular grid
+/// (IMU ticks of 1953.125 µs rounded to whole µs, frames on that grid) are not skipped for
+/// being a few microseconds early.
+#[derive(Debug, Clone, Copy)]
+pub struct Thinner {
+    period_us: u64,
+    last_us: Option<u64>,
+}
+
+impl Thinner {
+    /// About `hz` samples per second (none for a rate that is not positive).
+    pub fn new(hz: f64) -> Self {
+        let period_us = if hz > 0.0 && hz.is_finite() {
+            (1e6 / hz).round().max(1.0) as u64
+        } else {
+            u64::MAX
+        };
+        Self {
+            period_us,
+            last_us: None,
+        }
+    }
+
+    /// Whether the sample at `t_us` is taken.
+    pub fn take(&mut self, t_us: u64) -> bool {
+        if self.period_us == u64::MAX {
+            return false;
+        }
+        let due = self
+            .last_us
+            .is_none_or(|last| t_us.saturating_sub(last) >= self.period_us - self.period_us / 20);
+        if due {
+            self.last_us = Some(t_us);
+        }
+        due
+    }
+}
+
+/// Nanoseconds of `t_us` microseconds.
+pub fn ns(t_us: u64) -> u64 {
+    t_us.saturating_mul(1_000)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::records::*;
+    use super::*;
+    use protocol::{Estimate, EstimateFlags};
+
+    #[test]
+    fn records_and_images_round_trip_through_the_crate_reader() {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        let mut log = FlightLog::new(&mut buf, Path::new("mem.mcap")).unwrap();
+        let e = Estimate {
+            seq: 3,
+            capture_us: 40_000,
+            forward_mps: 0.25,
+            sideways_mps: -0.5,
+            obstacle_m: None,
+            quality: 99,
+            flags: EstimateFlags::NO_TEXTURE | EstimateFlags::NO_GYRO,
+            processing_us: 9_000,
+        };
+        log.write(1_000, &EstimateRecord::from(&e)).unwrap();
+        log.write(
+            2_000,
+            &StateRecord::new(Some(protocol::FsmState::Turn), protocol::FlightMode::Flying),
+        )
+        .unwrap();
+        let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+        for (i, p) in frame.iter_mut().enumerate() {
+            *p = if i % 2 == 0 { 10 } else { 200 };
+        }
+        log.stereo_frame(3_000, &frame).unwrap();
+        let summary = log.finish().unwrap();
+        assert_eq!(summary.total(), 4);
+
+        let bytes = buf.into_inner();
+        let mut topics = Vec::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+            topics.push((m.channel.topic.clone(), m.log_time));
+            match m.channel.topic.as_str() {
+                "/estimate" => {
+                    assert_eq!(
+                        v["flag_names"],
+                        serde_json::json!(["no_texture", "no_gyro"])
+                    );
+                    assert_eq!(v["valid"], false);
+                    assert_eq!(v["obstacle_m"], serde_json::Value::Null);
+                    let schema = m.channel.schema.as_ref().unwrap();
+                    assert_eq!(schema.encoding, "jsonschema");
+                    let s = String::from_utf8(schema.data.to_vec()).unwrap();
+                    assert!(s.contains("Confidence, 0 (none)"), "{s}");
+                }
+                "/state" => {
+                    assert_eq!(v["fsm_state"], "turn");
+                    assert_eq!(v["mode"], "flying");
+                }
+                t @ ("/camera/left" | "/camera/right") => {
+                    assert_eq!(m.channel.schema.as_ref().unwrap().name, "foxglove.RawImage");
+                    assert_eq!(v["encoding"], "mono8");
+                    let data = base64::engine::general_purpose::STANDARD
+                        .decode(v["data"].as_str().unwrap())
+                        .unwrap();
+                    assert_eq!(data.len(), 128 * 96);
+                    let want = if t == "/camera/left" { 10 } else { 200 };
+                    assert!(data.iter().all(|&p| p == want), "{t}");
+                }
+                other => panic!("unexpected topic {other}"),
+            }
+        }
+        let want: Vec<(String, u64)> = [
+            ("/estimate", 1_000),
+            ("/state", 2_000),
+            ("/camera/left", 3_000),
+            ("/camera/right", 3_000),
+        ]
+        .iter()
+        .map(|(t, n)| (t.to_string(), *n))
+        .collect();
+        assert_eq!(topics, want);
+    }
+
+    #[test]
+    fn thinner_keeps_one_sample_per_period_on_an_irregular_grid() {
+        // 512 Hz ticks rounded down to whole µs, thinned to 128 Hz: every fourth.
+        let mut th = Thinner::new(128.0);
+        let taken: Vec<u64> = (0..16u64)
+            .map(|k| k * 1_000_000 / 512)
+            .filter(|&t| th.take(t))
+            .collect();
+        assert_eq!(taken, [0, 7_812, 15_625, 23_437]);
+        // 10 fps frames on the IMU grid, thinned to 5 Hz: every second.
+        let mut th = Thinner::new(5.0);
+        let frames = [101_562, 201_171, 300_781, 400_390, 500_000];
+        let taken: Vec<u64> = frames.into_iter().filter(|&t| th.take(t)).collect();
+        assert_eq!(taken, [101_562, 300_781, 500_000]);
+        // 25 fps frames, thinned to 5 Hz: every fifth.
+        let mut th = Thinner::new(5.0);
+        let taken = (0..11u64).filter(|k| th.take(100_000 + k * 40_000)).count();
+        assert_eq!(taken, 3);
+        assert!(!Thinner::new(0.0).take(0));
+    }
+
+    #[test]
+    fn states_and_modes_are_named_and_numbered() {
+        let s = StateRecord::new(None, protocol::FlightMode::Disarmed);
+        assert_eq!(
+            (s.fsm_state, s.fsm_state_id, s.mode, s.mode_id),
+            ("inactive", -1, "disarmed", 0)
+        );
+        let s = StateRecord::new(
+            Some(protocol::FsmState::Hover),
+            protocol::FlightMode::ImuFault,
+        );
+        assert_eq!(
+            (s.fsm_state, s.fsm_state_id, s.mode, s.mode_id),
+            ("hover", 2, "imu-fault", 5)
+        );
+    }
+
+    #[test]
+    fn an_unwritable_path_is_named() {
+        let e = FlightLog::create(Path::new("/nonexistent-dir/flight.mcap"))
+            .err()
+            .unwrap();
+        assert!(
+            format!("{e:#}").contains("/nonexistent-dir/flight.mcap"),
+            "{e:#}"
+        );
+    }
+}

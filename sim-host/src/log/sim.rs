@@ -1,0 +1,178 @@
+//! The simulator's flight log: a [`FlightObserver`] writing a [`FlightLog`].
+
+use super::records::*;
+use super::{ns, FlightLog, Thinner};
+use crate::sim::flight::{FlightCounters, FlightObserver, LogRow};
+use autopilot::app::Autopilot;
+use protocol::{Estimate, STEREO_FRAME_BYTES};
+use std::io::{Seek, Write};
+
+/// Rates of the channels that are thinned out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogRates {
+    /// Attitude, body rates and motor duties, Hz (the control loop runs at 512 Hz).
+    pub control_hz: f64,
+    /// Camera images (left and right), about this many per second (see [`Thinner`]).
+    pub image_hz: f64,
+}
+
+impl Default for LogRates {
+    fn default() -> Self {
+        Self {
+            control_hz: 128.0,
+            image_hz: 5.0,
+        }
+    }
+}
+
+/// Records a simulated flight. Write errors stop the recording; [`SimRecorder::finish`]
+/// reports the first.
+pub struct SimRecorder<W: Write + Seek> {
+    log: Option<FlightLog<W>>,
+    error: Option<anyhow::Error>,
+    control: Thinner,
+    images: Thinner,
+    last_status_uptime: Option<u32>,
+}
+
+impl<W: Write + Seek> SimRecorder<W> {
+    /// Records into `log` at `rates`.
+    pub fn new(log: FlightLog<W>, rates: LogRates) -> Self {
+        Self {
+            log: Some(log),
+            error: None,
+            control: Thinner::new(rates.control_hz),
+            images: Thinner::new(rates.image_hz),
+            last_status_uptime: None,
+        }
+    }
+
+    fn with_log(&mut self, f: impl FnOnce(&mut FlightLog<W>) -> anyhow::Result<()>) {
+        if let Some(log) = self.log.as_mut() {
+            if let Err(e) = f(log) {
+                self.error = Some(e);
+                self.log = None;
+            }
+        }
+    }
+
+    /// Closes the log; the first write error, if any.
+    pub fn finish(self) -> anyhow::Result<super::LogSummary> {
+        if let Some(e) = self.error {
+            return Err(e);
+        }
+        self.log
+            .ok_or_else(|| anyhow::anyhow!("the flight log was not written"))?
+            .finish()
+    }
+}
+
+fn finite(v: f32) -> Option<f32> {
+    v.is_finite().then_some(v)
+}
+
+impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
+    fn on_estimate(&mut self, t_us: u64, estimate: &Estimate) {
+        self.with_log(|log| log.write(ns(t_us), &EstimateRecord::from(estimate)));
+    }
+
+    fn on_frame(&mut self, t_us: u64, frame: &[u8; STEREO_FRAME_BYTES]) {
+        if !self.images.take(t_us) {
+            return;
+        }
+        self.with_log(|log| log.stereo_frame(ns(t_us), frame));
+    }
+
+    fn on_control(&mut self, t_us: u64, ap: &Autopilot, gyro_radps: [f32; 3], motors: [f32; 4]) {
+        if !self.control.take(t_us) {
+            return;
+        }
+        let [roll, pitch, yaw] = ap.attitude();
+        self.with_log(|log| {
+            log.write(
+                ns(t_us),
+                &AttitudeRecord {
+                    roll_rad: roll,
+                    pitch_rad: pitch,
+                    yaw_rad: yaw,
+                    roll_rate_radps: Some(gyro_radps[0]),
+                    pitch_rate_radps: Some(gyro_radps[1]),
+                    yaw_rate_radps: Some(gyro_radps[2]),
+                },
+            )?;
+            log.write(ns(t_us), &MotorsRecord::from(motors))
+        });
+    }
+
+    fn on_guidance(&mut self, t_us: u64, ap: &Autopilot, row: &LogRow, c: &FlightCounters) {
+        let t = ns(t_us);
+        let tel = ap.telemetry(t_us);
+        let sp = ap.setpoints();
+        let status = ap.stereo_status();
+        let new_status = status.filter(|s| self.last_status_uptime != Some(s.uptime_ms));
+        if let Some(s) = new_status {
+            self.last_status_uptime = Some(s.uptime_ms);
+        }
+        self.with_log(|log| {
+            log.write(t, &StateRecord::new(tel.fsm_state, tel.flight_mode))?;
+            log.write(
+                t,
+                &SetpointRecord {
+                    forward_mps: sp.velocity_mps[0],
+                    sideways_mps: sp.velocity_mps[1],
+                    roll_rad: Some(sp.attitude_rad[0]),
+                    pitch_rad: Some(sp.attitude_rad[1]),
+                    yaw_rad: Some(sp.attitude_rad[2]),
+                    height_m: Some(sp.height_m),
+                    thrust: Some(sp.thrust),
+                },
+            )?;
+            log.write(
+                t,
+                &VelocityRecord {
+                    forward_mps: finite(row.vel_est[0]),
+                    sideways_mps: finite(row.vel_est[1]),
+                    true_forward_mps: finite(row.vel_true[0]),
+                    true_sideways_mps: finite(row.vel_true[1]),
+                },
+            )?;
+            log.write(
+                t,
+                &HeightRecord {
+                    height_m: tel.height_m,
+                    setpoint_m: Some(sp.height_m),
+                    true_m: Some(row.pos[2]),
+                },
+            )?;
+            log.write(
+                t,
+                &TruthRecord {
+                    x_m: row.pos[0],
+                    y_m: row.pos[1],
+                    height_m: row.pos[2],
+                    yaw_rad: Some(row.yaw),
+                    clearance_m: finite(row.clearance_m),
+                    collisions: c.collisions,
+                },
+            )?;
+            log.write(
+                t,
+                &LinkRecord {
+                    camera_link_errors: tel.link_errors.into(),
+                    host_link_errors: None,
+                    estimates_received: c.estimates[0],
+                    estimates_valid: c.estimates[1],
+                    frames_dropped: Some(c.frames_dropped),
+                    camera_to_autopilot_bytes_lost: Some(c.uart[0].bytes_lost),
+                    camera_to_autopilot_bytes_corrupted: Some(c.uart[0].bytes_corrupted),
+                    autopilot_to_camera_bytes_lost: Some(c.uart[1].bytes_lost),
+                    timeouts: None,
+                },
+            )?;
+            if let Some(s) = new_status {
+                log.write(t, &StereoStatusRecord::from(&s))?;
+            }
+            Ok(())
+        });
+    }
+}
