@@ -40,7 +40,9 @@ impl Firmware {
     pub fn real(name: &str) -> Result<Self, String> {
         let path = firmware_dir().join(name);
         Self::load(&path).map_err(|e| {
-            format!("{e} (build the firmwares first: `cargo xtask fw`, or run `cargo xtask vboard`)")
+            format!(
+                "{e} (build the firmwares first: `cargo xtask fw`, or run `cargo xtask vboard`)"
+            )
         })
     }
 

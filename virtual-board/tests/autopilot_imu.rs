@@ -75,7 +75,7 @@ impl Probe<Autopilot> for Pilot {
 }
 
 #[test]
-#[ignore = "known firmware bug (issue 12 items 3-5): IMU on SPI1/PA4, motors on PB4/PB5/PB0/PB1, UART write panic"]
+#[ignore = "fails on the fixed image: after the test's arm sequence the motor duties stay at 0; not yet diagnosed (firmware or the test's arming)"]
 fn the_imu_is_sampled_at_the_loop_rate_and_the_motors_oppose_a_body_rate() {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let mut outcome = run(

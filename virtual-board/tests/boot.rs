@@ -8,7 +8,6 @@ use virtual_board::firmware::Firmware;
 const STATUS: &str = "status uptime_ms=";
 
 #[test]
-#[ignore = "known firmware bug (issue 12 item 5): write_all on a Tx returning Ok(0) panics 135 ms after boot"]
 fn the_autopilot_boots_to_its_main_loop() {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let outcome = run(

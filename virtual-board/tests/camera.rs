@@ -52,9 +52,7 @@ fn same(a: &Estimate, b: &Estimate) -> bool {
 }
 
 #[test]
-#[ignore = "known firmware bug (issue 12): the camera firmware clocks the sensors from MCO1 on \
-            PA8 (not TIM3 CH2 on PA7), never drives their reset PD2 or the CPLD mode pins, reads \
-            D6/D7 on PE5/PE6, selects RGB565 and talks on USART1; un-ignore when fwcam's fix lands"]
+#[ignore = "not yet passed against the current camera image: the run is very slow (cause not yet found)"]
 fn estimates_over_the_link_equal_the_host_library_on_recorded_frames() {
     let recorded = Recorded::from_take(&take(), FRAMES).expect("the data set's take 1");
     let images = recorded.images().to_vec();
