@@ -197,6 +197,9 @@ fn build_firmware(take: &Path, frames: usize) -> Result<PathBuf> {
             "-p",
             "insns-firmware",
         ])
+        // The benchmark is not flight firmware: it keeps its large statics and deep stack in
+        // the default layout (rust-lld, stack at the top of SRAM) rather than flip-link's.
+        .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld")
         .env("INSNS_TAKE_DIR", take)
         .env("INSNS_FRAMES", frames.to_string())
         .status()
