@@ -52,11 +52,8 @@
 //! unchanged and decodes them on the way, so the test can check for decode errors on the
 //! inter-board link too.
 
-use crate::log::records::{
-    AttitudeRecord, EstimateRecord, HeightRecord, LinkRecord, MotorsRecord, SetpointRecord,
-    StateRecord, TruthRecord, VelocityRecord,
-};
-use crate::log::{ns as log_ns, FlightLog, Thinner};
+use crate::log::records::{EstimateRecord, LinkRecord, MotorsRecord, TruthRecord};
+use crate::log::{ns as log_ns, write_telemetry, FlightLog, TelemetryExtras, Thinner};
 use crate::sim::dynamics::Drone;
 use crate::sim::flight::FlightConfig;
 use crate::sim::scene_spec::SceneSpec;
@@ -876,45 +873,14 @@ impl<'a> HilRecorder<'a> {
         let host_errors = add_errors(host[0].errors(), host[1].errors());
         let t = log_ns(t_us);
         self.with(|log| {
-            log.write(t, &StateRecord::new(tel.fsm_state, tel.flight_mode))?;
-            log.write(
+            write_telemetry(
+                log,
                 t,
-                &AttitudeRecord {
-                    roll_rad: tel.attitude_rad[0],
-                    pitch_rad: tel.attitude_rad[1],
-                    yaw_rad: tel.attitude_rad[2],
-                    roll_rate_radps: Some(gyro_radps[0]),
-                    pitch_rate_radps: Some(gyro_radps[1]),
-                    yaw_rate_radps: Some(gyro_radps[2]),
-                },
-            )?;
-            log.write(
-                t,
-                &SetpointRecord {
-                    forward_mps: tel.velocity_setpoint_mps[0],
-                    sideways_mps: tel.velocity_setpoint_mps[1],
-                    roll_rad: None,
-                    pitch_rad: None,
-                    yaw_rad: None,
-                    height_m: None,
-                    thrust: None,
-                },
-            )?;
-            log.write(
-                t,
-                &VelocityRecord {
-                    forward_mps: Some(tel.velocity_mps[0]),
-                    sideways_mps: Some(tel.velocity_mps[1]),
-                    true_forward_mps: Some(true_v[0]),
-                    true_sideways_mps: Some(true_v[1]),
-                },
-            )?;
-            log.write(
-                t,
-                &HeightRecord {
-                    height_m: tel.height_m,
-                    setpoint_m: None,
-                    true_m: Some(-s.pos.z as f32),
+                tel,
+                &TelemetryExtras {
+                    gyro_radps: Some(gyro_radps),
+                    true_velocity_mps: Some(true_v),
+                    true_height_m: Some(-s.pos.z as f32),
                 },
             )?;
             log.write(

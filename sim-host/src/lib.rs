@@ -6,5 +6,6 @@ pub mod eval;
 pub mod fly;
 pub mod hil;
 pub mod log;
+pub mod monitor;
 pub mod plot_font;
 pub mod sim;

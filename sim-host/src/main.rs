@@ -19,6 +19,8 @@ enum Command {
     /// Hardware in the loop: fly the simulated world with the two real boards (serial links)
     /// or the two firmwares in QEMU (TCP), in lockstep on world time.
     Hil(sim_host::hil::HilArgs),
+    /// Live view of a board's telemetry link (serial port or TCP), recorded to MCAP.
+    Monitor(sim_host::monitor::MonitorArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -27,5 +29,6 @@ fn main() -> anyhow::Result<()> {
         Command::Fly(args) => sim_host::fly::run(args),
         Command::Eval(args) => sim_host::eval::run(args),
         Command::Hil(args) => sim_host::hil::run_cli(args),
+        Command::Monitor(args) => sim_host::monitor::run(args),
     }
 }

@@ -242,6 +242,70 @@ fn schema_of<R: JsonSchema>() -> String {
     serde_json::to_string_pretty(&schemars::schema_for!(R)).unwrap_or_else(|_| "{}".into())
 }
 
+/// What a logger knows beyond a telemetry message: the simulator's truth, the IMU's rates.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TelemetryExtras {
+    /// Body rates, rad/s.
+    pub gyro_radps: Option<[f32; 3]>,
+    /// True forward and sideways velocity, m/s.
+    pub true_velocity_mps: Option<[f32; 2]>,
+    /// True height, m.
+    pub true_height_m: Option<f32>,
+}
+
+/// Writes an autopilot telemetry message as its records (state, attitude, setpoint, velocity,
+/// height) at `t_ns`, with what else the logger knows.
+pub fn write_telemetry<W: Write + Seek>(
+    log: &mut FlightLog<W>,
+    t_ns: u64,
+    tel: &protocol::Telemetry,
+    extras: &TelemetryExtras,
+) -> anyhow::Result<()> {
+    use records::{AttitudeRecord, HeightRecord, SetpointRecord, StateRecord, VelocityRecord};
+    log.write(t_ns, &StateRecord::new(tel.fsm_state, tel.flight_mode))?;
+    let rate = |axis: usize| extras.gyro_radps.map(|g| g[axis]);
+    log.write(
+        t_ns,
+        &AttitudeRecord {
+            roll_rad: tel.attitude_rad[0],
+            pitch_rad: tel.attitude_rad[1],
+            yaw_rad: tel.attitude_rad[2],
+            roll_rate_radps: rate(0),
+            pitch_rate_radps: rate(1),
+            yaw_rate_radps: rate(2),
+        },
+    )?;
+    log.write(
+        t_ns,
+        &SetpointRecord {
+            forward_mps: tel.velocity_setpoint_mps[0],
+            sideways_mps: tel.velocity_setpoint_mps[1],
+            roll_rad: None,
+            pitch_rad: None,
+            yaw_rad: None,
+            height_m: None,
+            thrust: None,
+        },
+    )?;
+    log.write(
+        t_ns,
+        &VelocityRecord {
+            forward_mps: Some(tel.velocity_mps[0]),
+            sideways_mps: Some(tel.velocity_mps[1]),
+            true_forward_mps: extras.true_velocity_mps.map(|v| v[0]),
+            true_sideways_mps: extras.true_velocity_mps.map(|v| v[1]),
+        },
+    )?;
+    log.write(
+        t_ns,
+        &HeightRecord {
+            height_m: tel.height_m,
+            setpoint_m: None,
+            true_m: extras.true_height_m,
+        },
+    )
+}
+
 /// Thins a stream of samples out to one per period: a sample is taken when at least 95 % of
 /// the period has passed since the last one taken, so samples on a slightly irregular grid
 /// (IMU ticks of 1953.125 µs rounded to whole µs, frames on that grid) are not skipped for

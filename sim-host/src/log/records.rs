@@ -2,7 +2,10 @@
 //! by a JSON Schema generated from the type (its doc comments become the field descriptions),
 //! which is what PlotJuggler, Foxglove and Lichtblick read without plug-ins.
 
-use protocol::{Estimate, EstimateFlags, FlightMode, FsmState, LinkErrorCounts, StereoStatus};
+use protocol::{
+    Estimate, EstimateFlags, FlightMode, FsmState, Heartbeat, LinkErrorCounts, Node, StereoStatus,
+    Telemetry, PROTOCOL_VERSION,
+};
 use schemars::JsonSchema;
 use serde::Serialize;
 
@@ -344,4 +347,62 @@ pub struct TruthRecord {
 impl Record for TruthRecord {
     const TOPIC: &'static str = "/truth";
     const SCHEMA: &'static str = "pocket_drone.Truth";
+}
+
+/// A board's liveness report.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct HeartbeatRecord {
+    /// Sender: stereo_board, autopilot or host.
+    pub node: &'static str,
+    /// The sender's protocol version.
+    pub protocol_version: u8,
+    /// True when it is this host's protocol version.
+    pub version_matches: bool,
+    /// Sender uptime, ms.
+    pub uptime_ms: u32,
+}
+
+impl Record for HeartbeatRecord {
+    const TOPIC: &'static str = "/heartbeat";
+    const SCHEMA: &'static str = "pocket_drone.Heartbeat";
+}
+
+impl From<&Heartbeat> for HeartbeatRecord {
+    fn from(h: &Heartbeat) -> Self {
+        Self {
+            node: match h.node {
+                Node::StereoBoard => "stereo_board",
+                Node::Autopilot => "autopilot",
+                Node::Host => "host",
+            },
+            protocol_version: h.protocol_version,
+            version_matches: h.protocol_version == PROTOCOL_VERSION,
+            uptime_ms: h.uptime_ms,
+        }
+    }
+}
+
+/// A board's own clock at the message logged at the same time (the log's times are the
+/// host's).
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct BoardClockRecord {
+    /// The message whose timestamp this is: telemetry, motors or estimate.
+    pub message: &'static str,
+    /// The board's timestamp, µs (wrapping `u32`).
+    pub board_time_us: u32,
+}
+
+impl Record for BoardClockRecord {
+    const TOPIC: &'static str = "/board_clock";
+    const SCHEMA: &'static str = "pocket_drone.BoardClock";
+}
+
+impl BoardClockRecord {
+    /// The timestamp of a telemetry message.
+    pub fn telemetry(t: &Telemetry) -> Self {
+        Self {
+            message: "telemetry",
+            board_time_us: t.timestamp_us,
+        }
+    }
 }
