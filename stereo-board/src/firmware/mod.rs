@@ -6,18 +6,21 @@
 //!
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
-//! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]) |
+//! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]) |
 //! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] |
-//! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu, hil) | [`StereoBoardApp::on_host_bytes`] |
+//! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE, TXE (qemu, hil) | [`StereoBoardApp::on_host_bytes`]; queued frames out |
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
 //! | `dma_irq` | 4 | DMA2 stream 1 transfer / direct-mode error (real) | counts, re-arms |
 //! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` (or `discard_processed_frame` when the buffer was refilled meanwhile) |
 //! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state in, [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
+//! | `idle` | 0 | nothing else to run | `WFI` (sleep until an interrupt) |
 //!
 //! Edge-FS runs inside a lock of the board state, whose ceiling is the receive tasks'
 //! priority 3: while a frame is processed, received bytes wait in the queues filled at
 //! priority 4 and are decoded right after. The gyro sample used for a frame is the latest one
-//! when processing starts. Frames are written to the UARTs with [`write_all`].
+//! when processing starts. Frames go out through [`board_support::uart_tx`]: a task copies a
+//! whole frame into the UART's transmit queue (never waiting for the line; a full queue drops
+//! the frame and counts it) and the UART's interrupt moves the bytes out, one per TXE.
 //!
 //! Time: on hardware the library sees the board clock. In the `hil` and `qemu` flavours it
 //! sees the world time of the host's simulation ([`clock::lib_now_us`]): frames carry their
@@ -69,13 +72,23 @@ static FRAMES_LOST: AtomicU32 = AtomicU32::new(0);
 /// Bytes of each receive queue between the RX interrupt and its decoding task.
 const RX_QUEUE: usize = 4096;
 
-/// Writes whole frames to a UART (a few dozen bytes per message).
-fn write_all<U: stm32f4xx_hal::serial::Instance>(
-    tx: &mut stm32f4xx_hal::serial::Tx<U>,
-    bytes: &[u8],
-) {
-    use embedded_io::Write as _;
-    let _ = tx.write_all(bytes);
+/// Bytes of the host link's receive and transmit queues: the host link exists in the qemu and
+/// hil flavours only (the real board's queues are token ones).
+#[cfg(any(feature = "qemu", feature = "hil"))]
+const HOST_QUEUE: (usize, usize) = (RX_QUEUE, TX_QUEUE);
+/// Bytes of the host link's receive and transmit queues (see the lockstep flavours').
+#[cfg(not(any(feature = "qemu", feature = "hil")))]
+const HOST_QUEUE: (usize, usize) = (2, 2);
+
+/// Bytes of each transmit queue: an estimate (25 Hz) and the status and heartbeat (1 Hz) are a
+/// few dozen bytes each; at 115,200 Bd the line drains about 11 bytes per ms, so the queue
+/// holds well over a second's worth of what the board sends.
+const TX_QUEUE: usize = 1024;
+
+/// Queues whole frames on a UART's transmit queue (see [`board_support::uart_tx`]).
+fn queue_frame(tx: &mut board_support::uart_tx::TxWriter, frame: &[u8]) {
+    // A full queue drops the frame and counts it (`TxWriter::dropped_frames`, in the log).
+    let _ = tx.send(frame);
 }
 
 /// The link UART: UART4 on the camera board ([`stereo_board::board::LINK_UART`]); USART1 on
@@ -213,7 +226,9 @@ fn bring_up_cameras(i2c: stm32f4xx_hal::pac::I2C2) -> Result<(), (u8, sccb::Sccb
 
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART5])]
 mod app {
-    use super::{board, clock, log, write_all, FrameSource as _, Mono, APP, LINK_FLOW, RX_QUEUE};
+    use super::{board, clock, log, queue_frame, FrameSource as _, Mono, APP, LINK_FLOW};
+    use super::{HOST_QUEUE, RX_QUEUE, TX_QUEUE};
+    use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
     use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
     use rtic_monotonics::Timebase as _;
@@ -223,7 +238,7 @@ mod app {
     use stm32f4xx_hal::{
         pac,
         prelude::*,
-        serial::{self, Rx, Tx},
+        serial::{self, Rx},
         watchdog::IndependentWatchdog,
     };
 
@@ -239,10 +254,11 @@ mod app {
     #[shared]
     struct Shared {
         board: &'static mut StereoBoardApp,
-        link_tx: Tx<LinkUart>,
-        /// The host link's transmit side (qemu, hil flavours; the real board leaves its
+        /// The link's transmit queue (tasks' side).
+        link_tx: TxWriter,
+        /// The host link's transmit queue (qemu, hil flavours; the real board leaves its
         /// USART2 unused).
-        host_tx: Option<Tx<pac::USART2>>,
+        host_tx: Option<TxWriter>,
         frames: Frames,
         /// The capture path's state (real flavour; idle in the others).
         capture: CaptureMonitor,
@@ -251,6 +267,7 @@ mod app {
         link_rx: Rx<LinkUart>,
         link_in: Producer<'static, u8>,
         link_wake_tx: Sender<'static, Wake, 1>,
+        link_pump: TxPump<LinkUart>,
     }
 
     #[local]
@@ -260,6 +277,8 @@ mod app {
         link_wake_rx: Receiver<'static, Wake, 1>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
         host_rx: Rx<pac::USART2>,
+        #[cfg(any(feature = "qemu", feature = "hil"))]
+        host_pump: TxPump<pac::USART2>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
         host_in: Producer<'static, u8>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -274,7 +293,9 @@ mod app {
 
     #[init(local = [
         link_q: Queue<u8, RX_QUEUE> = Queue::new(),
-        host_q: Queue<u8, RX_QUEUE> = Queue::new(),
+        host_q: Queue<u8, { HOST_QUEUE.0 }> = Queue::new(),
+        link_txq: TxQueue<TX_QUEUE> = TxQueue::new(),
+        host_txq: TxQueue<{ HOST_QUEUE.1 }> = TxQueue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         // First: the status line's `stack_free` is the headroom left from here on.
@@ -305,12 +326,13 @@ mod app {
             .unwrap_or_else(|_| log::fatal("USART1 configuration"));
         let (link_tx, mut link_rx) = link.split();
         link_rx.listen();
+        let (link_tx, link_pump) = cx.local.link_txq.split(link_tx, super::LINK_IRQ);
         let (link_in, link_out) = cx.local.link_q.split();
         let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!(Wake, 1);
 
         // The host link: HIL frames in, estimates mirrored out (qemu, hil flavours).
         #[cfg(any(feature = "qemu", feature = "hil"))]
-        let (host_tx, host_rx, host_in, host_out, host_wake_tx, host_wake_rx) = {
+        let (host_tx, host_pump, host_rx, host_in, host_out, host_wake_tx, host_wake_rx) = {
             let (tx, mut rx) = cx
                 .device
                 .USART2
@@ -322,12 +344,13 @@ mod app {
                 .unwrap_or_else(|_| log::fatal("USART2 configuration"))
                 .split();
             rx.listen();
+            let (tx, pump) = cx.local.host_txq.split(tx, pac::Interrupt::USART2);
             let (q_in, q_out) = cx.local.host_q.split();
             let (wake_tx, wake_rx) = rtic_sync::make_channel!(Wake, 1);
-            (tx, rx, q_in, q_out, wake_tx, wake_rx)
+            (tx, pump, rx, q_in, q_out, wake_tx, wake_rx)
         };
         #[cfg(not(any(feature = "qemu", feature = "hil")))]
-        let (host_tx, _) = (None, cx.local.host_q);
+        let (host_tx, _, _) = (None, cx.local.host_q, cx.local.host_txq);
         #[cfg(any(feature = "qemu", feature = "hil"))]
         let host_tx = Some(host_tx);
         #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -380,6 +403,7 @@ mod app {
                 link_rx,
                 link_in,
                 link_wake_tx,
+                link_pump,
             },
             Local {
                 iwdg,
@@ -387,6 +411,8 @@ mod app {
                 link_wake_rx,
                 #[cfg(any(feature = "qemu", feature = "hil"))]
                 host_rx,
+                #[cfg(any(feature = "qemu", feature = "hil"))]
+                host_pump,
                 #[cfg(any(feature = "qemu", feature = "hil"))]
                 host_in,
                 #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -401,18 +427,41 @@ mod app {
         )
     }
 
-    /// The link UART's interrupt (UART4; USART1 in QEMU): received bytes into the queue.
+    /// Nothing to do: sleep until the next interrupt (RM0090 5.3.3, Sleep mode: the core
+    /// stops, the peripherals, DMA and their interrupts run on). Without it the core spins, and
+    /// an emulator has to execute every cycle instead of skipping to the next event.
+    #[idle]
+    fn idle(_: idle::Context) -> ! {
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// The link UART's interrupt (UART4; USART1 in QEMU): queued frames out, received bytes
+    /// into the queue.
     #[cfg(not(feature = "qemu"))]
-    #[task(binds = UART4, priority = 4, shared = [link_rx, link_in, link_wake_tx])]
+    #[task(binds = UART4, priority = 4, shared = [link_rx, link_in, link_wake_tx, link_pump])]
     fn link_irq(cx: link_irq::Context) {
-        (cx.shared.link_rx, cx.shared.link_in, cx.shared.link_wake_tx).lock(super::link_interrupt);
+        (
+            cx.shared.link_rx,
+            cx.shared.link_in,
+            cx.shared.link_wake_tx,
+            cx.shared.link_pump,
+        )
+            .lock(super::link_interrupt);
     }
 
     /// The link UART's interrupt (see the hardware flavours').
     #[cfg(feature = "qemu")]
-    #[task(binds = USART1, priority = 4, shared = [link_rx, link_in, link_wake_tx])]
+    #[task(binds = USART1, priority = 4, shared = [link_rx, link_in, link_wake_tx, link_pump])]
     fn link_irq_qemu(cx: link_irq_qemu::Context) {
-        (cx.shared.link_rx, cx.shared.link_in, cx.shared.link_wake_tx).lock(super::link_interrupt);
+        (
+            cx.shared.link_rx,
+            cx.shared.link_in,
+            cx.shared.link_wake_tx,
+            cx.shared.link_pump,
+        )
+            .lock(super::link_interrupt);
     }
 
     /// Decodes the autopilot's bytes (gyro/attitude, config, heartbeat).
@@ -431,7 +480,7 @@ mod app {
                 let now = clock::lib_now_us();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 (&mut cx.shared.board, &mut cx.shared.link_tx).lock(|board, tx| {
-                    board.on_rx_bytes(bytes, now, &mut |frame| write_all(tx, frame));
+                    board.on_rx_bytes(bytes, now, &mut |frame| queue_frame(tx, frame));
                     // Lockstep flavours: the autopilot's gyro timestamps are world time.
                     #[cfg(any(feature = "qemu", feature = "hil"))]
                     if let Some(g) = board.latest_gyro() {
@@ -444,8 +493,9 @@ mod app {
 
     /// USART2 (host link: HIL frames in, estimates out) interrupt.
     #[cfg(any(feature = "qemu", feature = "hil"))]
-    #[task(binds = USART2, priority = 4, local = [host_rx, host_in, host_wake_tx])]
+    #[task(binds = USART2, priority = 4, local = [host_rx, host_in, host_wake_tx, host_pump])]
     fn host_irq(cx: host_irq::Context) {
+        cx.local.host_pump.pump();
         board_support::uart_rx::drain(
             cx.local.host_rx,
             cx.local.host_in,
@@ -535,7 +585,7 @@ mod app {
             None => cx.shared.capture.lock(|m| m.on_frame_overwritten()),
             Some(Some(est)) => cx.shared.host_tx.lock(|tx| {
                 if let Some(tx) = tx {
-                    send_to_host(&BoardToHost::Estimate(est), &mut |f| write_all(tx, f));
+                    send_to_host(&BoardToHost::Estimate(est), &mut |f| queue_frame(tx, f));
                 }
             }),
             Some(None) => {}
@@ -547,7 +597,7 @@ mod app {
     fn run_frame(
         board: &mut impl Mutex<T = &'static mut StereoBoardApp>,
         frames: &mut impl Mutex<T = Frames>,
-        link_tx: &mut impl Mutex<T = Tx<LinkUart>>,
+        link_tx: &mut impl Mutex<T = TxWriter>,
         ready: FrameReady,
     ) -> Option<Option<protocol::Estimate>> {
         let start = clock::lib_now_us();
@@ -570,7 +620,7 @@ mod app {
                 &out,
                 capture_us,
                 done,
-                &mut |f| write_all(tx, f),
+                &mut |f| queue_frame(tx, f),
             )))
         })
     }
@@ -593,17 +643,18 @@ mod app {
                 cx.shared.board.lock(|b| b.report_capture(counts, stopped));
             }
             let status = (&mut cx.shared.board, &mut cx.shared.link_tx)
-                .lock(|board, tx| board.status_tick(now, &mut |f| write_all(tx, f)));
+                .lock(|board, tx| board.status_tick(now, &mut |f| queue_frame(tx, f)));
             // The host link gets a heartbeat too: a HIL host starts streaming once it sees one
             // (bytes sent before the USART is enabled are lost).
             let hb = protocol::Heartbeat::new(protocol::Node::StereoBoard, status.uptime_ms);
             cx.shared.host_tx.lock(|tx| {
                 if let Some(tx) = tx {
-                    send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| write_all(tx, f));
+                    send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| queue_frame(tx, f));
                 }
             });
             super::pins::toggle(&stereo_board::board::LED);
             cx.local.iwdg.feed();
+            let tx_dropped = cx.shared.link_tx.lock(|tx| tx.dropped_frames());
             let (rx_ok, host_errors, gyro_age) = cx.shared.board.lock(|b| {
                 (
                     b.link_frames_ok(),
@@ -613,7 +664,7 @@ mod app {
             });
             let c = status.capture;
             log::info!(
-                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} gyro_age_us={} camera_stopped={} frames_complete={} frames_torn={} dcmi_overruns={} dcmi_errors={} dma_errors={} rearms={} frames_overwritten={} stack_free={}",
+                "status uptime_ms={} frames={} dropped={} link_rx_ok={} link_errors={} host_errors={} host_crc={} host_too_long={} rx_lost={} link_tx_dropped={} gyro_age_us={} camera_stopped={} frames_complete={} frames_torn={} dcmi_overruns={} dcmi_errors={} dma_errors={} rearms={} frames_overwritten={} stack_free={}",
                 status.uptime_ms,
                 status.frames_processed,
                 status.frames_dropped,
@@ -623,6 +674,7 @@ mod app {
                 host_errors.crc,
                 host_errors.too_long,
                 super::RX_LOST.load(Ordering::Relaxed),
+                tx_dropped,
                 gyro_age,
                 status.camera_stopped,
                 c.frames_complete,
@@ -639,13 +691,15 @@ mod app {
     }
 }
 
-/// The link UART's interrupt body: received bytes into `queue` (pausing at a full queue), the
-/// decoding task woken.
+/// The link UART's interrupt body: queued frames out, received bytes into `queue` (pausing at a
+/// full queue), the decoding task woken.
 fn link_interrupt(
     rx: &mut stm32f4xx_hal::serial::Rx<LinkUart>,
     queue: &mut heapless::spsc::Producer<'static, u8>,
     wake: &mut rtic_sync::channel::Sender<'static, (), 1>,
+    pump: &mut board_support::uart_tx::TxPump<LinkUart>,
 ) {
+    pump.pump();
     board_support::uart_rx::drain(rx, queue, &LINK_FLOW, &RX_LOST);
     let _ = wake.try_send(());
 }
