@@ -12,6 +12,8 @@
 //!   ELFs, runs them in virtual time (two boards in lockstep), reads their defmt logs over RTT
 //!   ([`rtt`]) and watches for panics and faults; [`motors`] reads PWM duties off timer channels.
 //!
+//! * [`serve`]: a board's host UART on a TCP socket, for ground tools (`sim-host monitor`).
+//!
 //! Virtual time is rigless's: 4 ns per instruction at 168 MHz by default (250 M instructions per
 //! virtual second), and a core in WFI skips to its next event.
 
@@ -29,6 +31,7 @@ pub mod motors;
 pub mod mpu6000;
 pub mod pins;
 pub mod rtt;
+pub mod serve;
 pub mod soc;
 pub mod syscfg;
 pub mod tcm8230;

@@ -81,6 +81,17 @@ impl Line {
             .collect()
     }
 
+    /// The bytes sent on the line after the first `skip` (a reader that keeps its place).
+    #[must_use]
+    pub fn sent_bytes_from(&self, skip: usize) -> Vec<u8> {
+        self.state()
+            .sent
+            .iter()
+            .skip(skip)
+            .map(|&(_, w)| (w & 0xFF) as u8)
+            .collect()
+    }
+
     /// Every word sent, with its instant (ns).
     #[must_use]
     pub fn sent(&self) -> Vec<(u64, u16)> {

@@ -216,7 +216,7 @@ fn run_checked(cmd: &mut Command) -> Result<()> {
     Ok(())
 }
 
-fn cargo(args: &[&str]) -> Result<()> {
+pub fn cargo(args: &[&str]) -> Result<()> {
     run_checked(Command::new("cargo").args(args))
 }
 

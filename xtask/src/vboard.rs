@@ -3,7 +3,8 @@
 //! Builds both `real` firmwares (`cargo xtask fw`), then runs `cargo test --ignore-rust-version
 //! --release` in `virtual-board/`, its own workspace (rigless declares rust-version 1.98; we
 //! build it on 1.95 with that flag, which stays out of the main workspace), and prints a
-//! one-line summary. Extra arguments go to that `cargo test` (a test name filter, `--
+//! one-line summary. It builds `sim-host` first, for the test that serves the virtual autopilot
+//! to `sim-host monitor`. Extra arguments go to that `cargo test` (a test name filter, `--
 //! --nocapture`).
 
 use anyhow::{Context, Result};
@@ -20,11 +21,15 @@ fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
+/// The main workspace's target directory.
+fn target_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map_or_else(|| workspace_root().join("target"), PathBuf::from)
+}
+
 /// Where `cargo xtask fw` puts the firmwares.
 fn firmware_dir() -> PathBuf {
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map_or_else(|| workspace_root().join("target"), PathBuf::from);
-    target.join(FIRMWARE_TARGET).join("release")
+    target_dir().join(FIRMWARE_TARGET).join("release")
 }
 
 /// Runs `cargo xtask vboard [ARGS]`.
@@ -48,13 +53,19 @@ fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
     let build = Instant::now();
     crate::size::build_firmwares(crate::size::Flavour::Real, &crate::size::FIRMWARES)
         .context("firmware build (cargo xtask fw) failed")?;
+    // The ground tool the bench serves a board to (tests/monitor.rs).
+    crate::ci::cargo(&["build", "-p", "sim-host"]).context("building sim-host failed")?;
     let built = build.elapsed().as_secs_f64();
     let tests = Instant::now();
     let mut cmd = Command::new("cargo");
     cmd.args(["test", "--ignore-rust-version", "--release"])
         .args(args)
         .current_dir(workspace_root().join("virtual-board"))
-        .env("VBOARD_FIRMWARE_DIR", firmware_dir());
+        .env("VBOARD_FIRMWARE_DIR", firmware_dir())
+        .env(
+            "VBOARD_SIM_HOST",
+            target_dir().join("debug").join("sim-host"),
+        );
     let result = cargo_test_with(&mut cmd).context("virtual-board tests failed");
     eprintln!(
         "xtask vboard: firmware build {built:.0} s, bench build and run {:.0} s",

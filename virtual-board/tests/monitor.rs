@@ -1,0 +1,114 @@
+//! `sim-host monitor` against the virtual autopilot: the real image's telemetry UART served on
+//! TCP ([`virtual_board::serve::TcpBridge`]) at the board's own pace, read by the ground tool
+//! users run against a real board. Everything the firmware sent must reach the monitor, decode
+//! without one rejected frame, and show the board's state by name; the MCAP log must hold it.
+//!
+//! The monitor binary is `VBOARD_SIM_HOST` (set by `cargo xtask vboard`, which builds it), else
+//! the main workspace's `target/debug/sim-host`.
+
+use std::net::TcpListener;
+use std::path::PathBuf;
+use std::process::Command;
+
+use protocol::BoardToHost;
+use virtual_board::bench::{Options, Setup, run};
+use virtual_board::boards::autopilot::Autopilot;
+use virtual_board::firmware::Firmware;
+use virtual_board::host;
+use virtual_board::serve::TcpBridge;
+
+fn sim_host() -> PathBuf {
+    let path = std::env::var_os("VBOARD_SIM_HOST").map_or_else(
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/debug/sim-host"),
+        PathBuf::from,
+    );
+    assert!(
+        path.is_file(),
+        "{} is missing: build it (`cargo build -p sim-host`) or run `cargo xtask vboard`",
+        path.display()
+    );
+    path
+}
+
+#[test]
+fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
+    let sim_host = sim_host();
+    let firmware = Firmware::real("autopilot").expect("the autopilot image");
+    let listener = TcpListener::bind("127.0.0.1:0").expect("a local port");
+    let port = listener.local_addr().unwrap().port();
+    let mcap = std::env::temp_dir().join(format!("vboard-monitor-{}.mcap", std::process::id()));
+    let monitor = Command::new(&sim_host)
+        .args(["monitor", "--port", &format!("tcp:127.0.0.1:{port}")])
+        .args(["--plain", "--duration", "120", "--mcap"])
+        .arg(&mcap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("sim-host monitor starts");
+
+    let bridge = TcpBridge::accept(&listener, |b: &mut Autopilot| &mut b.telemetry, Some(1.0))
+        .expect("the monitor connects");
+    let outcome = run(
+        Setup {
+            board: Autopilot::new(3).expect("the board"),
+            firmware,
+            probe: bridge,
+        },
+        Options::seconds(3.0),
+    )
+    .expect("the run");
+    let report = outcome.report();
+    outcome.assert_clean();
+    assert_eq!(
+        outcome.probe.ended, None,
+        "the bridge ended early\n{report}"
+    );
+    let sent = outcome.board().telemetry.tx.sent_bytes();
+    assert_eq!(
+        outcome.probe.bytes_out,
+        sent.len() as u64,
+        "every byte crossed"
+    );
+    let (messages, errors) = host::decode_board_to_host(&sent);
+    assert_eq!(errors, 0, "the firmware's own frames decode\n{report}");
+    let count = |f: fn(&BoardToHost) -> bool| messages.iter().filter(|m| f(m)).count();
+    let telemetry = count(|m| matches!(m, BoardToHost::Telemetry(_)));
+    let heartbeats = count(|m| matches!(m, BoardToHost::Heartbeat(_)));
+    assert!(
+        telemetry >= 20,
+        "10 Hz telemetry over 3 s: {telemetry}\n{report}"
+    );
+    drop(outcome); // closes the connection: the monitor ends
+
+    let out = monitor.wait_with_output().expect("the monitor ends");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("monitor ended (the link closed)"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(&format!(
+            "{} B, {telemetry} telemetry, {heartbeats} heartbeats",
+            sent.len()
+        )),
+        "the firmware sent {} B, {telemetry} telemetry, {heartbeats} heartbeats:\n{stdout}",
+        sent.len()
+    );
+    assert!(stdout.contains("host-link errors 0\n"), "{stdout}");
+    assert!(stdout.contains("disarmed fsm inactive"), "{stdout}");
+    assert!(!stdout.contains("rejected"), "{stdout}");
+    // Five records per telemetry message (state, attitude, setpoint, velocity, height) plus
+    // its link and board-clock records, and one per heartbeat.
+    let logged = 7 * telemetry + heartbeats;
+    assert!(
+        stdout.contains(&format!("({logged} messages on")),
+        "{logged} records expected in the log:\n{stdout}"
+    );
+    let _ = std::fs::remove_file(&mcap);
+    println!(
+        "monitor against the virtual autopilot: {telemetry} telemetry, {heartbeats} heartbeats, {} B",
+        sent.len()
+    );
+}
