@@ -8,6 +8,9 @@
 //! * [`indi`]: adaptive INDI rate/attitude control at 512 Hz.
 //! * [`mixer`]: X-quad mixer for four brushed motors, attitude before thrust.
 //! * [`height`]: vertical loop from a height measurement.
+//! * [`vertical`]: height, climb rate and barometer offset from the accelerometer, the
+//!   barometer and an external height fix (a Kalman filter; not yet in the flight loop, which
+//!   flies on the external fix).
 //! * [`median`]: median-5 over the Edge-FS velocities.
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
 //! * [`force_field`]: backward velocity near walls.
@@ -38,6 +41,7 @@ pub mod mixer;
 pub mod mpu6000;
 pub mod ms5611;
 pub mod rc;
+pub mod vertical;
 
 pub use app::{ArmBlock, Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
 pub use failsafe::FlightMode;

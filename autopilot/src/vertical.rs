@@ -1,0 +1,329 @@
+//! Vertical state estimation without motion capture: a three-state Kalman filter over height,
+//! climb rate and the barometer's offset, driven by the accelerometer and corrected by the
+//! MS5611's pressure altitude and, when one arrives, an external height fix (motion capture
+//! in the paper's lab).
+//!
+//! ```text
+//! state  x = [h, v, b]       height above the take-off floor (m, up), climb rate (m/s, up),
+//!                            barometer offset (m: what the barometer reads at the true height 0)
+//! model  h' = h + v dt + a dt^2 / 2,  v' = v + a dt,  b' = b (+ random walk)
+//!        a: vertical acceleration from the IMU (specific force rotated to the world, plus g)
+//! baro   z = h + b          noise sigma_baro (about 0.1 m for the MS5611 at OSR 4096)
+//! fix    z = h              noise sigma_fix (about 1 cm for motion capture)
+//! ```
+//!
+//! The offset absorbs the reference pressure of the day and its slow drift, so no calibration
+//! step is needed: the first reading sets the reference (the drone stands on the floor at
+//! boot). Within [`VerticalConfig::ground_effect_height_m`] of the floor the rotors' wash raises
+//! the static pressure under the drone and the barometer reads low; there its noise is
+//! inflated so the accelerometer and the offset carry the estimate through. A reading whose
+//! innovation is beyond [`VerticalConfig::gate_sigma`] standard deviations is rejected and
+//! counted. Nothing here allocates or panics; non-finite inputs are ignored.
+
+/// Tuning of the vertical estimator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VerticalConfig {
+    /// Vertical acceleration noise, m/s^2 per sqrt(Hz) (vibration, thrust and drag not in the
+    /// model).
+    pub accel_noise: f32,
+    /// Barometer offset random walk, m per sqrt(s) (weather, temperature drift).
+    pub baro_offset_walk: f32,
+    /// Barometer height noise, m (1 sigma).
+    pub baro_noise_m: f32,
+    /// External height fix noise, m (1 sigma).
+    pub fix_noise_m: f32,
+    /// Below this estimated height the barometer is in the rotors' ground effect, m.
+    pub ground_effect_height_m: f32,
+    /// Barometer noise multiplier in ground effect.
+    pub ground_effect_noise_factor: f32,
+    /// Innovation gate, standard deviations.
+    pub gate_sigma: f32,
+}
+
+impl Default for VerticalConfig {
+    fn default() -> Self {
+        Self {
+            accel_noise: 0.5,
+            baro_offset_walk: 0.01,
+            baro_noise_m: 0.1,
+            fix_noise_m: 0.01,
+            ground_effect_height_m: 0.3,
+            ground_effect_noise_factor: 5.0,
+            gate_sigma: 5.0,
+        }
+    }
+}
+
+/// Height of `pressure_pa` above the level of `reference_pa` (international standard
+/// atmosphere, valid for the few metres of a room), m.
+pub fn pressure_altitude_m(pressure_pa: f32, reference_pa: f32) -> f32 {
+    // h = T0 / L * (1 - (p / p0)^(R L / g M)), T0 / L = 44,330.8 m, exponent 0.190263.
+    44_330.8 * (1.0 - libm::powf(pressure_pa / reference_pa, 0.190_263))
+}
+
+/// The vertical Kalman filter.
+#[derive(Debug, Clone)]
+pub struct VerticalEstimator {
+    cfg: VerticalConfig,
+    /// [h, v, b].
+    x: [f32; 3],
+    /// Covariance of `x`.
+    p: [[f32; 3]; 3],
+    reference_pa: Option<f32>,
+    rejected: u32,
+}
+
+impl VerticalEstimator {
+    /// A filter that has seen nothing: at the floor, at rest, offset unknown.
+    pub fn new(cfg: VerticalConfig) -> Self {
+        Self {
+            cfg,
+            x: [0.0; 3],
+            p: [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 1.0]],
+            reference_pa: None,
+            rejected: 0,
+        }
+    }
+
+    /// Estimated height above the take-off floor, m.
+    pub fn height_m(&self) -> f32 {
+        self.x[0]
+    }
+
+    /// Estimated climb rate, m/s (up).
+    pub fn climb_mps(&self) -> f32 {
+        self.x[1]
+    }
+
+    /// Estimated barometer offset, m.
+    pub fn baro_offset_m(&self) -> f32 {
+        self.x[2]
+    }
+
+    /// Standard deviation of the height estimate, m.
+    pub fn height_sigma_m(&self) -> f32 {
+        libm::sqrtf(self.p[0][0].max(0.0))
+    }
+
+    /// Measurements rejected by the innovation gate.
+    pub fn rejected(&self) -> u32 {
+        self.rejected
+    }
+
+    /// Propagates the state over `dt_s` with the vertical acceleration `accel_up_mps2` (world
+    /// frame, up, gravity removed).
+    pub fn predict(&mut self, accel_up_mps2: f32, dt_s: f32) {
+        if !(accel_up_mps2.is_finite() && dt_s.is_finite() && dt_s > 0.0 && dt_s < 0.5) {
+            return;
+        }
+        let a = accel_up_mps2.clamp(-50.0, 50.0);
+        let dt = dt_s;
+        self.x[0] += self.x[1] * dt + 0.5 * a * dt * dt;
+        self.x[1] += a * dt;
+        // P = F P F^T + Q, F = [[1, dt, 0], [0, 1, 0], [0, 0, 1]].
+        let p = self.p;
+        let mut n = p;
+        n[0][0] = p[0][0] + dt * (p[1][0] + p[0][1]) + dt * dt * p[1][1];
+        n[0][1] = p[0][1] + dt * p[1][1];
+        n[1][0] = n[0][1];
+        n[0][2] = p[0][2] + dt * p[1][2];
+        n[2][0] = n[0][2];
+        let qa = self.cfg.accel_noise * self.cfg.accel_noise * dt;
+        n[0][0] += qa * dt * dt / 3.0;
+        n[0][1] += qa * dt / 2.0;
+        n[1][0] += qa * dt / 2.0;
+        n[1][1] += qa;
+        n[2][2] += self.cfg.baro_offset_walk * self.cfg.baro_offset_walk * dt;
+        self.p = n;
+    }
+
+    /// A barometer reading; returns whether it was used.
+    pub fn on_pressure(&mut self, pressure_pa: f32) -> bool {
+        if !(pressure_pa.is_finite() && (30_000.0..120_000.0).contains(&pressure_pa)) {
+            return false;
+        }
+        let reference = *self.reference_pa.get_or_insert(pressure_pa);
+        let z = pressure_altitude_m(pressure_pa, reference);
+        let mut sigma = self.cfg.baro_noise_m;
+        if self.x[0] < self.cfg.ground_effect_height_m {
+            sigma *= self.cfg.ground_effect_noise_factor;
+        }
+        self.update([1.0, 0.0, 1.0], z, sigma * sigma)
+    }
+
+    /// An external height fix (m above the floor, motion capture); returns whether it was
+    /// used.
+    pub fn on_height_fix(&mut self, height_m: f32) -> bool {
+        if !(height_m.is_finite() && (-1.0..100.0).contains(&height_m)) {
+            return false;
+        }
+        let r = self.cfg.fix_noise_m * self.cfg.fix_noise_m;
+        self.update([1.0, 0.0, 0.0], height_m, r)
+    }
+
+    /// Tells the filter the drone stands on the floor (disarmed, touched down): height and
+    /// climb are zero, what the barometer reads now is its offset.
+    pub fn on_ground(&mut self) {
+        let b = self.x[2];
+        self.x = [0.0, 0.0, b];
+        self.p[0] = [1e-4, 0.0, 0.0];
+        self.p[1] = [0.0, 1e-4, 0.0];
+        self.p[2][0] = 0.0;
+        self.p[2][1] = 0.0;
+    }
+
+    /// The scalar update with measurement row `h`, value `z`, variance `r`.
+    fn update(&mut self, h: [f32; 3], z: f32, r: f32) -> bool {
+        let p = self.p;
+        let ph: [f32; 3] = core::array::from_fn(|i| (0..3).map(|j| p[i][j] * h[j]).sum());
+        let s = (0..3).map(|i| h[i] * ph[i]).sum::<f32>() + r;
+        let predicted: f32 = (0..3).map(|i| h[i] * self.x[i]).sum();
+        let innovation = z - predicted;
+        if !(s.is_finite() && s > 0.0) {
+            return false;
+        }
+        if innovation * innovation > self.cfg.gate_sigma * self.cfg.gate_sigma * s {
+            self.rejected = self.rejected.saturating_add(1);
+            return false;
+        }
+        let k: [f32; 3] = core::array::from_fn(|i| ph[i] / s);
+        for (x, k) in self.x.iter_mut().zip(k) {
+            *x += k * innovation;
+        }
+        // P = (I - K H) P, then symmetrised.
+        let mut n = p;
+        for (i, row) in n.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = p[i][j] - k[i] * ph[j];
+            }
+        }
+        for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+            let m = 0.5 * (n[i][j] + n[j][i]);
+            n[i][j] = m;
+            n[j][i] = m;
+        }
+        self.p = n;
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+
+    /// Sea-level standard pressure, Pa.
+    const P0: f32 = 101_325.0;
+
+    /// The pressure at `h` m above the reference level (the inverse of
+    /// [`pressure_altitude_m`]).
+    fn pressure_at(h: f32) -> f32 {
+        P0 * libm::powf(1.0 - h / 44_330.8, 5.255_88)
+    }
+
+    /// A small deterministic generator of unit-variance noise.
+    struct Noise(u64);
+    impl Noise {
+        fn gauss(&mut self) -> f32 {
+            let mut sum = 0.0;
+            for _ in 0..12 {
+                self.0 = self
+                    .0
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1);
+                sum += (self.0 >> 40) as f32 / (1u64 << 24) as f32;
+            }
+            sum - 6.0
+        }
+    }
+
+    #[test]
+    fn pressure_altitude_is_about_8_cm_per_pascal_near_sea_level() {
+        let h = pressure_altitude_m(P0 - 12.0, P0);
+        assert!((h - 1.0).abs() < 0.02, "{h}");
+        assert!((pressure_altitude_m(pressure_at(2.0), P0) - 2.0).abs() < 1e-3);
+    }
+
+    /// A 1 m climb and hold, barometer at 50 Hz with 0.1 m noise, accelerometer at 512 Hz with
+    /// 0.3 m/s^2 noise, a barometer drift of 0.05 m over 30 s (the weather; without a fix a
+    /// drift is indistinguishable from a climb, so it is height error): the height stays
+    /// within 0.1 m RMS of the truth.
+    #[test]
+    fn barometer_and_accelerometer_hold_height_without_a_fix() {
+        let mut f = VerticalEstimator::new(VerticalConfig::default());
+        let mut noise = Noise(7);
+        let dt = 1.0 / 512.0;
+        let (mut h, mut v) = (0.0f32, 0.0f32);
+        let (mut sq, mut n) = (0.0f32, 0);
+        for i in 0..(512 * 30) {
+            let t = i as f32 * dt;
+            // Climb to 1 m between 2 s and 4 s (a smooth profile), hold.
+            let a = if (2.0..3.0).contains(&t) {
+                0.8
+            } else if (3.0..4.0).contains(&t) {
+                -0.8
+            } else {
+                0.0
+            };
+            h += v * dt + 0.5 * a * dt * dt;
+            v += a * dt;
+            f.predict(a + 0.3 * noise.gauss(), dt);
+            if i % 10 == 0 {
+                let drift = 0.05 * t / 30.0;
+                let z = pressure_at(h + drift + 0.1 * noise.gauss());
+                f.on_pressure(z);
+            }
+            if t > 5.0 {
+                sq += (f.height_m() - h) * (f.height_m() - h);
+                n += 1;
+            }
+        }
+        let rms = libm::sqrtf(sq / n as f32);
+        assert!((h - 0.8).abs() < 0.05, "the profile climbs 0.8 m: {h}");
+        assert!(rms < 0.1, "height RMS error {rms} m");
+        std::println!("vertical estimate without a fix: height RMS error {rms:.3} m");
+        assert_eq!(f.rejected(), 0);
+    }
+
+    #[test]
+    fn a_height_fix_dominates_and_a_wild_reading_is_rejected() {
+        let mut f = VerticalEstimator::new(VerticalConfig::default());
+        let dt = 1.0 / 512.0;
+        for i in 0..512 {
+            f.predict(0.0, dt);
+            if i % 5 == 0 {
+                assert!(f.on_height_fix(0.5));
+            }
+            if i % 10 == 0 {
+                f.on_pressure(pressure_at(0.0));
+            }
+        }
+        assert!((f.height_m() - 0.5).abs() < 0.02, "{}", f.height_m());
+        // The barometer still reads the floor: its offset took the difference.
+        assert!(
+            (f.baro_offset_m() + 0.5).abs() < 0.1,
+            "{}",
+            f.baro_offset_m()
+        );
+        assert!(!f.on_height_fix(25.0), "a 24.5 m jump is gated");
+        assert_eq!(f.rejected(), 1);
+        assert!(!f.on_pressure(f32::NAN));
+        assert!(!f.on_height_fix(f32::INFINITY));
+        f.predict(f32::NAN, dt);
+        assert!(f.height_m().is_finite());
+    }
+
+    #[test]
+    fn on_the_ground_the_height_is_zero_and_the_offset_is_kept() {
+        let mut f = VerticalEstimator::new(VerticalConfig::default());
+        for _ in 0..50 {
+            f.on_pressure(pressure_at(0.0));
+            f.predict(0.05, 0.02);
+        }
+        f.on_pressure(pressure_at(0.3));
+        f.on_ground();
+        assert_eq!(f.height_m(), 0.0);
+        assert_eq!(f.climb_mps(), 0.0);
+        assert!(f.height_sigma_m() < 0.02);
+    }
+}
