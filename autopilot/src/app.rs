@@ -25,6 +25,7 @@ use protocol::{
     LinkErrorCounts, PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder,
     Telemetry,
 };
+use timebase::WireTime;
 
 pub use task_table::{TaskSpec, Trigger};
 
@@ -854,7 +855,7 @@ impl Autopilot {
     /// Gyro and attitude for the camera board's derotation.
     pub fn gyro_attitude(&self, now_us: u64) -> GyroAttitude {
         GyroAttitude {
-            timestamp_us: now_us as u32,
+            timestamp_us: WireTime(now_us as u32),
             rates_radps: self.gyro,
             attitude_rad: self.att.euler(),
         }
@@ -863,7 +864,7 @@ impl Autopilot {
     /// Telemetry snapshot.
     pub fn telemetry(&self, now_us: u64) -> Telemetry {
         Telemetry {
-            timestamp_us: now_us as u32,
+            timestamp_us: WireTime(now_us as u32),
             fsm_state: self.fsm_active.then(|| self.fsm.state()),
             flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),

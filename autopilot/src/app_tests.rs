@@ -121,7 +121,7 @@ impl Quad {
 
     fn imu(&self, now: u64) -> ImuSample {
         ImuSample {
-            timestamp_us: now as u32,
+            timestamp_us: WireTime(now as u32),
             gyro_radps: self.w,
             accel_mps2: self.accel_body,
         }
@@ -139,7 +139,7 @@ impl Quad {
         };
         Estimate {
             seq,
-            capture_us: 0,
+            capture_us: WireTime(0),
             forward_mps: vb[0],
             sideways_mps: vb[1],
             obstacle_m: obstacle,
@@ -151,7 +151,7 @@ impl Quad {
 
     fn position(&self, now: u64) -> ExternalPosition {
         ExternalPosition {
-            timestamp_us: now as u32,
+            timestamp_us: WireTime(now as u32),
             position_m: self.pos,
         }
     }
@@ -353,13 +353,13 @@ fn a_stopped_camera_reported_in_status_hovers_without_waiting_for_the_estimate_t
 fn arm_is_refused_until_the_attitude_is_initialised() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
     let pos = ExternalPosition {
-        timestamp_us: 0,
+        timestamp_us: WireTime(0),
         position_m: [0.0; 3],
     };
     // Accelerometer reading 2 g (the board being shaken): no attitude yet.
     for k in 0..100u64 {
         let imu = ImuSample {
-            timestamp_us: 0,
+            timestamp_us: WireTime(0),
             gyro_radps: [0.0; 3],
             accel_mps2: [0.0, 0.0, -2.0 * GRAVITY],
         };
@@ -369,7 +369,7 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
     ap.on_command(PilotCommand::Arm, 100 * IMU_US);
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     let imu = ImuSample {
-        timestamp_us: 0,
+        timestamp_us: WireTime(0),
         gyro_radps: [0.0; 3],
         accel_mps2: [0.0, 0.0, -GRAVITY],
     };
@@ -382,7 +382,7 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
 fn forward_estimate(forward_mps: f32) -> Estimate {
     Estimate {
         seq: 0,
-        capture_us: 0,
+        capture_us: WireTime(0),
         forward_mps,
         sideways_mps: 0.0,
         obstacle_m: None,
@@ -431,7 +431,7 @@ fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
         t += IMU_US;
         ap.on_imu(
             &ImuSample {
-                timestamp_us: t as u32,
+                timestamp_us: WireTime(t as u32),
                 gyro_radps: gyro,
                 accel_mps2: [0.0, 0.0, -GRAVITY],
             },
@@ -471,7 +471,7 @@ fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
     let est = forward_estimate;
     let imu = |t: u64, yaw_rate: f32| ImuSample {
-        timestamp_us: t as u32,
+        timestamp_us: WireTime(t as u32),
         gyro_radps: [0.0, 0.0, yaw_rate],
         accel_mps2: [0.0, 0.0, -GRAVITY],
     };
@@ -668,7 +668,7 @@ fn telemetry_and_gyro_attitude_reflect_state() {
     assert!(t.fsm_state.is_some());
     assert!((t.height_m - r.quad.height()).abs() < 0.05);
     let g = r.ap.gyro_attitude(r.now);
-    assert_eq!(g.timestamp_us, r.now as u32);
+    assert_eq!(g.timestamp_us, WireTime(r.now as u32));
     let truth = r.quad.q.to_euler();
     for i in 0..2 {
         assert!((g.attitude_rad[i] - truth[i]).abs() < 0.05);
@@ -758,17 +758,17 @@ proptest! {
             now += 1_953;
             match input {
                 Input::Imu(g, a) => {
-                    let m = ap.on_imu(&ImuSample { timestamp_us: now as u32, gyro_radps: g, accel_mps2: a }, now);
+                    let m = ap.on_imu(&ImuSample { timestamp_us: WireTime(now as u32), gyro_radps: g, accel_mps2: a }, now);
                     for x in m {
                         prop_assert!(x.is_finite() && (0.0..=1.0).contains(&x), "{:?}", m);
                     }
                 }
                 Input::Est(f, s, o, fl) => ap.on_estimate(&Estimate {
-                    seq: 0, capture_us: 0, forward_mps: f, sideways_mps: s, obstacle_m: o,
+                    seq: 0, capture_us: WireTime(0), forward_mps: f, sideways_mps: s, obstacle_m: o,
                     quality: 255, flags: EstimateFlags(fl & 0x01), processing_us: 0,
                 }, now),
                 Input::Pos(z) => ap.on_external_position(&ExternalPosition {
-                    timestamp_us: now as u32, position_m: [0.0, 0.0, z],
+                    timestamp_us: WireTime(now as u32), position_m: [0.0, 0.0, z],
                 }, now),
                 Input::Cmd(c) => ap.on_command(
                     [PilotCommand::Arm, PilotCommand::Land, PilotCommand::Kill][c as usize], now),

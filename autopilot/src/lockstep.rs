@@ -13,14 +13,14 @@
 //! the real flavour, at the periods of [`crate::TASKS`].
 
 use crate::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
-use timebase::{WireTime, WrapExtender};
+use timebase::{WireTime, WorldTime, WrapExtender};
 
 /// The world clock: the host's wrapping `u32` microsecond sample timestamps extended onto a
 /// monotonic `u64` timeline (by [`timebase::WrapExtender`]: a decrease of more than half the
 /// `u32` range is a wrap; a smaller decrease is an out-of-order sample and does not move the
 /// clock back).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct WorldClock(WrapExtender);
+pub struct WorldClock(WrapExtender<WorldTime>);
 
 impl WorldClock {
     /// A clock at zero that has seen no sample.
@@ -28,15 +28,15 @@ impl WorldClock {
         Self(WrapExtender::new())
     }
 
-    /// Takes a host timestamp (µs, wrapping `u32`) and returns the world time it stands for
+    /// Takes a host timestamp and returns the world time it stands for
     /// (µs, `u64`). The clock itself never goes back: [`WorldClock::now_us`] is the latest.
-    pub fn observe(&mut self, wire_us: u32) -> u64 {
-        self.0.extend(WireTime(wire_us))
+    pub fn observe(&mut self, wire: WireTime) -> u64 {
+        self.0.extend(wire).as_micros()
     }
 
     /// The latest world time seen, µs (0 before the first sample).
     pub fn now_us(&self) -> u64 {
-        self.0.latest()
+        self.0.latest().as_micros()
     }
 
     /// True once a sample has set the clock.
@@ -114,13 +114,13 @@ mod tests {
     fn clock_extends_wraps_and_never_goes_back() {
         let mut c = WorldClock::new();
         assert!(!c.started());
-        assert_eq!(c.observe(10), 10);
-        assert_eq!(c.observe(u32::MAX - 5), u64::from(u32::MAX - 5));
+        assert_eq!(c.observe(WireTime(10)), 10);
+        assert_eq!(c.observe(WireTime(u32::MAX - 5)), u64::from(u32::MAX - 5));
         // Wrap.
-        assert_eq!(c.observe(3), (1u64 << 32) | 3);
+        assert_eq!(c.observe(WireTime(3)), (1u64 << 32) | 3);
         assert_eq!(c.now_us(), (1u64 << 32) | 3);
         // A late sample: reported at its own time, the clock stays.
-        assert_eq!(c.observe(1), (1u64 << 32) | 1);
+        assert_eq!(c.observe(WireTime(1)), (1u64 << 32) | 1);
         assert_eq!(c.now_us(), (1u64 << 32) | 3);
     }
 

@@ -31,7 +31,7 @@
 //! ([`crate::failsafe`]) sees them as missing and turns the motors off after its timeout.
 
 use crate::board::{AxisMap, Mounting};
-use protocol::ImuSample;
+use protocol::{ImuSample, WireTime};
 
 /// Read flag of an SPI register address (bit 7 set).
 pub const READ: u8 = 0x80;
@@ -229,17 +229,17 @@ impl SampleCheck {
 
     /// Checks one control step's reads: `who_am_i` and `pwr_mgmt_1` (each read in the step)
     /// and the 14 data bytes. A valid sample comes back in SI units in the body frame (x
-    /// forward, y right, z down), stamped `timestamp_us`.
+    /// forward, y right, z down), stamped `timestamp`.
     pub fn check(
         &mut self,
         who_am_i: u8,
         pwr_mgmt_1: u8,
         data: &[u8; 14],
-        timestamp_us: u32,
+        timestamp: WireTime,
     ) -> Result<ImuSample, SampleFault> {
         let verdict = self.verdict(who_am_i, pwr_mgmt_1, data);
         match verdict {
-            Ok(raw) => Ok(self.to_body(&raw, timestamp_us)),
+            Ok(raw) => Ok(self.to_body(&raw, timestamp)),
             Err(fault) => {
                 self.faults.count(fault);
                 Err(fault)
@@ -284,11 +284,11 @@ impl SampleCheck {
     }
 
     /// A raw sample in SI units, chip axes -> board axes -> body axes.
-    pub fn to_body(&self, raw: &RawSample, timestamp_us: u32) -> ImuSample {
+    pub fn to_body(&self, raw: &RawSample, timestamp: WireTime) -> ImuSample {
         let chip_gyro = raw.gyro.map(|v| f32::from(v) * GYRO_RADPS_PER_LSB);
         let chip_accel = raw.accel.map(|v| f32::from(v) * ACCEL_MPS2_PER_LSB);
         ImuSample {
-            timestamp_us,
+            timestamp_us: timestamp,
             gyro_radps: self.mounting.board_to_body(self.axes.apply(chip_gyro)),
             accel_mps2: self.mounting.board_to_body(self.axes.apply(chip_accel)),
         }
@@ -326,11 +326,11 @@ mod tests {
                     0x68,
                     0x03,
                     &bytes([k % 3, -(k % 5), -4096 + k % 7], [k % 2, 1, -1]),
-                    7,
+                    WireTime(7),
                 )
                 .expect("valid");
             assert!((s.accel_mps2[2] + 9.8).abs() < 0.1, "{s:?}");
-            assert_eq!(s.timestamp_us, 7);
+            assert_eq!(s.timestamp_us, WireTime(7));
         }
         assert_eq!(c.faults().total(), 0);
     }
@@ -346,7 +346,7 @@ mod tests {
                 temperature: 0,
                 gyro: [164, 328, 0],
             },
-            0,
+            WireTime(0),
         );
         let deg = 180.0 / core::f32::consts::PI;
         assert!((s.gyro_radps[0] * deg + 20.0).abs() < 1e-3, "{s:?}");
@@ -358,21 +358,24 @@ mod tests {
         let mut c = check();
         let good = bytes([10, 20, -4000], [1, 2, 3]);
         assert_eq!(
-            c.check(0x00, 0x03, &good, 0),
+            c.check(0x00, 0x03, &good, WireTime(0)),
             Err(SampleFault::NotIdentified(0))
         );
         assert_eq!(
-            c.check(0xFF, 0x03, &good, 0),
+            c.check(0xFF, 0x03, &good, WireTime(0)),
             Err(SampleFault::NotIdentified(0xFF))
         );
         // Asleep after a brown-out reset: SLEEP set, internal oscillator.
         assert_eq!(
-            c.check(0x68, PWR_MGMT_1_SLEEP, &good, 0),
+            c.check(0x68, PWR_MGMT_1_SLEEP, &good, WireTime(0)),
             Err(SampleFault::NotAwake(0x40))
         );
-        assert_eq!(c.check(0x68, 0x03, &[0; 14], 0), Err(SampleFault::AllZero));
         assert_eq!(
-            c.check(0x68, 0x03, &[0xFF; 14], 0),
+            c.check(0x68, 0x03, &[0; 14], WireTime(0)),
+            Err(SampleFault::AllZero)
+        );
+        assert_eq!(
+            c.check(0x68, 0x03, &[0xFF; 14], WireTime(0)),
             Err(SampleFault::AllOnes)
         );
         let f = c.faults();
@@ -386,7 +389,10 @@ mod tests {
             bytes([i16::MAX, 0, -4096], [1, 2, 3]),
             bytes([1, 0, -4096], [1, i16::MIN, 3]),
         ] {
-            assert_eq!(c.check(0x68, 0x03, &bad, 0), Err(SampleFault::FullScale));
+            assert_eq!(
+                c.check(0x68, 0x03, &bad, WireTime(0)),
+                Err(SampleFault::FullScale)
+            );
         }
         assert_eq!(c.faults().full_scale, 2);
     }
@@ -396,18 +402,24 @@ mod tests {
         let mut c = check();
         let frozen = bytes([12, -7, -4090], [3, -2, 1]);
         for _ in 1..STUCK_SAMPLES {
-            assert!(c.check(0x68, 0x03, &frozen, 0).is_ok());
+            assert!(c.check(0x68, 0x03, &frozen, WireTime(0)).is_ok());
         }
         for _ in 0..10 {
-            assert_eq!(c.check(0x68, 0x03, &frozen, 0), Err(SampleFault::Stuck));
+            assert_eq!(
+                c.check(0x68, 0x03, &frozen, WireTime(0)),
+                Err(SampleFault::Stuck)
+            );
         }
         assert_eq!(c.faults().stuck, 10);
         // A different temperature alone does not unfreeze it: only the axes count.
         let mut same_axes = frozen;
         same_axes[6] ^= 1;
-        assert_eq!(c.check(0x68, 0x03, &same_axes, 0), Err(SampleFault::Stuck));
+        assert_eq!(
+            c.check(0x68, 0x03, &same_axes, WireTime(0)),
+            Err(SampleFault::Stuck)
+        );
         assert!(c
-            .check(0x68, 0x03, &bytes([13, -7, -4090], [3, -2, 1]), 0)
+            .check(0x68, 0x03, &bytes([13, -7, -4090], [3, -2, 1]), WireTime(0))
             .is_ok());
     }
 }

@@ -459,7 +459,7 @@ mod tests {
     fn estimate() -> Estimate {
         Estimate {
             seq: 7,
-            capture_us: 123_456,
+            capture_us: WireTime(123_456),
             forward_mps: 0.31,
             sideways_mps: -0.02,
             obstacle_m: Some(1.4),

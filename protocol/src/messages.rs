@@ -1,9 +1,10 @@
 //! Every message that crosses a wire, one enum per direction.
 //!
-//! Units are SI at every boundary (m, m/s, rad, rad/s, m/s², s) in `f32`; timestamps are in
-//! microseconds of the sender's monotonic clock, carried as `u32` on the wire. A `u32`
-//! microsecond clock wraps after 71.6 minutes (longer than any flight of a 40 g drone); compare
-//! timestamps with [`elapsed_us`], never with `<`.
+//! Units are SI at every boundary (m, m/s, rad, rad/s, m/s², s) in `f32`; timestamps are
+//! [`WireTime`]s: microseconds of the sender's monotonic clock, wrapping at 2^32 (after 71.6
+//! minutes, longer than any flight of a 40 g drone; on the wire a plain `u32`). Compare them
+//! with [`WireTime::wrapping_since`], never with `<`, and bring them back onto a 64-bit
+//! timeline with [`timebase::WrapExtender`].
 //!
 //! Links and directions:
 //!
@@ -18,6 +19,7 @@
 //! message" check; changing or reordering fields is not: bump [`PROTOCOL_VERSION`].
 
 use serde::{Deserialize, Serialize};
+pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
@@ -29,12 +31,6 @@ pub const STEREO_FRAME_BYTES: usize = 128 * 96 * 2;
 
 /// Payload bytes in one [`FrameChunk`] (a full frame is 48 chunks).
 pub const FRAME_CHUNK_BYTES: usize = 512;
-
-/// Microseconds elapsed from `earlier` to `later` on a wrapping `u32` microsecond clock.
-#[inline]
-pub fn elapsed_us(later: u32, earlier: u32) -> u32 {
-    later.wrapping_sub(earlier)
-}
 
 /// A message type that travels in frames: one enum per direction.
 pub trait Message: Serialize + for<'de> Deserialize<'de> {
@@ -141,8 +137,8 @@ impl core::ops::BitOr for EstimateFlags {
 pub struct Estimate {
     /// Frame sequence number, wrapping; a gap means frames were dropped.
     pub seq: u16,
-    /// Exposure time of the frame, µs (camera board clock, wrapping `u32`).
-    pub capture_us: u32,
+    /// Exposure time of the frame, µs (camera board clock).
+    pub capture_us: WireTime,
     /// Forward velocity, m/s (positive: moving towards the scene).
     pub forward_mps: f32,
     /// Sideways velocity, m/s (positive: moving to the right).
@@ -265,8 +261,8 @@ impl Message for StereoToAutopilot {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct GyroAttitude {
-    /// Sample time, µs (autopilot clock, wrapping `u32`).
-    pub timestamp_us: u32,
+    /// Sample time, µs (autopilot clock).
+    pub timestamp_us: WireTime,
     /// Body rates p, q, r (roll, pitch, yaw rate), rad/s.
     pub rates_radps: [f32; 3],
     /// Attitude roll, pitch, yaw (ZYX Euler angles), rad.
@@ -355,8 +351,8 @@ impl Message for AutopilotToStereo {
 pub struct FrameChunk {
     /// Frame number, wrapping; all chunks of one frame carry the same number.
     pub frame_id: u16,
-    /// Exposure time of the frame, µs (host simulation clock, wrapping `u32`).
-    pub capture_us: u32,
+    /// Exposure time of the frame, µs (host simulation clock).
+    pub capture_us: WireTime,
     /// Byte offset of `data` inside the [`STEREO_FRAME_BYTES`]-byte interleaved frame.
     pub offset: u16,
     /// Interleaved pixel bytes, at most [`FRAME_CHUNK_BYTES`].
@@ -367,8 +363,8 @@ pub struct FrameChunk {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ImuSample {
-    /// Sample time, µs (wrapping `u32`).
-    pub timestamp_us: u32,
+    /// Sample time, µs.
+    pub timestamp_us: WireTime,
     /// Body rates p, q, r, rad/s (body frame x forward, y right, z down).
     pub gyro_radps: [f32; 3],
     /// Specific force, m/s² (body frame; about [0, 0, -9.81] at rest, level).
@@ -380,8 +376,8 @@ pub struct ImuSample {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ExternalPosition {
-    /// Measurement time, µs (wrapping `u32`).
-    pub timestamp_us: u32,
+    /// Measurement time, µs.
+    pub timestamp_us: WireTime,
     /// Position in the room frame (x north, y east, z down), m. Height above the floor is `-z`.
     pub position_m: [f32; 3],
 }
@@ -426,8 +422,8 @@ impl Message for HostToBoard {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MotorCommand {
-    /// Time of the control step that produced the command, µs (wrapping `u32`).
-    pub timestamp_us: u32,
+    /// Time of the control step that produced the command, µs.
+    pub timestamp_us: WireTime,
     /// Throttle of motors 1..4 (front-right, rear-right, rear-left, front-left), each 0..=1.
     pub throttle: [f32; 4],
 }
@@ -520,8 +516,8 @@ impl FsmState {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Telemetry {
-    /// Autopilot time, µs (wrapping `u32`).
-    pub timestamp_us: u32,
+    /// Autopilot time, µs.
+    pub timestamp_us: WireTime,
     /// Avoidance state machine state (`None`: the state machine is not running).
     pub fsm_state: Option<FsmState>,
     /// Flight mode.

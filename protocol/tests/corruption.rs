@@ -22,7 +22,7 @@ fn random_vec3(rng: &mut ChaCha8Rng) -> [f32; 3] {
 fn random_estimate(rng: &mut ChaCha8Rng) -> Estimate {
     Estimate {
         seq: rng.random(),
-        capture_us: rng.random(),
+        capture_us: WireTime(rng.random()),
         forward_mps: random_f32(rng),
         sideways_mps: random_f32(rng),
         obstacle_m: rng.random_bool(0.5).then(|| random_f32(rng)),
@@ -77,18 +77,18 @@ fn random_host_to_board(rng: &mut ChaCha8Rng) -> HostToBoard {
             }
             HostToBoard::FrameChunk(FrameChunk {
                 frame_id: rng.random(),
-                capture_us: rng.random(),
+                capture_us: WireTime(rng.random()),
                 offset: rng.random(),
                 data,
             })
         }
         2 => HostToBoard::Imu(ImuSample {
-            timestamp_us: rng.random(),
+            timestamp_us: WireTime(rng.random()),
             gyro_radps: random_vec3(rng),
             accel_mps2: random_vec3(rng),
         }),
         3 => HostToBoard::ExternalPosition(ExternalPosition {
-            timestamp_us: rng.random(),
+            timestamp_us: WireTime(rng.random()),
             position_m: random_vec3(rng),
         }),
         _ => HostToBoard::Command(PilotCommand::Kill),

@@ -39,7 +39,7 @@ fn estimate() -> impl Strategy<Value = Estimate> {
         .prop_map(
             |(seq, capture_us, f, s, obstacle_m, quality, flags, processing_us)| Estimate {
                 seq,
-                capture_us,
+                capture_us: WireTime(capture_us),
                 forward_mps: f,
                 sideways_mps: s,
                 obstacle_m,
@@ -136,7 +136,7 @@ fn autopilot_to_stereo() -> impl Strategy<Value = AutopilotToStereo> {
         heartbeat().prop_map(AutopilotToStereo::Heartbeat),
         (any::<u32>(), vec3(), vec3()).prop_map(|(timestamp_us, rates_radps, attitude_rad)| {
             AutopilotToStereo::GyroAttitude(GyroAttitude {
-                timestamp_us,
+                timestamp_us: WireTime(timestamp_us),
                 rates_radps,
                 attitude_rad,
             })
@@ -156,21 +156,21 @@ fn host_to_board() -> impl Strategy<Value = HostToBoard> {
             .prop_map(|(frame_id, capture_us, offset, data)| {
                 HostToBoard::FrameChunk(FrameChunk {
                     frame_id,
-                    capture_us,
+                    capture_us: WireTime(capture_us),
                     offset,
                     data: heapless::Vec::from_slice(&data).unwrap(),
                 })
             }),
         (any::<u32>(), vec3(), vec3()).prop_map(|(timestamp_us, gyro_radps, accel_mps2)| {
             HostToBoard::Imu(ImuSample {
-                timestamp_us,
+                timestamp_us: WireTime(timestamp_us),
                 gyro_radps,
                 accel_mps2,
             })
         }),
         (any::<u32>(), vec3()).prop_map(|(timestamp_us, position_m)| {
             HostToBoard::ExternalPosition(ExternalPosition {
-                timestamp_us,
+                timestamp_us: WireTime(timestamp_us),
                 position_m,
             })
         }),
@@ -187,7 +187,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
         heartbeat().prop_map(BoardToHost::Heartbeat),
         (any::<u32>(), [finite(), finite(), finite(), finite()]).prop_map(
             |(timestamp_us, throttle)| BoardToHost::Motors(MotorCommand {
-                timestamp_us,
+                timestamp_us: WireTime(timestamp_us),
                 throttle
             })
         ),
@@ -215,7 +215,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                     link_errors,
                 )| {
                     BoardToHost::Telemetry(Telemetry {
-                        timestamp_us,
+                        timestamp_us: WireTime(timestamp_us),
                         fsm_state,
                         flight_mode,
                         attitude_rad,
@@ -283,7 +283,7 @@ proptest! {
     #[test]
     fn float_bits_are_preserved(bits in any::<[u32; 2]>()) {
         let est = Estimate {
-            seq: 1, capture_us: 2,
+            seq: 1, capture_us: WireTime(2),
             forward_mps: f32::from_bits(bits[0]), sideways_mps: f32::from_bits(bits[1]),
             obstacle_m: None, quality: 0, flags: EstimateFlags::NONE, processing_us: 0,
         };
@@ -336,7 +336,7 @@ proptest! {
 fn estimate_worst_case_fits_in_32_bytes() {
     let worst = Estimate {
         seq: u16::MAX,
-        capture_us: u32::MAX,
+        capture_us: WireTime(u32::MAX),
         forward_mps: f32::MAX,
         sideways_mps: f32::MIN,
         obstacle_m: Some(f32::MAX),
@@ -373,7 +373,7 @@ fn declared_maximum_frame_sizes_hold() {
     let mut wire = [0u8; 2048];
     let chunk = HostToBoard::FrameChunk(FrameChunk {
         frame_id: u16::MAX,
-        capture_us: u32::MAX,
+        capture_us: WireTime(u32::MAX),
         offset: u16::MAX,
         data: heapless::Vec::from_slice(&[0xAB; FRAME_CHUNK_BYTES]).unwrap(),
     });
@@ -398,13 +398,13 @@ fn declared_maximum_frame_sizes_hold() {
     });
     assert!(encode(&status, &mut wire).unwrap() <= StereoToAutopilot::MAX_FRAME_BYTES);
     let gyro = AutopilotToStereo::GyroAttitude(GyroAttitude {
-        timestamp_us: u32::MAX,
+        timestamp_us: WireTime(u32::MAX),
         rates_radps: [f32::MAX; 3],
         attitude_rad: [f32::MAX; 3],
     });
     assert!(encode(&gyro, &mut wire).unwrap() <= AutopilotToStereo::MAX_FRAME_BYTES);
     let telemetry = BoardToHost::Telemetry(Telemetry {
-        timestamp_us: u32::MAX,
+        timestamp_us: WireTime(u32::MAX),
         fsm_state: Some(FsmState::Turn),
         flight_mode: FlightMode::ImuFault,
         attitude_rad: [f32::MAX; 3],

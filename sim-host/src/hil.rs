@@ -62,7 +62,8 @@ use anyhow::{anyhow, bail, Context as _};
 use protocol::{
     encode, AutopilotToStereo, AutopilotToStereoDecoder, BoardToHost, BoardToHostDecoder, Estimate,
     FlightMode, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message, PilotCommand,
-    StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
+    StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, WireTime, FRAME_CHUNK_BYTES,
+    STEREO_FRAME_BYTES,
 };
 use std::io::{Read, Write};
 use std::path::PathBuf;
@@ -492,7 +493,7 @@ pub fn encode_frame(
     for (i, data) in frame.chunks(FRAME_CHUNK_BYTES).enumerate() {
         let msg = HostToBoard::FrameChunk(FrameChunk {
             frame_id,
-            capture_us,
+            capture_us: WireTime(capture_us),
             offset: (i * FRAME_CHUNK_BYTES) as u16,
             data: data
                 .try_into()
@@ -685,7 +686,7 @@ fn lockstep(
             push_msg(&HostToBoard::Command(PilotCommand::Arm), &mut out)?;
         }
         let s = world.imu_sample();
-        let stamp = t as u32;
+        let stamp = WireTime(t as u32);
         push_msg(
             &HostToBoard::Imu(ImuSample {
                 timestamp_us: stamp,
@@ -908,7 +909,7 @@ fn on_estimate(e: &Estimate, r: &mut HilResult, in_flight: &mut Option<(u32, Ins
     for (bit, n) in r.flag_counts.iter_mut().enumerate() {
         *n += u64::from(e.flags.0 >> bit & 1);
     }
-    if in_flight.is_some_and(|(c, _)| c == e.capture_us) {
+    if in_flight.is_some_and(|(c, _)| c == e.capture_us.as_micros()) {
         *in_flight = None;
     }
 }
@@ -1092,7 +1093,7 @@ mod tests {
                         ap.on_stereo_bytes(&take(&from_camera), now);
                         let throttle = ap.on_imu(&imu, now);
                         let reply = MotorCommand {
-                            timestamp_us: now as u32,
+                            timestamp_us: WireTime(now as u32),
                             throttle,
                         };
                         send_host(&mut s, &BoardToHost::Motors(reply));

@@ -245,7 +245,7 @@ impl BoardView {
                     "mode        {:<18} fsm {:<10} (board time {:.3} s, {:.1} s ago)",
                     t.flight_mode.name(),
                     t.fsm_state.map_or("inactive", |f| f.name()),
-                    f64::from(t.timestamp_us) / 1e6,
+                    f64::from(t.timestamp_us.as_micros()) / 1e6,
                     now_s - at
                 );
                 let _ = writeln!(
@@ -540,7 +540,7 @@ mod tests {
 
     fn telemetry(mode: FlightMode) -> Telemetry {
         Telemetry {
-            timestamp_us: 1_000_000,
+            timestamp_us: protocol::WireTime(1_000_000),
             fsm_state: Some(FsmState::Forward),
             flight_mode: mode,
             attitude_rad: [0.01, -0.02, 0.5],

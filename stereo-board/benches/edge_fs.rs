@@ -41,7 +41,7 @@ fn bench_config(c: &mut Criterion, name: &str, mut params: EdgeFsParams) {
     let mut step = |fs: &mut EdgeFs, k: usize| {
         t_us += 40_000;
         let g = GyroAttitude {
-            timestamp_us: t_us as u32,
+            timestamp_us: protocol::WireTime(t_us as u32),
             rates_radps: [0.0; 3],
             attitude_rad: [0.0, 0.0, 0.001 * k as f32],
         };

@@ -20,7 +20,7 @@ use protocol::{
     FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
     StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
-use timebase::{WireTime, WrapExtender};
+use timebase::{Instant, WireTime, WrapExtender};
 
 pub use task_table::{TaskSpec, Trigger};
 
@@ -118,7 +118,7 @@ pub fn send_to_host(msg: &BoardToHost, tx: &mut impl FnMut(&[u8])) -> bool {
 pub struct FrameAssembler {
     buf: [u8; STEREO_FRAME_BYTES],
     frame_id: u16,
-    capture_us: u32,
+    capture_time: WireTime,
     /// Bit i: chunk i received.
     have: u64,
     active: bool,
@@ -158,7 +158,7 @@ impl FrameAssembler {
         Self {
             buf: [0; STEREO_FRAME_BYTES],
             frame_id: 0,
-            capture_us: 0,
+            capture_time: WireTime(0),
             have: 0,
             active: false,
             complete: 0,
@@ -167,9 +167,9 @@ impl FrameAssembler {
         }
     }
 
-    /// Takes one chunk. Returns `Some(capture_us)` (the host's exposure time) when it completes
+    /// Takes one chunk. Returns `Some(capture_time)` (the host's exposure time) when it completes
     /// the frame; the frame is then in [`FrameAssembler::frame`] until the next chunk arrives.
-    pub fn push(&mut self, chunk: &FrameChunk) -> Option<u32> {
+    pub fn push(&mut self, chunk: &FrameChunk) -> Option<WireTime> {
         let offset = usize::from(chunk.offset);
         let index = offset / FRAME_CHUNK_BYTES;
         let expected_len = STEREO_FRAME_BYTES
@@ -189,7 +189,7 @@ impl FrameAssembler {
         if !self.active {
             self.active = true;
             self.frame_id = chunk.frame_id;
-            self.capture_us = chunk.capture_us;
+            self.capture_time = chunk.capture_us;
             self.have = 0;
         }
         let slot = self.buf.get_mut(offset..offset + expected_len)?;
@@ -198,7 +198,7 @@ impl FrameAssembler {
         if self.have == Self::ALL {
             self.active = false;
             self.complete = self.complete.saturating_add(1);
-            Some(self.capture_us)
+            Some(self.capture_time)
         } else {
             None
         }
@@ -255,7 +255,7 @@ pub struct StereoBoardApp {
     params: EdgeFsParams,
     rx: Decoder<AutopilotToStereo, A2S_N>,
     host_rx: Decoder<HostToBoard, H2B_N>,
-    host_clock: WrapExtender,
+    host_clock: WrapExtender<Instant>,
     gyro: Option<(GyroAttitude, u64)>,
     peer_uptime_ms: Option<u32>,
     seq: u16,
@@ -382,7 +382,7 @@ impl StereoBoardApp {
         let est = Estimate {
             seq: self.seq,
             // The wire carries the wrapping low 32 bits.
-            capture_us: capture_us as u32,
+            capture_us: WireTime(capture_us as u32),
             forward_mps: out.forward_mps,
             sideways_mps: out.sideways_mps,
             obstacle_m: out.obstacle_m,
@@ -500,7 +500,7 @@ impl StereoBoardApp {
                 let lost = frames.frames_incomplete().wrapping_sub(before);
                 self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(lost);
                 if let Some(capture) = done {
-                    let capture_us = self.host_clock.extend(WireTime(capture));
+                    let capture_us = self.host_clock.extend(capture).as_micros();
                     on_frame_ready(frames.frame(), capture_us);
                 }
             }

@@ -56,7 +56,7 @@ fn firmware_estimates_equal_the_host_library_on_real_frames() {
         for (i, data) in frame.chunks(protocol::FRAME_CHUNK_BYTES).enumerate() {
             let msg = protocol::HostToBoard::FrameChunk(protocol::FrameChunk {
                 frame_id: k as u16,
-                capture_us: capture,
+                capture_us: protocol::WireTime(capture),
                 offset: (i * protocol::FRAME_CHUNK_BYTES) as u16,
                 data: data.try_into().unwrap(),
             });

@@ -253,7 +253,7 @@ impl HostLink {
         for (i, data) in frame.chunks(FRAME_CHUNK_BYTES).enumerate() {
             let msg = HostToBoard::FrameChunk(FrameChunk {
                 frame_id,
-                capture_us,
+                capture_us: protocol::WireTime(capture_us),
                 offset: (i * FRAME_CHUNK_BYTES) as u16,
                 data: data.try_into().expect("chunk fits"),
             });
@@ -321,7 +321,7 @@ impl RestImuFeeder {
             let (mut sent, mut replies) = (0u64, 0u64);
             let mut k = 0u64;
             while !flag.load(std::sync::atomic::Ordering::Relaxed) {
-                let t = (k * 1_000_000 / 512) as u32;
+                let t = protocol::WireTime((k * 1_000_000 / 512) as u32);
                 let mut out = Vec::new();
                 let mut push = |m: &HostToBoard| {
                     let mut buf = [0u8; HostToBoard::MAX_FRAME_BYTES];

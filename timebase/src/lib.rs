@@ -14,6 +14,7 @@
 #![no_std]
 #![warn(missing_docs)]
 
+use core::marker::PhantomData;
 use core::ops::{Add, AddAssign, Sub};
 use serde::{Deserialize, Serialize};
 
@@ -181,6 +182,25 @@ instant_type!(
     WorldTime
 );
 
+/// A 64-bit microsecond timeline a [`WrapExtender`] can extend wire times onto: [`Instant`]
+/// or [`WorldTime`].
+pub trait Timeline: Copy + Ord {
+    /// The point `us` microseconds after the timeline's epoch.
+    fn from_micros(us: u64) -> Self;
+}
+
+impl Timeline for Instant {
+    fn from_micros(us: u64) -> Self {
+        Self(us)
+    }
+}
+
+impl Timeline for WorldTime {
+    fn from_micros(us: u64) -> Self {
+        Self(us)
+    }
+}
+
 impl WorldTime {
     /// Lockstep: the world's time drives a board's flight clock (the `hil` and `qemu` flavours,
     /// where the host's world paces the flight code). The one sanctioned crossing from world
@@ -200,36 +220,54 @@ impl WorldTime {
 pub struct WireTime(pub u32);
 
 impl WireTime {
+    /// The wire time `us` microseconds after the sender's epoch, modulo 2^32.
+    pub const fn from_micros(us: u32) -> Self {
+        Self(us)
+    }
     /// The raw microseconds.
     pub const fn as_micros(self) -> u32 {
         self.0
     }
+    /// Time from `earlier` to `self` on the wrapping clock: correct across one wrap, for
+    /// timestamps less than 2^32 µs apart. Wire times are compared this way, never with `<`.
+    pub const fn wrapping_since(self, earlier: Self) -> Duration {
+        Duration(self.0.wrapping_sub(earlier.0) as u64)
+    }
 }
 
-/// Extends [`WireTime`]s from one sender onto a monotonic 64-bit timeline.
+/// Extends [`WireTime`]s from one sender onto a monotonic 64-bit timeline `T` ([`Instant`] for
+/// a board's clock, [`WorldTime`] for the simulated world's).
 ///
 /// A decrease of more than half the 32-bit range is a wrap; a smaller decrease is a sample out
 /// of order and maps just below the previous one (the timeline itself never goes back:
 /// [`WrapExtender::latest`]). The first timestamp maps to itself.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct WrapExtender {
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WrapExtender<T> {
     last: Option<u32>,
     high: u64,
     latest: u64,
+    timeline: PhantomData<T>,
 }
 
-impl WrapExtender {
+impl<T: Timeline> Default for WrapExtender<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<T: Timeline> WrapExtender<T> {
     /// An extender that has seen nothing.
     pub const fn new() -> Self {
         Self {
             last: None,
             high: 0,
             latest: 0,
+            timeline: PhantomData,
         }
     }
 
-    /// Maps `t` onto the 64-bit timeline (µs).
-    pub fn extend(&mut self, t: WireTime) -> u64 {
+    /// Maps `t` onto the 64-bit timeline.
+    pub fn extend(&mut self, t: WireTime) -> T {
         let t = t.0;
         if let Some(last) = self.last {
             if t < last && last - t > u32::MAX / 2 {
@@ -237,18 +275,18 @@ impl WrapExtender {
             } else if t > last && t - last > u32::MAX / 2 && self.high > 0 {
                 // A sample from before the last wrap, arriving late: it does not move the
                 // reference.
-                return (self.high - (1 << 32)) | u64::from(t);
+                return T::from_micros((self.high - (1 << 32)) | u64::from(t));
             }
         }
         self.last = Some(t);
         let v = self.high | u64::from(t);
         self.latest = self.latest.max(v);
-        v
+        T::from_micros(v)
     }
 
-    /// The latest point seen on the timeline, µs (0 before the first timestamp).
-    pub const fn latest(&self) -> u64 {
-        self.latest
+    /// The latest point seen on the timeline (the epoch before the first timestamp).
+    pub fn latest(&self) -> T {
+        T::from_micros(self.latest)
     }
 
     /// True once a timestamp has been seen.
@@ -283,6 +321,18 @@ mod tests {
     }
 
     #[test]
+    fn wire_times_compare_across_a_wrap() {
+        assert_eq!(
+            WireTime(5).wrapping_since(WireTime(u32::MAX - 4)),
+            Duration::from_micros(10)
+        );
+        assert_eq!(
+            WireTime(300).wrapping_since(WireTime(100)),
+            Duration::from_micros(200)
+        );
+    }
+
+    #[test]
     fn serialised_as_plain_integers() {
         let mut buf = [0u8; 8];
         let a = postcard::to_slice(&WireTime(300), &mut buf)
@@ -294,16 +344,23 @@ mod tests {
 
     #[test]
     fn extender_wraps_and_tolerates_reordering() {
-        let mut x = WrapExtender::new();
+        let mut x = WrapExtender::<Instant>::new();
+        let us = |x: Instant| x.as_micros();
         assert!(!x.started());
-        assert_eq!(x.extend(WireTime(u32::MAX - 10)), u64::from(u32::MAX - 10));
-        assert_eq!(x.extend(WireTime(5)), (1 << 32) + 5);
+        assert_eq!(
+            us(x.extend(WireTime(u32::MAX - 10))),
+            u64::from(u32::MAX - 10)
+        );
+        assert_eq!(us(x.extend(WireTime(5))), (1 << 32) + 5);
         // A late sample from before the wrap.
-        assert_eq!(x.extend(WireTime(u32::MAX - 20)), u64::from(u32::MAX - 20));
-        assert_eq!(x.extend(WireTime(6)), (1 << 32) + 6);
+        assert_eq!(
+            us(x.extend(WireTime(u32::MAX - 20))),
+            u64::from(u32::MAX - 20)
+        );
+        assert_eq!(us(x.extend(WireTime(6))), (1 << 32) + 6);
         // Small reordering after the wrap.
-        assert_eq!(x.extend(WireTime(4)), (1 << 32) + 4);
-        assert_eq!(x.latest(), (1 << 32) + 6);
+        assert_eq!(us(x.extend(WireTime(4))), (1 << 32) + 4);
+        assert_eq!(us(x.latest()), (1 << 32) + 6);
     }
 
     proptest! {
@@ -311,13 +368,13 @@ mod tests {
         /// back exactly.
         #[test]
         fn extender_recovers_monotonic_timelines(start in 0u64..(1 << 40), steps in proptest::collection::vec(0u64..(1 << 31), 1..200)) {
-            let mut x = WrapExtender::new();
+            let mut x = WrapExtender::<WorldTime>::new();
             let mut t = start & 0xFFFF_FFFF;
-            prop_assert_eq!(x.extend(WireTime(t as u32)), t);
+            prop_assert_eq!(x.extend(WireTime(t as u32)).as_micros(), t);
             for s in steps {
                 t += s;
-                prop_assert_eq!(x.extend(Instant::from_micros(t).to_wire()), t);
-                prop_assert_eq!(x.latest(), t);
+                prop_assert_eq!(x.extend(WorldTime::from_micros(t).to_wire()).as_micros(), t);
+                prop_assert_eq!(x.latest().as_micros(), t);
             }
         }
     }

@@ -46,7 +46,7 @@ impl Probe<Autopilot> for Pilot {
         if now % (20 * MS) == 0 {
             let height = if now >= ARM_AT { 0.5 } else { 0.0 };
             let fix = HostToBoard::ExternalPosition(ExternalPosition {
-                timestamp_us: (now / 1_000) as u32,
+                timestamp_us: protocol::WireTime((now / 1_000) as u32),
                 position_m: [0.0, 0.0, -height],
             });
             board.telemetry.rx.send_at(now, &host::frame(&fix));

@@ -410,7 +410,9 @@ mod app {
             .lock(|bus| bus.as_mut().map(|bus| bus.imu_read()));
         let check = &mut *cx.local.imu_check;
         let sample = match reads {
-            Some(Ok((who, pwr, data))) => check.check(who, pwr, &data, now as u32).ok(),
+            Some(Ok((who, pwr, data))) => check
+                .check(who, pwr, &data, protocol::WireTime(now as u32))
+                .ok(),
             Some(Err(_)) => {
                 check.bus_error();
                 None
@@ -456,7 +458,7 @@ mod app {
     fn motors_to_host(host_tx: &mut impl rtic::Mutex<T = TxWriter>, now: u64, throttle: [f32; 4]) {
         if flavour::MOTORS_TO_HOST {
             let msg = BoardToHost::Motors(protocol::MotorCommand {
-                timestamp_us: now as u32,
+                timestamp_us: protocol::WireTime(now as u32),
                 throttle,
             });
             send::<_, B2H>(host_tx, &msg);

@@ -169,7 +169,7 @@ pub fn evaluate_take_with(
         let t = truth.time_s[i - 1];
         let yaw_body = -(truth.yaw_deg[i - 1] * std::f64::consts::PI / 180.0);
         let motion = GyroAttitude {
-            timestamp_us: 0,
+            timestamp_us: protocol::WireTime(0),
             rates_radps: [0.0; 3],
             attitude_rad: [0.0, 0.0, yaw_body as f32],
         };

@@ -362,7 +362,7 @@ mod tests {
         let mut log = FlightLog::new(&mut buf, Path::new("mem.mcap")).unwrap();
         let e = Estimate {
             seq: 3,
-            capture_us: 40_000,
+            capture_us: protocol::WireTime(40_000),
             forward_mps: 0.25,
             sideways_mps: -0.5,
             obstacle_m: None,

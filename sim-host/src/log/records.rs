@@ -73,7 +73,7 @@ impl From<&Estimate> for EstimateRecord {
     fn from(e: &Estimate) -> Self {
         Self {
             seq: e.seq,
-            capture_us: e.capture_us,
+            capture_us: e.capture_us.as_micros(),
             forward_mps: e.forward_mps,
             sideways_mps: e.sideways_mps,
             obstacle_m: e.obstacle_m,
@@ -402,7 +402,7 @@ impl BoardClockRecord {
     pub fn telemetry(t: &Telemetry) -> Self {
         Self {
             message: "telemetry",
-            board_time_us: t.timestamp_us,
+            board_time_us: t.timestamp_us.as_micros(),
         }
     }
 }

@@ -335,8 +335,9 @@ pub fn run_flight_observed(
                     if e.is_valid() {
                         estimates[1] += 1;
                         last_raw = [e.forward_mps, e.sideways_mps];
-                        if let Some(&(_, v)) =
-                            truth_at_capture.iter().find(|(c, _)| *c == e.capture_us)
+                        if let Some(&(_, v)) = truth_at_capture
+                            .iter()
+                            .find(|(c, _)| *c == e.capture_us.as_micros())
                         {
                             if -world.drone.state.pos.z > 0.3 {
                                 err2 += ((e.forward_mps - v[0]) as f64).powi(2)
@@ -416,7 +417,7 @@ pub fn run_flight_observed(
                     let s = world.imu_sample();
                     let out = ap.on_imu(
                         &ImuSample {
-                            timestamp_us: t as u32,
+                            timestamp_us: protocol::WireTime(t as u32),
                             gyro_radps: s.gyro.to_f32(),
                             accel_mps2: s.accel.to_f32(),
                         },

@@ -155,7 +155,7 @@ impl World {
         let p = self.drone.state.pos;
         let z = p.z + gauss(&mut self.rng) * self.height_noise_m;
         ExternalPosition {
-            timestamp_us: t_us as u32,
+            timestamp_us: protocol::WireTime(t_us as u32),
             position_m: [p.x as f32, p.y as f32, z as f32],
         }
     }

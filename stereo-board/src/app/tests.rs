@@ -44,7 +44,7 @@ fn enc<M: Message>(msg: &M) -> Vec<u8> {
 
 fn gyro(t: u32, yaw: f32) -> GyroAttitude {
     GyroAttitude {
-        timestamp_us: t,
+        timestamp_us: WireTime(t),
         rates_radps: [0.01, -0.02, 0.3],
         attitude_rad: [0.0, 0.05, yaw],
     }
@@ -89,7 +89,8 @@ fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
         });
         assert_eq!(est.seq, i as u16);
         assert_eq!(
-            est.capture_us, capture as u32,
+            est.capture_us,
+            WireTime(capture as u32),
             "wire carries the low 32 bits"
         );
         assert_eq!(est.forward_mps.to_bits(), expected.forward_mps.to_bits());
@@ -382,7 +383,7 @@ fn chunks(f: &[u8; STEREO_FRAME_BYTES], frame_id: u16, capture_us: u32) -> Vec<F
         .enumerate()
         .map(|(i, data)| FrameChunk {
             frame_id,
-            capture_us,
+            capture_us: WireTime(capture_us),
             offset: (i * FRAME_CHUNK_BYTES) as u16,
             data: heapless::Vec::from_slice(data).unwrap(),
         })
@@ -406,7 +407,7 @@ fn assembler_rebuilds_a_frame_from_chunks_in_any_order() {
         None,
         "a duplicate does not complete the frame"
     );
-    assert_eq!(asm.push(&last), Some(777));
+    assert_eq!(asm.push(&last), Some(WireTime(777)));
     assert_eq!(&asm.frame()[..], &f[..]);
     assert_eq!(asm.frames_complete(), 1);
     assert_eq!(asm.frames_incomplete(), 0);
@@ -425,7 +426,7 @@ fn assembler_drops_incomplete_frames_and_rejects_bad_chunks() {
     for c in chunks(&b, 2, 200) {
         done = asm.push(&c).or(done);
     }
-    assert_eq!(done, Some(200));
+    assert_eq!(done, Some(WireTime(200)));
     assert_eq!(&asm.frame()[..], &b[..]);
     assert_eq!(asm.frames_incomplete(), 1);
 
@@ -518,7 +519,7 @@ mod prop {
                                 len in 0usize..=FRAME_CHUNK_BYTES, capture in any::<u32>()) {
             let mut asm = Box::new(FrameAssembler::new());
             let chunk = FrameChunk {
-                frame_id, capture_us: capture, offset,
+                frame_id, capture_us: WireTime(capture), offset,
                 data: heapless::Vec::from_slice(&vec![7u8; len]).unwrap(),
             };
             prop_assert_eq!(asm.push(&chunk), None);

@@ -40,7 +40,7 @@ fn render(z: f32, pos: f32, yaw_px: f32, params: &EdgeFsParams) -> [u8; STEREO_F
 
 fn gyro(yaw: f32) -> GyroAttitude {
     GyroAttitude {
-        timestamp_us: 0,
+        timestamp_us: protocol::WireTime(0),
         rates_radps: [0.0; 3],
         attitude_rad: [0.0, 0.0, yaw],
     }
@@ -205,7 +205,7 @@ fn spin(rate: impl Fn(f32) -> f32, latency_s: f32, frames: u32) -> heapless::Vec
         let (k0, fr) = (libm::floorf(k).max(0.0) as usize, k - libm::floorf(k));
         let old = yaw_at[k0] * (1.0 - fr) + yaw_at[(k0 + 1).min(i as usize)] * fr;
         let g = GyroAttitude {
-            timestamp_us: 0,
+            timestamp_us: protocol::WireTime(0),
             rates_radps: [0.0, 0.0, rate(t - latency_s)],
             attitude_rad: [0.0, 0.0, old],
         };

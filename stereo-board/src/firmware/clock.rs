@@ -13,8 +13,9 @@ pub fn now_us() -> u64 {
 /// World time of the lockstep flavours, µs, and the extender of the autopilot's `u32` gyro
 /// timestamps onto it.
 #[cfg(any(feature = "qemu", feature = "hil"))]
-static WORLD: cortex_m::interrupt::Mutex<core::cell::RefCell<(u64, timebase::WrapExtender)>> =
-    cortex_m::interrupt::Mutex::new(core::cell::RefCell::new((0, timebase::WrapExtender::new())));
+static WORLD: cortex_m::interrupt::Mutex<
+    core::cell::RefCell<(u64, timebase::WrapExtender<timebase::WorldTime>)>,
+> = cortex_m::interrupt::Mutex::new(core::cell::RefCell::new((0, timebase::WrapExtender::new())));
 
 /// A world time seen on a link (a frame's exposure time, µs): the world clock moves forward
 /// to it (never back).
@@ -28,10 +29,10 @@ pub fn observe_world_us(t: u64) {
 
 /// A gyro timestamp from the autopilot (its world time, wrapping `u32` µs).
 #[cfg(any(feature = "qemu", feature = "hil"))]
-pub fn observe_world_gyro(t: u32) {
+pub fn observe_world_gyro(t: timebase::WireTime) {
     cortex_m::interrupt::free(|cs| {
         let mut w = WORLD.borrow(cs).borrow_mut();
-        let t = w.1.extend(timebase::WireTime(t));
+        let t: u64 = w.1.extend(t).as_micros();
         w.0 = w.0.max(t);
     });
 }

@@ -74,7 +74,7 @@ mod bench {
 
     fn gyro(k: usize) -> GyroAttitude {
         GyroAttitude {
-            timestamp_us: (k as u32) * 40_000,
+            timestamp_us: protocol::WireTime((k as u32) * 40_000),
             rates_radps: [0.01, -0.02, 0.05],
             attitude_rad: [0.0, 0.0, 0.002 * k as f32],
         }
@@ -197,7 +197,7 @@ mod bench {
             // of that attitude), so that the trigonometry runs its general path, not the
             // small-angle shortcuts a level attitude would take.
             let imu = ImuSample {
-                timestamp_us: t as u32,
+                timestamp_us: protocol::WireTime(t as u32),
                 gyro_radps: [0.01, 0.0, -0.01],
                 accel_mps2: [-0.5883, -0.7818, -9.7610],
             };
@@ -205,7 +205,7 @@ mod bench {
                 ap.on_estimate(&estimate(k as u16, t), t);
                 ap.on_external_position(
                     &protocol::ExternalPosition {
-                        timestamp_us: t as u32,
+                        timestamp_us: protocol::WireTime(t as u32),
                         position_m: [0.0, 0.0, -1.0],
                     },
                     t,
@@ -256,7 +256,7 @@ mod bench {
     fn estimate(seq: u16, t: u64) -> Estimate {
         Estimate {
             seq,
-            capture_us: t as u32,
+            capture_us: protocol::WireTime(t as u32),
             forward_mps: 0.3,
             sideways_mps: -0.02,
             obstacle_m: Some(1.5),
