@@ -125,7 +125,9 @@ fn install_prerequisites(need_fuzz: bool) -> Result<()> {
     run_checked(Command::new("rustup").args(["target", "add", FIRMWARE_TARGET]))
         .context("rustup target add thumbv7em-none-eabihf")?;
     // The firmware linker (.cargo/config.toml): stack below the statics, so an overflow faults.
-    if !succeeds(Command::new("flip-link").arg("--version")) {
+    // flip-link has no `--version` (run by hand it only says to use it as a linker and fails),
+    // so its presence on PATH is the check.
+    if !on_path("flip-link") {
         run_checked(Command::new("cargo").args(["install", "flip-link", "--locked"]))
             .context("cargo install flip-link --locked")?;
     }
@@ -195,6 +197,18 @@ fn is_root() -> bool {
         .output()
         .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
         .unwrap_or(false)
+}
+
+/// True if an executable file named `program` is in one of PATH's directories.
+fn on_path(program: &str) -> bool {
+    std::env::var_os("PATH").is_some_and(|paths| {
+        std::env::split_paths(&paths).any(|dir| {
+            std::fs::metadata(dir.join(program)).is_ok_and(|m| {
+                use std::os::unix::fs::PermissionsExt as _;
+                m.is_file() && m.permissions().mode() & 0o111 != 0
+            })
+        })
+    })
 }
 
 fn succeeds(cmd: &mut Command) -> bool {
