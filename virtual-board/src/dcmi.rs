@@ -35,6 +35,7 @@ use rigless::soc::stm32f427::Stm32f427;
 use rigless::soc::stm32f427::generated::dcmi::{Register, cr, cwsize, cwstrt, icr, ris, sr};
 use rigless::time::{EventId, VirtualNanos};
 
+use crate::clock_timer::ClockTimer;
 use crate::cpld::{self, Mode};
 use crate::frames::{FrameSource, StereoImage};
 use crate::tcm8230::{self, SensorHandle, SensorPins, StreamSetup};
@@ -86,8 +87,9 @@ impl Default for DcmiInputs {
     }
 }
 
-/// Reads [`DcmiInputs`] off the part's registers and models (the board's wiring).
-pub type Sampler = fn(&Stm32f427) -> DcmiInputs;
+/// Reads [`DcmiInputs`] off the part's registers and models (the board's wiring), given the
+/// timer the SoC serves as a clock generator, if any ([`crate::soc::Soc::use_as_clock`]).
+pub type Sampler = fn(&Stm32f427, Option<&ClockTimer>) -> DcmiInputs;
 
 /// The far end of the interface: the sensor pair, the CPLD and what they see.
 #[derive(Debug)]
@@ -257,9 +259,9 @@ impl Dcmi {
     }
 
     /// Samples the board's pins (the SoC calls this before every call into this slot).
-    pub fn sample(&mut self, mcu: &Stm32f427) {
+    pub fn sample(&mut self, mcu: &Stm32f427, clock_timer: Option<&ClockTimer>) {
         if let Some(sampler) = self.sampler {
-            self.set_inputs(sampler(mcu));
+            self.set_inputs(sampler(mcu, clock_timer));
         }
     }
 

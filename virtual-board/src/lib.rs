@@ -7,7 +7,8 @@
 //!   autopilot), so a run that touches a peripheral or memory the real part lacks fails.
 //! * chip models: [`mpu6000`] (IMU), rigless's own MS5611 (barometer), the camera board's
 //!   [`tcm8230`] sensors behind the [`cpld`] on the [`dcmi`].
-//! * [`boards`]: the two boards, each wired as its original.
+//! * [`boards`]: the two boards, each wired as its original; [`clock_timer`]: a timer that only
+//!   generates a clock, woken only when something can see its events.
 //! * [`link`]: two boards' UARTs joined byte for byte, [`bench`]: the harness that loads the
 //!   ELFs, runs them in virtual time (two boards in lockstep), reads their defmt logs over RTT
 //!   ([`rtt`]) and watches for panics and faults; [`motors`] reads PWM duties off timer channels.
@@ -19,6 +20,7 @@
 
 pub mod bench;
 pub mod boards;
+pub mod clock_timer;
 pub mod clocks;
 pub mod cpld;
 pub mod dcmi;

@@ -25,6 +25,7 @@ use rigless::soc::stm32f427::peripherals::{adc, sdio, spi, usart};
 use rigless::soc::{Bus, Error};
 use rigless::time::VirtualNanos;
 
+use crate::clock_timer::ClockTimer;
 use crate::dcmi::Dcmi;
 use crate::exti::Exti;
 use crate::syscfg::Syscfg;
@@ -228,6 +229,9 @@ pub struct Soc {
     pub syscfg: Syscfg,
     /// The camera interface, RM0090 section 15 (unused on the F415: any access fails the run).
     pub dcmi: Dcmi,
+    /// A general-purpose timer the board uses as a clock generator, taken out of [`Soc::mcu`]
+    /// (see [`Soc::use_as_clock`]): its bus slot and its model.
+    pub clock_timer: Option<(usize, ClockTimer)>,
     slots: Slots,
 }
 
@@ -262,8 +266,29 @@ impl Soc {
             exti: Exti::default(),
             syscfg: Syscfg::default(),
             dcmi: Dcmi::default(),
+            clock_timer: None,
             slots,
         })
+    }
+
+    /// Serves general-purpose timer `nth` of [`Stm32f427::tim`] (TIM2, TIM3, TIM4, TIM5), named
+    /// `name`, as a [`ClockTimer`]: the same model, woken only when something but its pins can
+    /// see its counter's events. For a board whose timer only generates a clock for a chip.
+    ///
+    /// # Errors
+    /// `name` is not an instance of the part, or rigless's part fails to assemble.
+    pub fn use_as_clock(&mut self, name: &'static str, nth: usize) -> Result<(), Error> {
+        let slot = self.mcu.bus().slot(name)?;
+        // A spare part's timer takes the place of the one moved out; it is never served.
+        let mut spare = Stm32f427::new()?;
+        std::mem::swap(&mut self.mcu.tim[nth], &mut spare.tim[nth]);
+        let [t2, t3, t4, t5] = spare.tim;
+        let timer = [t2, t3, t4, t5]
+            .into_iter()
+            .nth(nth)
+            .ok_or(Error::UnknownInstance { instance: name })?;
+        self.clock_timer = Some((slot, ClockTimer::new(timer)));
+        Ok(())
     }
 
     /// The bus slot of the EXTI, for driving its lines from the board.
@@ -330,6 +355,9 @@ impl Mcu for Soc {
         rigless::device::Device::reset(&mut self.exti);
         rigless::device::Device::reset(&mut self.syscfg);
         rigless::device::Device::reset(&mut self.dcmi);
+        if let Some((_, timer)) = &mut self.clock_timer {
+            timer.reset();
+        }
     }
 
     fn poll(&mut self, now: VirtualNanos) {
@@ -343,12 +371,20 @@ impl Mcu for Soc {
             (self.mcu.bus_mut(), Some(&mut self.syscfg))
         } else if slot == self.slots.dcmi {
             // The camera's pins, read off the part before every call into the DCMI.
-            self.dcmi.sample(&self.mcu);
+            self.dcmi
+                .sample(&self.mcu, self.clock_timer.as_ref().map(|(_, t)| t));
             (self.mcu.bus_mut(), Some(&mut self.dcmi))
+        } else if self.clock_timer.as_ref().is_some_and(|(at, _)| *at == slot) {
+            let timer = self
+                .clock_timer
+                .as_mut()
+                .map(|(_, t)| t as &mut dyn ErasedDevice);
+            (self.mcu.bus_mut(), timer)
         } else {
             if slot == self.slots.i2c2 {
                 // The camera's SCCB port times its reset from the same pins.
-                self.dcmi.sample(&self.mcu);
+                self.dcmi
+                    .sample(&self.mcu, self.clock_timer.as_ref().map(|(_, t)| t));
             }
             self.mcu.split(slot)
         }

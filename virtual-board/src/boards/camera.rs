@@ -28,6 +28,7 @@ use rigless::soc::stm32f427::peripherals::rcc::Apb;
 use rigless::time::VirtualNanos;
 
 use crate::bench::BenchBoard;
+use crate::clock_timer::ClockTimer;
 use crate::clocks::Clocks;
 use crate::cpld::Mode;
 use crate::dcmi::{Camera, DcmiInputs, DcmiStats};
@@ -127,12 +128,13 @@ fn output(mcu: &Stm32f427, p: BoardPin) -> Option<bool> {
 /// The frequency of the clock TIM3 CH2 puts on PA7, Hz, if PA7 carries it: PA7 in AF2 and the
 /// channel running a PWM (rigless's pulse read-back); the frequency from the timer's kernel clock
 /// (RCC, APB1 timers) and its period in counts.
-fn sensor_clock_hz(mcu: &Stm32f427) -> Option<u64> {
+fn sensor_clock_hz(mcu: &Stm32f427, clock_timer: Option<&ClockTimer>) -> Option<u64> {
     if function(mcu, SENSOR_CLOCK) != Some(AF_TIM3) {
         return None;
     }
     let tim = registers(mcu, "TIM3");
-    let pulse = mcu.tim[TIM3_INDEX].pulse(Channel::new(2)?, tim)?;
+    let timer = clock_timer.map_or(&mcu.tim[TIM3_INDEX], |t| &t.timer);
+    let pulse = timer.pulse(Channel::new(2)?, tim)?;
     if pulse.width.0 == 0 || pulse.width.0 >= pulse.period.0 {
         return None;
     }
@@ -146,7 +148,7 @@ fn sensor_clock_hz(mcu: &Stm32f427) -> Option<u64> {
 
 /// What the camera board's pins carry for the DCMI and its camera, read off the part.
 #[must_use]
-pub fn sample(mcu: &Stm32f427) -> DcmiInputs {
+pub fn sample(mcu: &Stm32f427, clock_timer: Option<&ClockTimer>) -> DcmiInputs {
     let rcc = registers(mcu, "RCC");
     let clock_enabled = rcc_regs::ahb2enr::DCMIEN.is_set(rcc.get(rcc_regs::Register::Ahb2enr));
     let sync_connected = DCMI_SYNC.iter().all(|p| function(mcu, *p) == Some(AF_DCMI));
@@ -157,7 +159,7 @@ pub fn sample(mcu: &Stm32f427) -> DcmiInputs {
         .fold(0u8, |mask, (bit, _)| mask | 1 << bit);
     DcmiInputs {
         sensor: SensorPins {
-            extclk_hz: sensor_clock_hz(mcu),
+            extclk_hz: sensor_clock_hz(mcu, clock_timer),
             reset_released: output(mcu, SENSOR_RESET) == Some(true),
         },
         cpld: Mode::from_pins(CPLD_MODE.map(|p| output(mcu, p))),
@@ -202,6 +204,9 @@ impl CameraBoard {
     /// rigless's part fails to assemble.
     pub fn with_link(source: Box<dyn FrameSource>, link: WireEnd) -> Result<Self, Error> {
         let mut soc = Soc::new(Part::Stm32f407)?;
+        // TIM3 only generates the sensors' 21 MHz clock: woken at its counter's 42 million
+        // events a second, the core could never skip ahead (see `crate::clock_timer`).
+        soc.use_as_clock("TIM3", TIM3_INDEX)?;
         soc.mcu.rcc.attach_crystals(HSE_HZ, Crystal::NONE.0);
         soc.mcu.set_supply(SUPPLY_MV);
         let sensor = SensorHandle::new();
