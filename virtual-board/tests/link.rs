@@ -6,13 +6,19 @@
 //! Three witnesses of "zero errors": the bench's own decoders on every byte each board put on the
 //! wire, the wire (no word garbled by a baud mismatch, none lost), and the counters each firmware
 //! reports in its status log line.
+//!
+//! Test 5 (camera side, both boards joined): the camera stops (no VSYNC); the camera board
+//! reports it in its status over the link within the time it promises, and sends no more
+//! estimates.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use protocol::{AutopilotToStereo, Decoder, Message, StereoToAutopilot};
 use virtual_board::bench::BenchBoard;
-use virtual_board::bench::{OnBarrier, Options, Outcome, Setup, Watching, run_pair};
+use virtual_board::bench::{
+    At, Closure, Flow, OnBarrier, Options, Outcome, Setup, Watching, run_pair,
+};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::boards::camera::CameraBoard;
 use virtual_board::firmware::Firmware;
@@ -190,5 +196,105 @@ fn the_joined_link_runs_ten_seconds_without_a_decode_error() {
         "{SECONDS} s joined: {estimates} estimates, {} autopilot messages, {:.1} s wall",
         to_camera.len(),
         cam.wall_s
+    );
+}
+
+/// Every message in the bytes `line` carried, with the instant its last byte was sent, ns.
+fn decode_timed<M: Message>(line: &link::Line) -> (Vec<(u64, M)>, u32) {
+    let mut decoder: Decoder<M, 256> = Decoder::new_mid_stream();
+    let mut out = Vec::new();
+    for (at, word) in line.sent() {
+        decoder.feed(&[(word & 0xFF) as u8], |m| out.push((at, m)));
+    }
+    (out, decoder.errors().total())
+}
+
+#[test]
+fn a_stopped_camera_is_reported_over_the_link() {
+    const MS: u64 = 1_000_000;
+    const STOP_AT: u64 = 2_000 * MS;
+    // The camera board's promise: stopped after 5 frame periods without a VSYNC (202.8 ms),
+    // reported at its next 1 Hz status; 50 ms of slack for the status line's transmission.
+    const REPORTED_BY: u64 = STOP_AT + 203 * MS + 1_000 * MS + 50 * MS;
+    let recorded = Recorded::from_take(&take(), 60).expect("the data set's take 1");
+    let (camera_end, autopilot_end) = link::join();
+    let camera = CameraBoard::with_link(Box::new(recorded), camera_end.clone()).expect("board");
+    let autopilot = Autopilot::with_link(1, autopilot_end.clone()).expect("board");
+    let camera_rx: Arc<dyn OnBarrier> = Arc::new(camera_end.rx.clone());
+    let autopilot_rx: Arc<dyn OnBarrier> = Arc::new(autopilot_end.rx.clone());
+    // A stop lands at the first instruction boundary at or after the instant asked for.
+    let mut stopped = false;
+    let stop = Closure(move |at: &mut At<'_, CameraBoard>| {
+        if !stopped && at.now >= STOP_AT {
+            at.board().stop_camera();
+            stopped = true;
+        }
+        Flow::Continue
+    });
+    let (cam, ap) = run_pair(
+        Setup {
+            board: camera,
+            firmware: Firmware::real("stereo-board").expect("the camera-board image"),
+            probe: stop,
+        },
+        Setup {
+            board: autopilot,
+            firmware: Firmware::real("autopilot").expect("the autopilot image"),
+            probe: Watching,
+        },
+        Options::seconds(3.5),
+        vec![camera_rx],
+        vec![autopilot_rx],
+    )
+    .expect("the run");
+    let report = || format!("{}\n{}", cam.report(), ap.report());
+    cam.assert_clean();
+    ap.assert_clean();
+    let (messages, errors) = decode_timed::<StereoToAutopilot>(&camera_end.tx);
+    assert_eq!(errors, 0, "camera -> autopilot decode errors\n{}", report());
+    let statuses: Vec<(u64, bool)> = messages
+        .iter()
+        .filter_map(|(at, m)| match m {
+            StereoToAutopilot::Status(s) => Some((*at, s.camera_stopped)),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        statuses
+            .iter()
+            .filter(|(at, _)| *at < STOP_AT)
+            .all(|(_, stopped)| !stopped),
+        "no camera stop reported while it ran: {statuses:?}"
+    );
+    let reported = statuses
+        .iter()
+        .find(|(_, stopped)| *stopped)
+        .map(|(at, _)| *at);
+    assert!(
+        reported.is_some_and(|at| at > STOP_AT && at <= REPORTED_BY),
+        "camera_stopped reported at {reported:?} ns (stopped at {STOP_AT}, promised by \
+         {REPORTED_BY}): {statuses:?}\n{}",
+        report()
+    );
+    let before = messages
+        .iter()
+        .filter(|(at, m)| *at < STOP_AT && matches!(m, StereoToAutopilot::Estimate(_)))
+        .count();
+    // A frame being processed when the camera stopped may still go out (Edge-FS takes a few ms).
+    let late = messages
+        .iter()
+        .filter(|(at, m)| *at > STOP_AT + 50 * MS && matches!(m, StereoToAutopilot::Estimate(_)))
+        .count();
+    assert!(
+        before >= 40,
+        "{before} estimates while the camera ran\n{}",
+        report()
+    );
+    assert_eq!(late, 0, "estimates after the camera stopped\n{}", report());
+    assert_eq!(
+        last_status(&ap, "link_errors"),
+        Some(0),
+        "the autopilot decodes the link cleanly throughout\n{}",
+        report()
     );
 }
