@@ -213,6 +213,21 @@ impl Default for AutopilotConfig {
     }
 }
 
+impl AutopilotConfig {
+    /// The longest time from the camera board's estimates stopping (a cut link, a dead board)
+    /// to every motor at 0, µs, for a drone flying at up to `target_height_m`: the estimate
+    /// timeout, the hover before landing, the descent at `land_rate_mps` from the target height
+    /// to the floor, the touchdown confirmation, and one guidance period to act on it.
+    pub fn link_loss_motors_off_us(&self) -> u64 {
+        let descent_s = self.target_height_m.max(0.0) / self.land_rate_mps.abs().max(0.01);
+        self.failsafe.estimate_timeout_us
+            + self.failsafe.hover_before_land_us
+            + (descent_s * 1e6) as u64
+            + self.landed_time_us
+            + u64::from(GUIDANCE_PERIOD_US)
+    }
+}
+
 /// Flags that make an estimate's obstacle distance unusable (the velocity may still be invalid
 /// for flow reasons while the stereo distance is fine).
 const OBSTACLE_INVALID: EstimateFlags = EstimateFlags(

@@ -19,7 +19,7 @@
 //! | motors (brushed, via FETs) | TIM3 CH1, CH2; TIM5 CH1, CH2 | PC6, PC7; PA0, PA1 (AF2) | 36 kHz PWM, high = on | AF:30-33, 263-265, LM:421-491 |
 //! | link to the camera board | USART2 | PA2 TX, PA3 RX (AF7) | [`LINK_BAUD`] 8N1 | AF:232-233, LM:152-156 |
 //! | telemetry (WiFi modem; the HIL host in the `hil` flavour) | USART1 | PA9 TX, PA10 RX (AF7) | [`TELEMETRY_BAUD`] 8N1 | AF:268-270, LM:145-149 |
-//! | RC receiver (optional, SBUS) | UART5 RX | PD2 (AF8) | 100,000 Bd 8E2 | AF:242 (open, see below) |
+//! | RC receiver (none on the pocket drone; [`RC_RECEIVER`]) | UART5 RX | PD2 (AF8) | 100,000 Bd 8E2 | AF:242 (open, see below) |
 //! | status LED (LED 1) | GPIO | PA8 (output) | **active low** | LM:36-84 |
 //! | loop timer | TIM2 | - | [`LOOP_RATE_HZ`] update interrupt | - (the original polls the IMU from its main loop) |
 //!
@@ -30,9 +30,9 @@
 //!
 //! * IMU data-ready: which pin the MPU-6000's INT reaches is not in the sources (Paparazzi polls
 //!   the IMU); the loop is paced by [`LOOP_RATE_HZ`] on TIM2 instead and no pin is read.
-//! * RC: the pocket drone has no receiver (pilot commands come over the telemetry link); the
-//!   Lisa/MX's receiver input is UART5 RX (PD2, Spektrum in Paparazzi). We decode SBUS there
-//!   ([`crate::rc`]); with nothing connected it produces no command.
+//! * RC: the pocket drone has no receiver (pilot commands come over the telemetry link), so
+//!   [`RC_RECEIVER`] is off and PD2 stays at reset. With it on, the Lisa/MX's receiver input,
+//!   UART5 RX (PD2, Spektrum in Paparazzi), decodes SBUS ([`crate::rc`]).
 //! * Status LED: LED 1 (PA8) blinks at 1 Hz; the other LEDs stay off (inputs).
 
 /// A GPIO port.
@@ -100,11 +100,12 @@ pub struct PinAssignment {
     pub source: &'static str,
 }
 
-/// Every pin the `real` firmware configures; all others stay in their reset state (input,
+/// Every pin the `real` firmware configures (and [`RC_PIN`] with [`RC_RECEIVER`]); all others
+/// stay in their reset state (input,
 /// except the debug pins PA13, PA14, PA15, PB3, PB4). The HAL's default for the alternate
 /// functions is no pull; the UART receive pins get a pull-up so that an unplugged line idles
 /// high instead of reading noise as start bits.
-pub const PINS: [PinAssignment; 15] = [
+pub const PINS: [PinAssignment; 14] = [
     PinAssignment {
         pin: pin(Port::B, 13),
         signal: "SPI2 SCK (MPU-6000, MS5611)",
@@ -197,13 +198,6 @@ pub const PINS: [PinAssignment; 15] = [
         source: "[PZ] airframe xml:268-270, lisa_mx_common.h:145-149",
     },
     PinAssignment {
-        pin: pin(Port::D, 2),
-        signal: "UART5 RX (RC receiver, SBUS; optional)",
-        mode: PinMode::Alternate { af: 8 },
-        pull: Pull::Up,
-        source: "[PZ] airframe xml:242 (receiver port; open)",
-    },
-    PinAssignment {
         pin: pin(Port::A, 8),
         signal: "LED 1 (status, active low)",
         mode: PinMode::Output { initial_high: true },
@@ -211,6 +205,21 @@ pub const PINS: [PinAssignment; 15] = [
         source: "[PZ] lisa_mx_common.h:36-84",
     },
 ];
+
+/// Whether the board carries an RC receiver on the Lisa/MX's receiver port ([`RC_PIN`]). The
+/// pocket drone has none: its pilot commands come over the telemetry link ([PZ] airframe
+/// xml:242; original-boards.md, "RC"), so by default UART5 and PD2 stay at reset and the RC
+/// task does not run. A drone with an SBUS receiver sets this to `true` (one line).
+pub const RC_RECEIVER: bool = false;
+
+/// The receiver port's pin, configured only when [`RC_RECEIVER`] is set.
+pub const RC_PIN: PinAssignment = PinAssignment {
+    pin: pin(Port::D, 2),
+    signal: "UART5 RX (RC receiver, SBUS; only with RC_RECEIVER)",
+    mode: PinMode::Alternate { af: 8 },
+    pull: Pull::Up,
+    source: "[PZ] airframe xml:242 (receiver port; open)",
+};
 
 /// Pins that must never be driven as outputs, and why.
 pub const NOT_DRIVEN: [(Pin, &str); 6] = [
@@ -319,6 +328,20 @@ pub const WATCHDOG_MS: u32 = 50;
 /// Independent-watchdog timeout of the lockstep flavours, ms (see the real flavour's).
 #[cfg(any(feature = "hil", feature = "qemu"))]
 pub const WATCHDOG_MS: u32 = 2_000;
+
+/// The longest time from the IMU failing (frozen, unplugged, asleep, gone) to every motor at 0,
+/// µs, with the failsafe timings `failsafe`: a frozen sensor's samples still pass for
+/// [`crate::mpu6000::STUCK_SAMPLES`] - 1 loop periods, then no valid sample for the failsafe's
+/// `imu_timeout_us`, then the loop period whose check turns the motors off.
+pub fn imu_fault_motors_off_us(failsafe: &crate::failsafe::FailsafeConfig) -> u64 {
+    let period_us = 1_000_000u64.div_ceil(u64::from(LOOP_RATE_HZ));
+    failsafe.imu_timeout_us + u64::from(crate::mpu6000::STUCK_SAMPLES) * period_us
+}
+
+/// The longest time from a panic or HardFault to every motor at 0, µs: the fault path's first
+/// act after masking interrupts is the register writes of `hw::motors_off` (a few dozen
+/// instructions; `board_support::fault`).
+pub const FAULT_MOTORS_OFF_US: u64 = 10;
 
 /// The MPU-6000's axes on the board: board axis i is `sign[i]` times chip axis `axis[i]`.
 /// Paparazzi's Lisa/MX 2.1 mapping is board = (-chip y, chip x, chip z) ([PZ]
@@ -454,8 +477,8 @@ pub mod hw {
         pub link: Serial<LinkUart>,
         /// Telemetry port.
         pub telemetry: Serial<TelemetryUart>,
-        /// RC receiver input.
-        pub rc: Rx<RcUart>,
+        /// RC receiver input (`None` without [`super::RC_RECEIVER`]).
+        pub rc: Option<Rx<RcUart>>,
         /// The sensors' bus and chip selects.
         pub spi: SensorSpi,
         /// MPU-6000 chip select, high (deselected).
@@ -522,18 +545,19 @@ pub mod hw {
             )
             .unwrap_or_else(|_| panic!("USART1 configuration"));
         // SBUS: 100,000 Bd, 8 data bits + even parity (a 9-bit word), 2 stop bits.
-        let rc = dp
-            .UART5
-            .rx(
-                gpiod.pd2.internal_pull_up(true),
-                serial::Config::default()
-                    .baudrate(crate::rc::SBUS_BAUD.bps())
-                    .wordlength_9()
-                    .parity_even()
-                    .stopbits(serial::config::StopBits::STOP2),
-                &mut rcc,
-            )
-            .unwrap_or_else(|_| panic!("UART5 configuration"));
+        let rc = super::RC_RECEIVER.then(|| {
+            dp.UART5
+                .rx(
+                    gpiod.pd2.internal_pull_up(true),
+                    serial::Config::default()
+                        .baudrate(crate::rc::SBUS_BAUD.bps())
+                        .wordlength_9()
+                        .parity_even()
+                        .stopbits(serial::config::StopBits::STOP2),
+                    &mut rcc,
+                )
+                .unwrap_or_else(|_| panic!("UART5 configuration"))
+        });
         let loop_timer = dp.TIM2.counter_hz(&mut rcc);
         let led = gpioa.pa8.into_push_pull_output_in_state(!LED_ON);
         Board {
@@ -677,8 +701,10 @@ mod tests {
 
     #[test]
     fn pins_are_unique_and_sensor_nets_are_never_outputs() {
-        for (i, a) in PINS.iter().enumerate() {
-            for b in PINS.iter().skip(i + 1) {
+        // With the RC receiver option on, its pin joins the table.
+        let all = || PINS.iter().chain(core::iter::once(&RC_PIN));
+        for (i, a) in all().enumerate() {
+            for b in all().skip(i + 1) {
                 assert_ne!(a.pin, b.pin, "{} and {}", a.signal, b.signal);
             }
             for (p, why) in NOT_DRIVEN {

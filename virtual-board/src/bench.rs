@@ -338,7 +338,11 @@ impl<B: BenchBoard, P: Probe<B>> Driver<B> for BenchDriver<B, P> {
                 go_on = false;
             }
         }
-        go_on.then(|| VirtualNanos((now + self.step_ns).min(self.until_ns)))
+        // The next multiple of the step: a stop lands a little after its instant (an
+        // instruction boundary), and the next is not pushed later by that.
+        let step = self.step_ns.max(1);
+        let next = (now / step + 1) * step;
+        go_on.then(|| VirtualNanos(next.min(self.until_ns)))
     }
 }
 

@@ -12,6 +12,8 @@
 //! * [`link`]: two boards' UARTs joined byte for byte, [`bench`]: the harness that loads the
 //!   ELFs, runs them in virtual time (two boards in lockstep), reads their defmt logs over RTT
 //!   ([`rtt`]) and watches for panics and faults; [`motors`] reads PWM duties off timer channels.
+//! * [`pilot`]: what a user does to fly the autopilot (height fixes, `Arm`), and schedules on
+//!   the bench's stops.
 //!
 //! * [`serve`]: a board's host UART on a TCP socket, for ground tools (`sim-host monitor`).
 //!
@@ -31,6 +33,7 @@ pub mod host;
 pub mod link;
 pub mod motors;
 pub mod mpu6000;
+pub mod pilot;
 pub mod pins;
 pub mod rtt;
 pub mod serve;

@@ -7,7 +7,6 @@ use virtual_board::firmware::Firmware;
 use virtual_board::pins;
 
 #[test]
-#[ignore = "fails on the fixed image: the autopilot configures PD2 as UART5 RX (the Lisa/MX's optional Spektrum port) while the pocket drone wires no receiver; decide firmware or wiring table"]
 fn the_autopilot_configures_exactly_its_boards_wiring() {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let outcome = run(

@@ -13,7 +13,7 @@
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `telemetry_uart` | position / command from the host (IMU samples: lockstep only) |
-//! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
+//! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms (only with `board::RC_RECEIVER`) | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
 //! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`, watchdog (real) |
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
 //! | `baro` | 2 | its conversions (real) | MS5611 on SPI2 -> `Autopilot::on_baro` |
@@ -165,7 +165,8 @@ mod app {
         host_wake_tx: Sender<'static, (), 1>,
         host_wake_rx: Receiver<'static, (), 1>,
         host_decoder: HostToBoardDecoder,
-        rc_uart: Rx<hw::RcUart>,
+        /// The RC receiver's UART (`None` without `board::RC_RECEIVER`).
+        rc_uart: Option<Rx<hw::RcUart>>,
         rc_in: Producer<'static, u8>,
         rc_out: Consumer<'static, u8>,
         rc_wake_tx: Sender<'static, (), 1>,
@@ -222,7 +223,9 @@ mod app {
                 Ok(who) => defmt::error!("MPU-6000 not found: WHO_AM_I = {=u8:#x}", who),
                 Err(_) => defmt::error!("MPU-6000: SPI transfer failed"),
             }
-            rc_uart.listen();
+            if let Some(rc) = rc_uart.as_mut() {
+                rc.listen();
+            }
             loop_timer
                 .start(board::LOOP_RATE_HZ.Hz())
                 .unwrap_or_else(|_| panic!("TIM2 start"));
@@ -248,7 +251,9 @@ mod app {
         gyro_tx::spawn().ok();
         telemetry::spawn().ok();
         heartbeat::spawn().ok();
-        rc_rx::spawn().ok();
+        if board::RC_RECEIVER {
+            rc_rx::spawn().ok();
+        }
         baro::spawn().ok();
 
         (
@@ -328,15 +333,13 @@ mod app {
         );
     }
 
-    /// UART5, the RC receiver (enabled in the real flavour only).
+    /// UART5, the RC receiver (real flavour with `board::RC_RECEIVER` only; otherwise its
+    /// interrupt is never enabled).
     #[task(binds = UART5, priority = 6, local = [rc_uart, rc_in, rc_wake_tx])]
     fn rc_uart(cx: rc_uart::Context) {
-        drain_uart(
-            cx.local.rc_uart,
-            cx.local.rc_in,
-            &RC_FLOW,
-            cx.local.rc_wake_tx,
-        );
+        if let Some(rc) = cx.local.rc_uart.as_mut() {
+            drain_uart(rc, cx.local.rc_in, &RC_FLOW, cx.local.rc_wake_tx);
+        }
     }
 
     /// RC: SBUS frames to pilot commands and the RC kill latch; also wakes every 20 ms so that

@@ -79,6 +79,11 @@ pub const MOTORS: [MotorPin; 4] = [
     },
 ];
 
+/// [`MOTORS`] indices in the flight software's motor order (`protocol::MotorCommand`, the
+/// mixer's: front-right, rear-right, rear-left, front-left): NE is front-right, SE rear-right,
+/// SW rear-left, NW front-left ([PZ] airframe xml:30-33).
+pub const MIXER_ORDER: [usize; 4] = [0, 3, 2, 1];
+
 /// The board's wiring, pin by pin ([PZ] lisa_mx_common.h, board.h; datasheet DS8597 table 9
 /// for the alternate functions). Written from the original board, not imported from the
 /// firmware: it is what the firmware is checked against.
@@ -289,6 +294,13 @@ impl Autopilot {
     pub fn set_body_specific_force(&mut self, force: [f64; 3]) {
         let chip = rotate(&BODY_TO_CHIP, force);
         self.imu().set_accel(chip);
+    }
+
+    /// The four motor duties in the mixer's order ([`MIXER_ORDER`]: FR, RR, RL, FL), 0..=1.
+    #[must_use]
+    pub fn duties_in_mixer_order(&self) -> [f64; 4] {
+        let outputs = self.motors();
+        MIXER_ORDER.map(|i| outputs[i].duty)
     }
 
     /// The four motor outputs, in [`MOTORS`] order.

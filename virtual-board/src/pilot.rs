@@ -1,0 +1,221 @@
+//! What a user does to fly the autopilot, done on the bench: the ground tool's height fixes and
+//! pilot commands over the telemetry port, as `sim-host hil` sends them (an `ExternalPosition`
+//! at 50 Hz, a `PilotCommand::Arm` when the user arms), and events scheduled on the bench's
+//! stops.
+//!
+//! A stop lands a little after the instant it was asked for (rigless stops at an instruction
+//! boundary, or where a sleeping core wakes), so a schedule never compares a stop's time for
+//! equality: [`Once`] and [`Every`] fire at the first stop at or after their instant.
+
+use protocol::{ExternalPosition, HostToBoard, PilotCommand};
+
+use crate::host;
+use crate::link::Line;
+
+/// One nanosecond-stamped millisecond.
+pub const MS: u64 = 1_000_000;
+
+/// An instant on the bench's clock that fires once, at the first stop at or after it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Once {
+    at_ns: u64,
+    fired: bool,
+}
+
+impl Once {
+    /// Fires at `at_ns` of virtual time.
+    #[must_use]
+    pub const fn at(at_ns: u64) -> Self {
+        Self {
+            at_ns,
+            fired: false,
+        }
+    }
+
+    /// Whether it fires at this stop (`now_ns`): true once, at the first stop at or after its
+    /// instant.
+    pub fn due(&mut self, now_ns: u64) -> bool {
+        if self.fired || now_ns < self.at_ns {
+            return false;
+        }
+        self.fired = true;
+        true
+    }
+
+    /// Whether it has fired.
+    #[must_use]
+    pub fn fired(&self) -> bool {
+        self.fired
+    }
+
+    /// Its instant, ns.
+    #[must_use]
+    pub fn instant_ns(&self) -> u64 {
+        self.at_ns
+    }
+}
+
+/// A period on the bench's clock: fires at the first stop at or after each multiple of it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Every {
+    period_ns: u64,
+    next_ns: u64,
+}
+
+impl Every {
+    /// Every `period_ns` (at least 1), starting at 0.
+    #[must_use]
+    pub const fn ns(period_ns: u64) -> Self {
+        Self {
+            period_ns: if period_ns == 0 { 1 } else { period_ns },
+            next_ns: 0,
+        }
+    }
+
+    /// Whether it fires at this stop (`now_ns`). Multiples the stops stepped over fire once,
+    /// not once each.
+    pub fn due(&mut self, now_ns: u64) -> bool {
+        if now_ns < self.next_ns {
+            return false;
+        }
+        self.next_ns = (now_ns / self.period_ns + 1) * self.period_ns;
+        true
+    }
+}
+
+/// The ground tool's height-fix period (`sim-host hil` sends 50 per second), ns.
+pub const HEIGHT_FIX_PERIOD_NS: u64 = 20 * MS;
+
+/// The user at the ground tool: height fixes on the telemetry port every
+/// [`HEIGHT_FIX_PERIOD_NS`] from boot, and an `Arm` at the instant the test chooses.
+#[derive(Debug, Clone)]
+pub struct GroundStation {
+    fixes: Every,
+    arm: Once,
+    height_m: f64,
+    height_after_arm_m: f64,
+    silent: bool,
+}
+
+impl GroundStation {
+    /// Fixes of 0 m (on the floor) until the `Arm` at `arm_at_ns`, then `height_after_arm_m`
+    /// (the bench flies no world: the drone reports as if hovering there once armed).
+    #[must_use]
+    pub fn arming_at(arm_at_ns: u64, height_after_arm_m: f64) -> Self {
+        Self {
+            fixes: Every::ns(HEIGHT_FIX_PERIOD_NS),
+            arm: Once::at(arm_at_ns),
+            height_m: 0.0,
+            height_after_arm_m,
+            silent: false,
+        }
+    }
+
+    /// When the `Arm` goes out, ns.
+    #[must_use]
+    pub fn arm_at_ns(&self) -> u64 {
+        self.arm.instant_ns()
+    }
+
+    /// The height the fixes report now, m above the floor.
+    #[must_use]
+    pub fn height_m(&self) -> f64 {
+        self.height_m
+    }
+
+    /// The height the next fixes report, m above the floor.
+    pub fn set_height(&mut self, height_m: f64) {
+        self.height_m = height_m;
+    }
+
+    /// Stops (or resumes) sending anything: the ground link lost.
+    pub fn set_silent(&mut self, silent: bool) {
+        self.silent = silent;
+    }
+
+    /// At every stop: sends what is due on `telemetry` (the line the board hears on its
+    /// telemetry port). Returns whether the `Arm` went out at this stop.
+    pub fn step(&mut self, now_ns: u64, telemetry: &Line) -> bool {
+        let arming = self.arm.due(now_ns);
+        if arming {
+            self.height_m = self.height_after_arm_m;
+        }
+        if self.silent {
+            return false;
+        }
+        if self.fixes.due(now_ns) {
+            let fix = HostToBoard::ExternalPosition(ExternalPosition {
+                timestamp_us: protocol::WireTime((now_ns / 1_000) as u32),
+                position_m: [0.0, 0.0, -self.height_m as f32],
+            });
+            telemetry.send_at(now_ns, &host::frame(&fix));
+        }
+        if arming {
+            let arm = HostToBoard::Command(PilotCommand::Arm);
+            telemetry.send_at(now_ns, &host::frame(&arm));
+        }
+        arming
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_late_stop_still_fires_a_schedule_once() {
+        let mut once = Once::at(1_500 * MS);
+        assert!(!once.due(1_499 * MS + 431));
+        assert!(
+            once.due(1_500 * MS + 435),
+            "the first stop past the instant"
+        );
+        assert!(!once.due(1_501 * MS + 435), "only once");
+        let mut every = Every::ns(20 * MS);
+        let fired: Vec<u64> = (0..100u64)
+            .map(|k| k * MS + 431)
+            .filter(|&t| every.due(t))
+            .collect();
+        assert_eq!(
+            fired,
+            vec![
+                431,
+                20 * MS + 431,
+                40 * MS + 431,
+                60 * MS + 431,
+                80 * MS + 431
+            ]
+        );
+    }
+
+    #[test]
+    fn the_ground_station_sends_fixes_and_one_arm() {
+        let line = Line::open();
+        let mut ground = GroundStation::arming_at(40 * MS, 0.5);
+        let arms: usize = (0..61u64)
+            .map(|k| ground.step(k * MS + 7, &line))
+            .filter(|&armed| armed)
+            .count();
+        assert_eq!(arms, 1);
+        let mut decoder = protocol::HostToBoardDecoder::new();
+        let mut messages = Vec::new();
+        for byte in line.sent_bytes() {
+            if let Some(message) = decoder.push(byte) {
+                messages.push(message);
+            }
+        }
+        let heights: Vec<f32> = messages
+            .iter()
+            .filter_map(|m| match m {
+                HostToBoard::ExternalPosition(p) => Some(-p.position_m[2]),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(heights, vec![0.0, 0.0, 0.5, 0.5]);
+        assert!(
+            messages
+                .iter()
+                .any(|m| *m == HostToBoard::Command(PilotCommand::Arm))
+        );
+    }
+}
