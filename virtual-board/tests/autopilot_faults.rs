@@ -10,7 +10,7 @@
 //! | IMU unplugged | MISO pulled high: every byte 0xFF | the same |
 //! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF_US`] |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
-//! | hung task | SPI2 disabled under the firmware: the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
+//! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
 //! | link cut | the camera board's estimates stop | [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
 
 use protocol::{
@@ -157,13 +157,14 @@ impl Probe<Autopilot> for Pilot {
                         .expect("RAM takes a byte");
                 }
                 Fault::Hang => {
-                    let cr1 = at
-                        .host
-                        .read(SPI2.0, rigless::soc::Width::W32)
-                        .expect("SPI2 CR1");
-                    at.host
-                        .write(SPI2.0, rigless::soc::Width::W32, cr1 & !SPI_CR1_SPE)
-                        .expect("SPI2 CR1");
+                    use rigless::mcu::Mcu as _;
+                    use rigless::soc::stm32f427::generated::spi1::Register;
+                    let soc = &mut at.board().soc;
+                    let slot = soc.bus().slot("SPI2").expect("SPI2 on the bus");
+                    let (registers, _) =
+                        soc.bus_mut().drive(rigless::time::VirtualNanos(now), slot);
+                    let cr1 = registers.get(Register::Cr1);
+                    registers.set(Register::Cr1, cr1 & !SPI_CR1_SPE);
                 }
                 Fault::LinkCut => {}
             }
@@ -330,7 +331,6 @@ fn a_panic_stops_the_motors_at_once() {
 /// A hung task: the watchdog resets the part, the motors are off from the reset on and stay off
 /// (the board boots disarmed and nobody arms it again).
 #[test]
-#[ignore = "the injection does not run yet: rigless's Host answers no read of SPI2's CR1 at a stop (the bench must clear SPE through the SoC's register file instead); the firmware side is not yet shown"]
 fn a_hung_loop_is_reset_by_the_watchdog_and_the_motors_stay_off() {
     let promise = u64::from(autopilot::board::WATCHDOG_MS) * MS + MS;
     fault_stops_the_motors(Fault::Hang, promise, 3.5);
