@@ -1126,7 +1126,7 @@ mod tests {
             &mut s,
             &BoardToHost::Heartbeat(Heartbeat::new(Node::StereoBoard, 0)),
         );
-        let mut world = 0u64;
+        let mut world = timebase::Instant::ZERO;
         let mut buf = [0u8; 4096];
         while let Ok(n) = s.read(&mut buf) {
             if n == 0 {
@@ -1252,7 +1252,9 @@ mod tests {
         let mut cb = Box::new(StereoBoardApp::new(EdgeFsParams::default_config()));
         let mut asm = Box::new(FrameAssembler::new());
         let mut got = None;
-        cb.on_host_bytes(&bytes, &mut asm, |f, t| got = Some((f == &*frame, t)));
+        cb.on_host_bytes(&bytes, &mut asm, |f, t| {
+            got = Some((f == &*frame, t.as_micros()))
+        });
         assert_eq!(got, Some((true, 123_456)));
     }
 

@@ -1,7 +1,8 @@
 //! The camera board's task logic and task table, hardware-free.
 //!
 //! The RTIC firmware and `sim-host` call exactly these functions; every task body of the
-//! firmware is one call in here. Time is passed in (µs of the board's monotonic clock); bytes go
+//! firmware is one call in here. Time is passed in (a [`timebase::Instant`] of the board's
+//! monotonic clock, or in the lockstep flavours the world's time as the flight clock); bytes go
 //! out through a caller-provided `tx` closure that receives whole encoded frames.
 //!
 //! | task | trigger | priority | body |
@@ -20,7 +21,7 @@ use protocol::{
     FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
     StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
-use timebase::{Instant, WireTime, WrapExtender};
+use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
 pub use task_table::{TaskSpec, Trigger};
 
@@ -29,8 +30,8 @@ pub const STATUS_PERIOD_US: u32 = 1_000_000;
 /// Frame period of the camera (25 fps, [`crate::board::FRAME_PERIOD_US`]), µs: the frame
 /// task's deadline.
 pub const FRAME_PERIOD_US: u32 = crate::board::FRAME_PERIOD_US;
-/// A gyro/attitude sample older than this is not used for derotation, µs.
-pub const GYRO_TIMEOUT_US: u64 = 100_000;
+/// A gyro/attitude sample older than this is not used for derotation.
+pub const GYRO_TIMEOUT: Duration = Duration::from_millis(100);
 
 /// Name of the frame task.
 pub const TASK_FRAME: &str = "frame";
@@ -255,12 +256,12 @@ pub struct StereoBoardApp {
     params: EdgeFsParams,
     rx: Decoder<AutopilotToStereo, A2S_N>,
     host_rx: Decoder<HostToBoard, H2B_N>,
-    host_clock: WrapExtender<Instant>,
-    gyro: Option<(GyroAttitude, u64)>,
+    host_clock: WrapExtender<WorldTime>,
+    gyro: Option<(GyroAttitude, Instant)>,
     peer_uptime_ms: Option<u32>,
     seq: u16,
     counters: Counters,
-    last_status_us: u64,
+    last_status: Instant,
     last_status_frames: u32,
     max_processing_us: u32,
     capture: CaptureCounts,
@@ -286,7 +287,7 @@ impl StereoBoardApp {
                 config_rejected: 0,
                 config_applied: 0,
             },
-            last_status_us: 0,
+            last_status: Instant::ZERO,
             last_status_frames: 0,
             max_processing_us: 0,
             capture: CaptureCounts {
@@ -337,11 +338,11 @@ impl StereoBoardApp {
         self.peer_uptime_ms
     }
 
-    /// The gyro sample used for a frame processed at `now_us`: the latest one, if it arrived
-    /// within [`GYRO_TIMEOUT_US`].
-    pub fn current_gyro(&self, now_us: u64) -> Option<&GyroAttitude> {
+    /// The gyro sample used for a frame processed at `now`: the latest one, if it arrived
+    /// within [`GYRO_TIMEOUT`].
+    pub fn current_gyro(&self, now: Instant) -> Option<&GyroAttitude> {
         match &self.gyro {
-            Some((g, at)) if now_us.saturating_sub(*at) <= GYRO_TIMEOUT_US => Some(g),
+            Some((g, at)) if now.since(*at) <= GYRO_TIMEOUT => Some(g),
             _ => None,
         }
     }
@@ -353,28 +354,29 @@ impl StereoBoardApp {
         self.gyro.as_ref().map(|(g, _)| g)
     }
 
-    /// Frame task, first half: runs Edge-FS on one interleaved frame exposed at `capture_us`
-    /// (`now_us`: when processing starts, to pick the gyro sample).
+    /// Frame task, first half: runs Edge-FS on one interleaved frame exposed at `capture`
+    /// (`now`: when processing starts, to pick the gyro sample).
     pub fn process_frame(
         &mut self,
         frame: &[u8; STEREO_FRAME_BYTES],
-        capture_us: u64,
-        now_us: u64,
+        capture: Instant,
+        now: Instant,
     ) -> EdgeFsOutput {
-        let gyro = self.current_gyro(now_us).copied();
-        self.edge_fs.process(frame, capture_us, gyro.as_ref())
+        let gyro = self.current_gyro(now).copied();
+        self.edge_fs
+            .process(frame, capture.as_micros(), gyro.as_ref())
     }
 
     /// Frame task, second half: wraps `out` into the next [`Estimate`] (processing time =
-    /// `done_us - capture_us`, saturating) and sends it to the autopilot.
+    /// `done - capture`, saturating at the wire's 65,535 µs) and sends it to the autopilot.
     pub fn send_estimate(
         &mut self,
         out: &EdgeFsOutput,
-        capture_us: u64,
-        done_us: u64,
+        capture: Instant,
+        done: Instant,
         tx: &mut impl FnMut(&[u8]),
     ) -> Estimate {
-        let processing = done_us.saturating_sub(capture_us);
+        let processing = done.since(capture).as_micros();
         let processing_us = u16::try_from(processing).unwrap_or(u16::MAX);
         self.max_processing_us = self
             .max_processing_us
@@ -382,7 +384,7 @@ impl StereoBoardApp {
         let est = Estimate {
             seq: self.seq,
             // The wire carries the wrapping low 32 bits.
-            capture_us: WireTime(capture_us as u32),
+            capture_us: capture.to_wire(),
             forward_mps: out.forward_mps,
             sideways_mps: out.sideways_mps,
             obstacle_m: out.obstacle_m,
@@ -397,16 +399,16 @@ impl StereoBoardApp {
     }
 
     /// Frame task in one call (the simulator's form): process the frame and send the estimate,
-    /// with `now_us` taken as both the start and the completion time.
+    /// with `now` taken as both the start and the completion time.
     pub fn on_frame(
         &mut self,
         frame: &[u8; STEREO_FRAME_BYTES],
-        capture_us: u64,
-        now_us: u64,
+        capture: Instant,
+        now: Instant,
         tx: &mut impl FnMut(&[u8]),
     ) -> Estimate {
-        let out = self.process_frame(frame, capture_us, now_us);
-        self.send_estimate(&out, capture_us, now_us, tx)
+        let out = self.process_frame(frame, capture, now);
+        self.send_estimate(&out, capture, now, tx)
     }
 
     /// A frame the board could not process (camera overrun, still busy with the previous one).
@@ -434,10 +436,10 @@ impl StereoBoardApp {
     /// for derotation (non-finite ones are rejected and counted); a `Config` is validated,
     /// applied from the next frame on (clearing the flow history) and answered with a
     /// `ConfigAck` through `tx`; heartbeats record the peer's uptime.
-    pub fn on_rx_bytes(&mut self, bytes: &[u8], now_us: u64, tx: &mut impl FnMut(&[u8])) {
+    pub fn on_rx_bytes(&mut self, bytes: &[u8], now: Instant, tx: &mut impl FnMut(&[u8])) {
         for &byte in bytes {
             if let Some(msg) = self.rx.push(byte) {
-                self.handle_autopilot(msg, now_us, tx);
+                self.handle_autopilot(msg, now, tx);
             }
         }
     }
@@ -445,7 +447,7 @@ impl StereoBoardApp {
     fn handle_autopilot(
         &mut self,
         msg: AutopilotToStereo,
-        now_us: u64,
+        now: Instant,
         tx: &mut impl FnMut(&[u8]),
     ) {
         match msg {
@@ -457,7 +459,7 @@ impl StereoBoardApp {
                     .chain(g.attitude_rad.iter())
                     .all(|v| v.is_finite());
                 if finite {
-                    self.gyro = Some((g, now_us));
+                    self.gyro = Some((g, now));
                 } else {
                     self.counters.gyro_rejected = self.counters.gyro_rejected.saturating_add(1);
                 }
@@ -484,14 +486,15 @@ impl StereoBoardApp {
     }
 
     /// `host_rx` task (HIL and QEMU flavours): bytes from the host. Frame chunks are assembled
-    /// in `frames`; each completed frame is handed to `on_frame_ready` with its exposure time on
-    /// the board's `u64` timeline (the host's wrapping `u32` clock, unwrapped). Frames abandoned
+    /// in `frames`; each completed frame is handed to `on_frame_ready` with its exposure time:
+    /// the host's world time (its wrapping wire clock, unwrapped) as the flight clock, which is
+    /// what the lockstep flavours run on. Frames abandoned
     /// incomplete are counted as dropped. Other host messages are ignored by the camera board.
     pub fn on_host_bytes(
         &mut self,
         bytes: &[u8],
         frames: &mut FrameAssembler,
-        mut on_frame_ready: impl FnMut(&[u8; STEREO_FRAME_BYTES], u64),
+        mut on_frame_ready: impl FnMut(&[u8; STEREO_FRAME_BYTES], Instant),
     ) {
         for &byte in bytes {
             if let Some(HostToBoard::FrameChunk(chunk)) = self.host_rx.push(byte) {
@@ -500,8 +503,8 @@ impl StereoBoardApp {
                 let lost = frames.frames_incomplete().wrapping_sub(before);
                 self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(lost);
                 if let Some(capture) = done {
-                    let capture_us = self.host_clock.extend(capture).as_micros();
-                    on_frame_ready(frames.frame(), capture_us);
+                    let capture = self.host_clock.extend(capture).as_flight_clock();
+                    on_frame_ready(frames.frame(), capture);
                 }
             }
         }
@@ -510,8 +513,8 @@ impl StereoBoardApp {
     /// `status` task: sends [`StereoStatus`] and a [`Heartbeat`] to the autopilot. The frame
     /// rate is over the time since the previous call (or since boot); the worst processing time
     /// restarts with each interval.
-    pub fn status_tick(&mut self, now_us: u64, tx: &mut impl FnMut(&[u8])) -> StereoStatus {
-        let interval_us = now_us.saturating_sub(self.last_status_us);
+    pub fn status_tick(&mut self, now: Instant, tx: &mut impl FnMut(&[u8])) -> StereoStatus {
+        let interval_us = now.since(self.last_status).as_micros();
         let frames = self
             .counters
             .frames_processed
@@ -521,10 +524,10 @@ impl StereoBoardApp {
         } else {
             0.0
         };
-        self.last_status_us = now_us;
+        self.last_status = now;
         self.last_status_frames = self.counters.frames_processed;
         // Uptime in ms wraps with the u32 on the wire (after 49 days).
-        let uptime_ms = (now_us / 1000) as u32;
+        let uptime_ms = now.since(Instant::ZERO).as_millis() as u32;
         let status = StereoStatus {
             uptime_ms,
             frame_rate_hz,
@@ -544,9 +547,9 @@ impl StereoBoardApp {
         status
     }
 
-    /// Microseconds since the last gyro sample arrived, if any (for status displays).
-    pub fn gyro_age_us(&self, now_us: u64) -> Option<u64> {
-        self.gyro.as_ref().map(|(_, at)| now_us.saturating_sub(*at))
+    /// Time since the last gyro sample arrived, if any (for status displays).
+    pub fn gyro_age(&self, now: Instant) -> Option<Duration> {
+        self.gyro.as_ref().map(|(_, at)| now.since(*at))
     }
 }
 

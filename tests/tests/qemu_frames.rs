@@ -66,8 +66,8 @@ fn firmware_estimates_equal_the_host_library_on_real_frames() {
         }
         let mut ready = None;
         reference.on_host_bytes(&bytes, &mut assembler, |_, t| ready = Some(t));
-        let capture_us = ready.expect("host assembles the frame");
-        let want = reference.on_frame(assembler.frame(), capture_us, capture_us, &mut |_| {});
+        let capture: timebase::Instant = ready.expect("host assembles the frame");
+        let want = reference.on_frame(assembler.frame(), capture, capture, &mut |_| {});
 
         let same = got.seq == want.seq
             && got.capture_us == want.capture_us

@@ -149,8 +149,8 @@ fn estimates_over_the_link_equal_the_host_library_on_recorded_frames() {
             .expect("a frame number")
             .min(FRAMES - 1);
         let frame = images[scene].interleaved();
-        let capture_us = u64::from(got.capture_us.as_micros());
-        let want = reference.on_frame(&frame, capture_us, capture_us, &mut |_| {});
+        let capture = timebase::Instant::from_micros(u64::from(got.capture_us.as_micros()));
+        let want = reference.on_frame(&frame, capture, capture, &mut |_| {});
         assert!(
             same(got, &want),
             "frame {k} (scene {scene}): firmware {got:?}\nhost     {want:?}\n{}",

@@ -20,6 +20,7 @@ use protocol::{
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
 use stereo_board::edge_fs::{EdgeFsOutput, EdgeFsParams};
+use timebase::{Instant, WorldTime};
 
 /// Which avoidance logic the autopilot flies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -227,7 +228,7 @@ impl FlightObserver for NoObserver {}
 /// A frame waiting for the camera board.
 struct PendingFrame {
     ready_us: u64,
-    capture_us: u64,
+    capture: Instant,
     frame: Box<[u8; STEREO_FRAME_BYTES]>,
 }
 
@@ -273,7 +274,7 @@ pub fn run_flight_observed(
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
     let mut busy_until = 0u64;
-    let mut outbox: VecDeque<(u64, u64, EdgeFsOutput)> = VecDeque::new();
+    let mut outbox: VecDeque<(u64, Instant, EdgeFsOutput)> = VecDeque::new();
     let mut truth_at_capture: VecDeque<(u32, [f32; 2])> = VecDeque::new();
     let mut releases: Vec<Release> = Vec::new();
     let mut rxbuf: Vec<u8> = Vec::new();
@@ -351,14 +352,16 @@ pub fn run_flight_observed(
         }
         rxbuf.clear();
         a2s.receive(t, &mut rxbuf);
+        // The simulated camera board's clock is the world's.
+        let cb_now = WorldTime::from_micros(t).as_flight_clock();
         if !rxbuf.is_empty() {
-            cb.on_rx_bytes(&rxbuf, t, &mut |b: &[u8]| s2a.write(t, b));
+            cb.on_rx_bytes(&rxbuf, cb_now, &mut |b: &[u8]| s2a.write(t, b));
         }
 
         // Camera board output leaves after the processing delay.
         while outbox.front().is_some_and(|(r, _, _)| *r <= t) {
-            if let Some((_, capture_us, out)) = outbox.pop_front() {
-                cb.send_estimate(&out, capture_us, t, &mut |b: &[u8]| s2a.write(t, b));
+            if let Some((_, capture, out)) = outbox.pop_front() {
+                cb.send_estimate(&out, capture, cb_now, &mut |b: &[u8]| s2a.write(t, b));
             }
         }
         // A read-out frame reaches the camera board.
@@ -366,10 +369,10 @@ pub fn run_flight_observed(
             if let Some(p) = pending.take() {
                 // Edge-FS starts now (gyro sample as of now); the estimate leaves when the
                 // modelled processing time is over.
-                let out = cb.process_frame(&p.frame, p.capture_us, t);
+                let out = cb.process_frame(&p.frame, p.capture, cb_now);
                 let done = t + cfg.processing_us;
                 busy_until = done;
-                outbox.push_back((done, p.capture_us, out));
+                outbox.push_back((done, p.capture, out));
             }
         }
         // Exposure.
@@ -393,7 +396,7 @@ pub fn run_flight_observed(
             } else {
                 pending = Some(PendingFrame {
                     ready_us: ready,
-                    capture_us: t,
+                    capture: WorldTime::from_micros(t).as_flight_clock(),
                     frame,
                 });
             }
@@ -459,7 +462,10 @@ pub fn run_flight_observed(
                     send(&msg, &mut |b: &[u8]| a2s.write(t, b));
                 }
                 (Board::Stereo, stereo_board::app::TASK_STATUS) => {
-                    cb.status_tick(t, &mut |b: &[u8]| s2a.write(t, b));
+                    cb.status_tick(
+                        WorldTime::from_micros(t).as_flight_clock(),
+                        &mut |b: &[u8]| s2a.write(t, b),
+                    );
                 }
                 _ => {}
             }

@@ -8,6 +8,11 @@ use protocol::{
 };
 use std::{boxed::Box, vec, vec::Vec};
 
+/// The board-clock instant `us` µs after boot.
+fn at(us: u64) -> Instant {
+    Instant::from_micros(us)
+}
+
 /// A textured synthetic stereo frame: vertical bars, the right image shifted by `disp` px.
 fn frame(phase: usize, disp: usize) -> Box<[u8; STEREO_FRAME_BYTES]> {
     let mut f = Box::new([0u8; STEREO_FRAME_BYTES]);
@@ -84,7 +89,7 @@ fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
         let f = frame(i as usize, 3);
         let capture = (1u64 << 32) + 40_000 * i;
         let expected = reference.process(&f, capture, None);
-        let est = board.on_frame(&f, capture, capture + 12_345, &mut |b| {
+        let est = board.on_frame(&f, at(capture), at(capture + 12_345), &mut |b| {
             wire.extend_from_slice(b)
         });
         assert_eq!(est.seq, i as u16);
@@ -122,10 +127,10 @@ fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
 fn processing_time_saturates() {
     let mut board = app();
     let f = frame(0, 2);
-    let est = board.on_frame(&f, 0, 10_000_000, &mut |_| {});
+    let est = board.on_frame(&f, at(0), at(10_000_000), &mut |_| {});
     assert_eq!(est.processing_us, u16::MAX);
-    let out = board.process_frame(&f, 100, 50);
-    let est = board.send_estimate(&out, 100, 50, &mut |_| {});
+    let out = board.process_frame(&f, at(100), at(50));
+    let est = board.send_estimate(&out, at(100), at(50), &mut |_| {});
     assert_eq!(
         est.processing_us, 0,
         "a clock going backwards saturates at 0"
@@ -139,22 +144,31 @@ fn gyro_from_the_link_is_used_for_derotation_until_stale() {
     let g = gyro(7, 0.4);
     board.on_rx_bytes(
         &enc(&AutopilotToStereo::GyroAttitude(g)),
-        1_000,
+        at(1_000),
         &mut |_| panic!("a gyro sample is not answered"),
     );
-    assert_eq!(board.current_gyro(1_000 + GYRO_TIMEOUT_US), Some(&g));
-    assert_eq!(board.current_gyro(1_001 + GYRO_TIMEOUT_US), None);
-    assert_eq!(board.gyro_age_us(5_000), Some(4_000));
+    assert_eq!(
+        board.current_gyro(at(1_000 + GYRO_TIMEOUT.as_micros())),
+        Some(&g)
+    );
+    assert_eq!(
+        board.current_gyro(at(1_001 + GYRO_TIMEOUT.as_micros())),
+        None
+    );
+    assert_eq!(
+        board.gyro_age(at(5_000)),
+        Some(Duration::from_micros(4_000))
+    );
     for i in 0..6u64 {
         let f = frame(2 * i as usize, 4);
         let now = 1_000 + 10_000 * i;
         let expected = reference.process(&f, now, Some(&g));
-        let est = board.on_frame(&f, now, now, &mut |_| {});
+        let est = board.on_frame(&f, at(now), at(now), &mut |_| {});
         assert_eq!(est.forward_mps.to_bits(), expected.forward_mps.to_bits());
         assert_eq!(est.flags, expected.flags);
         assert!(!est.flags.contains(EstimateFlags::NO_GYRO));
     }
-    let est = board.on_frame(&frame(20, 4), 500_000, 500_000, &mut |_| {});
+    let est = board.on_frame(&frame(20, 4), at(500_000), at(500_000), &mut |_| {});
     assert!(
         est.flags.contains(EstimateFlags::NO_GYRO),
         "stale sample not used"
@@ -166,11 +180,19 @@ fn non_finite_gyro_is_rejected_and_counted() {
     let mut board = app();
     let mut g = gyro(1, 0.0);
     g.rates_radps[1] = f32::NAN;
-    board.on_rx_bytes(&enc(&AutopilotToStereo::GyroAttitude(g)), 10, &mut |_| {});
+    board.on_rx_bytes(
+        &enc(&AutopilotToStereo::GyroAttitude(g)),
+        at(10),
+        &mut |_| {},
+    );
     g.rates_radps[1] = 0.0;
     g.attitude_rad[0] = f32::INFINITY;
-    board.on_rx_bytes(&enc(&AutopilotToStereo::GyroAttitude(g)), 10, &mut |_| {});
-    assert_eq!(board.current_gyro(10), None);
+    board.on_rx_bytes(
+        &enc(&AutopilotToStereo::GyroAttitude(g)),
+        at(10),
+        &mut |_| {},
+    );
+    assert_eq!(board.current_gyro(at(10)), None);
     assert_eq!(board.counters().gyro_rejected, 2);
 }
 
@@ -184,7 +206,7 @@ fn config_is_validated_applied_and_acknowledged() {
         stereo_shift: -2,
     };
     let mut wire = Vec::new();
-    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(good)), 0, &mut |b| {
+    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(good)), at(0), &mut |b| {
         wire.extend_from_slice(b)
     });
     assert_eq!(board.params().to_config(), good);
@@ -194,7 +216,7 @@ fn config_is_validated_applied_and_acknowledged() {
         half_window: 0,
         ..good
     };
-    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(bad)), 0, &mut |b| {
+    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(bad)), at(0), &mut |b| {
         wire.extend_from_slice(b)
     });
     assert_eq!(
@@ -229,7 +251,7 @@ fn link_errors_are_counted_and_the_next_frame_still_decodes() {
         Node::Autopilot,
         1234,
     ))));
-    board.on_rx_bytes(&bytes, 0, &mut |_| {});
+    board.on_rx_bytes(&bytes, at(0), &mut |_| {});
     // Three bad frames; the first is taken for the tail of a frame sent before the board
     // listened (the link joins mid-stream) and is not counted.
     assert_eq!(board.link_errors().total(), 2, "{:?}", board.link_errors());
@@ -240,16 +262,16 @@ fn link_errors_are_counted_and_the_next_frame_still_decodes() {
 #[test]
 fn status_tick_reports_rate_counters_and_heartbeat() {
     let mut board = app();
-    board.status_tick(0, &mut |_| {});
+    board.status_tick(at(0), &mut |_| {});
     for i in 0..25u64 {
         let t = 40_000 * i;
-        board.on_frame(&frame(i as usize, 2), t, t + 5_000 + i, &mut |_| {});
+        board.on_frame(&frame(i as usize, 2), at(t), at(t + 5_000 + i), &mut |_| {});
     }
     board.frame_dropped();
     // The leading delimiter aligns the link (joined mid-stream); the garbage after it counts.
-    board.on_rx_bytes(&[0, 1, 2, 3, 0], 0, &mut |_| {});
+    board.on_rx_bytes(&[0, 1, 2, 3, 0], at(0), &mut |_| {});
     let mut wire = Vec::new();
-    let status = board.status_tick(1_000_000, &mut |b| wire.extend_from_slice(b));
+    let status = board.status_tick(at(1_000_000), &mut |b| wire.extend_from_slice(b));
     assert!(
         (status.frame_rate_hz - 25.0).abs() < 1e-4,
         "{}",
@@ -269,7 +291,7 @@ fn status_tick_reports_rate_counters_and_heartbeat() {
             StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, 1_000)),
         ]
     );
-    let next = board.status_tick(2_000_000, &mut |_| {});
+    let next = board.status_tick(at(2_000_000), &mut |_| {});
     assert_eq!(next.frame_rate_hz, 0.0);
     assert_eq!(
         next.max_processing_us, 0,
@@ -294,7 +316,7 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
     let now = 1_000_000;
     board.report_capture(camera.counts(), camera.camera_stopped(now));
     let mut wire = Vec::new();
-    let status = board.status_tick(now, &mut |b| wire.extend_from_slice(b));
+    let status = board.status_tick(at(now), &mut |b| wire.extend_from_slice(b));
     assert!(status.camera_stopped, "no VSYNC for a second");
     assert_eq!(status.capture, camera.counts());
     let c = status.capture;
@@ -307,7 +329,7 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
 
     camera.on_vsync(now);
     board.report_capture(camera.counts(), camera.camera_stopped(now + 1));
-    assert!(!board.status_tick(now + 1, &mut |_| {}).camera_stopped);
+    assert!(!board.status_tick(at(now + 1), &mut |_| {}).camera_stopped);
 }
 
 #[test]
@@ -316,19 +338,19 @@ fn a_frame_overwritten_during_processing_sends_nothing_and_clears_the_history() 
     let mut wire = Vec::new();
     for i in 0..12u64 {
         let t = 40_000 * i;
-        board.on_frame(&frame(i as usize, 4), t, t, &mut |b| {
+        board.on_frame(&frame(i as usize, 4), at(t), at(t), &mut |b| {
             wire.extend_from_slice(b)
         });
     }
     let sent = decode_out(&wire).0.len();
     let f = frame(12, 4);
-    let _ = board.process_frame(&f, 480_000, 480_000);
+    let _ = board.process_frame(&f, at(480_000), at(480_000));
     board.discard_processed_frame();
     assert_eq!(decode_out(&wire).0.len(), sent, "nothing sent");
     assert_eq!(board.counters().frames_dropped, 1);
     // The history restarts: the next estimate is flagged as still filling.
     let f = frame(13, 4);
-    let est = board.on_frame(&f, 520_000, 520_000, &mut |_| {});
+    let est = board.on_frame(&f, at(520_000), at(520_000), &mut |_| {});
     assert!(
         est.flags.contains(EstimateFlags::HISTORY_FILLING),
         "{:?}",
@@ -343,7 +365,7 @@ fn config_search_range_bounds_the_default_modes_disparity_search() {
         let mut board = app();
         if let Some(cfg) = cfg {
             let mut ack = Vec::new();
-            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), 0, &mut |b| {
+            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), at(0), &mut |b| {
                 ack.extend_from_slice(b)
             });
             assert_eq!(
@@ -352,7 +374,7 @@ fn config_search_range_bounds_the_default_modes_disparity_search() {
             );
         }
         let f = frame(0, 12);
-        board.on_frame(&f, 0, 0, &mut |_| {});
+        board.on_frame(&f, at(0), at(0), &mut |_| {});
         let d = board.edge_fs().diagnostics().disparity_px;
         let max = d.iter().copied().fold(0.0f32, f32::max);
         (board.params().stereo_range, max)
@@ -460,7 +482,9 @@ fn host_link_frames_reach_the_frame_task() {
     let mut got: Vec<(Box<[u8; STEREO_FRAME_BYTES]>, u64)> = Vec::new();
     // Arbitrary split points, as DMA/IDLE delivers them.
     for piece in wire.chunks(333) {
-        board.on_host_bytes(piece, &mut asm, |fr, t| got.push((Box::new(*fr), t)));
+        board.on_host_bytes(piece, &mut asm, |fr, t| {
+            got.push((Box::new(*fr), t.as_micros()))
+        });
     }
     assert_eq!(got.len(), 2);
     assert_eq!(&got[0].0[..], &f0[..]);
@@ -507,9 +531,9 @@ mod prop {
             let mut board = app();
             let mut asm = Box::new(FrameAssembler::new());
             let mut out = Vec::new();
-            board.on_rx_bytes(&bytes, now, &mut |b| out.extend_from_slice(b));
+            board.on_rx_bytes(&bytes, at(now), &mut |b| out.extend_from_slice(b));
             board.on_host_bytes(&bytes, &mut asm, |_, _| {});
-            board.status_tick(now, &mut |b| out.extend_from_slice(b));
+            board.status_tick(at(now), &mut |b| out.extend_from_slice(b));
             let (_, errors) = decode_out(&out);
             prop_assert_eq!(errors.total(), 0);
         }
@@ -533,7 +557,7 @@ mod prop {
                                      stereo_shift: shift };
             let before = board.params().to_config();
             let mut out = Vec::new();
-            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), 0,
+            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), at(0),
                               &mut |b| out.extend_from_slice(b));
             let (msgs, _) = decode_out(&out);
             prop_assert_eq!(msgs.len(), 1);

@@ -477,7 +477,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = clock::lib_now_us();
+                let now = timebase::Instant::from_micros(clock::lib_now_us());
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 (&mut cx.shared.board, &mut cx.shared.link_tx).lock(|board, tx| {
                     board.on_rx_bytes(bytes, now, &mut |frame| queue_frame(tx, frame));
@@ -525,7 +525,8 @@ mod app {
                 let ready = (&mut cx.shared.board, &mut cx.shared.frames).lock(|board, slot| {
                     let mut ready = false;
                     let mut overwritten = 0u32;
-                    board.on_host_bytes(bytes, assembler, |frame, capture_us| {
+                    board.on_host_bytes(bytes, assembler, |frame, capture| {
+                        let capture_us = capture.as_micros();
                         if slot.capture_us.is_some() {
                             overwritten += 1;
                         }
@@ -600,7 +601,7 @@ mod app {
         link_tx: &mut impl Mutex<T = TxWriter>,
         ready: FrameReady,
     ) -> Option<Option<protocol::Estimate>> {
-        let start = clock::lib_now_us();
+        let start = timebase::Instant::from_micros(clock::lib_now_us());
         (board, frames, link_tx).lock(|board, frames, tx| {
             for _ in 0..super::FRAMES_LOST.swap(0, Ordering::Relaxed) {
                 board.frame_dropped();
@@ -608,20 +609,18 @@ mod app {
             let Some((buf, capture_us)) = frames.take(&ready) else {
                 return Some(None);
             };
-            let out = board.process_frame(buf, capture_us, start);
+            let capture = timebase::Instant::from_micros(capture_us);
+            let out = board.process_frame(buf, capture, start);
             let intact = frames.intact(&ready);
             frames.release(&ready);
             if !intact {
                 board.discard_processed_frame();
                 return None;
             }
-            let done = clock::lib_now_us();
-            Some(Some(board.send_estimate(
-                &out,
-                capture_us,
-                done,
-                &mut |f| queue_frame(tx, f),
-            )))
+            let done = timebase::Instant::from_micros(clock::lib_now_us());
+            Some(Some(board.send_estimate(&out, capture, done, &mut |f| {
+                queue_frame(tx, f)
+            })))
         })
     }
 
@@ -630,11 +629,11 @@ mod app {
     #[task(priority = 1, shared = [board, link_tx, host_tx, capture], local = [iwdg])]
     async fn status(mut cx: status::Context) {
         loop {
-            let now = clock::now_us();
+            let now = timebase::Instant::from_micros(clock::now_us());
             #[cfg(not(any(feature = "qemu", feature = "hil")))]
             {
                 let (counts, stopped) = cx.shared.capture.lock(|m| {
-                    let stopped = m.camera_stopped(now);
+                    let stopped = m.camera_stopped(now.as_micros());
                     if stopped {
                         super::dcmi::rearm(m);
                     }
@@ -659,7 +658,8 @@ mod app {
                 (
                     b.link_frames_ok(),
                     b.host_link_errors(),
-                    b.gyro_age_us(clock::lib_now_us()).unwrap_or(u64::MAX),
+                    b.gyro_age(timebase::Instant::from_micros(clock::lib_now_us()))
+                        .map_or(u64::MAX, |d| d.as_micros()),
                 )
             });
             let c = status.capture;
