@@ -4,7 +4,8 @@
 //! Data flow: IMU (512 Hz) -> attitude estimate -> INDI -> mixer -> motors;
 //! Edge-FS estimates -> plausibility gate -> median-5 -> velocity observer (predicting from the
 //! attitude in between; estimates taken under fast yaw are skipped) -> velocity guidance (with
-//! the avoidance FSM and the wall force field making the setpoint) -> roll/pitch setpoints; external height -> height loop -> thrust;
+//! the avoidance FSM and the wall force field making the setpoint) -> roll/pitch setpoints;
+//! barometer, accelerometer and external height -> vertical estimator -> height loop -> thrust;
 //! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
 
@@ -20,6 +21,7 @@ use crate::indi::{Indi, IndiConfig};
 use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
+use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
     LinkErrorCounts, PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder,
@@ -116,6 +118,8 @@ pub struct AutopilotConfig {
     pub indi: IndiConfig,
     /// Height loop.
     pub height: HeightConfig,
+    /// Vertical estimator (barometer, accelerometer, external height fixes).
+    pub vertical: VerticalConfig,
     /// Velocity guidance.
     pub guidance: GuidanceConfig,
     /// Wall force field.
@@ -186,6 +190,7 @@ impl Default for AutopilotConfig {
             attitude: AttitudeConfig::default(),
             indi: IndiConfig::default(),
             height: HeightConfig::default(),
+            vertical: VerticalConfig::default(),
             guidance: GuidanceConfig::default(),
             force_field: ForceFieldConfig::default(),
             fsm: FsmConfig::default(),
@@ -257,6 +262,7 @@ pub struct Autopilot {
     att: AttitudeEstimator,
     indi: Indi,
     height: HeightController,
+    vertical: VerticalEstimator,
     guidance: VelocityGuidance,
     median: VelocityMedian,
     observer: VelocityObserver,
@@ -314,6 +320,7 @@ impl Autopilot {
             att: AttitudeEstimator::new(config.attitude),
             indi: Indi::new(config.indi),
             height: HeightController::new(config.height),
+            vertical: VerticalEstimator::new(config.vertical),
             guidance: VelocityGuidance::new(config.guidance),
             median: VelocityMedian::default(),
             observer: VelocityObserver::new(config.observer),
@@ -531,6 +538,8 @@ impl Autopilot {
 
         let q = self.att.quat();
         let [roll, pitch, _] = q.to_euler();
+        self.vertical
+            .predict(vertical_acceleration(imu.accel_mps2, roll, pitch), dt);
         self.observer.predict(roll, pitch, gyro[2], dt, now_us);
         if gyro[2].abs() > self.cfg.max_yaw_rate_radps {
             self.last_fast_yaw_us = Some(now_us);
@@ -661,9 +670,12 @@ impl Autopilot {
         }
     }
 
-    /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
+    /// An external position fix (motion capture / simulator); only the height (`-z`) is used,
+    /// through the vertical estimator.
     pub fn on_external_position(&mut self, pos: &ExternalPosition, now_us: u64) {
-        self.height.on_measurement(-pos.position_m[2], now_us);
+        if self.vertical.on_height_fix(-pos.position_m[2]) {
+            self.height.on_measurement(self.vertical.height_m(), now_us);
+        }
     }
 
     /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, an
@@ -720,11 +732,15 @@ impl Autopilot {
         self.arm_refused
     }
 
-    /// A barometer reading (pressure, temperature) taken at `now_us`. Kept for the height
-    /// estimator; the height loop does not fuse it yet.
+    /// A barometer reading (pressure, temperature) taken at `now_us`, fused by the vertical
+    /// estimator the height loop flies on.
     pub fn on_baro(&mut self, reading: &BaroReading, now_us: u64) {
         if reading.pressure_pa.is_finite() && reading.temperature_c.is_finite() {
             self.baro = Some((now_us, *reading));
+            let running = self.motors.iter().any(|&m| m > 0.0);
+            if self.vertical.on_pressure(reading.pressure_pa, running) {
+                self.height.on_measurement(self.vertical.height_m(), now_us);
+            }
         }
     }
 
@@ -745,6 +761,10 @@ impl Autopilot {
         let f = self.freshness();
         let mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
+            if mode == FlightMode::Disarmed {
+                // Standing on the floor: the barometer's reading now is its offset.
+                self.vertical.on_ground();
+            }
             self.height.reset_integral();
             self.guidance.reset();
             self.fsm_active = false;
@@ -890,6 +910,17 @@ impl Autopilot {
             link_errors: self.stereo_rx.errors(),
         }
     }
+}
+
+/// Vertical acceleration (world frame, up, gravity removed), m/s², from a body-frame specific
+/// force (x forward, y right, z down; about (0, 0, -g) at rest) and the attitude.
+fn vertical_acceleration(accel_mps2: [f32; 3], roll: f32, pitch: f32) -> f32 {
+    let (sr, cr) = crate::attitude::sin_cos(roll);
+    let (sp, cp) = crate::attitude::sin_cos(pitch);
+    // The world z (down) component of the specific force: the third row of the body-to-world
+    // rotation (yaw does not enter).
+    let down = -sp * accel_mps2[0] + sr * cp * accel_mps2[1] + cr * cp * accel_mps2[2];
+    -(down + GRAVITY)
 }
 
 #[cfg(test)]

@@ -7,10 +7,9 @@
 //! * [`attitude`]: gyro + accelerometer complementary filter, quaternion helpers.
 //! * [`indi`]: adaptive INDI rate/attitude control at 512 Hz.
 //! * [`mixer`]: X-quad mixer for four brushed motors, attitude before thrust.
-//! * [`height`]: vertical loop from a height measurement.
+//! * [`height`]: vertical loop from the height estimate.
 //! * [`vertical`]: height, climb rate and barometer offset from the accelerometer, the
-//!   barometer and an external height fix (a Kalman filter; not yet in the flight loop, which
-//!   flies on the external fix).
+//!   barometer and an external height fix (a Kalman filter); the height loop flies on it.
 //! * [`median`]: median-5 over the Edge-FS velocities.
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
 //! * [`force_field`]: backward velocity near walls.

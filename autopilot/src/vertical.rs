@@ -14,7 +14,7 @@
 //!
 //! The offset absorbs the reference pressure of the day and its slow drift, so no calibration
 //! step is needed: the first reading sets the reference (the drone stands on the floor at
-//! boot). Within [`VerticalConfig::ground_effect_height_m`] of the floor the rotors' wash raises
+//! boot). Within [`VerticalConfig::ground_effect_height_m`] of the floor the running rotors' wash raises
 //! the static pressure under the drone and the barometer reads low; there its noise is
 //! inflated so the accelerometer and the offset carry the estimate through. A reading whose
 //! innovation is beyond [`VerticalConfig::gate_sigma`] standard deviations is rejected and
@@ -137,15 +137,16 @@ impl VerticalEstimator {
         self.p = n;
     }
 
-    /// A barometer reading; returns whether it was used.
-    pub fn on_pressure(&mut self, pressure_pa: f32) -> bool {
+    /// A barometer reading, with the rotors running or not (stopped, there is no wash); returns
+    /// whether it was used.
+    pub fn on_pressure(&mut self, pressure_pa: f32, rotors_running: bool) -> bool {
         if !(pressure_pa.is_finite() && (30_000.0..120_000.0).contains(&pressure_pa)) {
             return false;
         }
         let reference = *self.reference_pa.get_or_insert(pressure_pa);
         let z = pressure_altitude_m(pressure_pa, reference);
         let mut sigma = self.cfg.baro_noise_m;
-        if self.x[0] < self.cfg.ground_effect_height_m {
+        if rotors_running && self.x[0] < self.cfg.ground_effect_height_m {
             sigma *= self.cfg.ground_effect_noise_factor;
         }
         self.update([1.0, 0.0, 1.0], z, sigma * sigma)
@@ -271,7 +272,7 @@ mod tests {
             if i % 10 == 0 {
                 let drift = 0.05 * t / 30.0;
                 let z = pressure_at(h + drift + 0.1 * noise.gauss());
-                f.on_pressure(z);
+                f.on_pressure(z, true);
             }
             if t > 5.0 {
                 sq += (f.height_m() - h) * (f.height_m() - h);
@@ -295,7 +296,7 @@ mod tests {
                 assert!(f.on_height_fix(0.5));
             }
             if i % 10 == 0 {
-                f.on_pressure(pressure_at(0.0));
+                f.on_pressure(pressure_at(0.0), false);
             }
         }
         assert!((f.height_m() - 0.5).abs() < 0.02, "{}", f.height_m());
@@ -307,7 +308,7 @@ mod tests {
         );
         assert!(!f.on_height_fix(25.0), "a 24.5 m jump is gated");
         assert_eq!(f.rejected(), 1);
-        assert!(!f.on_pressure(f32::NAN));
+        assert!(!f.on_pressure(f32::NAN, true));
         assert!(!f.on_height_fix(f32::INFINITY));
         f.predict(f32::NAN, dt);
         assert!(f.height_m().is_finite());
@@ -317,10 +318,10 @@ mod tests {
     fn on_the_ground_the_height_is_zero_and_the_offset_is_kept() {
         let mut f = VerticalEstimator::new(VerticalConfig::default());
         for _ in 0..50 {
-            f.on_pressure(pressure_at(0.0));
+            f.on_pressure(pressure_at(0.0), false);
             f.predict(0.05, 0.02);
         }
-        f.on_pressure(pressure_at(0.3));
+        f.on_pressure(pressure_at(0.3), false);
         f.on_ground();
         assert_eq!(f.height_m(), 0.0);
         assert_eq!(f.climb_mps(), 0.0);

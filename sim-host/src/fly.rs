@@ -89,6 +89,10 @@ pub struct FlyArgs {
     /// Link outage on both directions, `START_S:DURATION_S` (repeatable).
     #[arg(long, value_parser = parse_outage)]
     pub outage: Vec<(f64, f64)>,
+    /// Motion capture: the autopilot gets height fixes at 100 Hz, as in the paper's lab.
+    /// Without it (the default) it holds height on its barometer and accelerometer.
+    #[arg(long)]
+    pub mocap: bool,
     /// Camera frame rate, Hz.
     #[arg(long, default_value_t = 25.0)]
     pub fps: f64,
@@ -165,6 +169,7 @@ impl FlyArgs {
             faults_s2a: faults.clone(),
             faults_a2s: faults,
             processing_us: (self.processing_ms * 1e3) as u64,
+            mocap: self.mocap,
             ..FlightConfig::default()
         };
         if let Some([x, y, yaw_deg]) = self.start {

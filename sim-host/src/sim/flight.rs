@@ -2,6 +2,7 @@
 //! and the two UART directions between them. Deterministic: the same [`FlightConfig`] gives the
 //! same [`FlightResult`], bit for bit.
 
+use super::baro::BaroParams;
 use super::boards::{autopilot_tasks, camera_tasks, send};
 use super::camera::CameraParams;
 use super::dynamics::{Drone, DroneParams};
@@ -59,6 +60,8 @@ pub struct FlightConfig {
     pub drone: DroneParams,
     /// IMU.
     pub imu: ImuParams,
+    /// Barometer.
+    pub baro: BaroParams,
     /// Camera readout time after exposure, µs.
     pub readout_us: u64,
     /// Camera-board processing time per frame (Edge-FS on the Cortex-M4), µs: the estimate
@@ -66,6 +69,9 @@ pub struct FlightConfig {
     pub processing_us: u64,
     /// Physics step, µs (RK4).
     pub physics_dt_us: u64,
+    /// Motion capture: height fixes to the autopilot (the paper's lab). Without it the
+    /// autopilot flies on its barometer and accelerometer.
+    pub mocap: bool,
     /// Height measurement (motion capture) rate, Hz, and noise, m.
     pub height_rate_hz: f64,
     /// Height measurement noise (standard deviation), m.
@@ -98,9 +104,11 @@ impl Default for FlightConfig {
             camera: CameraParams::default(),
             drone: DroneParams::pocket_drone(),
             imu: ImuParams::default(),
+            baro: BaroParams::default(),
             readout_us: 8_000,
             processing_us: 15_000,
             physics_dt_us: 500,
+            mocap: true,
             height_rate_hz: 100.0,
             height_noise_m: 0.003,
             arm_at_s: 1.0,
@@ -267,9 +275,11 @@ pub fn run_flight_observed(
     let end_us = (cfg.duration_s * 1e6) as u64;
     let frame_period_us = (1e6 / cfg.camera.fps) as u64;
     let height_period_us = (1e6 / cfg.height_rate_hz) as u64;
+    let baro_period_us = (1e6 / cfg.baro.rate_hz) as u64;
     let arm_us = (cfg.arm_at_s * 1e6) as u64;
     let mut next_capture = 100_000u64;
-    let mut next_height = 0u64;
+    let mut next_height = if cfg.mocap { 0 } else { u64::MAX };
+    let mut next_baro = 0u64;
     let mut armed = false;
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
@@ -294,7 +304,7 @@ pub fn run_flight_observed(
     while t < end_us {
         // Next event.
         let mut next = end_us.min(t + cfg.physics_dt_us);
-        next = next.min(next_capture).min(next_height);
+        next = next.min(next_capture).min(next_height).min(next_baro);
         if let Some(r) = sched.next_release_us() {
             next = next.min(r);
         }
@@ -406,6 +416,12 @@ pub fn run_flight_observed(
             next_height += height_period_us;
             let fix = world.height_fix(t);
             ap.on_external_position(&fix, t);
+        }
+        // The barometer on the autopilot's SPI bus.
+        if t >= next_baro {
+            next_baro += baro_period_us;
+            let reading = world.baro_reading(t, &motors);
+            ap.on_baro(&reading, t);
         }
         if !armed && t >= arm_us {
             armed = true;

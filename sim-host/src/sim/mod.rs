@@ -45,8 +45,10 @@
 //! is dropped and counted.
 //!
 //! Board code runs in zero virtual time (its cost on the Cortex-M4 is what `processing_us` and
-//! the tasks' deadlines stand for). The height fix (motion capture in the paper) is handed to
-//! `Autopilot::on_external_position` directly, as the host link would.
+//! the tasks' deadlines stand for). The barometer ([`baro`]) is read at 50 Hz into
+//! `Autopilot::on_baro`, as the MS5611 task would; with motion capture (`FlightConfig::mocap`,
+//! `fly --mocap`) the height fix is handed to `Autopilot::on_external_position` directly, as
+//! the host link would.
 //!
 //! Determinism: every random process draws from a ChaCha8 generator seeded from the flight's
 //! seed, and nothing reads the wall clock, so the same configuration gives the same log bit
@@ -70,6 +72,7 @@
 //! * Closed-loop results move with every change of the boards' code (the flights are
 //!   chaotic); the tests in `tests/tests/sim_flight.rs` state their bounds and seeds.
 
+pub mod baro;
 pub mod boards;
 pub mod camera;
 pub mod dynamics;

@@ -1,16 +1,18 @@
 //! The simulated world, built once the same way for `fly`, `hil` and the virtual boards'
 //! closed loop: the scene, the drone on the floor at its start pose, its IMU and its stereo
-//! camera, the random processes seeded from the flight's seed, and the collision model.
+//! camera, its barometer, the random processes seeded from the flight's seed, and the collision model.
 //!
 //! The caller owns time: it steps the physics between its events ([`World::step`]) and asks
 //! the world for sensor data when its boards need them (IMU samples, rendered frames, height
 //! fixes).
 
+use super::baro::Barometer;
 use super::camera::{Motion, StereoCamera};
 use super::dynamics::Drone;
 use super::flight::FlightConfig;
 use super::imu::{gauss, Imu, ImuReading};
 use super::scene::Scene;
+use autopilot::ms5611::BaroReading;
 use protocol::{ExternalPosition, STEREO_FRAME_BYTES};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -30,6 +32,8 @@ pub struct World {
     pub imu: Imu,
     /// Its stereo camera.
     pub camera: StereoCamera,
+    /// Its barometer.
+    pub baro: Barometer,
     /// Start position (x, y), m, and heading, rad.
     pub start: [f64; 3],
     /// Wall and obstacle contacts entered (the floor never counts).
@@ -44,6 +48,7 @@ pub struct World {
     pub airborne_s: f64,
     in_contact: bool,
     height_noise_m: f64,
+    hover_command: f64,
     rng: ChaCha8Rng,
     cam_rng: ChaCha8Rng,
 }
@@ -70,11 +75,13 @@ impl World {
         let drone = Drone::on_floor(cfg.drone.clone(), x0, y0, yaw0);
         let imu = Imu::new(cfg.imu.clone(), &mut rng);
         let camera = StereoCamera::new(cfg.camera.clone());
+        let baro = Barometer::new(cfg.baro.clone(), cfg.seed);
         Ok(Self {
             scene,
             drone,
             imu,
             camera,
+            baro,
             start: [x0, y0, yaw0],
             collisions: 0,
             first_contact_s: None,
@@ -83,6 +90,7 @@ impl World {
             airborne_s: 0.0,
             in_contact: false,
             height_noise_m: cfg.height_noise_m,
+            hover_command: f64::from(cfg.autopilot.height.hover_thrust).max(0.05),
             rng,
             cam_rng,
         })
@@ -148,6 +156,16 @@ impl World {
         };
         self.camera
             .render_moving(&self.scene, s.pos, s.att, motion, &mut self.cam_rng, out);
+    }
+
+    /// A barometer reading at `t_us` with the rotors at `motors` (0..=1).
+    pub fn baro_reading(&mut self, t_us: u64, motors: &[f64; 4]) -> BaroReading {
+        let thrust_ratio = motors.iter().sum::<f64>() / 4.0 / self.hover_command;
+        let height = -self.drone.state.pos.z;
+        BaroReading {
+            pressure_pa: self.baro.read(t_us as f64 * 1e-6, height, thrust_ratio) as f32,
+            temperature_c: 24.0,
+        }
     }
 
     /// A height fix (the motion capture's position, with its noise on z) at `t_us`.
