@@ -71,7 +71,19 @@ pub struct VerticalEstimator {
     p: [[f32; 3]; 3],
     reference_pa: Option<f32>,
     rejected: u32,
+    /// Consecutive rejections of the barometer and of the fixes.
+    rejected_in_row: [u8; 2],
+    /// Time since the last accepted height fix, s.
+    since_fix_s: f32,
 }
+
+/// After this many consecutive rejections a source is believed and the filter re-initialised
+/// from it (the prior was wrong, not the sensor: a fix from a floor the filter did not take
+/// off from, a barometer after a pressure step).
+const REINIT_AFTER: u8 = 5;
+/// A height fix this recent makes the fix, not the floor, the height reference on the ground,
+/// s.
+const FIX_HOLDS_S: f32 = 0.5;
 
 impl VerticalEstimator {
     /// A filter that has seen nothing: at the floor, at rest, offset unknown.
@@ -79,9 +91,11 @@ impl VerticalEstimator {
         Self {
             cfg,
             x: [0.0; 3],
-            p: [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 1.0]],
+            p: [[1.0, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 1.0]],
             reference_pa: None,
             rejected: 0,
+            rejected_in_row: [0; 2],
+            since_fix_s: f32::INFINITY,
         }
     }
 
@@ -118,6 +132,7 @@ impl VerticalEstimator {
         }
         let a = accel_up_mps2.clamp(-50.0, 50.0);
         let dt = dt_s;
+        self.since_fix_s += dt;
         self.x[0] += self.x[1] * dt + 0.5 * a * dt * dt;
         self.x[1] += a * dt;
         // P = F P F^T + Q, F = [[1, dt, 0], [0, 1, 0], [0, 0, 1]].
@@ -149,7 +164,20 @@ impl VerticalEstimator {
         if rotors_running && self.x[0] < self.cfg.ground_effect_height_m {
             sigma *= self.cfg.ground_effect_noise_factor;
         }
-        self.update([1.0, 0.0, 1.0], z, sigma * sigma)
+        if self.update([1.0, 0.0, 1.0], z, sigma * sigma) {
+            self.rejected_in_row[0] = 0;
+            return true;
+        }
+        self.rejected_in_row[0] = self.rejected_in_row[0].saturating_add(1);
+        if self.rejected_in_row[0] >= REINIT_AFTER {
+            // Keep the height; the barometer's offset is what changed.
+            self.x[2] = z - self.x[0];
+            self.p[2] = [0.0, 0.0, sigma * sigma];
+            self.p[0][2] = 0.0;
+            self.p[1][2] = 0.0;
+            self.rejected_in_row[0] = 0;
+        }
+        false
     }
 
     /// An external height fix (m above the floor, motion capture); returns whether it was
@@ -159,18 +187,43 @@ impl VerticalEstimator {
             return false;
         }
         let r = self.cfg.fix_noise_m * self.cfg.fix_noise_m;
-        self.update([1.0, 0.0, 0.0], height_m, r)
+        if self.update([1.0, 0.0, 0.0], height_m, r) {
+            self.rejected_in_row[1] = 0;
+            self.since_fix_s = 0.0;
+            return true;
+        }
+        self.rejected_in_row[1] = self.rejected_in_row[1].saturating_add(1);
+        if self.rejected_in_row[1] >= REINIT_AFTER {
+            // The fix is the height reference: start again from it, keeping what the
+            // barometer reads (its offset follows).
+            let baro_reading = self.x[0] + self.x[2];
+            self.x[0] = height_m;
+            self.x[2] = baro_reading - height_m;
+            self.p = [
+                [r, 0.0, 0.0],
+                [0.0, self.p[1][1], 0.0],
+                [0.0, 0.0, self.p[2][2]],
+            ];
+            self.rejected_in_row[1] = 0;
+            self.since_fix_s = 0.0;
+            return true;
+        }
+        false
     }
 
-    /// Tells the filter the drone stands on the floor (disarmed, touched down): height and
-    /// climb are zero, what the barometer reads now is its offset.
+    /// Tells the filter the drone stands on the floor (disarmed, touched down): the climb is
+    /// zero, and unless height fixes are coming in (they are the reference then) so is the
+    /// height, and what the barometer reads now is its offset.
     pub fn on_ground(&mut self) {
-        let b = self.x[2];
-        self.x = [0.0, 0.0, b];
-        self.p[0] = [1e-4, 0.0, 0.0];
+        self.x[1] = 0.0;
         self.p[1] = [0.0, 1e-4, 0.0];
-        self.p[2][0] = 0.0;
+        self.p[0][1] = 0.0;
         self.p[2][1] = 0.0;
+        if self.since_fix_s > FIX_HOLDS_S {
+            self.x[0] = 0.0;
+            self.p[0] = [1e-4, 0.0, 0.0];
+            self.p[2][0] = 0.0;
+        }
     }
 
     /// The scalar update with measurement row `h`, value `z`, variance `r`.
@@ -308,6 +361,18 @@ mod tests {
         );
         assert!(!f.on_height_fix(25.0), "a 24.5 m jump is gated");
         assert_eq!(f.rejected(), 1);
+        assert!(
+            f.on_height_fix(0.5),
+            "and forgotten when the fixes agree again"
+        );
+        for _ in 0..4 {
+            assert!(!f.on_height_fix(0.9));
+        }
+        assert!(
+            f.on_height_fix(0.9),
+            "five fixes in a row that disagree are believed"
+        );
+        assert!((f.height_m() - 0.9).abs() < 1e-6);
         assert!(!f.on_pressure(f32::NAN, true));
         assert!(!f.on_height_fix(f32::INFINITY));
         f.predict(f32::NAN, dt);
@@ -326,5 +391,22 @@ mod tests {
         assert_eq!(f.height_m(), 0.0);
         assert_eq!(f.climb_mps(), 0.0);
         assert!(f.height_sigma_m() < 0.02);
+    }
+
+    /// Disarmed on a stand or under a motion-capture floor that is not the take-off floor: the
+    /// fixes are the reference, the floor reset does not fight them.
+    #[test]
+    fn fixes_on_the_ground_win_over_the_floor() {
+        let mut f = VerticalEstimator::new(VerticalConfig::default());
+        for i in 0..500 {
+            f.predict(0.0, 1.0 / 512.0);
+            if i % 5 == 0 {
+                f.on_height_fix(1.0);
+            }
+            if i % 10 == 0 {
+                f.on_ground();
+            }
+        }
+        assert!((f.height_m() - 1.0).abs() < 0.01, "{}", f.height_m());
     }
 }
