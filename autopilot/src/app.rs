@@ -670,12 +670,13 @@ impl Autopilot {
         }
     }
 
-    /// An external position fix (motion capture / simulator); only the height (`-z`) is used,
-    /// through the vertical estimator.
+    /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
+    /// While fixes come the height loop flies on them directly, as in the paper's lab; the
+    /// vertical estimator takes them too, so that it holds the height when they stop.
     pub fn on_external_position(&mut self, pos: &ExternalPosition, now_us: u64) {
-        if self.vertical.on_height_fix(-pos.position_m[2]) {
-            self.height.on_measurement(self.vertical.height_m(), now_us);
-        }
+        let h = -pos.position_m[2];
+        self.vertical.on_height_fix(h);
+        self.height.on_measurement(h, now_us);
     }
 
     /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, an
@@ -733,12 +734,14 @@ impl Autopilot {
     }
 
     /// A barometer reading (pressure, temperature) taken at `now_us`, fused by the vertical
-    /// estimator the height loop flies on.
+    /// estimator the height loop flies on when no external fixes come.
     pub fn on_baro(&mut self, reading: &BaroReading, now_us: u64) {
         if reading.pressure_pa.is_finite() && reading.temperature_c.is_finite() {
             self.baro = Some((now_us, *reading));
             let running = self.motors.iter().any(|&m| m > 0.0);
-            if self.vertical.on_pressure(reading.pressure_pa, running) {
+            if self.vertical.on_pressure(reading.pressure_pa, running)
+                && !self.vertical.has_recent_fix()
+            {
                 self.height.on_measurement(self.vertical.height_m(), now_us);
             }
         }

@@ -119,6 +119,12 @@ impl VerticalEstimator {
         libm::sqrtf(self.p[0][0].max(0.0))
     }
 
+    /// Whether a height fix was accepted within the last 0.5 s: the fixes are then the height
+    /// reference.
+    pub fn has_recent_fix(&self) -> bool {
+        self.since_fix_s <= FIX_HOLDS_S
+    }
+
     /// Measurements rejected by the innovation gate.
     pub fn rejected(&self) -> u32 {
         self.rejected
