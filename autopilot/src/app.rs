@@ -539,7 +539,7 @@ impl Autopilot {
         let q = self.att.quat();
         let [roll, pitch, _] = q.to_euler();
         self.vertical
-            .predict(vertical_acceleration(imu.accel_mps2, roll, pitch), dt);
+            .predict(vertical_acceleration(imu.accel_mps2, q), dt);
         self.observer.predict(roll, pitch, gyro[2], dt, now_us);
         if gyro[2].abs() > self.cfg.max_yaw_rate_radps {
             self.last_fast_yaw_us = Some(now_us);
@@ -916,13 +916,11 @@ impl Autopilot {
 }
 
 /// Vertical acceleration (world frame, up, gravity removed), m/s², from a body-frame specific
-/// force (x forward, y right, z down; about (0, 0, -g) at rest) and the attitude.
-fn vertical_acceleration(accel_mps2: [f32; 3], roll: f32, pitch: f32) -> f32 {
-    let (sr, cr) = crate::attitude::sin_cos(roll);
-    let (sp, cp) = crate::attitude::sin_cos(pitch);
-    // The world z (down) component of the specific force: the third row of the body-to-world
-    // rotation (yaw does not enter).
-    let down = -sp * accel_mps2[0] + sr * cp * accel_mps2[1] + cr * cp * accel_mps2[2];
+/// force (x forward, y right, z down; about (0, 0, -g) at rest) and the attitude `q`.
+fn vertical_acceleration(accel_mps2: [f32; 3], q: Quat) -> f32 {
+    // The specific force's world-down component: its projection on world down in body axes.
+    let d = q.down_in_body();
+    let down = d[0] * accel_mps2[0] + d[1] * accel_mps2[1] + d[2] * accel_mps2[2];
     -(down + GRAVITY)
 }
 
