@@ -33,7 +33,7 @@ pub enum FsmArg {
 pub enum Format {
     /// Human-readable summary.
     Table,
-    /// `seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m`.
+    /// One row per flight, the columns of [`CSV_HEADER`] (the suite adds the room's).
     Csv,
 }
 
@@ -183,20 +183,23 @@ impl FlyArgs {
 }
 
 /// CSV header of the summary (`--format csv`).
-pub const CSV_HEADER: &str =
-    "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m";
+pub const CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
+min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m";
 
 /// One CSV summary row.
 pub fn csv_row(r: &FlightResult) -> String {
     format!(
-        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2}",
+        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4}",
         r.seed,
         r.duration_s,
         r.flight_time_s,
         r.collisions,
         r.vel_rmse_mps,
         r.min_clearance_m,
-        r.distance_m
+        r.distance_m,
+        r.tracking.track_rmse_mps,
+        r.tracking.hover_speed_mps,
+        r.tracking.height_rmse_m
     )
 }
 
@@ -285,6 +288,12 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                     );
                     println!("distance flown  {:.1} m", r.distance_m);
                     println!(
+                        "tracking        {:.3} m/s RMS in Forward, {:.3} m/s mean speed in Hover, {:.3} m RMS height (level flight, true state vs setpoints)",
+                        r.tracking.track_rmse_mps,
+                        r.tracking.hover_speed_mps,
+                        r.tracking.height_rmse_m
+                    );
+                    println!(
                         "estimates       {} received, {} valid; {} frames dropped",
                         r.estimates[0], r.estimates[1], r.frames_dropped
                     );
@@ -329,19 +338,31 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 Format::Csv => print!("{csv}"),
                 Format::Table => {
                     println!(
-                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9}",
-                        "seed", "duration", "flight", "coll", "rmse", "min_clr", "dist"
+                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                        "seed",
+                        "duration",
+                        "flight",
+                        "coll",
+                        "rmse",
+                        "min_clr",
+                        "dist",
+                        "track",
+                        "hover_v",
+                        "height"
                     );
                     for r in &results {
                         println!(
-                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1}",
+                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3}",
                             r.seed,
                             r.duration_s,
                             r.flight_time_s,
                             r.collisions,
                             r.vel_rmse_mps,
                             r.min_clearance_m,
-                            r.distance_m
+                            r.distance_m,
+                            r.tracking.track_rmse_mps,
+                            r.tracking.hover_speed_mps,
+                            r.tracking.height_rmse_m
                         );
                     }
                     let ok = results.iter().filter(|r| r.collisions == 0).count();
@@ -361,7 +382,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
 
 /// CSV header of the suite (`--suite N --format csv`): the summary columns, then the room's.
 pub const SUITE_CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
-min_clearance_m,distance_m,room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,\
+min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,\
 hovering_s,landed_s";
 
 /// Runs `sim-host fly --suite N`.

@@ -7,6 +7,7 @@ use super::boards::{autopilot_tasks, camera_tasks, send};
 use super::camera::CameraParams;
 use super::dynamics::{Drone, DroneParams};
 use super::imu::ImuParams;
+use super::metrics::TrackingFigures;
 use super::scene::Scene;
 use super::scene_spec::SceneSpec;
 use super::sched::{Board, Release, Scheduler};
@@ -137,6 +138,8 @@ pub struct LogRow {
     pub vel_est: [f32; 2],
     /// Velocity setpoint: forward, sideways, m/s.
     pub vel_sp: [f32; 2],
+    /// Height setpoint, m.
+    pub height_sp_m: f32,
     /// Latest raw Edge-FS estimate received: forward, sideways, m/s (NaN: invalid).
     pub vel_raw: [f32; 2],
     /// Obstacle distance the autopilot holds, m (NaN: none).
@@ -170,6 +173,8 @@ pub struct FlightResult {
     /// the true body velocity at its capture time, while airborne, m/s. Rare gross outliers
     /// (which the autopilot's plausibility limit rejects) dominate it.
     pub raw_vel_rmse_mps: f64,
+    /// How well the drone followed its setpoints (from the 50 Hz log).
+    pub tracking: TrackingFigures,
     /// Smallest clearance minus drone radius while airborne, m.
     pub min_clearance_m: f64,
     /// Horizontal distance flown, m.
@@ -501,6 +506,7 @@ pub fn run_flight_observed(
         collisions: world.collisions,
         vel_rmse_mps: rms(filt_err2, n_filt),
         raw_vel_rmse_mps: rms(err2, n_err),
+        tracking: TrackingFigures::from_log(&log),
         min_clearance_m: if world.min_clearance_m.is_finite() {
             world.min_clearance_m
         } else {
@@ -544,6 +550,7 @@ fn log_row(
         vel_true: [vf as f32, vs as f32],
         vel_est: [nan_opt(v.map(|v| v[0])), nan_opt(v.map(|v| v[1]))],
         vel_sp: tel.velocity_setpoint_mps,
+        height_sp_m: ap.setpoints().height_m,
         vel_raw: raw,
         obstacle_m: nan_opt(tel.obstacle_m),
         clearance_m: scene.clearance(s.pos.x as f32, s.pos.y as f32, h)

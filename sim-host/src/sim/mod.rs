@@ -26,6 +26,8 @@
 //!   task tables in time and priority order.
 //! * [`boards`]: the boards' task tables as scheduler tasks.
 //! * [`flight`]: one flight ([`flight::run_flight`]): the event loop, collisions, metrics, log.
+//! * [`metrics`]: setpoint tracking of a flight (velocity in `Forward`, speed in `Hover`,
+//!   height in level flight) from its log.
 //! * [`output`]: CSV log, PNG plots, animated GIF.
 //!
 //! # The event loop
@@ -79,6 +81,7 @@ pub mod dynamics;
 pub mod flight;
 pub mod imu;
 pub mod math;
+pub mod metrics;
 pub mod output;
 pub mod scene;
 pub mod scene_spec;

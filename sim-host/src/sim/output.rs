@@ -16,13 +16,13 @@ pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     writeln!(
         f,
         "t_s,x_m,y_m,height_m,yaw_rad,vf_true_mps,vs_true_mps,vf_est_mps,vs_est_mps,\
-         vf_sp_mps,vs_sp_mps,vf_raw_mps,vs_raw_mps,obstacle_m,clearance_m,fsm_state,mode,\
+         vf_sp_mps,vs_sp_mps,height_sp_m,vf_raw_mps,vs_raw_mps,obstacle_m,clearance_m,fsm_state,mode,\
          m1,m2,m3,m4"
     )?;
     for l in &r.log {
         writeln!(
             f,
-            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.4},{:.4},{:.3},{:.4},{},{},{:.4},{:.4},{:.4},{:.4}",
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},{:.4},{:.4},{:.3},{:.4},{},{},{:.4},{:.4},{:.4},{:.4}",
             l.t_s,
             l.pos[0],
             l.pos[1],
@@ -34,6 +34,7 @@ pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             l.vel_est[1],
             l.vel_sp[0],
             l.vel_sp[1],
+            l.height_sp_m,
             l.vel_raw[0],
             l.vel_raw[1],
             l.obstacle_m,

@@ -1,0 +1,140 @@
+//! How well a flight followed its setpoints, from its 50 Hz log: the figures `fly` prints and
+//! writes as `track_rmse_mps`, `hover_speed_mps` and `height_rmse_m`.
+//!
+//! All three use the true state (the simulator's, not the autopilot's estimate) and only rows in
+//! level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
+//! ramp has reached the target height, and stops for landing and every failsafe).
+
+use super::flight::LogRow;
+use protocol::{FlightMode, FsmState};
+
+/// Setpoint-tracking figures of one flight. A figure is NaN when the flight has no row it
+/// applies to (no `Forward` phase, say).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingFigures {
+    /// RMS of the horizontal velocity error (true velocity in the heading frame minus the
+    /// velocity setpoint, forward and sideways as one 2-D vector) while the FSM is in
+    /// `Forward`, m/s.
+    pub track_rmse_mps: f64,
+    /// Mean true horizontal speed while the FSM is in `Hover` (its setpoint is zero), m/s.
+    pub hover_speed_mps: f64,
+    /// RMS of true height minus the height setpoint in level flight, m.
+    pub height_rmse_m: f64,
+}
+
+impl TrackingFigures {
+    /// The figures of a flight's log.
+    pub fn from_log(log: &[LogRow]) -> Self {
+        let mut track = Mean::default();
+        let mut hover = Mean::default();
+        let mut height = Mean::default();
+        for row in log.iter().filter(|r| r.mode == FlightMode::Flying) {
+            let Some(state) = row.fsm_state else {
+                continue;
+            };
+            height.add(f64::from(row.pos[2] - row.height_sp_m).powi(2));
+            match state {
+                FsmState::Forward => {
+                    let ef = f64::from(row.vel_true[0] - row.vel_sp[0]);
+                    let es = f64::from(row.vel_true[1] - row.vel_sp[1]);
+                    track.add(ef * ef + es * es);
+                }
+                FsmState::Hover => {
+                    hover.add(f64::from(row.vel_true[0].hypot(row.vel_true[1])));
+                }
+                FsmState::Check | FsmState::Turn => {}
+            }
+        }
+        Self {
+            track_rmse_mps: track.value().sqrt(),
+            hover_speed_mps: hover.value(),
+            height_rmse_m: height.value().sqrt(),
+        }
+    }
+}
+
+/// A running mean (NaN while empty).
+#[derive(Default)]
+struct Mean {
+    sum: f64,
+    n: u64,
+}
+
+impl Mean {
+    fn add(&mut self, x: f64) {
+        self.sum += x;
+        self.n += 1;
+    }
+
+    fn value(&self) -> f64 {
+        if self.n == 0 {
+            f64::NAN
+        } else {
+            self.sum / self.n as f64
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(mode: FlightMode, fsm: Option<FsmState>, v: [f32; 2], sp: [f32; 2], h: f32) -> LogRow {
+        LogRow {
+            t_s: 0.0,
+            pos: [0.0, 0.0, h],
+            yaw: 0.0,
+            vel_true: v,
+            vel_est: v,
+            vel_sp: sp,
+            height_sp_m: 1.0,
+            vel_raw: v,
+            obstacle_m: f32::NAN,
+            clearance_m: 1.0,
+            fsm_state: fsm,
+            mode,
+            motors: [0.5; 4],
+        }
+    }
+
+    #[test]
+    fn figures_come_from_level_flight_rows_of_their_phase() {
+        use FlightMode::*;
+        use FsmState::*;
+        let log = [
+            // Take-off (FSM not running) and landing rows are not level flight.
+            row(Flying, None, [2.0, 0.0], [0.0, 0.0], 0.2),
+            row(Landing, Some(Forward), [2.0, 0.0], [0.3, 0.0], 0.5),
+            // Forward: errors (0.3, 0.4) and (0, 0) -> RMS of |e| = sqrt(0.25 / 2).
+            row(Flying, Some(Forward), [0.6, 0.4], [0.3, 0.0], 1.1),
+            row(Flying, Some(Forward), [0.3, 0.0], [0.3, 0.0], 0.9),
+            // Hover: speeds 0.5 and 0.1.
+            row(Flying, Some(Hover), [0.3, 0.4], [0.0, 0.0], 1.0),
+            row(Flying, Some(Hover), [0.0, 0.1], [0.0, 0.0], 1.0),
+            row(Flying, Some(Check), [0.0, 0.0], [0.0, 0.0], 1.2),
+        ];
+        let f = TrackingFigures::from_log(&log);
+        assert!(
+            (f.track_rmse_mps - (0.25f64 / 2.0).sqrt()).abs() < 1e-6,
+            "{f:?}"
+        );
+        assert!((f.hover_speed_mps - 0.3).abs() < 1e-6, "{f:?}");
+        // Heights 1.1, 0.9, 1.0, 1.0, 1.2 against 1.0.
+        let want = ((0.01 + 0.01 + 0.04) / 5.0f64).sqrt();
+        assert!((f.height_rmse_m - want).abs() < 1e-6, "{f:?}");
+    }
+
+    #[test]
+    fn a_phase_never_flown_is_nan() {
+        let log = [row(
+            FlightMode::Flying,
+            Some(FsmState::Check),
+            [0.0; 2],
+            [0.0; 2],
+            1.0,
+        )];
+        let f = TrackingFigures::from_log(&log);
+        assert!(f.track_rmse_mps.is_nan() && f.hover_speed_mps.is_nan());
+        assert_eq!(f.height_rmse_m, 0.0);
+    }
+}
