@@ -21,11 +21,12 @@ use crate::indi::{Indi, IndiConfig};
 use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
+use crate::params::{self, Rejected};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
-    LinkErrorCounts, PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder,
-    Telemetry,
+    LinkErrorCounts, Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse,
+    PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
 };
 use timebase::WireTime;
 
@@ -365,6 +366,82 @@ impl Autopilot {
     /// The configuration.
     pub fn config(&self) -> &AutopilotConfig {
         &self.cfg
+    }
+
+    /// A disarmed autopilot, if `config` passes [`params::validate`] (otherwise the parameter
+    /// at fault and why).
+    pub fn try_new(config: AutopilotConfig) -> Result<Self, Rejected> {
+        params::validate(&config)?;
+        Ok(Self::new(config))
+    }
+
+    /// Makes `config` the autopilot's from the next step on, if it passes
+    /// [`params::validate`] and the motors cannot run (disarmed, killed, IMU fault); otherwise
+    /// nothing changes and the refusal says why. The estimators and the failsafe keep their
+    /// state; the INDI (filters and adapted effectiveness) restarts if its part changed.
+    pub fn set_config(&mut self, config: AutopilotConfig) -> Result<(), Rejected> {
+        if self.failsafe.mode().motors_enabled() {
+            return Err(Rejected {
+                index: None,
+                error: ParamError::Armed,
+            });
+        }
+        params::validate(&config)?;
+        self.att.set_config(config.attitude);
+        if config.indi != self.cfg.indi {
+            self.indi = Indi::new(config.indi);
+        }
+        self.height.set_config(config.height);
+        self.vertical.set_config(config.vertical);
+        self.guidance.set_config(config.guidance);
+        self.observer.set_config(config.observer);
+        self.fsm.set_config(config.fsm);
+        self.failsafe.set_config(config.failsafe);
+        self.cfg = config;
+        Ok(())
+    }
+
+    /// Answers a host's parameter request for this board's table ([`params::TABLE`]); a
+    /// request for another board's table is refused (`NoSuchBoard`). `Save` is answered
+    /// `NoStorage` here: the firmware, which owns the flash, answers it before this is called.
+    pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
+        let reply = if req.board != Node::Autopilot {
+            ParamReply::Error(ParamError::NoSuchBoard)
+        } else {
+            match &req.op {
+                ParamOp::List(i) => params::entry(&self.cfg, usize::from(*i)).map_or(
+                    ParamReply::Error(ParamError::UnknownIndex),
+                    ParamReply::Entry,
+                ),
+                ParamOp::Get(name) => params::index_of(name)
+                    .and_then(|i| params::entry(&self.cfg, i))
+                    .map_or(
+                        ParamReply::Error(ParamError::UnknownName),
+                        ParamReply::Entry,
+                    ),
+                ParamOp::Set(name, value) => self.set_param(name, *value),
+                ParamOp::Save => ParamReply::Error(ParamError::NoStorage),
+            }
+        };
+        ParamResponse {
+            board: req.board,
+            reply,
+        }
+    }
+
+    fn set_param(&mut self, name: &str, value: protocol::ParamValue) -> ParamReply {
+        let Some(index) = params::index_of(name) else {
+            return ParamReply::Error(ParamError::UnknownName);
+        };
+        let mut next = self.cfg;
+        let applied = params::set(&mut next, index, value).and_then(|()| self.set_config(next));
+        match applied {
+            Ok(()) => params::entry(&self.cfg, index).map_or(
+                ParamReply::Error(ParamError::UnknownIndex),
+                ParamReply::Entry,
+            ),
+            Err(r) => ParamReply::Error(r.error),
+        }
     }
 
     /// Current flight mode (failsafe state).

@@ -591,7 +591,7 @@ fn a_camera_board_of_another_protocol_version_blocks_arming() {
     r.fly(0.5);
     // A heartbeat framed as protocol version + 1 (valid CRC): the camera board's estimates
     // would all be rejected, so the drone must not take off.
-    let hb = StereoToAutopilot::Heartbeat(Heartbeat::new(protocol::Node::StereoBoard, 5));
+    let hb = StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, 5));
     let mut buf = [0u8; 64];
     let n = protocol::encode(&hb, &mut buf).unwrap();
     let mut raw = cobs_decode(&buf[..n - 1]);
@@ -689,7 +689,7 @@ fn stereo_bytes_are_decoded_in_any_chunking() {
         wire.extend_from_slice(&buf[..n]);
         first_frame_len = first_frame_len.max(n * usize::from(seq == 0));
     }
-    let hb = Heartbeat::new(protocol::Node::StereoBoard, 5);
+    let hb = Heartbeat::new(Node::StereoBoard, 5);
     let n = protocol::encode(&StereoToAutopilot::Heartbeat(hb), &mut buf).unwrap();
     wire.extend_from_slice(&buf[..n]);
     // Garbage in the middle: counted, and the decoder resynchronises. (Garbage before the
@@ -840,4 +840,124 @@ proptest! {
         }
         prop_assert!(m.achieved.iter().all(|x| x.is_finite()));
     }
+}
+
+fn param_request(ap: &mut Autopilot, board: Node, op: ParamOp) -> ParamReply {
+    let resp = ap.on_param_request(&ParamRequest { board, op });
+    assert_eq!(resp.board, board);
+    resp.reply
+}
+
+fn set_param(ap: &mut Autopilot, name: &str, value: protocol::ParamValue) -> ParamReply {
+    let op = ParamOp::Set(protocol::ParamName::try_from(name).unwrap(), value);
+    param_request(ap, Node::Autopilot, op)
+}
+
+#[test]
+fn parameters_set_on_the_ground_take_effect_and_are_refused_in_flight() {
+    use protocol::{ParamName, ParamValue};
+    let mut r = Run::new(AutopilotConfig::default());
+    // Height and failsafe timing changed over the protocol while disarmed.
+    match set_param(&mut r.ap, "target_height", ParamValue::F32(0.6)) {
+        ParamReply::Entry(e) => {
+            assert_eq!(e.value, ParamValue::F32(0.6));
+            assert_eq!(e.default, ParamValue::F32(1.0));
+        }
+        other => panic!("{other:?}"),
+    }
+    let hover_land = ParamValue::U32(1_000_000);
+    assert!(matches!(
+        set_param(&mut r.ap, "fs_hover_land_us", hover_land),
+        ParamReply::Entry(_)
+    ));
+    r.takeoff();
+    r.fly(4.0);
+    let h = r.quad.height();
+    assert!(
+        (h - 0.6).abs() < 0.1,
+        "height after take-off {h}, target 0.6"
+    );
+    // Refused while the motors may run; nothing changes.
+    assert_eq!(
+        set_param(&mut r.ap, "target_height", ParamValue::F32(1.5)),
+        ParamReply::Error(ParamError::Armed)
+    );
+    assert_eq!(r.ap.config().target_height_m, 0.6);
+    assert_eq!(
+        param_request(&mut r.ap, Node::Autopilot, ParamOp::Save),
+        ParamReply::Error(ParamError::NoStorage)
+    );
+    // Reads still answer in flight.
+    let get = ParamOp::Get(ParamName::try_from("target_height").unwrap());
+    assert!(matches!(
+        param_request(&mut r.ap, Node::Autopilot, get),
+        ParamReply::Entry(e) if e.value == ParamValue::F32(0.6)
+    ));
+    // The shorter hover before landing is the one flown.
+    r.estimates = false;
+    let lost_at = r.now;
+    r.fly(6.0);
+    let find = |m: FlightMode| r.modes.iter().find(|x| x.1 == m).map(|x| x.0);
+    let hover = find(FlightMode::HoverNoEstimate).expect("hovered");
+    let land = find(FlightMode::Landing).expect("landed");
+    assert!(hover - lost_at <= 560_000);
+    assert!(
+        (land - hover).abs_diff(1_000_000) <= 40_000,
+        "landing {} ms after the hover began",
+        (land - hover) / 1000
+    );
+}
+
+#[test]
+fn parameter_requests_that_cannot_be_answered_say_why() {
+    use protocol::{ParamName, ParamValue};
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let n = params::COUNT as u16;
+    assert!(matches!(
+        param_request(&mut ap, Node::Autopilot, ParamOp::List(n - 1)),
+        ParamReply::Entry(e) if e.index == n - 1 && e.count == n
+    ));
+    assert_eq!(
+        param_request(&mut ap, Node::Autopilot, ParamOp::List(n)),
+        ParamReply::Error(ParamError::UnknownIndex)
+    );
+    let nothing = ParamOp::Get(ParamName::try_from("no_such").unwrap());
+    assert_eq!(
+        param_request(&mut ap, Node::Autopilot, nothing),
+        ParamReply::Error(ParamError::UnknownName)
+    );
+    assert_eq!(
+        param_request(&mut ap, Node::StereoBoard, ParamOp::List(0)),
+        ParamReply::Error(ParamError::NoSuchBoard)
+    );
+    for (name, value, why) in [
+        (
+            "target_height",
+            ParamValue::F32(9.0),
+            ParamError::OutOfBounds,
+        ),
+        ("target_height", ParamValue::U32(1), ParamError::WrongKind),
+        ("indi_rate_hz", ParamValue::F32(512.0), ParamError::ReadOnly),
+        (
+            "height_min_thrust",
+            ParamValue::F32(0.9),
+            ParamError::Inconsistent,
+        ),
+    ] {
+        assert_eq!(
+            set_param(&mut ap, name, value),
+            ParamReply::Error(why),
+            "{name}"
+        );
+    }
+    assert_eq!(*ap.config(), AutopilotConfig::default());
+    // A whole configuration is checked too.
+    let mut bad = AutopilotConfig::default();
+    bad.height.max_thrust = 1.5;
+    let r = ap.set_config(bad).unwrap_err();
+    assert_eq!(
+        (r.name(), r.error),
+        ("height_max_thrust", ParamError::OutOfBounds)
+    );
+    assert!(Autopilot::try_new(bad).is_err());
 }

@@ -208,6 +208,11 @@ pub struct AttitudeEstimator {
 }
 
 impl AttitudeEstimator {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: AttitudeConfig) {
+        self.cfg = cfg;
+    }
+
     /// An estimator that initialises its roll and pitch from the first usable accelerometer
     /// sample (yaw starts at 0).
     pub fn new(cfg: AttitudeConfig) -> Self {

@@ -67,6 +67,11 @@ pub struct Failsafe {
 }
 
 impl Failsafe {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: FailsafeConfig) {
+        self.cfg = cfg;
+    }
+
     /// Disarmed at time 0.
     pub fn new(cfg: FailsafeConfig) -> Self {
         Self {

@@ -116,6 +116,11 @@ pub struct AvoidanceFsm {
 }
 
 impl AvoidanceFsm {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: FsmConfig) {
+        self.cfg = cfg;
+    }
+
     /// Starts in `Check` at `now_us`, holding heading `yaw_rad`.
     pub fn new(cfg: FsmConfig, now_us: u64, yaw_rad: f32) -> Self {
         let yaw = wrap_pi(yaw_rad);

@@ -60,6 +60,11 @@ pub struct VelocityGuidance {
 }
 
 impl VelocityGuidance {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: GuidanceConfig) {
+        self.cfg = cfg;
+    }
+
     /// A controller with empty integrators.
     pub fn new(cfg: GuidanceConfig) -> Self {
         Self {
@@ -169,6 +174,8 @@ impl Default for ObserverConfig {
 const HISTORY_LEN: usize = 32;
 /// Spacing of the history entries, µs (32 x 6 ms: 192 ms back).
 const HISTORY_SPACING_US: u64 = 6_000;
+/// Longest [`ObserverConfig::measurement_delay_us`] the history reaches back to, µs.
+pub const MAX_MEASUREMENT_DELAY_US: u32 = ((HISTORY_LEN as u64 - 1) * HISTORY_SPACING_US) as u32;
 
 /// Horizontal velocity observer in the heading frame (level body axes: forward, right).
 ///
@@ -195,6 +202,11 @@ pub struct VelocityObserver {
 }
 
 impl VelocityObserver {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: ObserverConfig) {
+        self.cfg = cfg;
+    }
+
     /// An observer without a velocity yet.
     pub fn new(cfg: ObserverConfig) -> Self {
         Self {

@@ -58,6 +58,11 @@ pub struct HeightController {
 }
 
 impl HeightController {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: HeightConfig) {
+        self.cfg = cfg;
+    }
+
     /// A controller with no measurement yet.
     pub fn new(cfg: HeightConfig) -> Self {
         Self {

@@ -16,6 +16,8 @@
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
+//! * [`params`]: the parameter table: every [`AutopilotConfig`] field by name, kind, unit
+//!   and bounds, read, written and validated.
 //! * [`rc`]: SBUS receiver decoding and the RC switches mapped to pilot commands.
 //! * [`lockstep`]: the world clock and task releases of the hardware-in-the-loop flavours.
 //! * [`board`]: the Lisa/MX 2.1 board definition (pins, peripherals, clocks, rates, IMU axes,
@@ -39,6 +41,7 @@ pub mod median;
 pub mod mixer;
 pub mod mpu6000;
 pub mod ms5611;
+pub mod params;
 pub mod rc;
 pub mod vertical;
 

@@ -86,6 +86,11 @@ const REINIT_AFTER: u8 = 5;
 const FIX_HOLDS_S: f32 = 0.5;
 
 impl VerticalEstimator {
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: VerticalConfig) {
+        self.cfg = cfg;
+    }
+
     /// A filter that has seen nothing: at the floor, at rest, offset unknown.
     pub fn new(cfg: VerticalConfig) -> Self {
         Self {

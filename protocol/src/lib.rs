@@ -4,12 +4,19 @@
 //! * [`framing`]: COBS frames carrying a version byte, the postcard payload and a CRC; an
 //!   encoder into a caller-provided buffer and a streaming [`Decoder`] with a bounded buffer
 //!   that never panics, resynchronises at the next delimiter and counts errors by kind.
+//! * [`params`]: named, typed parameter tables, their messages and their flash record.
 //!
 //! `no_std`, no heap. Enable the `defmt` feature for `defmt::Format` on every type.
 #![no_std]
 #![warn(missing_docs)]
 
 pub mod messages;
+pub mod params;
+
+pub use params::{
+    ParamEntry, ParamError, ParamKind, ParamName, ParamOp, ParamReply, ParamRequest, ParamResponse,
+    ParamSpec, ParamUnit, ParamValue,
+};
 
 pub use messages::*;
 pub mod framing;

@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 3;
+pub const PROTOCOL_VERSION: u8 = 4;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -411,10 +411,13 @@ pub enum HostToBoard {
     ExternalPosition(ExternalPosition),
     /// Arm, land or kill (autopilot).
     Command(PilotCommand),
+    /// List, read, write or save a board's parameters (answered with
+    /// [`BoardToHost::Param`]).
+    Param(crate::ParamRequest),
 }
 
 impl Message for HostToBoard {
-    const VARIANT_COUNT: u32 = 5;
+    const VARIANT_COUNT: u32 = 6;
     const MAX_FRAME_BYTES: usize = 560;
 }
 
@@ -549,9 +552,11 @@ pub enum BoardToHost {
     Telemetry(Telemetry),
     /// An Edge-FS estimate (camera board in HIL, mirrored to the host).
     Estimate(Estimate),
+    /// The answer to a [`HostToBoard::Param`] request.
+    Param(crate::ParamResponse),
 }
 
 impl Message for BoardToHost {
-    const VARIANT_COUNT: u32 = 4;
+    const VARIANT_COUNT: u32 = 5;
     const MAX_FRAME_BYTES: usize = 128;
 }

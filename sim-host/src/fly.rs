@@ -8,11 +8,14 @@
 
 use crate::log::sim::{LogRates, SimRecorder};
 use crate::log::FlightLog;
+use crate::param::ParamFile;
 use crate::sim::flight::{run_flight, run_flight_observed, FlightConfig, FlightResult, Fsm};
 use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
 use crate::sim::suite::{self, FlightFigures, RoomClass, SuiteRoom};
 use crate::sim::uart::LinkFaults;
+use autopilot::app::AutopilotConfig;
+use autopilot::fsm::FsmVariant;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -65,9 +68,13 @@ pub struct FlyArgs {
     /// splitting a large suite over machines.
     #[arg(long, value_parser = parse_shard, requires = "suite")]
     pub shard: Option<(u64, u64)>,
-    /// Avoidance FSM.
-    #[arg(long, value_enum, default_value_t = FsmArg::Paper)]
-    pub fsm: FsmArg,
+    /// Avoidance FSM (default: the parameter file's `fsm_variant`, else paper).
+    #[arg(long, value_enum)]
+    pub fsm: Option<FsmArg>,
+    /// Autopilot parameters (TOML, `[autopilot]` table keyed by the names of
+    /// `sim-host param list`; see docs/parameters.md) over the defaults.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
     /// Output directory.
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
@@ -147,7 +154,7 @@ fn parse_outage(s: &str) -> Result<(f64, f64), String> {
 
 impl FlyArgs {
     /// The flight configuration these arguments describe, for `seed`, in `scene`.
-    pub fn config(&self, scene: &SceneSpec, seed: u64) -> FlightConfig {
+    pub fn config(&self, scene: &SceneSpec, seed: u64, params: Option<&ParamFile>) -> FlightConfig {
         let faults = LinkFaults {
             bit_error_rate: self.ber,
             drop_rate: self.drop_rate,
@@ -161,10 +168,16 @@ impl FlyArgs {
             scene: scene.clone(),
             duration_s: self.duration,
             seed,
-            fsm: match self.fsm {
-                FsmArg::Paper => Fsm::Paper,
-                FsmArg::Improved => Fsm::Improved,
+            fsm: match (self.fsm, params) {
+                (Some(FsmArg::Paper), _) => Fsm::Paper,
+                (Some(FsmArg::Improved), _) => Fsm::Improved,
+                (None, Some(p)) if p.sets_fsm_variant => match p.autopilot.fsm.variant {
+                    FsmVariant::Paper => Fsm::Paper,
+                    FsmVariant::TurnUntilClear => Fsm::Improved,
+                },
+                (None, _) => Fsm::Paper,
             },
+            autopilot: params.map_or_else(AutopilotConfig::default, |p| p.autopilot),
             baud: self.baud,
             faults_s2a: faults.clone(),
             faults_a2s: faults,
@@ -228,14 +241,16 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
         "--fps must be in (0, 200]"
     );
     let scene = SceneSpec::from_cli(args.scene.as_deref(), &args.scenario)?;
+    let params = args.params.as_deref().map(ParamFile::load).transpose()?;
+    let params = params.as_ref();
     std::fs::create_dir_all(&args.out)?;
     if let Some(n) = args.suite {
-        return run_suite(args, n);
+        return run_suite(args, n, params);
     }
     let wall = Instant::now();
     match args.seeds {
         None | Some(1) => {
-            let mut cfg = args.config(&scene, args.seed);
+            let mut cfg = args.config(&scene, args.seed, params);
             cfg.keep_image_every = (cfg.camera.fps / 2.5).round().max(1.0) as u32;
             let pb = bar(
                 args.duration.ceil() as u64,
@@ -265,7 +280,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 Format::Table => {
                     println!(
                         "scene           {}  (seed {}, fsm {:?})",
-                        scene.name, r.seed, args.fsm
+                        scene.name, r.seed, cfg.fsm
                     );
                     println!(
                         "duration        {:.1} s simulated in {:.1} s ({:.1}x real time)",
@@ -318,7 +333,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
             let mut results: Vec<FlightResult> = (args.seed..args.seed + n)
                 .into_par_iter()
                 .map(|seed| {
-                    let r = run_flight(&args.config(&scene, seed), &mut |_| {});
+                    let r = run_flight(&args.config(&scene, seed, params), &mut |_| {});
                     pb.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
                     r.map(|mut r| {
                         r.log = Vec::new();
@@ -386,7 +401,7 @@ min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,room,cla
 hovering_s,landed_s";
 
 /// Runs `sim-host fly --suite N`.
-fn run_suite(args: &FlyArgs, n: u64) -> anyhow::Result<()> {
+fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Result<()> {
     anyhow::ensure!(n > 0, "--suite must be at least 1");
     let (shard, of) = args.shard.unwrap_or((0, 1));
     let rooms: Vec<SuiteRoom> = suite::shard_indices(n, shard, of)
@@ -402,7 +417,7 @@ fn run_suite(args: &FlyArgs, n: u64) -> anyhow::Result<()> {
     let results: Vec<(FlightResult, FlightFigures)> = rooms
         .par_iter()
         .map(|room| {
-            let r = run_flight(&args.config(&room.spec, room.seed), &mut |_| {});
+            let r = run_flight(&args.config(&room.spec, room.seed, params), &mut |_| {});
             pb.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
             r.map(|mut r| {
                 let f = suite::figures(&r);

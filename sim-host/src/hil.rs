@@ -1112,6 +1112,9 @@ mod tests {
                     }
                     HostToBoard::ExternalPosition(p) => ap.on_external_position(&p, now),
                     HostToBoard::Command(c) => ap.on_command(c, now),
+                    HostToBoard::Param(req) => {
+                        send_host(&mut s, &BoardToHost::Param(ap.on_param_request(&req)))
+                    }
                     _ => {}
                 }
             }

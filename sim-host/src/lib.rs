@@ -7,5 +7,6 @@ pub mod fly;
 pub mod hil;
 pub mod log;
 pub mod monitor;
+pub mod param;
 pub mod plot_font;
 pub mod sim;

@@ -21,6 +21,9 @@ enum Command {
     Hil(sim_host::hil::HilArgs),
     /// Live view of a board's telemetry link (serial port or TCP), recorded to MCAP.
     Monitor(sim_host::monitor::MonitorArgs),
+    /// List, read, write and save a board's parameters over its telemetry link (serial port or
+    /// TCP).
+    Param(sim_host::param::ParamArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -30,5 +33,6 @@ fn main() -> anyhow::Result<()> {
         Command::Eval(args) => sim_host::eval::run(args),
         Command::Hil(args) => sim_host::hil::run_cli(args),
         Command::Monitor(args) => sim_host::monitor::run(args),
+        Command::Param(args) => sim_host::param::run(args),
     }
 }

@@ -137,6 +137,8 @@ impl BoardView {
                     self.valid_estimates += u64::from(e.is_valid());
                     self.estimate = Some(*e);
                 }
+                // Answers to another tool's parameter requests: not telemetry.
+                BoardToHost::Param(_) => {}
             }
         }
         messages
@@ -396,6 +398,7 @@ fn record(
             BoardToHost::Heartbeat(h) => log.write(t_ns, &HeartbeatRecord::from(h))?,
             BoardToHost::Estimate(e) => log.write(t_ns, &EstimateRecord::from(e))?,
             BoardToHost::Motors(c) => log.write(t_ns, &MotorsRecord::from(c.throttle))?,
+            BoardToHost::Param(_) => {}
         }
     }
     Ok(())

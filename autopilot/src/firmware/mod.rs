@@ -12,7 +12,7 @@
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]), `Autopilot::on_imu`, motors |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
-//! | `host_rx` | 4 | woken by `telemetry_uart` | position / command from the host (IMU samples: lockstep only) |
+//! | `host_rx` | 4 | woken by `telemetry_uart` | position / command / parameter requests from the host (IMU samples: lockstep only) |
 //! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms (only with `board::RC_RECEIVER`) | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
 //! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`, watchdog (real) |
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
@@ -488,9 +488,10 @@ mod app {
         }
     }
 
-    /// Host bytes: external position (motion capture), pilot commands, and IMU samples (only
-    /// the lockstep flavours take them; the real flavour refuses and counts them).
-    #[task(priority = 4, shared = [ap], local = [host_out, host_wake_rx, host_decoder, world])]
+    /// Host bytes: external position (motion capture), pilot commands, parameter requests
+    /// (answered on the telemetry port), and IMU samples (only the lockstep flavours take them;
+    /// the real flavour refuses and counts them).
+    #[task(priority = 4, shared = [ap, host_tx], local = [host_out, host_wake_rx, host_decoder, world])]
     async fn host_rx(mut cx: host_rx::Context) {
         let mut buf = [0u8; 64];
         while cx.local.host_wake_rx.recv().await.is_ok() {
@@ -518,6 +519,10 @@ mod app {
                         HostToBoard::Command(cmd) => {
                             let now = flavour::lib_now_us();
                             cx.shared.ap.lock(|ap| ap.on_command(cmd, now))
+                        }
+                        HostToBoard::Param(req) => {
+                            let resp = cx.shared.ap.lock(|ap| ap.on_param_request(&req));
+                            send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Param(resp));
                         }
                         HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => {}
                     }

@@ -266,7 +266,8 @@ pub fn run_flight_observed(
         Fsm::Paper => FsmVariant::Paper,
         Fsm::Improved => FsmVariant::TurnUntilClear,
     };
-    let mut ap = Autopilot::new(ap_cfg);
+    let mut ap = Autopilot::try_new(ap_cfg)
+        .map_err(|r| anyhow::anyhow!("autopilot configuration refused: {r}"))?;
     let mut cb = Box::new(StereoBoardApp::new(cfg.edge_fs));
     let mut s2a = SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a);
     let mut a2s = SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25);

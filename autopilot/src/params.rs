@@ -1,0 +1,500 @@
+//! The autopilot's parameter table: every field of [`AutopilotConfig`] by name, kind, unit and
+//! bounds ([`TABLE`]), read and written by index ([`get`], [`set`]) and checked as a whole
+//! ([`validate`]).
+//!
+//! Array fields appear once per axis (`indi_kp_p`, `indi_kp_q`, `indi_kp_r`); durations are
+//! `u32` microseconds; `fsm_variant` is 0 (the paper's FSM) or 1 (turn until clear). The
+//! defaults are [`AutopilotConfig::default`]'s. `indi_rate_hz` is read-only: the loop runs at
+//! the IMU's [`crate::board::LOOP_RATE_HZ`] whatever it says.
+//!
+//! A configuration is accepted when every value is within its bounds and the values agree
+//! with each other (the thrust range holds the hover thrust, the G1 clamps hold the G1 start
+//! values); anything else is rejected with the parameter and the reason ([`Rejected`]), and
+//! nothing changes.
+
+use crate::app::AutopilotConfig;
+use crate::fsm::FsmVariant;
+use crate::guidance::MAX_MEASUREMENT_DELAY_US;
+use protocol::{ParamEntry, ParamError, ParamKind, ParamName, ParamSpec, ParamUnit, ParamValue};
+
+/// A configuration field's type, seen as a parameter value.
+trait Field: Sized + Copy {
+    fn value(self) -> ParamValue;
+    fn from_value(v: ParamValue) -> Option<Self>;
+}
+
+impl Field for f32 {
+    fn value(self) -> ParamValue {
+        ParamValue::F32(self)
+    }
+    fn from_value(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::F32(x) => Some(x),
+            _ => None,
+        }
+    }
+}
+
+impl Field for bool {
+    fn value(self) -> ParamValue {
+        ParamValue::Bool(self)
+    }
+    fn from_value(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::Bool(x) => Some(x),
+            _ => None,
+        }
+    }
+}
+
+macro_rules! unsigned_field {
+    ($($t:ty),*) => {$(
+        impl Field for $t {
+            fn value(self) -> ParamValue {
+                ParamValue::U32(u32::try_from(self).unwrap_or(u32::MAX))
+            }
+            fn from_value(v: ParamValue) -> Option<Self> {
+                match v {
+                    ParamValue::U32(x) => <$t>::try_from(x).ok(),
+                    _ => None,
+                }
+            }
+        }
+    )*};
+}
+unsigned_field!(u8, u16, u32, u64);
+
+impl Field for FsmVariant {
+    fn value(self) -> ParamValue {
+        ParamValue::U32(match self {
+            FsmVariant::Paper => 0,
+            FsmVariant::TurnUntilClear => 1,
+        })
+    }
+    fn from_value(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::U32(0) => Some(FsmVariant::Paper),
+            ParamValue::U32(1) => Some(FsmVariant::TurnUntilClear),
+            _ => None,
+        }
+    }
+}
+
+/// Reads and writes one field of the configuration.
+struct Accessor {
+    get: fn(&AutopilotConfig) -> ParamValue,
+    set: fn(&mut AutopilotConfig, ParamValue) -> bool,
+}
+
+macro_rules! table {
+    ($( $name:literal : $kind:ident [$unit:literal] $min:expr, $max:expr, $writable:literal
+        => |$c:ident| $place:expr; )*) => {
+        /// The autopilot's parameters, in the order they are listed and stored.
+        pub const TABLE: &[ParamSpec] = &[$(
+            ParamSpec {
+                name: $name,
+                kind: ParamKind::$kind,
+                unit: $unit,
+                min: ParamValue::$kind($min),
+                max: ParamValue::$kind($max),
+                writable: $writable,
+            },
+        )*];
+
+        const ACCESS: &[Accessor] = &[$(
+            Accessor {
+                get: |$c: &AutopilotConfig| Field::value($place),
+                set: |$c: &mut AutopilotConfig, v: ParamValue| match Field::from_value(v) {
+                    Some(x) => {
+                        $place = x;
+                        true
+                    }
+                    None => false,
+                },
+            },
+        )*];
+    };
+}
+
+const PI: f32 = core::f32::consts::PI;
+const LOOP_HZ: f32 = crate::board::LOOP_RATE_HZ as f32;
+
+table! {
+    "att_kp": F32 ["1/s"] 0.0, 10.0, true => |c| c.attitude.kp;
+    "att_ki": F32 ["1/s2"] 0.0, 1.0, true => |c| c.attitude.ki;
+    "att_max_bias": F32 ["rad/s"] 0.0, 1.0, true => |c| c.attitude.max_bias;
+    "att_accel_gate": F32 ["-"] 0.0, 1.0, true => |c| c.attitude.accel_gate;
+    "indi_rate_hz": F32 ["Hz"] LOOP_HZ, LOOP_HZ, false => |c| c.indi.rate_hz;
+    "indi_g1_p": F32 ["rad/s2"] 0.1, 50_000.0, true => |c| c.indi.g1[0];
+    "indi_g1_q": F32 ["rad/s2"] 0.1, 50_000.0, true => |c| c.indi.g1[1];
+    "indi_g1_r": F32 ["rad/s2"] 0.1, 50_000.0, true => |c| c.indi.g1[2];
+    "indi_g2": F32 ["rad/s2"] 0.0, 1.0e6, true => |c| c.indi.g2;
+    "indi_filter_omega": F32 ["rad/s"] 1.0, 1_000.0, true => |c| c.indi.filter_omega;
+    "indi_filter_zeta": F32 ["-"] 0.1, 2.0, true => |c| c.indi.filter_zeta;
+    "indi_actuator_alpha": F32 ["-"] 0.001, 1.0, true => |c| c.indi.actuator_alpha;
+    "indi_kp_p": F32 ["1/s2"] 0.0, 1_000.0, true => |c| c.indi.kp[0];
+    "indi_kp_q": F32 ["1/s2"] 0.0, 1_000.0, true => |c| c.indi.kp[1];
+    "indi_kp_r": F32 ["1/s2"] 0.0, 1_000.0, true => |c| c.indi.kp[2];
+    "indi_kd_p": F32 ["1/s"] 0.0, 200.0, true => |c| c.indi.kd[0];
+    "indi_kd_q": F32 ["1/s"] 0.0, 200.0, true => |c| c.indi.kd[1];
+    "indi_kd_r": F32 ["1/s"] 0.0, 200.0, true => |c| c.indi.kd[2];
+    "indi_max_accel_p": F32 ["rad/s2"] 1.0, 5_000.0, true => |c| c.indi.max_accel_ref[0];
+    "indi_max_accel_q": F32 ["rad/s2"] 1.0, 5_000.0, true => |c| c.indi.max_accel_ref[1];
+    "indi_max_accel_r": F32 ["rad/s2"] 1.0, 5_000.0, true => |c| c.indi.max_accel_ref[2];
+    "indi_max_cmd_p": F32 ["-"] 0.0, 1.0, true => |c| c.indi.max_cmd[0];
+    "indi_max_cmd_q": F32 ["-"] 0.0, 1.0, true => |c| c.indi.max_cmd[1];
+    "indi_max_cmd_r": F32 ["-"] 0.0, 1.0, true => |c| c.indi.max_cmd[2];
+    "indi_arming_thrust": F32 ["-"] 0.0, 0.5, true => |c| c.indi.arming_thrust;
+    "indi_adapt": Bool ["-"] false, true, true => |c| c.indi.adapt;
+    "indi_mu_g1_p": F32 ["-"] 0.0, 0.1, true => |c| c.indi.mu_g1[0];
+    "indi_mu_g1_q": F32 ["-"] 0.0, 0.1, true => |c| c.indi.mu_g1[1];
+    "indi_mu_g1_r": F32 ["-"] 0.0, 0.1, true => |c| c.indi.mu_g1[2];
+    "indi_mu_g2": F32 ["-"] 0.0, 0.1, true => |c| c.indi.mu_g2;
+    "indi_adapt_eps": F32 ["1/s2"] 1.0e-6, 10.0, true => |c| c.indi.adapt_eps;
+    "indi_adapt_omega": F32 ["rad/s"] 1.0, 1_000.0, true => |c| c.indi.adapt_omega;
+    "indi_adapt_zeta": F32 ["-"] 0.1, 2.0, true => |c| c.indi.adapt_zeta;
+    "indi_g1_min": F32 ["rad/s2"] 0.1, 50_000.0, true => |c| c.indi.g1_min;
+    "indi_g1_max": F32 ["rad/s2"] 0.1, 50_000.0, true => |c| c.indi.g1_max;
+    "indi_g2_max": F32 ["rad/s2"] 0.0, 1.0e6, true => |c| c.indi.g2_max;
+    "height_hover_thrust": F32 ["-"] 0.05, 0.95, true => |c| c.height.hover_thrust;
+    "height_kp": F32 ["1/m"] 0.0, 5.0, true => |c| c.height.kp;
+    "height_ki": F32 ["1/(m s)"] 0.0, 5.0, true => |c| c.height.ki;
+    "height_kd": F32 ["s/m"] 0.0, 5.0, true => |c| c.height.kd;
+    "height_max_integral": F32 ["-"] 0.0, 1.0, true => |c| c.height.max_integral;
+    "height_min_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.height.min_thrust;
+    "height_max_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.height.max_thrust;
+    "height_rate_tau": F32 ["s"] 0.001, 2.0, true => |c| c.height.rate_tau_s;
+    "height_max_tilt_factor": F32 ["-"] 1.0, 3.0, true => |c| c.height.max_tilt_factor;
+    "vert_accel_noise": F32 ["m/s2"] 0.001, 10.0, true => |c| c.vertical.accel_noise;
+    "vert_baro_offset_walk": F32 ["m/s^0.5"] 0.0, 1.0, true => |c| c.vertical.baro_offset_walk;
+    "vert_baro_noise": F32 ["m"] 0.001, 10.0, true => |c| c.vertical.baro_noise_m;
+    "vert_fix_noise": F32 ["m"] 0.0001, 1.0, true => |c| c.vertical.fix_noise_m;
+    "vert_ground_effect_h": F32 ["m"] 0.0, 2.0, true => |c| c.vertical.ground_effect_height_m;
+    "vert_ground_effect_k": F32 ["-"] 1.0, 100.0, true => |c| c.vertical.ground_effect_noise_factor;
+    "vert_gate_sigma": F32 ["-"] 1.0, 100.0, true => |c| c.vertical.gate_sigma;
+    "guid_kp": F32 ["rad s/m"] 0.0, 2.0, true => |c| c.guidance.kp;
+    "guid_ki": F32 ["rad/m"] 0.0, 2.0, true => |c| c.guidance.ki;
+    "guid_max_bank": F32 ["rad"] 0.0, 0.6, true => |c| c.guidance.max_bank_rad;
+    "guid_max_integral": F32 ["rad"] 0.0, 0.3, true => |c| c.guidance.max_integral_rad;
+    "ff_threshold": F32 ["m"] 0.0, 5.0, true => |c| c.force_field.threshold_m;
+    "ff_gain": F32 ["1/s"] 0.0, 10.0, true => |c| c.force_field.gain;
+    "ff_max_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.force_field.max_speed_mps;
+    "fsm_variant": U32 ["enum"] 0, 1, true => |c| c.fsm.variant;
+    "fsm_obstacle_dist": F32 ["m"] 0.1, 5.0, true => |c| c.fsm.obstacle_distance_m;
+    "fsm_forward_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.fsm.forward_speed_mps;
+    "fsm_hover_time_us": U32 ["us"] 0, 10_000_000, true => |c| c.fsm.hover_time_us;
+    "fsm_turn_angle": F32 ["rad"] 0.0, PI, true => |c| c.fsm.turn_angle_rad;
+    "fsm_turn_rate": F32 ["rad/s"] 0.05, 5.0, true => |c| c.fsm.turn_rate_radps;
+    "fsm_turn_tolerance": F32 ["rad"] 0.01, 1.0, true => |c| c.fsm.turn_tolerance_rad;
+    "fsm_turn_timeout_us": U32 ["us"] 100_000, 20_000_000, true => |c| c.fsm.turn_timeout_us;
+    "fsm_clear_dist": F32 ["m"] 0.1, 10.0, true => |c| c.fsm.clear_distance_m;
+    "fsm_clear_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.clear_confirm;
+    "fsm_reading_timeout_us": U32 ["us"] 10_000, 5_000_000, true => |c| c.fsm.reading_timeout_us;
+    "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout_us;
+    "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
+    "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;
+    "fs_height_timeout_us": U32 ["us"] 20_000, 5_000_000, true => |c| c.failsafe.height_timeout_us;
+    "target_height": F32 ["m"] 0.2, 3.0, true => |c| c.target_height_m;
+    "climb_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.climb_rate_mps;
+    "land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.land_rate_mps;
+    "landed_height": F32 ["m"] 0.01, 0.5, true => |c| c.landed_height_m;
+    "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.landed_time_us;
+    "fsm_start_height_tol": F32 ["m"] 0.01, 1.0, true => |c| c.fsm_start_height_tolerance_m;
+    "blind_land_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.blind_land_thrust;
+    "blind_land_time_us": U32 ["us"] 0, 20_000_000, true => |c| c.blind_land_time_us;
+    "min_quality": U32 ["-"] 0, 255, true => |c| c.min_quality;
+    "median_reset_gap_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.median_reset_gap_us;
+    "max_estimate": F32 ["m/s"] 0.1, 20.0, true => |c| c.max_estimate_mps;
+    "max_velocity_jump": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_velocity_jump_mps;
+    "max_outliers": U32 ["-"] 0, 20, true => |c| c.max_consecutive_outliers;
+    "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.velocity_max_age_us;
+    "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.observer.drag_per_s;
+    "obs_velocity_gain": F32 ["-"] 0.0, 1.0, true => |c| c.observer.velocity_gain;
+    "obs_bias_gain": F32 ["-"] 0.0, 1.0, true => |c| c.observer.bias_gain;
+    "obs_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.observer.max_bias_mps2;
+    "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY_US, true => |c| c.observer.measurement_delay_us;
+    "obs_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.observer.max_tilt_rad;
+    "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.max_yaw_rate_radps;
+    "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
+    "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;
+    "gyro_cal_still": F32 ["rad/s"] 0.001, 1.0, true => |c| c.gyro_calibration_still_radps;
+}
+
+/// Number of parameters.
+pub const COUNT: usize = TABLE.len();
+
+/// Version of [`TABLE`] for flash records: see [`protocol::params::table_hash`].
+pub const TABLE_HASH: u32 = protocol::params::table_hash(TABLE);
+
+/// Why a configuration (or one parameter change) was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rejected {
+    /// The parameter at fault (its index in [`TABLE`]); `None` for a refusal that is not about
+    /// one value (e.g. while armed).
+    pub index: Option<usize>,
+    /// Why.
+    pub error: ParamError,
+}
+
+impl Rejected {
+    /// The name of the parameter at fault, or `""`.
+    pub fn name(&self) -> &'static str {
+        self.index.and_then(|i| TABLE.get(i)).map_or("", |s| s.name)
+    }
+}
+
+impl core::fmt::Display for Rejected {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.index.and_then(|i| TABLE.get(i).map(|s| (i, s))) {
+            Some((i, s)) => {
+                write!(f, "parameter {} ({}): {}", s.name, i, self.error.describe())?;
+                if self.error == ParamError::OutOfBounds {
+                    write!(f, " [{} ..= {}] {}", s.min, s.max, s.unit)?;
+                }
+                Ok(())
+            }
+            None => f.write_str(self.error.describe()),
+        }
+    }
+}
+
+/// Index of the parameter called `name`.
+pub fn index_of(name: &str) -> Option<usize> {
+    protocol::params::find_param(TABLE, name)
+}
+
+/// The value of parameter `index` in `cfg`.
+pub fn get(cfg: &AutopilotConfig, index: usize) -> Option<ParamValue> {
+    ACCESS.get(index).map(|a| (a.get)(cfg))
+}
+
+/// Writes parameter `index` of `cfg`, if the value has its kind, lies within its bounds and
+/// leaves the configuration consistent ([`validate`]); otherwise `cfg` is unchanged.
+pub fn set(cfg: &mut AutopilotConfig, index: usize, value: ParamValue) -> Result<(), Rejected> {
+    let reject = |error| Rejected {
+        index: Some(index),
+        error,
+    };
+    let (spec, access) = match (TABLE.get(index), ACCESS.get(index)) {
+        (Some(s), Some(a)) => (s, a),
+        _ => return Err(reject(ParamError::UnknownIndex)),
+    };
+    if !spec.writable {
+        return Err(reject(ParamError::ReadOnly));
+    }
+    spec.check(value).map_err(reject)?;
+    let mut next = *cfg;
+    if !(access.set)(&mut next, value) {
+        return Err(reject(ParamError::WrongKind));
+    }
+    match validate(&next) {
+        Ok(()) => {
+            *cfg = next;
+            Ok(())
+        }
+        // The change made another value inconsistent: name the one that was set.
+        Err(r) if r.error == ParamError::Inconsistent => Err(reject(ParamError::Inconsistent)),
+        Err(r) => Err(r),
+    }
+}
+
+/// Writes parameter `name` of `cfg` (see [`set`]).
+pub fn set_by_name(
+    cfg: &mut AutopilotConfig,
+    name: &str,
+    value: ParamValue,
+) -> Result<(), Rejected> {
+    let index = index_of(name).ok_or(Rejected {
+        index: None,
+        error: ParamError::UnknownName,
+    })?;
+    set(cfg, index, value)
+}
+
+/// Checks a whole configuration: every value within its bounds (read-only ones at their fixed
+/// value), and the values consistent with each other.
+pub fn validate(cfg: &AutopilotConfig) -> Result<(), Rejected> {
+    for (i, (spec, access)) in TABLE.iter().zip(ACCESS).enumerate() {
+        spec.check((access.get)(cfg)).map_err(|error| Rejected {
+            index: Some(i),
+            error,
+        })?;
+    }
+    // Values that only make sense together; the first of each pair is named.
+    let inconsistent = |name: &str| Rejected {
+        index: index_of(name),
+        error: ParamError::Inconsistent,
+    };
+    let h = &cfg.height;
+    if h.min_thrust > h.hover_thrust || h.hover_thrust > h.max_thrust {
+        return Err(inconsistent("height_hover_thrust"));
+    }
+    let i = &cfg.indi;
+    if i.g1_min > i.g1_max {
+        return Err(inconsistent("indi_g1_min"));
+    }
+    if i.g1.iter().any(|&g| g < i.g1_min || g > i.g1_max) {
+        return Err(inconsistent("indi_g1_p"));
+    }
+    if i.g2 > i.g2_max {
+        return Err(inconsistent("indi_g2"));
+    }
+    if cfg.fsm.clear_distance_m < cfg.fsm.obstacle_distance_m {
+        return Err(inconsistent("fsm_clear_dist"));
+    }
+    if cfg.landed_height_m >= cfg.target_height_m {
+        return Err(inconsistent("landed_height"));
+    }
+    Ok(())
+}
+
+fn wire_str<const N: usize>(s: &str) -> heapless::String<N> {
+    let mut out = heapless::String::new();
+    for ch in s.chars() {
+        if out.push(ch).is_err() {
+            break;
+        }
+    }
+    out
+}
+
+/// Parameter `index` of `cfg` as it goes on the wire.
+pub fn entry(cfg: &AutopilotConfig, index: usize) -> Option<ParamEntry> {
+    let spec = TABLE.get(index)?;
+    let defaults = AutopilotConfig::default();
+    Some(ParamEntry {
+        index: index as u16,
+        count: COUNT as u16,
+        name: wire_str::<{ protocol::params::PARAM_NAME_LEN }>(spec.name) as ParamName,
+        unit: wire_str::<{ protocol::params::PARAM_UNIT_LEN }>(spec.unit) as ParamUnit,
+        value: get(cfg, index)?,
+        default: get(&defaults, index)?,
+        min: spec.min,
+        max: spec.max,
+        writable: spec.writable,
+    })
+}
+
+/// Every value of `cfg` in table order (for a flash record).
+pub fn values(cfg: &AutopilotConfig) -> [ParamValue; COUNT] {
+    core::array::from_fn(|i| get(cfg, i).unwrap_or(ParamValue::U32(0)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_is_well_formed_and_the_defaults_are_valid() {
+        assert_eq!(TABLE.len(), ACCESS.len());
+        let d = AutopilotConfig::default();
+        validate(&d).unwrap();
+        for (i, spec) in TABLE.iter().enumerate() {
+            assert!(
+                spec.name.len() <= protocol::params::PARAM_NAME_LEN,
+                "{}",
+                spec.name
+            );
+            assert!(
+                spec.unit.len() <= protocol::params::PARAM_UNIT_LEN,
+                "{}",
+                spec.unit
+            );
+            assert_eq!(index_of(spec.name), Some(i), "{} appears twice", spec.name);
+            assert_eq!(get(&d, i).unwrap().kind(), spec.kind, "{}", spec.name);
+        }
+    }
+
+    #[test]
+    fn every_writable_parameter_reaches_its_field_and_only_it() {
+        let d = AutopilotConfig::default();
+        for (i, spec) in TABLE.iter().enumerate() {
+            if !spec.writable {
+                let mut c = d;
+                let v = get(&d, i).unwrap();
+                assert_eq!(set(&mut c, i, v).unwrap_err().error, ParamError::ReadOnly);
+                continue;
+            }
+            // Set a bound that differs from the default (or the other one).
+            let v = if get(&d, i) == Some(spec.max) {
+                spec.min
+            } else {
+                spec.max
+            };
+            let mut c = d;
+            match set(&mut c, i, v) {
+                Ok(()) => {
+                    assert_eq!(get(&c, i), Some(v), "{}", spec.name);
+                    assert_ne!(c, d, "{} changed nothing", spec.name);
+                    for j in (0..COUNT).filter(|&j| j != i) {
+                        assert_eq!(
+                            get(&c, j),
+                            get(&d, j),
+                            "{} changed {}",
+                            spec.name,
+                            TABLE[j].name
+                        );
+                    }
+                }
+                Err(r) => {
+                    assert_eq!(r.error, ParamError::Inconsistent, "{}", spec.name);
+                    assert_eq!(c, d);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bad_values_are_rejected_with_the_parameter_and_reason() {
+        let mut c = AutopilotConfig::default();
+        let i = index_of("target_height").unwrap();
+        let r = set(&mut c, i, ParamValue::F32(10.0)).unwrap_err();
+        assert_eq!((r.index, r.error), (Some(i), ParamError::OutOfBounds));
+        assert_eq!(r.name(), "target_height");
+        let r = set(&mut c, i, ParamValue::F32(f32::NAN)).unwrap_err();
+        assert_eq!(r.error, ParamError::OutOfBounds);
+        let r = set(&mut c, i, ParamValue::U32(1)).unwrap_err();
+        assert_eq!(r.error, ParamError::WrongKind);
+        let r = set_by_name(&mut c, "no_such_thing", ParamValue::U32(1)).unwrap_err();
+        assert_eq!(r.error, ParamError::UnknownName);
+        // Within bounds but below the minimum thrust.
+        let r = set_by_name(&mut c, "height_hover_thrust", ParamValue::F32(0.1)).unwrap_err();
+        assert_eq!(
+            (r.name(), r.error),
+            ("height_hover_thrust", ParamError::Inconsistent)
+        );
+        let r = set_by_name(&mut c, "fsm_variant", ParamValue::U32(2)).unwrap_err();
+        assert_eq!(r.error, ParamError::OutOfBounds);
+        assert_eq!(c, AutopilotConfig::default());
+        set_by_name(&mut c, "fsm_variant", ParamValue::U32(1)).unwrap();
+        assert_eq!(c.fsm.variant, FsmVariant::TurnUntilClear);
+        set_by_name(&mut c, "fs_hover_land_us", ParamValue::U32(1_500_000)).unwrap();
+        assert_eq!(c.failsafe.hover_before_land_us, 1_500_000);
+    }
+
+    #[test]
+    fn a_whole_configuration_out_of_bounds_is_rejected() {
+        let mut c = AutopilotConfig::default();
+        c.guidance.max_bank_rad = 1.2;
+        let r = validate(&c).unwrap_err();
+        assert_eq!(
+            (r.name(), r.error),
+            ("guid_max_bank", ParamError::OutOfBounds)
+        );
+        let mut c = AutopilotConfig::default();
+        c.indi.rate_hz = 400.0;
+        assert_eq!(validate(&c).unwrap_err().name(), "indi_rate_hz");
+    }
+
+    #[test]
+    fn entries_carry_value_default_and_bounds() {
+        let mut c = AutopilotConfig::default();
+        set_by_name(&mut c, "guid_kp", ParamValue::F32(0.3)).unwrap();
+        let e = entry(&c, index_of("guid_kp").unwrap()).unwrap();
+        assert_eq!(e.name.as_str(), "guid_kp");
+        assert_eq!(e.value, ParamValue::F32(0.3));
+        assert_eq!(e.default, ParamValue::F32(0.2));
+        assert_eq!(usize::from(e.count), COUNT);
+        assert!(entry(&c, COUNT).is_none());
+    }
+}

@@ -1,0 +1,142 @@
+//! `sim-host param` against the autopilot library served on TCP the way the firmware serves
+//! its telemetry port (requests decoded from the byte stream, answers framed back, telemetry
+//! interleaved): the client API and the command line, success and refusal.
+
+use autopilot::app::{Autopilot, AutopilotConfig};
+use autopilot::params;
+use protocol::{BoardToHost, HostToBoard, HostToBoardDecoder, Node, ParamValue};
+use sim_host::param::ParamClient;
+use std::io::{Read as _, Write as _};
+use std::net::{TcpListener, TcpStream};
+use std::process::Command;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Serves `ap` to every client that connects, one after the other (a telemetry frame before
+/// each answer, as the firmware's 10 Hz telemetry interleaves).
+fn serve(ap: Arc<Mutex<Autopilot>>) -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(mut s) = stream else { return };
+            let ap = ap.clone();
+            std::thread::spawn(move || board(&mut s, &ap));
+        }
+    });
+    port
+}
+
+fn board(s: &mut TcpStream, ap: &Mutex<Autopilot>) {
+    let mut dec = HostToBoardDecoder::new();
+    let mut buf = [0u8; 256];
+    while let Ok(n) = s.read(&mut buf) {
+        if n == 0 {
+            return;
+        }
+        let mut msgs = Vec::new();
+        dec.feed(&buf[..n], |m| msgs.push(m));
+        for m in msgs {
+            if let HostToBoard::Param(req) = m {
+                let mut ap = ap.lock().unwrap();
+                let telemetry = BoardToHost::Telemetry(ap.telemetry(0));
+                let answer = BoardToHost::Param(ap.on_param_request(&req));
+                for msg in [telemetry, answer] {
+                    let frame = protocol::encode_to_vec::<_, 128>(&msg).unwrap();
+                    if s.write_all(&frame).is_err() {
+                        return;
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn client(port: u16) -> ParamClient {
+    ParamClient::open(
+        &format!("tcp:127.0.0.1:{port}"),
+        0,
+        Node::Autopilot,
+        Duration::from_secs(2),
+    )
+    .unwrap()
+}
+
+#[test]
+fn the_client_lists_reads_and_writes_the_autopilots_table() {
+    let ap = Arc::new(Mutex::new(Autopilot::new(AutopilotConfig::default())));
+    let mut c = client(serve(ap.clone()));
+    let all = c.list().unwrap();
+    assert_eq!(all.len(), params::COUNT);
+    for (i, (e, spec)) in all.iter().zip(params::TABLE).enumerate() {
+        assert_eq!((usize::from(e.index), e.name.as_str()), (i, spec.name));
+        assert_eq!(e.value, e.default, "{}", spec.name);
+    }
+    let e = c.set("guid_kp", "0.3").unwrap();
+    assert_eq!(e.value, ParamValue::F32(0.3));
+    assert_eq!(ap.lock().unwrap().config().guidance.kp, 0.3);
+    let e = c.set("indi_adapt", "false").unwrap();
+    assert_eq!(e.value, ParamValue::Bool(false));
+    assert!(!ap.lock().unwrap().config().indi.adapt);
+
+    let err = |r: anyhow::Result<protocol::ParamEntry>| r.unwrap_err().to_string();
+    let e = err(c.set("target_height", "9"));
+    assert!(e.contains("outside [0.2 ..= 3]"), "{e}");
+    let e = err(c.set("fsm_variant", "0.5"));
+    assert!(e.contains("not a whole number"), "{e}");
+    let e = err(c.set("no_such_param", "1"));
+    assert!(e.contains("no parameter of that name"), "{e}");
+    let e = err(c.set("indi_rate_hz", "512"));
+    assert!(e.contains("read-only"), "{e}");
+    let e = c.save().unwrap_err().to_string();
+    assert!(e.contains("no parameter storage"), "{e}");
+    assert_eq!(ap.lock().unwrap().config().target_height_m, 1.0);
+}
+
+#[test]
+fn the_command_line_works_over_tcp() {
+    let ap = Arc::new(Mutex::new(Autopilot::new(AutopilotConfig::default())));
+    let port = serve(ap.clone());
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, out, err) = run(&["list"]);
+    assert!(ok, "{err}");
+    assert_eq!(out.lines().count(), params::COUNT, "{out}");
+    assert!(out.contains("fs_imu_timeout_us"), "{out}");
+    let (ok, out, err) = run(&["set", "land_rate", "0.4"]);
+    assert!(ok && out.contains("land_rate"), "{out}{err}");
+    let (ok, out, _) = run(&["get", "land_rate"]);
+    assert!(ok && out.contains(" 0.4 "), "{out}");
+    assert_eq!(ap.lock().unwrap().config().land_rate_mps, 0.4);
+    let (ok, _, err) = run(&["set", "land_rate", "true"]);
+    assert!(!ok && err.contains("not a finite number"), "{err}");
+    let (ok, _, err) = run(&["--board", "camera", "list"]);
+    assert!(!ok && err.contains("does not serve"), "{err}");
+}
+
+#[test]
+fn nobody_answering_is_an_error_not_a_hang() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let silent = std::thread::spawn(move || listener.accept().map(|(s, _)| s));
+    let mut c = ParamClient::open(
+        &format!("tcp:127.0.0.1:{port}"),
+        0,
+        Node::Autopilot,
+        Duration::from_millis(100),
+    )
+    .unwrap();
+    let _held_open = silent.join().unwrap().unwrap();
+    let e = c.get("guid_kp").unwrap_err().to_string();
+    assert!(e.contains("no answer"), "{e}");
+}
