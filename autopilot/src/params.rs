@@ -380,9 +380,74 @@ pub fn values(cfg: &AutopilotConfig) -> [ParamValue; COUNT] {
     core::array::from_fn(|i| get(cfg, i).unwrap_or(ParamValue::U32(0)))
 }
 
+/// Bytes of the autopilot's flash record.
+pub const RECORD_BYTES: usize = protocol::params::record_bytes(COUNT);
+
+/// Writes `cfg`'s values as a flash record ([`protocol::params::encode_record`]) into `out`;
+/// returns its length, [`RECORD_BYTES`].
+pub fn encode_record(
+    cfg: &AutopilotConfig,
+    out: &mut [u8],
+) -> Result<usize, protocol::params::RecordError> {
+    protocol::params::encode_record(TABLE, &values(cfg), out)
+}
+
+/// The configuration a flash record holds: every value from the record when the whole record
+/// is good and the values agree ([`validate`]); otherwise the defaults and why (a blank
+/// sector, a corrupt or older record, another table, a value out of bounds; an inconsistent
+/// set of values is reported as [`protocol::params::RecordError::BadValue`] of the parameter
+/// at fault).
+pub fn decode_record(bytes: &[u8]) -> (AutopilotConfig, Result<(), protocol::params::RecordError>) {
+    let defaults = AutopilotConfig::default();
+    let mut cfg = defaults;
+    let mut stored = true;
+    let decoded = protocol::params::decode_record(TABLE, bytes, |i, v| {
+        stored &= ACCESS.get(i).is_some_and(|a| (a.set)(&mut cfg, v));
+    });
+    let result = match decoded {
+        Err(e) => Err(e),
+        Ok(()) if !stored => Err(protocol::params::RecordError::BadValue(0)),
+        Ok(()) => validate(&cfg)
+            .map_err(|r| protocol::params::RecordError::BadValue(r.index.unwrap_or(0) as u16)),
+    };
+    match result {
+        Ok(()) => (cfg, Ok(())),
+        Err(e) => (defaults, Err(e)),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use protocol::params::RecordError;
+
+    #[test]
+    fn a_saved_configuration_loads_back_and_a_bad_record_means_defaults() {
+        let mut c = AutopilotConfig::default();
+        set_by_name(&mut c, "guid_kp", ParamValue::F32(0.3)).unwrap();
+        set_by_name(&mut c, "indi_adapt", ParamValue::Bool(false)).unwrap();
+        set_by_name(&mut c, "fsm_variant", ParamValue::U32(1)).unwrap();
+        // A flash sector: the record, then erased bytes.
+        let mut sector = [0xffu8; 1024];
+        assert_eq!(encode_record(&c, &mut sector), Ok(RECORD_BYTES));
+        assert_eq!(decode_record(&sector), (c, Ok(())));
+
+        let d = AutopilotConfig::default();
+        assert_eq!(decode_record(&[0xff; 1024]), (d, Err(RecordError::Blank)));
+        let mut torn = sector;
+        torn[RECORD_BYTES / 2] ^= 0x10;
+        assert_eq!(decode_record(&torn), (d, Err(RecordError::BadCrc)));
+        let mut older = sector;
+        older[4] = 0;
+        assert_eq!(decode_record(&older).0, d);
+        // Consistent values only: a record whose hover thrust is below its minimum thrust
+        // (each value within its own bounds) is refused as a whole.
+        let mut bad = c;
+        bad.height.hover_thrust = 0.1;
+        protocol::params::encode_record(TABLE, &values(&bad), &mut sector).unwrap();
+        let at = index_of("height_hover_thrust").unwrap() as u16;
+        assert_eq!(decode_record(&sector), (d, Err(RecordError::BadValue(at))));
+    }
 
     #[test]
     fn the_table_is_well_formed_and_the_defaults_are_valid() {

@@ -140,3 +140,48 @@ fn nobody_answering_is_an_error_not_a_hang() {
     let e = c.get("guid_kp").unwrap_err().to_string();
     assert!(e.contains("no answer"), "{e}");
 }
+
+#[test]
+fn fly_reads_a_parameter_file_and_refuses_a_bad_one() {
+    let dir = std::env::temp_dir().join(format!("sim-host-params-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fly = |params: &str| {
+        let file = dir.join("params.toml");
+        std::fs::write(&file, params).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args([
+                "fly",
+                "--duration",
+                "1",
+                "--quiet",
+                "--format",
+                "csv",
+                "--params",
+            ])
+            .arg(&file)
+            .arg("--out")
+            .arg(dir.join("out"))
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    };
+    let (ok, text) = fly("[autopilot]\ntarget_height = 4.0\n");
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("params.toml: [autopilot] target_height: parameter target_height"),
+        "{text}"
+    );
+    assert!(
+        text.contains("outside the parameter's bounds [0.2 ..= 3] m"),
+        "{text}"
+    );
+    let (ok, text) = fly("[autopilot]\ntarget_height = 0.8\nfsm_variant = 1\n");
+    assert!(ok, "{text}");
+    assert!(text.contains("seed,duration_s"), "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
