@@ -225,9 +225,16 @@ impl AutopilotConfig {
     /// timeout, the hover before landing, the descent at `land_rate_mps` from the target height
     /// to the floor, the touchdown confirmation, and one guidance period to act on it.
     pub fn link_loss_motors_off_us(&self) -> u64 {
+        self.failsafe.estimate_timeout_us + self.camera_stopped_motors_off_us()
+    }
+
+    /// The longest time from the camera board's `Status` reporting its camera stopped to every
+    /// motor at 0, µs: as [`AutopilotConfig::link_loss_motors_off_us`] without the estimate
+    /// timeout (the report ends the estimates at once): the hover before landing, the descent
+    /// from the target height, the touchdown confirmation, one guidance period.
+    pub fn camera_stopped_motors_off_us(&self) -> u64 {
         let descent_s = self.target_height_m.max(0.0) / self.land_rate_mps.abs().max(0.01);
-        self.failsafe.estimate_timeout_us
-            + self.failsafe.hover_before_land_us
+        self.failsafe.hover_before_land_us
             + (descent_s * 1e6) as u64
             + self.landed_time_us
             + u64::from(GUIDANCE_PERIOD_US)
@@ -757,8 +764,10 @@ impl Autopilot {
     }
 
     /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, an
-    /// initialised attitude estimate (an accelerometer sample near 1 g) and no
-    /// [`Autopilot::arm_blocker`] (refusals are counted in [`Autopilot::arm_refused`]).
+    /// initialised attitude estimate (an accelerometer sample near 1 g), no
+    /// [`Autopilot::arm_blocker`], and the drone on the ground (disarmed, killed or after an IMU
+    /// fault). Every `Arm` that does not leave the drone flying is counted in
+    /// [`Autopilot::arm_refused`].
     pub fn on_command(&mut self, cmd: PilotCommand, now_us: u64) {
         if cmd == PilotCommand::Arm && (!self.att.initialised() || self.arm_blocker().is_some()) {
             self.arm_refused = self.arm_refused.wrapping_add(1);
@@ -767,6 +776,10 @@ impl Autopilot {
         let before = self.failsafe.mode();
         let f = self.freshness();
         let after = self.failsafe.command(cmd, &f, now_us);
+        if cmd == PilotCommand::Arm && after != FlightMode::Flying {
+            // The failsafe refused it: a stale IMU or height, or not on the ground.
+            self.arm_refused = self.arm_refused.wrapping_add(1);
+        }
         if after == FlightMode::Flying && before != FlightMode::Flying {
             // Take-off: climb from where we are, hold the current heading.
             self.height.reset_integral();
@@ -805,7 +818,10 @@ impl Autopilot {
         }
     }
 
-    /// `Arm` commands refused since boot (not ready, or an [`Autopilot::arm_blocker`]).
+    /// `Arm` commands refused since boot (wrapping): the attitude not initialised, an
+    /// [`Autopilot::arm_blocker`], a stale IMU or height, or the drone not on the ground
+    /// (hovering blind or landing). An `Arm` while already flying changes nothing and is not
+    /// counted.
     pub fn arm_refused(&self) -> u32 {
         self.arm_refused
     }

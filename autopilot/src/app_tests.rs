@@ -350,6 +350,60 @@ fn a_stopped_camera_reported_in_status_hovers_without_waiting_for_the_estimate_t
 }
 
 #[test]
+fn a_stopped_camera_lands_and_stops_the_motors_within_its_promise() {
+    let cfg = AutopilotConfig::default();
+    let mut r = Run::new(cfg);
+    r.takeoff();
+    r.fly(4.0);
+    assert!((r.quad.height() - cfg.target_height_m).abs() < 0.1);
+    r.estimates = false;
+    let status = StereoStatus {
+        uptime_ms: 5_000,
+        frame_rate_hz: 0.0,
+        frames_processed: 100,
+        frames_dropped: 0,
+        link_errors: LinkErrorCounts::default(),
+        max_processing_us: 0,
+        capture: protocol::CaptureCounts::default(),
+        camera_stopped: true,
+    };
+    let stopped_at = r.now;
+    r.ap.on_stereo_message(StereoToAutopilot::Status(status), r.now);
+    let promise = cfg.camera_stopped_motors_off_us();
+    let mut off_at = None;
+    while r.now < stopped_at + promise + 1_000_000 {
+        r.fly(0.02);
+        if off_at.is_none() && r.ap.motors() == [0.0; 4] && r.ap.motor_safety(r.now).is_some() {
+            off_at = Some(r.now);
+        }
+    }
+    let off_at = off_at.expect("the motors stopped");
+    let modes: Vec<FlightMode> = r
+        .modes
+        .iter()
+        .filter(|m| m.0 >= stopped_at)
+        .map(|m| m.1)
+        .collect();
+    std::println!(
+        "camera stopped: motors 0 after {} ms (promised {} ms), modes {modes:?}",
+        (off_at - stopped_at) / 1000,
+        promise / 1000
+    );
+    assert_eq!(
+        modes,
+        [
+            FlightMode::HoverNoEstimate,
+            FlightMode::Landing,
+            FlightMode::Disarmed
+        ]
+    );
+    assert!(off_at - stopped_at <= promise);
+    assert!(r.quad.height() < 0.02);
+    // It stays down: nothing restarts the motors without an Arm.
+    assert_eq!(r.ap.motors(), [0.0; 4]);
+}
+
+#[test]
 fn arm_is_refused_until_the_attitude_is_initialised() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
     let pos = ExternalPosition {
@@ -545,6 +599,53 @@ fn an_rc_kill_latches_until_released_and_no_arm_overrides_it() {
     assert_eq!(r.ap.arm_blocker(), None);
     r.ap.on_command(PilotCommand::Arm, r.now);
     assert_eq!(r.ap.mode(), FlightMode::Flying);
+}
+
+#[test]
+fn every_refused_arm_is_counted() {
+    let level = |t: u64| ImuSample {
+        timestamp_us: WireTime(t as u32),
+        gyro_radps: [0.0; 3],
+        accel_mps2: [0.0, 0.0, -GRAVITY],
+    };
+    let floor = |t: u64| ExternalPosition {
+        timestamp_us: WireTime(t as u32),
+        position_m: [0.0; 3],
+    };
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    // Not initialised (no IMU sample yet): refused before the failsafe.
+    ap.on_command(PilotCommand::Arm, 0);
+    assert_eq!(ap.arm_refused(), 1);
+    // The attitude initialised, but no height measurement: the failsafe refuses.
+    let mut t = 0;
+    for _ in 0..50 {
+        t += IMU_US;
+        ap.on_imu(&level(t), t);
+    }
+    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.mode(), FlightMode::Disarmed);
+    assert_eq!(ap.arm_refused(), 2);
+    // Height fresh, IMU stale (its last sample 21 ms ago, the timeout 20 ms): refused.
+    ap.on_external_position(&floor(t), t);
+    let stale = t + AutopilotConfig::default().failsafe.imu_timeout_us + 1_000;
+    ap.on_external_position(&floor(stale), stale);
+    ap.on_command(PilotCommand::Arm, stale);
+    assert_eq!(ap.mode(), FlightMode::Disarmed);
+    assert_eq!(ap.arm_refused(), 3);
+    // Everything fresh: accepted, not counted; a second Arm while flying changes nothing and
+    // is not counted either.
+    t = stale + IMU_US;
+    ap.on_imu(&level(t), t);
+    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.mode(), FlightMode::Flying);
+    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.arm_refused(), 3);
+    // Landing: not on the ground, so an Arm is refused (it would cancel the landing).
+    ap.on_command(PilotCommand::Land, t);
+    assert_eq!(ap.mode(), FlightMode::Landing);
+    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.mode(), FlightMode::Landing);
+    assert_eq!(ap.arm_refused(), 4);
 }
 
 /// COBS-decodes one frame (without its delimiter).

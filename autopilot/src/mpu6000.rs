@@ -29,6 +29,20 @@
 //!
 //! Invalid samples are not handed to the flight code: the IMU failsafe
 //! ([`crate::failsafe`]) sees them as missing and turns the motors off after its timeout.
+//!
+//! # A sensor reset in flight
+//!
+//! A brown-out or an ESD event resets the MPU-6000: it comes back answering `WHO_AM_I`, asleep
+//! (`PWR_MGMT_1` = 0x40), with every configuration register at its default (register map
+//! section 3: +-250 deg/s, +-2 g, no low-pass filter, I2C on). [`Reconfigure`] tells the
+//! firmware when to write [`CONFIG_SEQUENCE`] again: on a sample that identifies the chip but
+//! shows it not awake on the configured clock, at most once per [`RECONFIGURE_INTERVAL_US`]. The
+//! firmware then reads the configuration back ([`config_matches`]) before it trusts a sample
+//! again. No `DEVICE_RESET` is sent in flight: the chip has just come out of its own reset, and
+//! that reset's 100 ms wait cannot be spent in the 512 Hz loop. The samples stay invalid through
+//! the gyro's start-up (30 ms, PS table 6.1), longer than the IMU failsafe's 20 ms, so the
+//! motors are off by then and stay off until the pilot arms again (see
+//! [`crate::failsafe::FlightMode::ImuFault`]).
 
 use crate::board::{AxisMap, Mounting};
 use protocol::{ImuSample, WireTime};
@@ -88,6 +102,66 @@ pub const CONFIG_SEQUENCE: [(u8, u8); 7] = [
     (ACCEL_CONFIG, 0x10),
     (INT_ENABLE, 0x00),
 ];
+
+/// The configuration registers that [`CONFIG_SEQUENCE`] sets and a reset changes, read back
+/// after a re-configuration, in the order [`config_matches`] takes them: `CONFIG`,
+/// `GYRO_CONFIG`, `ACCEL_CONFIG`.
+pub const CONFIG_READBACK: [u8; 3] = [CONFIG, GYRO_CONFIG, ACCEL_CONFIG];
+
+/// Whether `values` (read from [`CONFIG_READBACK`], in its order) are what
+/// [`CONFIG_SEQUENCE`] wrote.
+pub fn config_matches(values: [u8; 3]) -> bool {
+    CONFIG_READBACK.iter().zip(values).all(|(&reg, value)| {
+        CONFIG_SEQUENCE
+            .iter()
+            .any(|&(r, expected)| r == reg && expected == value)
+    })
+}
+
+/// The shortest time between two re-configurations of a sensor that keeps showing asleep, µs
+/// (the gyro's start-up time: a chip that does not take the configuration is not written to
+/// at every 512 Hz step).
+pub const RECONFIGURE_INTERVAL_US: u64 = 30_000;
+
+/// When to configure the sensor again after it reset (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Reconfigure {
+    last_us: Option<u64>,
+    count: u32,
+}
+
+impl Reconfigure {
+    /// No re-configuration yet.
+    pub const fn new() -> Self {
+        Self {
+            last_us: None,
+            count: 0,
+        }
+    }
+
+    /// After a rejected sample at `now_us`: whether to write [`CONFIG_SEQUENCE`] now. Only a
+    /// chip that identifies itself but is not awake on the configured clock is reset; anything
+    /// else (a dead bus, a frozen or saturated sensor) is not cured by writing registers.
+    pub fn due(&mut self, fault: SampleFault, now_us: u64) -> bool {
+        let SampleFault::NotAwake(pwr_mgmt_1) = fault else {
+            return false;
+        };
+        if pwr_mgmt_1 & PWR_MGMT_1_RESET != 0 {
+            return false; // still resetting
+        }
+        if matches!(self.last_us, Some(t) if now_us.saturating_sub(t) < RECONFIGURE_INTERVAL_US) {
+            return false;
+        }
+        self.last_us = Some(now_us);
+        self.count = self.count.wrapping_add(1);
+        true
+    }
+
+    /// Re-configurations since boot (wrapping).
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+}
 
 /// Gyro scale at +-2000 deg/s: 16.4 LSB per deg/s, in rad/s per LSB.
 pub const GYRO_RADPS_PER_LSB: f32 = core::f32::consts::PI / 180.0 / 16.4;
@@ -380,6 +454,46 @@ mod tests {
         );
         let f = c.faults();
         assert_eq!((f.not_identified, f.not_awake, f.dead_bus), (2, 1, 2));
+    }
+
+    #[test]
+    fn a_reset_sensor_is_configured_again_at_most_once_per_interval() {
+        let mut r = Reconfigure::new();
+        let mut c = check();
+        let good = bytes([10, 20, -4000], [1, 2, 3]);
+        // Power-on defaults after a brown-out: asleep, internal oscillator, data registers 0.
+        let fault = c.check(0x68, 0x40, &[0; 14], WireTime(0)).unwrap_err();
+        assert!(r.due(fault, 1_000));
+        // Still asleep at the next steps: not written again before the interval.
+        assert!(!r.due(fault, 1_000 + 1_953));
+        assert!(!r.due(fault, 1_000 + RECONFIGURE_INTERVAL_US - 1));
+        assert!(r.due(fault, 1_000 + RECONFIGURE_INTERVAL_US));
+        assert_eq!(r.count(), 2);
+        // Mid-reset (DEVICE_RESET still set), another chip, a dead bus, a frozen sensor: no
+        // register write cures those.
+        for fault in [
+            SampleFault::NotAwake(0xC0),
+            SampleFault::NotIdentified(0x00),
+            SampleFault::AllOnes,
+            SampleFault::Stuck,
+            SampleFault::Bus,
+        ] {
+            assert!(!r.due(fault, 10_000_000), "{fault:?}");
+        }
+        assert_eq!(r.count(), 2);
+        // Awake on the internal oscillator (CLKSEL 0) is not the configured state either.
+        assert!(r.due(SampleFault::NotAwake(0x00), 20_000_000));
+        // Configured again: valid.
+        assert!(c.check(0x68, PWR_MGMT_1_RUN, &good, WireTime(0)).is_ok());
+    }
+
+    #[test]
+    fn the_read_back_configuration_must_be_the_one_written() {
+        assert!(config_matches([0x01, 0x18, 0x10]));
+        // Reset defaults (register map section 3), and one register lost.
+        assert!(!config_matches([0x00, 0x00, 0x00]));
+        assert!(!config_matches([0x01, 0x00, 0x10]));
+        assert!(!config_matches([0x01, 0x18, 0x00]));
     }
 
     #[test]

@@ -100,6 +100,22 @@ pub fn drain<U: serial::Instance>(
     }
 }
 
+/// Empties a receiver that was not served yet (its interrupt not running: during `init`),
+/// returns how many bytes and errors it held. What a peer sent while the firmware was booting
+/// is not data lost in operation: a second byte into an unread receiver sets the overrun flag,
+/// which the first interrupt would otherwise count in the caller's `lost`. The decoders join
+/// the stream at the next frame delimiter either way.
+pub fn discard_pending<U: serial::Instance>(rx: &mut serial::Rx<U>) -> u32 {
+    let mut discarded = 0;
+    for _ in 0..MAX_BYTES_PER_INTERRUPT {
+        match rx.read() {
+            Ok(_) | Err(nb::Error::Other(_)) => discarded += 1,
+            Err(nb::Error::WouldBlock) => break,
+        }
+    }
+    discarded
+}
+
 /// Takes up to `buf.len()` bytes out of `queue` into `buf`; returns how many. (A decoding
 /// task whose interrupt can pause itself uses [`RxFlow::take`] instead.)
 pub fn take(queue: &mut Consumer<'static, u8>, buf: &mut [u8]) -> usize {

@@ -7,6 +7,7 @@
 //! | SPI mode and clock | mode 0 or 3 only, SCLK at most 1 MHz for every register and 20 MHz for reading the sensor and interrupt registers: the board says how the controller drives the bus ([`Mpu6000::set_bus`]); a write at over 1 MHz, or any word in the wrong mode, is not taken (the chip samples the wrong bits) | PS 6.5 table, 7.5 |
 //! | `WHO_AM_I` (0x75) | 0x68 | RM 4.32 |
 //! | `PWR_MGMT_1` (0x6B) | resets to 0x40 (`SLEEP`); `DEVICE_RESET` (bit 7) puts every register back at its reset value and clears itself; asleep, the sensor registers hold their last values | RM 4.28, PS 6.5 |
+//! | reset | `DEVICE_RESET` or a supply reset ([`Mpu6000::power_reset`], a brown-out): every register at its reset value (RM section 3: 0x00, `PWR_MGMT_1` 0x40, `WHO_AM_I` 0x68), asleep; for the reset time, the 100 ms RM 4.28 asks the host to wait, the chip takes no write and MISO reads 0x00 (nothing drives it; the model's choice of level) | RM 3, 4.28 |
 //! | `SMPLRT_DIV` (0x19), `CONFIG` (0x1A) | sample rate = gyro output rate / (1 + divider); the gyro output rate is 8 kHz with `DLPF_CFG` 0 or 7, else 1 kHz; `DLPF_CFG` sets the noise bandwidth (gyro 256, 188, 98, 42, 20, 10, 5 Hz) | RM 4.2, 4.3 |
 //! | `GYRO_CONFIG` (0x1B), `ACCEL_CONFIG` (0x1C) | full scale +-250/500/1000/2000 deg/s = 131/65.5/32.8/16.4 LSB per deg/s; +-2/4/8/16 g = 16384/8192/4096/2048 LSB/g; outputs saturate at the 16-bit limits | RM 4.4, 4.5, PS 6.1, 6.2 |
 //! | `INT_ENABLE` (0x38), `INT_STATUS` (0x3A) | `DATA_RDY_INT` set at each new sample, cleared by reading `INT_STATUS`; the INT output ([`Mpu6000::data_ready`]) is high while it is set and enabled | RM 4.15, 4.16, 4.14 |
@@ -15,7 +16,8 @@
 //! | noise | white, rate noise density 0.005 deg/s/sqrt(Hz) and accelerometer 400 ug/sqrt(Hz) over the DLPF bandwidth, drawn from a seeded generator per sample; a fixed zero-rate offset per device (`seed`), well inside the +-20 deg/s tolerance | PS 6.1, 6.2 |
 //!
 //! Faults a test can set: [`Mpu6000::set_unplugged`] (MISO pulled high: every byte 0xFF),
-//! [`Mpu6000::set_frozen`] (the sensor registers stop updating).
+//! [`Mpu6000::set_frozen`] (the sensor registers stop updating), [`Mpu6000::power_reset`] (a
+//! brown-out or ESD reset).
 //!
 //! Left out: the FIFO, the DMP, the I2C master and auxiliary bus, self-test, the motion and
 //! free-fall detectors, and the 8 kHz gyro / 1 kHz accelerometer distinction (both sampled at
@@ -43,6 +45,8 @@ const SLEEP: u8 = 0x40;
 const DEVICE_RESET: u8 = 0x80;
 /// PS 6.1: gyroscope start-up time, ns.
 const START_UP_NS: u64 = 30_000_000;
+/// RM 4.28: the wait after a reset before the chip is accessed, ns.
+pub const RESET_TIME_NS: u64 = 100_000_000;
 /// PS 6.5: SCLK limits, Hz.
 const SCLK_ALL_MAX_HZ: u64 = 1_000_000;
 const SCLK_SENSOR_MAX_HZ: u64 = 20_000_000;
@@ -75,6 +79,10 @@ pub struct Mpu6000 {
     bias: [f64; 3],
     /// When the chip last woke (left sleep), ns; `None` while asleep.
     awake_since: Option<u64>,
+    /// The end of the reset in progress, ns: until then the chip does not answer.
+    resetting_until: Option<u64>,
+    /// Resets since power-up (`DEVICE_RESET` and supply resets).
+    resets: u32,
     /// The index of the sample in the sensor registers.
     sample: Option<u64>,
     /// The sample `INT_STATUS` was last read at.
@@ -128,6 +136,8 @@ impl Mpu6000 {
             seed,
             bias,
             awake_since: None,
+            resetting_until: None,
+            resets: 0,
             sample: None,
             status_read_at: None,
             bus: Bus {
@@ -151,6 +161,27 @@ impl Mpu6000 {
         self.awake_since = None;
         self.sample = None;
         self.status_read_at = None;
+    }
+
+    /// A reset at `now_ns` as by `DEVICE_RESET` (register defaults, asleep), the chip not
+    /// answering for [`RESET_TIME_NS`].
+    fn reset(&mut self, now_ns: u64) {
+        self.power_on_reset();
+        self.resetting_until = Some(now_ns.saturating_add(RESET_TIME_NS));
+        self.resets = self.resets.saturating_add(1);
+    }
+
+    /// The supply dropped out and came back at `now_ns` (a brown-out, an ESD event): the chip
+    /// resets as at power-on, every register at its reset value, asleep, and does not answer
+    /// for [`RESET_TIME_NS`].
+    pub fn power_reset(&mut self, now_ns: u64) {
+        self.reset(now_ns);
+    }
+
+    /// Resets since power-up.
+    #[must_use]
+    pub fn resets(&self) -> u32 {
+        self.resets
     }
 
     /// The angular rate the chip senses, in its own axes, rad/s.
@@ -300,7 +331,7 @@ impl Mpu6000 {
         match address {
             PWR_MGMT_1 => {
                 if value & DEVICE_RESET != 0 {
-                    self.power_on_reset();
+                    self.reset(now_ns);
                     return;
                 }
                 let was_awake = self.awake();
@@ -331,6 +362,12 @@ impl Peer for Mpu6000 {
             return 0xFF;
         }
         let now = context.now().0;
+        if let Some(until) = self.resetting_until {
+            if now < until {
+                return 0x00;
+            }
+            self.resetting_until = None;
+        }
         let byte = (mosi & 0xFF) as u8;
         let Some(address) = self.address else {
             self.address = Some(byte & 0x7F);
@@ -442,5 +479,30 @@ mod tests {
         assert_eq!(chip.regs[GYRO_CONFIG], 0);
         assert_eq!(chip.regs[PWR_MGMT_1], SLEEP);
         assert_eq!(chip.regs[WHO_AM_I_REG], WHO_AM_I);
+        assert_eq!(chip.resetting_until, Some(10 + RESET_TIME_NS));
+    }
+
+    #[test]
+    fn a_power_reset_in_flight_stops_the_samples_until_the_chip_is_woken_again() {
+        let mut chip = Mpu6000::new(5);
+        chip.write_register(GYRO_CONFIG, 0x18, 0);
+        chip.write_register(PWR_MGMT_1, 0x03, 0);
+        chip.update(100_000_000);
+        let before = chip.sample.expect("sampling");
+        chip.power_reset(200_000_000);
+        assert_eq!(chip.resets(), 1);
+        assert!(!chip.awake());
+        assert_eq!(chip.regs[GYRO_CONFIG], 0, "the configuration is lost");
+        assert_eq!(
+            chip.regs[ACCEL_XOUT_H + 4],
+            0,
+            "the data registers are at reset"
+        );
+        chip.update(400_000_000);
+        assert_eq!(chip.sample, None, "asleep: no new sample");
+        // Woken again: samples after the start-up time, from index 0.
+        chip.write_register(PWR_MGMT_1, 0x03, 400_000_000);
+        chip.update(400_000_000 + START_UP_NS + 1_000_000);
+        assert!(chip.sample.is_some_and(|s| s < before));
     }
 }

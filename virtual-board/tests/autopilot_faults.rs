@@ -8,13 +8,16 @@
 //! |---|---|---|
 //! | IMU frozen | the MPU-6000's registers stop updating | [`autopilot::board::imu_fault_motors_off_us`] |
 //! | IMU unplugged | MISO pulled high: every byte 0xFF | the same |
+//! | IMU reset | the MPU-6000 resets (a brown-out): registers at their defaults, asleep, silent for its reset time; the firmware must configure it again | the same; the chip configured and sampling again within [`IMU_BACK_NS`], the motors off until a new `Arm` |
 //! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF_US`] |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
 //! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
 //! | link cut | the camera board's estimates stop | [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
+//! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::app::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
 
 use protocol::{
-    BoardToHost, Decoder, Estimate, EstimateFlags, Heartbeat, Message, Node, StereoToAutopilot,
+    BoardToHost, CaptureCounts, Decoder, Estimate, EstimateFlags, FlightMode, Heartbeat,
+    LinkErrorCounts, Message, Node, StereoStatus, StereoToAutopilot,
 };
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
@@ -27,6 +30,13 @@ const FAULT_AT: u64 = 2_500 * MS;
 const HOVER_M: f64 = 0.5;
 /// How long the motors must stay off after they stopped (longer than a reboot, 0.3 s).
 const STAY_OFF: u64 = 600 * MS;
+/// An IMU reset: the chip silent for its reset time, then found asleep at the next 512 Hz step
+/// and configured again, then its gyro's start-up (30 ms, PS-MPU-6000A-00 table 6.1) before
+/// valid samples; 10 ms of slack for the bench's stops.
+const IMU_BACK_NS: u64 = virtual_board::mpu6000::RESET_TIME_NS + 2 * MS + 30 * MS + 10 * MS;
+/// The IMU-reset run watches this long after the motors stopped: two status lines (1 Hz) with
+/// the chip back, so that its samples are seen to be valid again.
+const IMU_RESET_STAY_OFF: u64 = 2_100 * MS;
 /// SPI2's registers (RM0090 table 1) and its CR1's SPE bit (section 28.5.1).
 const SPI2: (u64, u64) = (0x4000_3800, 0x4000_3C00);
 const SPI_CR1_SPE: u64 = 1 << 6;
@@ -35,18 +45,24 @@ const SPI_CR1_SPE: u64 = 1 << 6;
 enum Fault {
     ImuFrozen,
     ImuUnplugged,
+    ImuReset,
     BusFault,
     Panic,
     Hang,
     LinkCut,
+    CameraStopped,
 }
 
 /// The camera board as the autopilot hears it: a valid estimate (hovering still) per 25 fps
-/// frame and a heartbeat a second, until the link is cut.
+/// frame and a heartbeat a second, until the link is cut; once its camera stopped, no more
+/// estimates and a `Status` with `camera_stopped` each second, as the camera board's 1 Hz
+/// status task sends it.
 struct CameraStandIn {
     frames: Every,
     heartbeats: Every,
+    statuses: Every,
     seq: u16,
+    camera_stopped: bool,
 }
 
 impl CameraStandIn {
@@ -54,8 +70,16 @@ impl CameraStandIn {
         Self {
             frames: Every::ns(40 * MS),
             heartbeats: Every::ns(1_000 * MS),
+            statuses: Every::ns(1_000 * MS),
             seq: 0,
+            camera_stopped: false,
         }
+    }
+
+    /// From the next stop on, the camera is reported stopped and no estimate is sent.
+    fn stop_camera(&mut self) {
+        self.camera_stopped = true;
+        self.statuses = Every::ns(1_000 * MS);
     }
 
     fn step(&mut self, now: u64, link: &virtual_board::link::Line) {
@@ -69,6 +93,21 @@ impl CameraStandIn {
                 Node::StereoBoard,
                 (now / MS) as u32,
             )));
+        }
+        if self.camera_stopped {
+            if self.statuses.due(now) {
+                send(&StereoToAutopilot::Status(StereoStatus {
+                    uptime_ms: (now / MS) as u32,
+                    frame_rate_hz: 0.0,
+                    frames_processed: u32::from(self.seq),
+                    frames_dropped: 0,
+                    link_errors: LinkErrorCounts::default(),
+                    max_processing_us: 5_000,
+                    capture: CaptureCounts::default(),
+                    camera_stopped: true,
+                }));
+            }
+            return;
         }
         if self.frames.due(now) {
             self.seq = self.seq.wrapping_add(1);
@@ -98,11 +137,16 @@ struct Pilot {
     telemetry: Decoder<BoardToHost, { BoardToHost::MAX_FRAME_BYTES }>,
     telemetry_read: usize,
     landing: bool,
+    /// The first telemetry (its last byte's stop) reporting the blind hover after the fault.
+    hover_seen_at: Option<u64>,
     last_ns: u64,
     running_before: bool,
     /// First stop after the fault with every duty 0, and the first after that with one not 0.
     off_at: Option<u64>,
     came_back_at: Option<u64>,
+    /// The first stop after the fault at which the MPU-6000 is awake with the firmware's
+    /// gyro range again.
+    imu_back_at: Option<u64>,
 }
 
 impl Pilot {
@@ -116,20 +160,28 @@ impl Pilot {
             telemetry: Decoder::new_mid_stream(),
             telemetry_read: 0,
             landing: false,
+            hover_seen_at: None,
             last_ns: 0,
             running_before: false,
             off_at: None,
             came_back_at: None,
+            imu_back_at: None,
         }
     }
 
-    /// The link-cut run's world: once the firmware reports it is landing, the height it is
-    /// told follows its descent setpoint (the land rate) down to the floor.
+    /// The estimate-loss runs' world: once the firmware reports it is landing, the height it
+    /// is told follows its descent setpoint (the land rate) down to the floor.
     fn follow_the_landing(&mut self, now: u64, board: &mut Autopilot) {
         let sent = board.telemetry.tx.sent_bytes();
         for &byte in sent.get(self.telemetry_read..).unwrap_or(&[]) {
             if let Some(BoardToHost::Telemetry(t)) = self.telemetry.push(byte) {
-                self.landing = t.flight_mode == protocol::FlightMode::Landing;
+                self.landing = t.flight_mode == FlightMode::Landing;
+                if t.flight_mode == FlightMode::HoverNoEstimate
+                    && now > FAULT_AT
+                    && self.hover_seen_at.is_none()
+                {
+                    self.hover_seen_at = Some(now);
+                }
             }
         }
         self.telemetry_read = sent.len();
@@ -149,6 +201,7 @@ impl Probe<Autopilot> for Pilot {
             match self.fault {
                 Fault::ImuFrozen => at.board().imu().set_frozen(true),
                 Fault::ImuUnplugged => at.board().imu().set_unplugged(true),
+                Fault::ImuReset => at.board().imu().power_reset(now),
                 Fault::BusFault => at.session.fail_next(SPI2.0, SPI2.1),
                 Fault::Panic => {
                     let flag = self.logger_taken.expect("the logger's flag");
@@ -167,13 +220,20 @@ impl Probe<Autopilot> for Pilot {
                     registers.set(Register::Cr1, cr1 & !SPI_CR1_SPE);
                 }
                 Fault::LinkCut => {}
+                Fault::CameraStopped => self.camera.stop_camera(),
             }
         }
         let board = at.board();
+        if self.fault == Fault::ImuReset && now > FAULT_AT && self.imu_back_at.is_none() {
+            let imu = board.imu();
+            if imu.awake() && imu.register(autopilot::mpu6000::GYRO_CONFIG) == 0x18 {
+                self.imu_back_at = Some(now);
+            }
+        }
         if !(self.fault == Fault::LinkCut && now >= FAULT_AT) {
             self.camera.step(now, &board.link.rx);
         }
-        if self.fault == Fault::LinkCut {
+        if matches!(self.fault, Fault::LinkCut | Fault::CameraStopped) {
             self.follow_the_landing(now, board);
         }
         self.ground.step(now, &board.telemetry.rx);
@@ -192,8 +252,13 @@ impl Probe<Autopilot> for Pilot {
             }
         }
         // Watched for long enough after the stop (a reset's reboot included).
+        let stay_off = if self.fault == Fault::ImuReset {
+            IMU_RESET_STAY_OFF
+        } else {
+            STAY_OFF
+        };
         match self.off_at {
-            Some(off) if now > off + STAY_OFF => Flow::Stop,
+            Some(off) if now > off + stay_off => Flow::Stop,
             _ => Flow::Continue,
         }
     }
@@ -212,8 +277,9 @@ fn logger_taken_flag(firmware: &Firmware) -> u64 {
 }
 
 /// Runs `fault` and checks the motors stop within `promise_ns` of it and stay stopped.
-/// Returns the outcome's report and the time to stop, ns.
-fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String, u64) {
+/// Returns the outcome's report, the time to stop, ns, and when the telemetry first reported
+/// the blind hover after the fault.
+fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String, u64, Option<u64>) {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let logger = (fault == Fault::Panic).then(|| logger_taken_flag(&firmware));
     let outcome = run(
@@ -289,7 +355,64 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
         }
         _ => outcome.assert_clean(),
     }
-    (report, took)
+    if fault == Fault::ImuReset {
+        let back = pilot.imu_back_at.unwrap_or_else(|| {
+            panic!("{fault:?}: the MPU-6000 was never configured again\n{report}")
+        });
+        println!(
+            "{fault:?}: the MPU-6000 configured again {:.1} ms after its reset (bound {:.1} ms)",
+            (back - FAULT_AT) as f64 / 1e6,
+            IMU_BACK_NS as f64 / 1e6
+        );
+        assert!(
+            back - FAULT_AT <= IMU_BACK_NS,
+            "{fault:?}: configured again after {:.1} ms\n{report}",
+            (back - FAULT_AT) as f64 / 1e6
+        );
+        // Its samples are valid again: the last two status lines (both after the chip came
+        // back) count the same rejected samples, and one re-configuration.
+        let statuses: Vec<&str> = outcome
+            .log
+            .lines()
+            .iter()
+            .map(|l| l.text.as_str())
+            .filter(|t| t.contains("status uptime_ms="))
+            .collect();
+        let field = |line: &str, key: &str| -> u64 {
+            line.split_whitespace()
+                .find_map(|f| f.strip_prefix(key).and_then(|v| v.strip_prefix('=')))
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("no {key} in {line}\n{report}"))
+        };
+        let [.., before, last] = statuses.as_slice() else {
+            panic!("{fault:?}: fewer than two status lines\n{report}");
+        };
+        assert!(
+            field(before, "uptime_ms") * MS > back + 30 * MS,
+            "{fault:?}: the status line before the last is from after the chip came back\n{report}"
+        );
+        assert_eq!(
+            field(before, "imu_invalid"),
+            field(last, "imu_invalid"),
+            "{fault:?}: samples still rejected a second after the chip came back\n{report}"
+        );
+        assert!(
+            field(last, "imu_invalid") > 0,
+            "{fault:?}: the reset's samples were rejected\n{report}"
+        );
+        // At least once: a reset that lands between a step's reads is seen, and configured
+        // for, before the chip answers again; that attempt reads back wrong and is repeated.
+        assert!(field(last, "imu_reconfigured") >= 1, "{report}");
+        assert!(
+            outcome
+                .log
+                .lines()
+                .iter()
+                .any(|l| l.text.contains("configured again, read back right: true")),
+            "{fault:?}: no re-configuration read back right\n{report}"
+        );
+    }
+    (report, took, pilot.hover_seen_at)
 }
 
 /// No valid IMU sample for this long while armed -> motors off (issue 12 item 3).
@@ -308,6 +431,14 @@ fn a_frozen_imu_stops_the_motors() {
 #[test]
 fn an_unplugged_imu_stops_the_motors() {
     fault_stops_the_motors(Fault::ImuUnplugged, imu_promise_ns(), 3.0);
+}
+
+/// The MPU-6000 resets in flight (issue 12 item 3): the IMU failsafe stops the motors within
+/// its promise, the firmware configures the chip again (it comes back asleep with its
+/// registers at their defaults), and the motors stay off without a new `Arm`.
+#[test]
+fn a_reset_imu_stops_the_motors_and_is_configured_again() {
+    fault_stops_the_motors(Fault::ImuReset, imu_promise_ns(), 5.0);
 }
 
 /// A HardFault: its handler sets every motor output to 0 first (issue 12 item 6).
@@ -343,4 +474,27 @@ fn a_cut_camera_link_lands_and_stops_the_motors() {
     let promise = autopilot::app::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     fault_stops_the_motors(Fault::LinkCut, promise, run_s);
+}
+
+/// The camera board reports its camera stopped (issue 12 item 2): the autopilot hovers blind at
+/// once, without waiting out the estimate timeout, then lands and stops the motors on
+/// touchdown. The stand-in reports at the fault; the real camera board reports within 1.2 s of
+/// its camera's last VSYNC (`tests/link.rs`), which is the camera board's promise, not this one.
+#[test]
+fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
+    let cfg = autopilot::app::AutopilotConfig::default();
+    let promise = cfg.camera_stopped_motors_off_us() * 1_000;
+    let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
+    let (report, _, hover_seen_at) = fault_stops_the_motors(Fault::CameraStopped, promise, run_s);
+    // Telemetry goes out at 10 Hz: the hover is seen within two of its periods (the mode
+    // changes at the next 50 Hz guidance step), well inside the estimate timeout.
+    let hover_by = FAULT_AT + 2 * u64::from(autopilot::app::TELEMETRY_PERIOD_US) * 1_000;
+    assert!(
+        hover_by < FAULT_AT + cfg.failsafe.estimate_timeout_us * 1_000,
+        "the bound tells the report from the timeout"
+    );
+    assert!(
+        hover_seen_at.is_some_and(|at| at <= hover_by),
+        "blind hover reported at {hover_seen_at:?} ns, expected by {hover_by}\n{report}"
+    );
 }

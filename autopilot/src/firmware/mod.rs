@@ -9,7 +9,7 @@
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
 //! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]); transmit queued frames ([`board_support::uart_tx`]) |
-//! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]), `Autopilot::on_imu`, motors |
+//! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `telemetry_uart` | position / command / parameter requests from the host (IMU samples: lockstep only) |
@@ -19,6 +19,7 @@
 //! | `baro` | 2 | its conversions (real) | MS5611 on SPI2 -> `Autopilot::on_baro` |
 //! | `telemetry` | 1 | 10 Hz | `Autopilot::telemetry` to the host |
 //! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog (lockstep), status line |
+//! | `idle` | 0 | nothing else to run | `WFI`: the core sleeps until the next interrupt (SysTick, TIM2, a UART); the watchdog, the timers and the UARTs run on in Sleep mode (RM0090 5.3.3) |
 //!
 //! No task ever waits for a UART: frames are queued whole or dropped and counted
 //! (`tx_dropped` in the status line), and the UART's interrupt sends them. A lock on a transmit
@@ -65,6 +66,8 @@ const TX_QUEUE: usize = 1024;
 static RX_LOST: AtomicU32 = AtomicU32::new(0);
 /// IMU samples rejected since boot (see [`autopilot::mpu6000`]; real flavour).
 static IMU_INVALID: AtomicU32 = AtomicU32::new(0);
+/// MPU-6000 re-configurations after a reset in flight ([`autopilot::mpu6000::Reconfigure`]).
+static IMU_RECONFIGURED: AtomicU32 = AtomicU32::new(0);
 /// Largest deviation of the control loop's start from its period, µs (real flavour).
 static LOOP_JITTER_MAX_US: AtomicU32 = AtomicU32::new(0);
 
@@ -107,10 +110,11 @@ mod app {
     use super::flavour::{self, Releases, Tick};
     use super::sensors::SensorBus;
     use super::{clock, send, ticks, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
-    use super::{HOST_FLOW, IMU_INVALID, LINK_FLOW, LOOP_JITTER_MAX_US, RC_FLOW, RX_LOST};
+    use super::{HOST_FLOW, IMU_INVALID, IMU_RECONFIGURED, LINK_FLOW, LOOP_JITTER_MAX_US};
+    use super::{RC_FLOW, RX_LOST};
     use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
     use autopilot::board::{self, hw};
-    use autopilot::mpu6000::SampleCheck;
+    use autopilot::mpu6000::{Reconfigure, SampleCheck};
     use autopilot::ms5611::{self, Calibration, Osr};
     use board_support::log;
     use board_support::uart_rx::RxFlow;
@@ -239,10 +243,18 @@ mod app {
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
         iwdg.start(board::WATCHDOG_MS.millis());
 
+        // Last, after the sensors' start-up waits: what the peers sent while the receivers
+        // were not served yet is dropped here, not counted as lost in flight (`rx_lost`).
+        let boot_bytes = board_support::uart_rx::discard_pending(&mut link_rx)
+            + board_support::uart_rx::discard_pending(&mut host_rx)
+            + rc_uart
+                .as_mut()
+                .map_or(0, board_support::uart_rx::discard_pending);
         log::info!(
-            "autopilot up, sysclk {} Hz, reset cause {}",
+            "autopilot up, sysclk {} Hz, reset cause {}, {} bytes received before the UARTs were served",
             sysclk,
-            reset_cause as u8
+            reset_cause as u8,
+            boot_bytes
         );
         defmt::info!("reset cause: {}", reset_cause);
         stereo_rx::spawn().ok();
@@ -295,6 +307,17 @@ mod app {
                 releases,
             },
         )
+    }
+
+    /// Nothing to run: sleep until an interrupt (Sleep mode: only the core's clock stops, so
+    /// the 512 Hz timer, SysTick, the UARTs and the independent watchdog keep running, and a
+    /// task that hangs still starves the watchdog's feeders). Waking costs a few cycles of the
+    /// control loop's start latency.
+    #[idle]
+    fn idle(_: idle::Context) -> ! {
+        loop {
+            cortex_m::asm::wfi();
+        }
     }
 
     /// Moves the pending bytes of a UART into its queue (pausing the interrupt at a full
@@ -391,10 +414,13 @@ mod app {
     }
 
     /// 512 Hz (real flavour): reads and checks the IMU, then attitude -> INDI -> motors. An
-    /// invalid sample is not flown on: the IMU failsafe counts from the last valid one.
+    /// invalid sample is not flown on: the IMU failsafe counts from the last valid one. A
+    /// sensor found reset (asleep) is configured again ([`Reconfigure`]); its samples count
+    /// again once it is awake, which it is only with its configuration read back right.
     #[task(binds = TIM2, priority = 5, shared = [ap, motors, sensors], local = [
         loop_timer,
         imu_check,
+        reconfigure: Reconfigure = Reconfigure::new(),
         last_start_us: Option<u64> = None,
     ])]
     fn control_loop(mut cx: control_loop::Context) {
@@ -413,9 +439,27 @@ mod app {
             .lock(|bus| bus.as_mut().map(|bus| bus.imu_read()));
         let check = &mut *cx.local.imu_check;
         let sample = match reads {
-            Some(Ok((who, pwr, data))) => check
-                .check(who, pwr, &data, protocol::WireTime(now as u32))
-                .ok(),
+            Some(Ok((who, pwr, data))) => {
+                match check.check(who, pwr, &data, protocol::WireTime(now as u32)) {
+                    Ok(sample) => Some(sample),
+                    Err(fault) => {
+                        if cx.local.reconfigure.due(fault, now) {
+                            let ok = cx
+                                .shared
+                                .sensors
+                                .lock(|bus| bus.as_mut().map(|bus| bus.imu_configure()));
+                            IMU_RECONFIGURED.store(cx.local.reconfigure.count(), Ordering::Relaxed);
+                            // Rare (a sensor reset; the motors are off by then): worth a line.
+                            defmt::warn!(
+                                "MPU-6000 found reset (PWR_MGMT_1 = {=u8:#x}): configured again, read back right: {}",
+                                pwr,
+                                matches!(ok, Some(Ok(true)))
+                            );
+                        }
+                        None
+                    }
+                }
+            }
             Some(Err(_)) => {
                 check.bus_error();
                 None
@@ -579,14 +623,23 @@ mod app {
                 return; // lockstep flavours: no bus
             }
             Mono::delay(Duration::from_ticks(ms5611::RESET_TIME_US.div_ceil(1_000))).await;
+            // One word per lock: the eight words in one go hold the bus (and so the 512 Hz
+            // loop's start) for about 300 us.
             let mut words = [0u16; 8];
-            let read = cx.shared.sensors.lock(|bus| {
-                let bus = bus.as_mut()?;
-                for (i, w) in words.iter_mut().enumerate() {
-                    *w = bus.baro_prom(i as u8).ok()?;
+            let mut read = Some(());
+            for (i, w) in words.iter_mut().enumerate() {
+                let word = cx
+                    .shared
+                    .sensors
+                    .lock(|bus| bus.as_mut().and_then(|b| b.baro_prom(i as u8).ok()));
+                match word {
+                    Some(word) => *w = word,
+                    None => {
+                        read = None;
+                        break;
+                    }
                 }
-                Some(())
-            });
+            }
             match read.map(|()| Calibration::from_prom(&words)) {
                 Some(Ok(cal)) => break cal,
                 Some(Err(e)) => defmt::error!("MS5611 PROM refused: {}", defmt::Debug2Format(&e)),
@@ -661,7 +714,7 @@ mod app {
                 )
             });
             log::info!(
-                "status uptime_ms={} stereo_rx_ok={} link_errors={} version_mismatch={} estimates={} stereo_uptime_ms={} imu_invalid={} rx_lost={} tx_dropped={} host_sensor_rejected={} arm_refused={} arm_blocked={} loop_jitter_max_us={} stack_free={}",
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} version_mismatch={} estimates={} stereo_uptime_ms={} imu_invalid={} imu_reconfigured={} rx_lost={} tx_dropped={} host_sensor_rejected={} arm_refused={} arm_blocked={} loop_jitter_max_us={} stack_free={}",
                 uptime_ms,
                 msgs,
                 errors.total(),
@@ -669,6 +722,7 @@ mod app {
                 estimates,
                 peer.unwrap_or(u32::MAX),
                 IMU_INVALID.load(Ordering::Relaxed),
+                IMU_RECONFIGURED.load(Ordering::Relaxed),
                 RX_LOST.load(Ordering::Relaxed),
                 tx_dropped,
                 flavour::HOST_SENSOR_REJECTED.load(Ordering::Relaxed),

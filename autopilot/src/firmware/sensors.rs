@@ -75,10 +75,28 @@ impl SensorBus {
         // Over SPI the register map asks for a signal-path reset after the device reset.
         self.imu_write(mpu6000::SIGNAL_PATH_RESET, 0x07)?;
         delay_ms(mpu6000::SIGNAL_PATH_RESET_WAIT_MS);
+        self.imu_configure()?;
+        self.imu_read_register(mpu6000::WHO_AM_I)
+    }
+
+    /// Writes [`mpu6000::CONFIG_SEQUENCE`] (waking the chip) and reads the configuration back.
+    /// If it does not read back as written, the chip is put back to sleep, so that its samples
+    /// stay invalid and the next [`mpu6000::Reconfigure`] tries again: awake means configured.
+    /// Returns whether it read back right. No waits: 7 writes and 3 reads of two bytes, about
+    /// 300 us at [`autopilot::board::SPI_HZ`].
+    pub fn imu_configure(&mut self) -> Result<bool, BusError> {
         for (reg, value) in mpu6000::CONFIG_SEQUENCE {
             self.imu_write(reg, value)?;
         }
-        self.imu_read_register(mpu6000::WHO_AM_I)
+        let mut values = [0u8; 3];
+        for (value, reg) in values.iter_mut().zip(mpu6000::CONFIG_READBACK) {
+            *value = self.imu_read_register(reg)?;
+        }
+        let ok = mpu6000::config_matches(values);
+        if !ok {
+            self.imu_write(mpu6000::PWR_MGMT_1, mpu6000::PWR_MGMT_1_SLEEP)?;
+        }
+        Ok(ok)
     }
 
     /// One control step's reads: `WHO_AM_I`, `PWR_MGMT_1` and the 14 data bytes.
