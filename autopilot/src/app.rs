@@ -2,9 +2,11 @@
 //! method of [`Autopilot`], and the task graph is the data in [`TASKS`].
 //!
 //! Data flow: IMU (512 Hz) -> attitude estimate -> INDI -> mixer -> motors;
-//! Edge-FS estimates -> plausibility gate -> median-5 -> velocity observer (predicting from the
-//! attitude in between; estimates taken under fast yaw are skipped) -> velocity guidance (with
-//! the avoidance FSM and the wall force field making the setpoint) -> roll/pitch setpoints;
+//! Edge-FS estimates -> velocity Kalman filter (IMU-driven model, each estimate weighted by its
+//! quality against the predicted mean over its flow window; or, as in the paper, a plausibility
+//! gate -> median-5 -> velocity observer; estimates taken under fast yaw are skipped) -> velocity
+//! guidance (with the avoidance FSM and the wall force field making the setpoint) -> roll/pitch
+//! setpoints;
 //! barometer, accelerometer and external height -> vertical estimator -> height loop -> thrust;
 //! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
@@ -22,6 +24,7 @@ use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
+use crate::velocity_kf::{Fusion, VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
@@ -167,6 +170,16 @@ pub struct AutopilotConfig {
     /// Velocity observer (prediction from the attitude, correction by the filtered Edge-FS
     /// velocity).
     pub observer: ObserverConfig,
+    /// Which velocity guidance flies on.
+    pub velocity_source: VelocitySource,
+    /// Horizontal velocity Kalman filter.
+    pub velocity_kf: VelocityKfConfig,
+    /// Time span of an Edge-FS velocity (its flow horizon), µs: each estimate is the mean
+    /// velocity over this long before its frame's capture (Edge-FS's default `horizon_s`).
+    pub estimate_horizon_us: u32,
+    /// Time an estimate spends on the link after the camera board sent it, µs (an `Estimate`
+    /// frame of ~30 bytes at 115,200 Bd; its `processing_us` covers capture to sending).
+    pub estimate_link_us: u32,
     /// Estimates are not used for the velocity while the gyro's yaw rate is above this, rad/s
     /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
     /// still count as valid for the failsafe (the camera board is alive).
@@ -211,12 +224,26 @@ impl Default for AutopilotConfig {
             max_consecutive_outliers: 3,
             velocity_max_age_us: 2_500_000,
             observer: ObserverConfig::default(),
+            velocity_source: VelocitySource::Kalman,
+            velocity_kf: VelocityKfConfig::default(),
+            estimate_horizon_us: 250_000,
+            estimate_link_us: 3_000,
             max_yaw_rate_radps: 0.6,
             yaw_settle_us: 150_000,
             gyro_calibration_samples: 256,
             gyro_calibration_still_radps: 0.1,
         }
     }
+}
+
+/// The velocity estimate guidance flies on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VelocitySource {
+    /// [`VelocityKf`]: every gated estimate, weighted by its quality, against the predicted
+    /// mean over the time window it describes.
+    Kalman,
+    /// The paper's path: median-5 of the gated estimates into the [`VelocityObserver`].
+    MedianObserver,
 }
 
 impl AutopilotConfig {
@@ -275,6 +302,8 @@ pub struct Autopilot {
     median: VelocityMedian,
     observer: VelocityObserver,
     last_fused_us: Option<u64>,
+    kf: VelocityKf,
+    last_kf_fused_us: Option<u64>,
     last_fast_yaw_us: Option<u64>,
     yaw_gated_total: u32,
     gyro_offset: Option<[f32; 3]>,
@@ -333,6 +362,8 @@ impl Autopilot {
             median: VelocityMedian::default(),
             observer: VelocityObserver::new(config.observer),
             last_fused_us: None,
+            kf: VelocityKf::new(config.velocity_kf),
+            last_kf_fused_us: None,
             last_fast_yaw_us: None,
             yaw_gated_total: 0,
             gyro_offset: None,
@@ -486,13 +517,31 @@ impl Autopilot {
         self.velocity
     }
 
-    /// The observer's `[forward, sideways]` velocity, m/s: what guidance flies on (`None`
-    /// before the first valid estimate). Between estimates it is predicted from the attitude.
+    /// The `[forward, sideways]` velocity guidance flies on, m/s, from the configured
+    /// [`VelocitySource`] (`None` before the first valid estimate). Between estimates it is
+    /// predicted from the attitude.
     pub fn velocity_estimate(&self) -> Option<[f32; 2]> {
-        self.observer.velocity()
+        match self.cfg.velocity_source {
+            VelocitySource::Kalman => self.kf.velocity(),
+            VelocitySource::MedianObserver => self.observer.velocity(),
+        }
     }
 
-    /// The velocity observer (bias, configuration).
+    /// When the velocity source last took an estimate, µs.
+    fn last_velocity_fix_us(&self) -> Option<u64> {
+        match self.cfg.velocity_source {
+            VelocitySource::Kalman => self.last_kf_fused_us,
+            VelocitySource::MedianObserver => self.last_fused_us,
+        }
+    }
+
+    /// The horizontal velocity Kalman filter.
+    pub fn velocity_kf(&self) -> &VelocityKf {
+        &self.kf
+    }
+
+    /// The velocity observer of the paper's path (bias, configuration); it runs only when
+    /// [`AutopilotConfig::velocity_source`] is [`VelocitySource::MedianObserver`].
     pub fn observer(&self) -> &VelocityObserver {
         &self.observer
     }
@@ -624,7 +673,12 @@ impl Autopilot {
         let [roll, pitch, _] = q.to_euler();
         self.vertical
             .predict(vertical_acceleration(imu.accel_mps2, q), dt);
-        self.observer.predict(roll, pitch, gyro[2], dt, now_us);
+        match self.cfg.velocity_source {
+            VelocitySource::Kalman => self.kf.predict(roll, pitch, gyro[2], dt, now_us),
+            VelocitySource::MedianObserver => {
+                self.observer.predict(roll, pitch, gyro[2], dt, now_us)
+            }
+        }
         if gyro[2].abs() > self.cfg.max_yaw_rate_radps {
             self.last_fast_yaw_us = Some(now_us);
         }
@@ -721,6 +775,21 @@ impl Autopilot {
                 self.last_valid_estimate_us = Some(now_us);
                 return;
             }
+            // The Kalman filter has its own innovation gate; it takes the estimate as the mean
+            // velocity over the flow horizon that ended at the frame's capture.
+            let end = now_us
+                .saturating_sub(u64::from(est.processing_us))
+                .saturating_sub(u64::from(self.cfg.estimate_link_us));
+            let start = end.saturating_sub(u64::from(self.cfg.estimate_horizon_us));
+            if self.cfg.velocity_source == VelocitySource::Kalman
+                && matches!(
+                    self.kf
+                        .correct([est.forward_mps, est.sideways_mps], est.quality, start, end),
+                    Fusion::Fused | Fusion::Initialised
+                )
+            {
+                self.last_kf_fused_us = Some(now_us);
+            }
             let jump = self.cfg.max_velocity_jump_mps;
             let outlier = match self.median.output() {
                 Some([f, s]) => {
@@ -746,7 +815,9 @@ impl Autopilot {
             }
             self.outliers_in_a_row = 0;
             self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
-            if let Some(v) = self.velocity {
+            if let (Some(v), VelocitySource::MedianObserver) =
+                (self.velocity, self.cfg.velocity_source)
+            {
                 self.observer.correct(v, now_us);
                 self.last_fused_us = Some(now_us);
             }
@@ -858,8 +929,11 @@ impl Autopilot {
         let mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
             if mode == FlightMode::Disarmed {
-                // Standing on the floor: the barometer's reading now is its offset.
+                // Standing on the floor: the barometer's reading now is its offset, and the
+                // drone is not moving whatever the camera makes of a blank wall.
                 self.vertical.on_ground();
+                self.kf.hold_still(now_us);
+                self.last_kf_fused_us = Some(now_us);
             }
             self.height.reset_integral();
             self.guidance.reset();
@@ -871,10 +945,10 @@ impl Autopilot {
             return;
         }
         let yaw = self.att.euler()[2];
-        let velocity_fresh = matches!(self.last_fused_us,
+        let velocity_fresh = matches!(self.last_velocity_fix_us(),
             Some(t) if now_us.saturating_sub(t) <= self.cfg.velocity_max_age_us);
         let velocity = if velocity_fresh {
-            self.observer.velocity()
+            self.velocity_estimate()
         } else {
             None
         };
@@ -999,7 +1073,7 @@ impl Autopilot {
             fsm_state: self.fsm_active.then(|| self.fsm.state()),
             flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),
-            velocity_mps: self.observer.velocity().unwrap_or([0.0; 2]),
+            velocity_mps: self.velocity_estimate().unwrap_or([0.0; 2]),
             velocity_setpoint_mps: self.sp.velocity_mps,
             obstacle_m: self.obstacle.and_then(|o| o.distance_m),
             height_m: self.height.height_m(),

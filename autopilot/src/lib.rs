@@ -12,6 +12,8 @@
 //!   barometer and an external height fix (a Kalman filter); the height loop flies on it.
 //! * [`median`]: median-5 over the Edge-FS velocities.
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
+//! * [`velocity_kf`]: horizontal velocity Kalman filter (IMU-driven model, Edge-FS
+//!   measurements weighted by quality at the time window they describe).
 //! * [`force_field`]: backward velocity near walls.
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
@@ -43,6 +45,7 @@ pub mod mpu6000;
 pub mod ms5611;
 pub mod params;
 pub mod rc;
+pub mod velocity_kf;
 pub mod vertical;
 
 pub use app::{ArmBlock, Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};

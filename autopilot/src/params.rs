@@ -3,7 +3,8 @@
 //! ([`validate`]).
 //!
 //! Array fields appear once per axis (`indi_kp_p`, `indi_kp_q`, `indi_kp_r`); durations are
-//! `u32` microseconds; `fsm_variant` is 0 (the paper's FSM) or 1 (turn until clear). The
+//! `u32` microseconds; `fsm_variant` is 0 (the paper's FSM) or 1 (turn until clear);
+//! `velocity_source` is 0 (the Kalman filter) or 1 (the paper's median-5 and observer). The
 //! defaults are [`AutopilotConfig::default`]'s. `indi_rate_hz` is read-only: the loop runs at
 //! the IMU's [`crate::board::LOOP_RATE_HZ`] whatever it says.
 //!
@@ -12,7 +13,7 @@
 //! values); anything else is rejected with the parameter and the reason ([`Rejected`]), and
 //! nothing changes.
 
-use crate::app::AutopilotConfig;
+use crate::app::{AutopilotConfig, VelocitySource};
 use crate::fsm::FsmVariant;
 use crate::guidance::MAX_MEASUREMENT_DELAY_US;
 use protocol::{ParamEntry, ParamError, ParamKind, ParamName, ParamSpec, ParamUnit, ParamValue};
@@ -75,6 +76,22 @@ impl Field for FsmVariant {
         match v {
             ParamValue::U32(0) => Some(FsmVariant::Paper),
             ParamValue::U32(1) => Some(FsmVariant::TurnUntilClear),
+            _ => None,
+        }
+    }
+}
+
+impl Field for VelocitySource {
+    fn value(self) -> ParamValue {
+        ParamValue::U32(match self {
+            VelocitySource::Kalman => 0,
+            VelocitySource::MedianObserver => 1,
+        })
+    }
+    fn from_value(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::U32(0) => Some(VelocitySource::Kalman),
+            ParamValue::U32(1) => Some(VelocitySource::MedianObserver),
             _ => None,
         }
     }
@@ -214,6 +231,19 @@ table! {
     "obs_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.observer.max_bias_mps2;
     "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY_US, true => |c| c.observer.measurement_delay_us;
     "obs_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.observer.max_tilt_rad;
+    "velocity_source": U32 ["enum"] 0, 1, true => |c| c.velocity_source;
+    "vkf_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.velocity_kf.drag_per_s;
+    "vkf_accel_noise": F32 ["m/s2"] 0.001, 10.0, true => |c| c.velocity_kf.accel_noise;
+    "vkf_bias_walk": F32 ["m/s2"] 0.0, 1.0, true => |c| c.velocity_kf.bias_walk;
+    "vkf_bias_sigma0": F32 ["m/s2"] 0.001, 5.0, true => |c| c.velocity_kf.initial_bias_sigma;
+    "vkf_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.velocity_kf.max_bias_mps2;
+    "vkf_sigma_best": F32 ["m/s"] 0.001, 2.0, true => |c| c.velocity_kf.sigma_best_mps;
+    "vkf_min_quality": U32 ["-"] 1, 255, true => |c| c.velocity_kf.min_quality;
+    "vkf_gate_sigmas": F32 ["-"] 1.0, 100.0, true => |c| c.velocity_kf.gate_sigmas;
+    "vkf_reinit_after": U32 ["-"] 1, 50, true => |c| c.velocity_kf.reinit_after;
+    "vkf_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.velocity_kf.max_tilt_rad;
+    "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimate_horizon_us;
+    "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimate_link_us;
     "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.max_yaw_rate_radps;
     "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
     "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;

@@ -14,7 +14,7 @@ use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
 use crate::sim::suite::{self, FlightFigures, RoomClass, SuiteRoom};
 use crate::sim::uart::LinkFaults;
-use autopilot::app::AutopilotConfig;
+use autopilot::app::{AutopilotConfig, VelocitySource};
 use autopilot::fsm::FsmVariant;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -29,6 +29,15 @@ pub enum FsmArg {
     Paper,
     /// Check and turn merged: keep turning until the way ahead is clear.
     Improved,
+}
+
+/// The autopilot's horizontal velocity estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum VelocityArg {
+    /// The Kalman filter (IMU model, every estimate weighted by quality, delays modelled).
+    Kalman,
+    /// The paper's median-5 of the estimates into the velocity observer.
+    Median,
 }
 
 /// Output format of the summary.
@@ -71,6 +80,10 @@ pub struct FlyArgs {
     /// Avoidance FSM (default: the parameter file's `fsm_variant`, else paper).
     #[arg(long, value_enum)]
     pub fsm: Option<FsmArg>,
+    /// Velocity estimate guidance flies on (default: the parameter file's
+    /// `velocity_source`, else the Kalman filter).
+    #[arg(long, value_enum)]
+    pub velocity: Option<VelocityArg>,
     /// Autopilot parameters (TOML, `[autopilot]` table keyed by the names of
     /// `sim-host param list`; see docs/parameters.md) over the defaults.
     #[arg(long)]
@@ -191,6 +204,13 @@ impl FlyArgs {
         }
         cfg.camera.fps = self.fps;
         cfg.camera.misalign_px = self.misalign_px;
+        match self.velocity {
+            Some(VelocityArg::Kalman) => cfg.autopilot.velocity_source = VelocitySource::Kalman,
+            Some(VelocityArg::Median) => {
+                cfg.autopilot.velocity_source = VelocitySource::MedianObserver
+            }
+            None => {}
+        }
         cfg
     }
 }
