@@ -18,6 +18,10 @@
 //! attitude and the yaw rate between vision measurements and corrects it with them, so the
 //! loop keeps braking through fast yaw (when Edge-FS is unreliable) and short link outages.
 
+use crate::velocity_model::{
+    heading_frame_step, tilt_acceleration, VelocityHistory, HISTORY_SPACING_US,
+};
+
 /// Velocity loop tunables.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GuidanceConfig {
@@ -170,10 +174,8 @@ impl Default for ObserverConfig {
     }
 }
 
-/// Slots of the observer's history (one every [`HISTORY_SPACING_US`]).
+/// Slots of the observer's history (one every [`HISTORY_SPACING_US`]: 32 x 6 ms, 192 ms back).
 const HISTORY_LEN: usize = 32;
-/// Spacing of the history entries, µs (32 x 6 ms: 192 ms back).
-const HISTORY_SPACING_US: u64 = 6_000;
 /// Longest [`ObserverConfig::measurement_delay_us`] the history reaches back to, µs.
 pub const MAX_MEASUREMENT_DELAY_US: u32 = ((HISTORY_LEN as u64 - 1) * HISTORY_SPACING_US) as u32;
 
@@ -196,9 +198,7 @@ pub struct VelocityObserver {
     v: [f32; 2],
     bias: [f32; 2],
     initialised: bool,
-    history: [(u64, [f32; 2]); HISTORY_LEN],
-    head: usize,
-    last_record_us: Option<u64>,
+    history: VelocityHistory<HISTORY_LEN>,
 }
 
 impl VelocityObserver {
@@ -214,9 +214,7 @@ impl VelocityObserver {
             v: [0.0; 2],
             bias: [0.0; 2],
             initialised: false,
-            history: [(0, [0.0; 2]); HISTORY_LEN],
-            head: 0,
-            last_record_us: None,
+            history: VelocityHistory::new(),
         }
     }
 
@@ -250,59 +248,23 @@ impl VelocityObserver {
         }
         let dt = dt.clamp(0.0, 0.05);
         if self.initialised {
-            let lim = self.cfg.max_tilt_rad.abs();
-            let (r, p) = (roll.clamp(-lim, lim), pitch.clamp(-lim, lim));
-            let g = crate::attitude::GRAVITY;
-            // tan p = sp / cp and tan r / cos p = sr / (cr cp), from the single-precision
-            // `sin_cos` (libm's tanf/cosf run f64 kernels: software on the M4). The cosines
-            // are kept away from 0 (only reachable with a tilt limit near pi/2), keeping
-            // their sign as tan does.
-            let (sr, cr) = crate::attitude::sin_cos(r);
-            let (sp, cp) = crate::attitude::sin_cos(p);
-            let (cr, cp) = (away_from_zero(cr), away_from_zero(cp));
-            let a = [
-                -g * (sp / cp) + self.bias[0],
-                g * (sr / (cr * cp)) + self.bias[1],
-            ];
-            let k = self.cfg.drag_per_s.max(0.0);
-            let [vf, vs] = self.v;
-            let w = yaw_rate.clamp(-20.0, 20.0);
-            let nv = [
-                vf + (a[0] - k * vf + w * vs) * dt,
-                vs + (a[1] - k * vs - w * vf) * dt,
-            ];
-            if nv.iter().all(|x| x.is_finite()) {
-                self.v = [nv[0].clamp(-10.0, 10.0), nv[1].clamp(-10.0, 10.0)];
+            let [ax, ay] = tilt_acceleration(roll, pitch, self.cfg.max_tilt_rad);
+            let a = [ax + self.bias[0], ay + self.bias[1]];
+            if let Some(v) = heading_frame_step(self.v, a, self.cfg.drag_per_s, yaw_rate, dt) {
+                self.v = v;
             }
         }
-        self.record(now_us);
-    }
-
-    fn record(&mut self, now_us: u64) {
-        let due = match self.last_record_us {
-            Some(t) => now_us.saturating_sub(t) >= HISTORY_SPACING_US || now_us < t,
-            None => true,
-        };
-        if due {
-            self.last_record_us = Some(now_us);
-            self.head = (self.head + 1) % HISTORY_LEN;
-            if let Some(slot) = self.history.get_mut(self.head) {
-                *slot = (now_us, self.v);
-            }
-        }
+        self.history.record(now_us, self.v);
     }
 
     /// The prediction as it was at `t_us` (the newest recorded one not after it; the oldest
     /// held when the history does not reach back that far).
     fn predicted_at(&self, t_us: u64) -> [f32; 2] {
         let mut best = self.v;
-        for i in 0..HISTORY_LEN {
-            let idx = (self.head + HISTORY_LEN - i) % HISTORY_LEN;
-            if let Some(&(t, v)) = self.history.get(idx) {
-                best = v;
-                if t <= t_us {
-                    break;
-                }
+        for (t, v) in self.history.newest_first() {
+            best = v;
+            if t <= t_us {
+                break;
             }
         }
         best
@@ -318,8 +280,7 @@ impl VelocityObserver {
         if !self.initialised {
             self.initialised = true;
             self.v = measured;
-            self.history = [(now_us, measured); HISTORY_LEN];
-            self.last_record_us = Some(now_us);
+            self.history.fill(now_us, measured, now_us);
             return;
         }
         let then = self.predicted_at(now_us.saturating_sub(self.cfg.measurement_delay_us as u64));
@@ -331,21 +292,9 @@ impl VelocityObserver {
             self.v[i] += dv;
             // The history moves with the correction, so the next innovation does not count
             // this one again.
-            for h in self.history.iter_mut() {
-                h.1[i] += dv;
-            }
+            self.history.shift(i, dv);
             self.bias[i] = (self.bias[i] + self.cfg.bias_gain * e).clamp(-blim, blim);
         }
-    }
-}
-
-/// `c` with its magnitude at least `1e-6` (sign kept; NaN stays NaN): a divisor for `tan`.
-fn away_from_zero(c: f32) -> f32 {
-    const MIN: f32 = 1e-6;
-    if c.abs() < MIN {
-        MIN.copysign(c)
-    } else {
-        c
     }
 }
 
@@ -527,11 +476,6 @@ mod tests {
         o.correct([0.0, 0.0], 0);
         o.predict(2.0, -2.0, 0.0, dt, 50_000);
         assert_eq!(o.velocity(), Some([-10.0, 10.0]));
-        assert_eq!(away_from_zero(0.0), 1e-6);
-        assert_eq!(away_from_zero(-0.0), -1e-6);
-        assert_eq!(away_from_zero(-1e-9), -1e-6);
-        assert_eq!(away_from_zero(0.5), 0.5);
-        assert!(away_from_zero(f32::NAN).is_nan());
     }
 
     #[test]

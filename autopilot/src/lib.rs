@@ -14,6 +14,8 @@
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
 //! * [`velocity_kf`]: horizontal velocity Kalman filter (IMU-driven model, Edge-FS
 //!   measurements weighted by quality at the time window they describe).
+//! * [`velocity_model`]: the horizontal model and prediction history both velocity estimators
+//!   share.
 //! * [`force_field`]: backward velocity near walls.
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
@@ -46,6 +48,7 @@ pub mod ms5611;
 pub mod params;
 pub mod rc;
 pub mod velocity_kf;
+pub mod velocity_model;
 pub mod vertical;
 
 pub use app::{ArmBlock, Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};

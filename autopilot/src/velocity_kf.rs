@@ -26,7 +26,9 @@
 //! mean the filter, not the camera, is wrong (a wrong prior after a long gap), and it restarts
 //! from the measurement.
 
-use crate::attitude::{sin_cos, GRAVITY};
+use crate::velocity_model::{
+    heading_frame_step, tilt_acceleration, VelocityHistory, MAX_SPEED_MPS,
+};
 
 /// Tunables of [`VelocityKf`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -84,13 +86,9 @@ pub enum Fusion {
     Ignored,
 }
 
-/// History slots (one every [`HISTORY_SPACING_US`]): 64 x 6 ms reach 384 ms back, the
+/// History slots (one every 6 ms): 64 reach 384 ms back, the
 /// default horizon plus processing and link with room to spare.
 const HISTORY_LEN: usize = 64;
-/// Spacing of the history entries, µs.
-const HISTORY_SPACING_US: u64 = 6_000;
-/// Velocity magnitude the filter never exceeds, m/s.
-const MAX_SPEED_MPS: f32 = 10.0;
 
 /// The filter. Fixed size, no heap.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -101,9 +99,7 @@ pub struct VelocityKf {
     /// Shared covariance of (v, b): [p_vv, p_vb, p_bb].
     p: [f32; 3],
     initialised: bool,
-    history: [(u64, [f32; 2]); HISTORY_LEN],
-    head: usize,
-    last_record_us: Option<u64>,
+    history: VelocityHistory<HISTORY_LEN>,
     rejected_in_a_row: u8,
     last_rejected: [f32; 2],
     rejected_total: u32,
@@ -119,9 +115,7 @@ impl VelocityKf {
             bias: [0.0; 2],
             p: [1.0, 0.0, sb * sb],
             initialised: false,
-            history: [(0, [0.0; 2]); HISTORY_LEN],
-            head: 0,
-            last_record_us: None,
+            history: VelocityHistory::new(),
             rejected_in_a_row: 0,
             last_rejected: [0.0; 2],
             rejected_total: 0,
@@ -170,8 +164,7 @@ impl VelocityKf {
         self.p[1] = 0.0;
         self.initialised = true;
         // Held since forever, as far as any later window is concerned.
-        self.history = [(0, [0.0; 2]); HISTORY_LEN];
-        self.last_record_us = Some(now_us);
+        self.history.fill(0, [0.0; 2], now_us);
         self.rejected_in_a_row = 0;
     }
 
@@ -183,24 +176,11 @@ impl VelocityKf {
         }
         let dt = dt.clamp(0.0, 0.05);
         if self.initialised {
-            let lim = self.cfg.max_tilt_rad.abs();
-            let (sr, cr) = sin_cos(roll.clamp(-lim, lim));
-            let (sp, cp) = sin_cos(pitch.clamp(-lim, lim));
-            // |tilt| <= max_tilt < pi/2 keeps both cosines well away from zero.
-            let (cr, cp) = (cr.max(0.1), cp.max(0.1));
-            let a = [
-                -GRAVITY * (sp / cp) + self.bias[0],
-                GRAVITY * (sr / (cr * cp)) + self.bias[1],
-            ];
+            let [ax, ay] = tilt_acceleration(roll, pitch, self.cfg.max_tilt_rad);
+            let a = [ax + self.bias[0], ay + self.bias[1]];
             let k = self.cfg.drag_per_s.max(0.0);
-            let w = yaw_rate.clamp(-20.0, 20.0);
-            let [vf, vs] = self.v;
-            let nv = [
-                vf + (a[0] - k * vf + w * vs) * dt,
-                vs + (a[1] - k * vs - w * vf) * dt,
-            ];
-            if nv.iter().all(|x| x.is_finite()) {
-                self.v = nv.map(|x| x.clamp(-MAX_SPEED_MPS, MAX_SPEED_MPS));
+            if let Some(v) = heading_frame_step(self.v, a, k, yaw_rate, dt) {
+                self.v = v;
             }
             // P <- F P F' + Q with F = [[1 - k dt, dt], [0, 1]].
             let f00 = 1.0 - k * dt;
@@ -211,21 +191,7 @@ impl VelocityKf {
             let n_vv = f00 * (f00 * pvv + dt * pvb) + dt * n_vb + qa;
             self.p = [n_vv.min(100.0), n_vb, (pbb + qb).min(100.0)];
         }
-        self.record(now_us);
-    }
-
-    fn record(&mut self, now_us: u64) {
-        let due = match self.last_record_us {
-            Some(t) => now_us.saturating_sub(t) >= HISTORY_SPACING_US || now_us < t,
-            None => true,
-        };
-        if due {
-            self.last_record_us = Some(now_us);
-            self.head = (self.head + 1) % HISTORY_LEN;
-            if let Some(slot) = self.history.get_mut(self.head) {
-                *slot = (now_us, self.v);
-            }
-        }
+        self.history.record(now_us, self.v);
     }
 
     /// Mean of the recorded prediction over `[start_us, end_us]` (the entries inside it, or the
@@ -236,11 +202,7 @@ impl VelocityKf {
         let mut n = 0u32;
         let mut newest_before: Option<[f32; 2]> = None;
         let mut reaches_back = false;
-        for i in 0..HISTORY_LEN {
-            let idx = (self.head + HISTORY_LEN - i) % HISTORY_LEN;
-            let Some(&(t, v)) = self.history.get(idx) else {
-                continue;
-            };
+        for (t, v) in self.history.newest_first() {
             if t > end_us {
                 continue;
             }
@@ -320,9 +282,7 @@ impl VelocityKf {
         for (i, &ei) in e.iter().enumerate() {
             let dv = kv * ei;
             self.v[i] = (self.v[i] + dv).clamp(-MAX_SPEED_MPS, MAX_SPEED_MPS);
-            for h in self.history.iter_mut() {
-                h.1[i] += dv;
-            }
+            self.history.shift(i, dv);
             self.bias[i] = (self.bias[i] + kb * ei).clamp(-blim, blim);
         }
         // P <- (I - K H) P, H = [1, 0].
@@ -337,8 +297,7 @@ impl VelocityKf {
         self.p[1] = 0.0;
         self.initialised = true;
         // The best knowledge of any earlier window is the measurement itself.
-        self.history = [(0, self.v); HISTORY_LEN];
-        self.last_record_us = Some(at_us);
+        self.history.fill(0, self.v, at_us);
         self.rejected_in_a_row = 0;
     }
 }
@@ -347,6 +306,7 @@ impl VelocityKf {
 mod tests {
     extern crate std;
     use super::*;
+    use crate::attitude::GRAVITY;
 
     const DT_US: u64 = 1_953; // 512 Hz
 
