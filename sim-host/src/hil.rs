@@ -78,6 +78,17 @@ pub trait Link: Read + Write + Send {
     fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>>;
 }
 
+/// A read error that only means "nothing yet" (a serial port's read timeout, a non-blocking
+/// socket, a signal): the reader tries again instead of closing the link.
+pub fn is_transient_read_error(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock
+            | std::io::ErrorKind::TimedOut
+            | std::io::ErrorKind::Interrupted
+    )
+}
+
 impl Link for std::net::TcpStream {
     fn try_clone_link(&self) -> std::io::Result<Box<dyn Link>> {
         Ok(Box::new(self.try_clone()?))
@@ -428,13 +439,7 @@ fn read_chunks(
                         break;
                     }
                 }
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock
-                            | std::io::ErrorKind::TimedOut
-                            | std::io::ErrorKind::Interrupted
-                    ) => {}
+                Err(e) if is_transient_read_error(&e) => {}
                 Err(_) => break,
             }
         }

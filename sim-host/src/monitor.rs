@@ -417,16 +417,7 @@ fn reader(mut link: Box<dyn Link>, tx: mpsc::Sender<Received>) {
         let r = match link.read(&mut buf) {
             Ok(0) => Received::Closed,
             Ok(n) => Received::Bytes(buf[..n].to_vec()),
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::Interrupted
-                ) =>
-            {
-                continue
-            }
+            Err(e) if crate::hil::is_transient_read_error(&e) => continue,
             Err(e) => Received::Failed(e),
         };
         let last = !matches!(r, Received::Bytes(_));

@@ -163,13 +163,7 @@ impl ParamClient {
                             return;
                         }
                     }
-                    Err(e)
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::TimedOut
-                                | std::io::ErrorKind::WouldBlock
-                                | std::io::ErrorKind::Interrupted
-                        ) => {}
+                    Err(e) if crate::hil::is_transient_read_error(&e) => {}
                     Err(_) => return,
                 }
             }
