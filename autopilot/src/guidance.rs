@@ -1,5 +1,6 @@
-//! Velocity guidance: a body-velocity setpoint and the median-filtered Edge-FS velocity become
-//! roll and pitch setpoints.
+//! Velocity guidance: a body-velocity setpoint and the estimated body velocity (the velocity
+//! Kalman filter's by default, the median-5 observer's in paper mode) become roll and pitch
+//! setpoints.
 //!
 //! One PI per horizontal body axis, output an angle, bank-limited to
 //! [`GuidanceConfig::max_bank_rad`] (15 deg by default). Signs (body x forward, y right, z down,

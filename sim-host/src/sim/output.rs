@@ -236,7 +236,7 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Estimated (median-filtered: solid, raw Edge-FS: dots) vs true (black) velocity over time,
+/// Estimated (the autopilot's velocity estimate: solid, raw Edge-FS: dots) vs true (black) velocity over time,
 /// forward on top, sideways below; grid 1 s x 0.1 m/s.
 pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let t_end = r.log.last().map(|l| l.t_s).unwrap_or(1.0).max(1.0);
@@ -280,7 +280,7 @@ pub fn plot_velocity(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         chart
             .draw_series(LineSeries::new(series(&|l| l.vel_est[axis]), BLUE))
             .map_err(|e| anyhow::anyhow!("{e:?}"))?
-            .label("median-5 estimate")
+            .label("estimate")
             .legend(line_key(BLUE));
         chart
             .draw_series(LineSeries::new(series(&|l| l.vel_true[axis]), BLACK))
