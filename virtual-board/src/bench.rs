@@ -11,7 +11,7 @@
 
 use std::sync::{Arc, Condvar, Mutex};
 
-use rigless::emulator::{self, Driver, Host, Settled, Start, Stop, Watch};
+use rigless::emulator::{self, Driver, Hit, Host, Settled, Start, Stop, Watch};
 use rigless::machine::Board;
 use rigless::mcu::Mcu;
 use rigless::session::Session;
@@ -68,6 +68,13 @@ impl<B: BenchBoard> At<'_, B> {
 pub trait Probe<B: BenchBoard>: Send + 'static {
     /// Called at every stop; says whether to go on.
     fn at(&mut self, at: &mut At<'_, B>) -> Flow;
+
+    /// Called at every hit on what the test itself watches (`session.watch`), between two
+    /// instructions, with the core's memory: a fault injected at an exact instruction. Nothing
+    /// by default.
+    fn hit(&mut self, hit: &Hit, session: &mut Session<B>, host: &mut dyn Host) {
+        let _ = (hit, session, host);
+    }
 }
 
 /// A closure as a probe.
@@ -265,7 +272,7 @@ struct BenchDriver<B: BenchBoard, P> {
 const MAX_VIOLATIONS: usize = 20;
 
 impl<B: BenchBoard, P: Probe<B>> Driver<B> for BenchDriver<B, P> {
-    fn on_settled(&mut self, session: &mut Session<B>, _host: &mut dyn Host, settled: Settled) {
+    fn on_settled(&mut self, session: &mut Session<B>, host: &mut dyn Host, settled: Settled) {
         match settled {
             Settled::Access { access, .. } => {
                 let soc = session.board().soc();
@@ -303,6 +310,8 @@ impl<B: BenchBoard, P: Probe<B>> Driver<B> for BenchDriver<B, P> {
                         at_ns: hit.at.0,
                         handler: name.clone(),
                     });
+                } else {
+                    self.probe.hit(&hit, session, host);
                 }
             }
             _ => {}
@@ -356,12 +365,15 @@ pub struct Setup<B: BenchBoard, P> {
     pub probe: P,
 }
 
+/// A run ready to start: the session, its driver, the image.
+type Prepared<B, P> = (Session<B>, BenchDriver<B, P>, Firmware);
+
 fn prepare<B: BenchBoard, P: Probe<B>>(
     setup: Setup<B, P>,
     options: Options,
     lockstep: Option<Arc<Lockstep>>,
     on_barrier: Vec<Arc<dyn OnBarrier>>,
-) -> Result<(Session<B>, BenchDriver<B, P>, Firmware), String> {
+) -> Result<Prepared<B, P>, String> {
     let Setup {
         board,
         firmware,

@@ -170,9 +170,9 @@ struct Stream {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Phase {
-    BeforeFrame,
-    InFrame,
-    AfterFrame,
+    Before,
+    Within,
+    After,
 }
 
 impl Stream {
@@ -396,10 +396,7 @@ impl Dcmi {
             // Not streaming: a stream starts at a sample that finds the camera set up.
             self.stream = self.next_stream(now, registers);
         }
-        loop {
-            let Some(stream) = self.stream.take() else {
-                break;
-            };
+        while let Some(stream) = self.stream.take() {
             if !self.camera_runs() {
                 break;
             }
@@ -432,11 +429,11 @@ impl Dcmi {
     ) -> Result<Stream, Option<Stream>> {
         let enabled = self.enabled(registers);
         match s.phase {
-            Phase::BeforeFrame => {
+            Phase::Before => {
                 if s.at(s.frame_start) > now {
                     return Err(Some(s));
                 }
-                s.phase = Phase::InFrame;
+                s.phase = Phase::Within;
                 self.capture.line = 0;
                 self.packing = (0, 0);
                 let control = Self::cr(registers);
@@ -451,14 +448,14 @@ impl Dcmi {
                         1 => 2,
                         _ => 4,
                     };
-                    self.capture.active = self.capture.counted % every == 0;
+                    self.capture.active = self.capture.counted.is_multiple_of(every);
                     self.capture.counted += 1;
                 } else {
                     self.capture.counted = 0;
                 }
                 Ok(s)
             }
-            Phase::InFrame => {
+            Phase::Within => {
                 if let Some(line) = s.lines.get(s.line) {
                     let due = s.clocks_by(now).saturating_sub(line.start);
                     let upto = usize::try_from(due)
@@ -509,10 +506,10 @@ impl Dcmi {
                 if self.capture.active {
                     self.frame_captured(s.index, registers, context);
                 }
-                s.phase = Phase::AfterFrame;
+                s.phase = Phase::After;
                 Ok(s)
             }
-            Phase::AfterFrame => {
+            Phase::After => {
                 let next = s.at(s.period);
                 if next > now {
                     return Err(Some(s));
@@ -555,8 +552,8 @@ impl Dcmi {
         let now = context.now();
         let at = match &self.stream {
             Some(s) => match s.phase {
-                Phase::BeforeFrame => s.at(s.frame_start),
-                Phase::InFrame => match s.lines.get(s.line) {
+                Phase::Before => s.at(s.frame_start),
+                Phase::Within => match s.lines.get(s.line) {
                     Some(line) => {
                         let end = line.bytes.len();
                         let chunk = if self.capture.active {
@@ -570,7 +567,7 @@ impl Dcmi {
                     }
                     None => s.at(s.frame_end),
                 },
-                Phase::AfterFrame => s.at(s.period),
+                Phase::After => s.at(s.period),
             },
             None => match &self.camera {
                 Some(camera) if !camera.stopped => {
@@ -590,7 +587,7 @@ impl Dcmi {
 
     fn status(&self, now: VirtualNanos) -> u64 {
         let (hsync, vsync) = match &self.stream {
-            Some(s) if s.phase == Phase::InFrame => {
+            Some(s) if s.phase == Phase::Within => {
                 let c = s.clocks_by(now);
                 let in_line = s
                     .lines
@@ -703,7 +700,7 @@ fn build_stream(
         frame_start,
         frame_end,
         lines,
-        phase: Phase::BeforeFrame,
+        phase: Phase::Before,
         line: 0,
         byte: 0,
     }
@@ -761,14 +758,12 @@ impl Device for Dcmi {
                 registers.set(Register::Ris, kept);
                 registers.set(Register::Icr, 0);
             }
-            Register::Cr => {
-                if !cr::ENABLE.is_set(value) {
-                    // Disabled: the FIFO and the capture in progress are dropped.
-                    self.fifo.clear();
-                    self.packing = (0, 0);
-                    self.capture = Capture::default();
-                    self.refresh_request(context);
-                }
+            // Disabled: the FIFO and the capture in progress are dropped.
+            Register::Cr if !cr::ENABLE.is_set(value) => {
+                self.fifo.clear();
+                self.packing = (0, 0);
+                self.capture = Capture::default();
+                self.refresh_request(context);
             }
             _ => {}
         }
@@ -890,8 +885,10 @@ mod tests {
         fn new(frames: usize, fps: u8, format: u8, control: u64) -> Self {
             let sensor = SensorHandle::new();
             let images = (0..frames as u32).map(scene).collect();
-            let mut dcmi = Dcmi::default();
-            dcmi.camera = Some(Camera::new(sensor.clone(), Box::new(Recorded::new(images))));
+            let dcmi = Dcmi {
+                camera: Some(Camera::new(sensor.clone(), Box::new(Recorded::new(images)))),
+                ..Dcmi::default()
+            };
             let single = Single::new(builder(), "DCMI", dcmi).expect("the DCMI slot");
             let mut b = Self {
                 single,

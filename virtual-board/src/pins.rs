@@ -2,7 +2,7 @@
 //!
 //! Each row is one pin the board's wiring gives a job, with the configuration that job needs
 //! (RM0090 section 8.3: mode, alternate function per the datasheet's table 9, pull, output
-//! type). [`check`] reads every port of a running part and reports each pin configured unlike
+//! type where the board needs one). [`check`] reads every port of a running part and reports each pin configured unlike
 //! its row, each row not configured at all, and each pin outside the table that the firmware
 //! drives (output or alternate function) or otherwise moved from its reset state.
 
@@ -49,6 +49,9 @@ pub struct Wired {
     pub mode: Mode,
     /// The pull it needs (`None`: the sources leave it open, any pull is accepted).
     pub pull: Option<Pull>,
+    /// Whether its output is open drain (`Some(true)`) or push-pull (`Some(false)`); `None`:
+    /// the sources leave it open, either is accepted.
+    pub open_drain: Option<bool>,
     /// Whether it may stay unconfigured (at reset) without failing the check: an LED, a
     /// spare UART.
     pub optional: bool,
@@ -141,6 +144,18 @@ pub fn check(soc: &Soc, table: &[Wired]) -> Vec<String> {
                 row.function,
                 now.pull,
                 pull
+            ));
+        }
+        if let Some(open_drain) = row.open_drain
+            && now.open_drain != open_drain
+        {
+            let kind = |od: bool| if od { "open drain" } else { "push-pull" };
+            problems.push(format!(
+                "{} ({}): {}, the board needs {}",
+                name(row.port, row.pin),
+                row.function,
+                kind(now.open_drain),
+                kind(open_drain)
             ));
         }
     }

@@ -264,7 +264,7 @@ impl Soc {
             part,
             mcu,
             exti: Exti::default(),
-            syscfg: Syscfg::default(),
+            syscfg: Syscfg,
             dcmi: Dcmi::default(),
             clock_timer: None,
             slots,

@@ -448,7 +448,6 @@ impl SensorHandle {
     ///
     /// # Panics
     /// Only if a thread panicked while holding the lock (the bench is single-threaded).
-    #[must_use]
     pub fn lock(&self) -> MutexGuard<'_, Sensor> {
         self.0.lock().expect("the sensor lock is never poisoned")
     }

@@ -46,7 +46,7 @@ enum Fault {
     ImuFrozen,
     ImuUnplugged,
     ImuReset,
-    BusFault,
+    BusError,
     Panic,
     Hang,
     LinkCut,
@@ -202,7 +202,7 @@ impl Probe<Autopilot> for Pilot {
                 Fault::ImuFrozen => at.board().imu().set_frozen(true),
                 Fault::ImuUnplugged => at.board().imu().set_unplugged(true),
                 Fault::ImuReset => at.board().imu().power_reset(now),
-                Fault::BusFault => at.session.fail_next(SPI2.0, SPI2.1),
+                Fault::BusError => at.session.fail_next(SPI2.0, SPI2.1),
                 Fault::Panic => {
                     let flag = self.logger_taken.expect("the logger's flag");
                     at.host
@@ -317,7 +317,7 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
         "{fault:?}: a motor ran again without a new arm\n{report}"
     );
     match fault {
-        Fault::BusFault | Fault::Panic => {
+        Fault::BusError | Fault::Panic => {
             let handler = if fault == Fault::Panic {
                 "rust_begin_unwind"
             } else {
@@ -445,7 +445,7 @@ fn a_reset_imu_stops_the_motors_and_is_configured_again() {
 #[test]
 fn a_hard_fault_stops_the_motors_at_once() {
     fault_stops_the_motors(
-        Fault::BusFault,
+        Fault::BusError,
         autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
         3.0,
     );

@@ -5,7 +5,8 @@
 //!    (for the bounded fuzz run), `qemu-system-arm` (and `python3-pip` if there is no pip)
 //!    from Debian's main archive (apt-get), and the `mcap` Python package (pip), the
 //!    independent reader the flight-log test checks MCAP files with.
-//! 2. Checks formatting, runs clippy with warnings denied on the host and on thumbv7em, runs all
+//! 2. Checks formatting and runs clippy with warnings denied on the host (the workspace and the
+//!    virtual-board bench, its own workspace) and on thumbv7em, runs all
 //!    host tests, builds both firmwares in release, runs them on the virtual boards
 //!    (`cargo xtask vboard`), and fuzzes the protocol decoder briefly.
 //! 3. Prints a one-line summary and a closing `N passed, N failed` line.
@@ -46,7 +47,16 @@ pub fn run(args: &[String]) -> Result<()> {
     steps.push("install".into());
 
     cargo(&["fmt", "--all", "--", "--check"]).context("cargo fmt --check failed: run cargo fmt")?;
-    steps.push("fmt".into());
+    // The virtual-board bench is its own workspace (rigless builds on our toolchain only with
+    // `--ignore-rust-version`), which the main workspace's fmt and clippy do not reach.
+    let bench = crate::vboard::bench_dir();
+    run_checked(
+        Command::new("cargo")
+            .args(["fmt", "--all", "--", "--check"])
+            .current_dir(&bench),
+    )
+    .context("cargo fmt --check failed in virtual-board/: run cargo fmt there")?;
+    steps.push("fmt(workspace, virtual-board)".into());
 
     cargo(&[
         "clippy",
@@ -56,7 +66,20 @@ pub fn run(args: &[String]) -> Result<()> {
         "-D",
         "warnings",
     ])?;
-    steps.push("clippy(host)".into());
+    run_checked(
+        Command::new("cargo")
+            .args([
+                "clippy",
+                "--ignore-rust-version",
+                "--all-targets",
+                "--",
+                "-D",
+                "warnings",
+            ])
+            .current_dir(&bench),
+    )
+    .context("clippy failed in virtual-board/ (its own workspace)")?;
+    steps.push("clippy(host, virtual-board)".into());
     // One invocation per firmware package: each selects its own part's HAL feature, and cargo
     // unifies features within an invocation (insns-firmware builds both libraries for QEMU's
     // STM32F405).

@@ -21,6 +21,11 @@ fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
+/// The virtual-board bench's directory (its own workspace).
+pub fn bench_dir() -> PathBuf {
+    workspace_root().join("virtual-board")
+}
+
 /// The main workspace's target directory.
 fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR")
@@ -60,7 +65,7 @@ fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
     let mut cmd = Command::new("cargo");
     cmd.args(["test", "--ignore-rust-version", "--release"])
         .args(args)
-        .current_dir(workspace_root().join("virtual-board"))
+        .current_dir(bench_dir())
         .env("VBOARD_FIRMWARE_DIR", firmware_dir())
         .env(
             "VBOARD_SIM_HOST",

@@ -79,6 +79,10 @@ pub const MOTORS: [MotorPin; 4] = [
     },
 ];
 
+/// The motors' PWM frequency, Hz ([PZ] airframe xml:263-265: 36 kHz on the brushed-motor
+/// FETs).
+pub const MOTOR_PWM_HZ: u64 = 36_000;
+
 /// [`MOTORS`] indices in the flight software's motor order (`protocol::MotorCommand`, the
 /// mixer's: front-right, rear-right, rear-left, front-left): NE is front-right, SE rear-right,
 /// SW rear-left, NW front-left ([PZ] airframe xml:30-33).
@@ -95,6 +99,7 @@ pub const WIRING: [Wired; 22] = {
             function,
             mode: Mode::Alternate(af),
             pull: None,
+            open_drain: None,
             optional: false,
         }
     }
@@ -105,6 +110,7 @@ pub const WIRING: [Wired; 22] = {
             function,
             mode: Mode::Output,
             pull: None,
+            open_drain: None,
             optional,
         }
     }
@@ -115,6 +121,7 @@ pub const WIRING: [Wired; 22] = {
             function,
             mode,
             pull: None,
+            open_drain: None,
             optional: true,
         }
     }

@@ -34,6 +34,7 @@ use crate::cpld::Mode;
 use crate::dcmi::{Camera, DcmiInputs, DcmiStats};
 use crate::frames::FrameSource;
 use crate::link::WireEnd;
+use crate::pins::{Mode as PinMode, Pull, Wired};
 use crate::soc::{Part, Soc};
 use crate::tcm8230::{SensorHandle, SensorPins};
 
@@ -169,6 +170,132 @@ pub fn sample(mcu: &Stm32f427, clock_timer: Option<&ClockTimer>) -> DcmiInputs {
     }
 }
 
+/// The sensors' master clock the original sets, Hz: TIM3 at 84 MHz, prescaler 1, period 1 ([SB]
+/// dcmi.c:116-177, "21MHz").
+pub const SENSOR_CLOCK_HZ: u64 = 21_000_000;
+/// The link's baud in the paper's era ([SB-17] edgeFS.h:24-31).
+pub const LINK_BAUD: u32 = 115_200;
+/// The CPLD mode pins' levels (PC10, PC12, PB5) that select the stereo interleave ([SB]
+/// cpld.c:17-69, main_parameters.h:120).
+pub const CPLD_STEREO_LEVELS: [bool; 3] = [false, true, false];
+/// The status LED, active high ([SB] led.c:15-33).
+pub const LED: BoardPin = pin("GPIOB", 12);
+/// The link UART's pins, TX and RX ([SB-17] edgeFS.h:24-31).
+pub const LINK_PINS: [BoardPin; 2] = [pin("GPIOA", 0), pin("GPIOA", 1)];
+/// The SCCB (I2C2) pins, SCL and SDA ([SB] tcm8230.c:54-85).
+pub const SCCB_PINS: [BoardPin; 2] = [pin("GPIOB", 10), pin("GPIOB", 11)];
+/// UART4's alternate function on PA0/PA1 (DS8626 table 9: AF8).
+pub const AF_UART4: u8 = 8;
+/// I2C2's alternate function on PB10/PB11 (DS8626 table 9: AF4).
+pub const AF_I2C2: u8 = 4;
+
+/// The board's wiring, pin by pin, from the original firmware's set-up ([SB] dcmi.c:84-199,
+/// tcm8230.c:54-70, cpld.c:17-69, led.c:15-33; [SB-17] edgeFS.h:24-31) and DS8626 table 9
+/// for the alternate functions. Written from the original board, not imported from the
+/// firmware: it is what the firmware is checked against.
+pub const WIRING: [Wired; 21] = {
+    const fn row(
+        p: BoardPin,
+        function: &'static str,
+        mode: PinMode,
+        pull: Option<Pull>,
+        open_drain: Option<bool>,
+        optional: bool,
+    ) -> Wired {
+        Wired {
+            port: p.port,
+            pin: p.pin,
+            function,
+            mode,
+            pull,
+            open_drain,
+            optional,
+        }
+    }
+    // The DCMI pins: AF13, push-pull, pull-up (dcmi.c:187-199).
+    const fn dcmi(p: BoardPin, function: &'static str) -> Wired {
+        row(
+            p,
+            function,
+            PinMode::Alternate(AF_DCMI),
+            Some(Pull::Up),
+            Some(false),
+            false,
+        )
+    }
+    const fn out(p: BoardPin, function: &'static str, optional: bool) -> Wired {
+        row(p, function, PinMode::Output, None, Some(false), optional)
+    }
+    [
+        dcmi(DCMI_SYNC[0], "DCMI HSYNC"),
+        dcmi(DCMI_SYNC[1], "DCMI PIXCLK"),
+        dcmi(DCMI_SYNC[2], "DCMI VSYNC"),
+        dcmi(DCMI_DATA[0], "DCMI D0"),
+        dcmi(DCMI_DATA[1], "DCMI D1"),
+        dcmi(DCMI_DATA[2], "DCMI D2"),
+        dcmi(DCMI_DATA[3], "DCMI D3"),
+        dcmi(DCMI_DATA[4], "DCMI D4"),
+        dcmi(DCMI_DATA[5], "DCMI D5"),
+        dcmi(DCMI_DATA[6], "DCMI D6"),
+        dcmi(DCMI_DATA[7], "DCMI D7"),
+        // dcmi.c:116-177: AF2, push-pull, no pull.
+        row(
+            SENSOR_CLOCK,
+            "camera master clock, TIM3 CH2",
+            PinMode::Alternate(AF_TIM3),
+            Some(Pull::None),
+            Some(false),
+            false,
+        ),
+        // dcmi.c:84-114: output, push-pull, no pull.
+        row(
+            SENSOR_RESET,
+            "camera reset (low = reset)",
+            PinMode::Output,
+            Some(Pull::None),
+            Some(false),
+            false,
+        ),
+        out(CPLD_MODE[0], "CPLD mode: manual", false),
+        out(CPLD_MODE[1], "CPLD mode: pixel mux", false),
+        out(CPLD_MODE[2], "CPLD mode: line mux", false),
+        // tcm8230.c:54-70: open drain, no internal pull (2.8 V external pull-ups).
+        row(
+            SCCB_PINS[0],
+            "SCCB SCL (I2C2)",
+            PinMode::Alternate(AF_I2C2),
+            Some(Pull::None),
+            Some(true),
+            false,
+        ),
+        row(
+            SCCB_PINS[1],
+            "SCCB SDA (I2C2)",
+            PinMode::Alternate(AF_I2C2),
+            Some(Pull::None),
+            Some(true),
+            false,
+        ),
+        row(
+            LINK_PINS[0],
+            "UART4 TX (link to the autopilot)",
+            PinMode::Alternate(AF_UART4),
+            None,
+            None,
+            false,
+        ),
+        row(
+            LINK_PINS[1],
+            "UART4 RX (link to the autopilot)",
+            PinMode::Alternate(AF_UART4),
+            None,
+            None,
+            false,
+        ),
+        out(LED, "LED (active high)", true),
+    ]
+};
+
 /// The camera board.
 #[derive(Debug)]
 pub struct CameraBoard {
@@ -245,6 +372,19 @@ impl CameraBoard {
             .iter()
             .map(|(frame, at)| (*frame, at.0))
             .collect()
+    }
+
+    /// The frequency of the sensors' master clock on PA7 now, Hz (`None`: PA7 carries no
+    /// clock from TIM3 CH2).
+    #[must_use]
+    pub fn sensor_clock_hz(&self) -> Option<u64> {
+        sensor_clock_hz(&self.soc.mcu, self.soc.clock_timer.as_ref().map(|(_, t)| t))
+    }
+
+    /// The level the part drives on `p` now, if it drives it as a GPIO output.
+    #[must_use]
+    pub fn output_level(&self, p: BoardPin) -> Option<bool> {
+        output(&self.soc.mcu, p)
     }
 
     /// Fault: the camera stops for good (no VSYNC, no data).
