@@ -52,7 +52,7 @@ pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
 /// |---|---|
 /// | `imu_indi` | [`Autopilot::on_imu`], motors written from its result |
 /// | `stereo_rx` | [`Autopilot::on_estimate`] for each decoded estimate |
-/// | `host_rx` | [`Autopilot::on_external_position`], [`Autopilot::on_command`] (HIL: also `on_imu`) |
+/// | `host_rx` | [`Autopilot::on_host_message`] (HIL: then `on_imu` on the samples it hands back) |
 /// | `guidance` | [`Autopilot::guidance_step`], then [`Autopilot::motor_safety`] |
 /// | `gyro_tx` | [`Autopilot::gyro_attitude`] encoded to the camera board |
 /// | `telemetry` | [`Autopilot::telemetry`] encoded to the host |

@@ -20,6 +20,8 @@
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
+//! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
+//!   firmware, the simulator and every HIL board call.
 //! * [`params`]: the parameter table: every [`AutopilotConfig`] field by name, kind, unit
 //!   and bounds, read, written and validated.
 //! * [`rc`]: SBUS receiver decoding and the RC switches mapped to pilot commands.
@@ -39,6 +41,7 @@ pub mod force_field;
 pub mod fsm;
 pub mod guidance;
 pub mod height;
+pub mod host;
 pub mod indi;
 pub mod lockstep;
 pub mod median;
@@ -54,3 +57,4 @@ pub mod vertical;
 pub use app::{ArmBlock, Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
 pub use failsafe::FlightMode;
 pub use fsm::{FsmState, FsmVariant};
+pub use host::HostOutcome;

@@ -1057,6 +1057,7 @@ mod tests {
     use super::*;
     use autopilot::app::{Autopilot, AutopilotConfig};
     use autopilot::lockstep::{WorldClock, WorldTimers};
+    use autopilot::HostOutcome;
     use protocol::{Heartbeat, HostToBoardDecoder, MotorCommand, Node};
     use std::net::{TcpListener, TcpStream};
     use stereo_board::app::{send_to_host, FrameAssembler, StereoBoardApp};
@@ -1092,8 +1093,8 @@ mod tests {
             dec.feed(&buf[..n], |m| msgs.push(m));
             for m in msgs {
                 let now = clock.now_us();
-                match m {
-                    HostToBoard::Imu(imu) => {
+                match ap.on_host_message(m, now) {
+                    HostOutcome::Imu(imu) => {
                         let now = clock.observe(imu.timestamp_us);
                         ap.on_stereo_bytes(&take(&from_camera), now);
                         let throttle = ap.on_imu(&imu, now);
@@ -1115,12 +1116,8 @@ mod tests {
                             send_host(&mut s, &BoardToHost::Telemetry(ap.telemetry(now)));
                         }
                     }
-                    HostToBoard::ExternalPosition(p) => ap.on_external_position(&p, now),
-                    HostToBoard::Command(c) => ap.on_command(c, now),
-                    HostToBoard::Param(req) => {
-                        send_host(&mut s, &BoardToHost::Param(ap.on_param_request(&req)))
-                    }
-                    _ => {}
+                    HostOutcome::Reply(reply) => send_host(&mut s, &reply),
+                    HostOutcome::Done => {}
                 }
             }
         }

@@ -4,7 +4,8 @@
 
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::params;
-use protocol::{BoardToHost, HostToBoard, HostToBoardDecoder, Node, ParamValue};
+use autopilot::HostOutcome;
+use protocol::{BoardToHost, HostToBoardDecoder, Node, ParamValue};
 use sim_host::param::ParamClient;
 use std::io::{Read as _, Write as _};
 use std::net::{TcpListener, TcpStream};
@@ -37,10 +38,9 @@ fn board(s: &mut TcpStream, ap: &Mutex<Autopilot>) {
         let mut msgs = Vec::new();
         dec.feed(&buf[..n], |m| msgs.push(m));
         for m in msgs {
-            if let HostToBoard::Param(req) = m {
-                let mut ap = ap.lock().unwrap();
-                let telemetry = BoardToHost::Telemetry(ap.telemetry(0));
-                let answer = BoardToHost::Param(ap.on_param_request(&req));
+            let mut ap = ap.lock().unwrap();
+            let telemetry = BoardToHost::Telemetry(ap.telemetry(0));
+            if let HostOutcome::Reply(answer) = ap.on_host_message(m, 0) {
                 for msg in [telemetry, answer] {
                     let frame = protocol::encode_to_vec::<_, 128>(&msg).unwrap();
                     if s.write_all(&frame).is_err() {

@@ -116,14 +116,15 @@ mod app {
     use autopilot::board::{self, hw};
     use autopilot::mpu6000::{Reconfigure, SampleCheck};
     use autopilot::ms5611::{self, Calibration, Osr};
+    use autopilot::HostOutcome;
     use board_support::log;
     use board_support::uart_rx::RxFlow;
     use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
     use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::{
-        AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
-        Message as _, Node,
+        AutopilotToStereo, BoardToHost, Heartbeat, HostToBoardDecoder, ImuSample, Message as _,
+        Node,
     };
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
@@ -548,27 +549,17 @@ mod app {
                     let Some(msg) = cx.local.host_decoder.push(byte) else {
                         continue;
                     };
-                    match msg {
-                        HostToBoard::Imu(sample) => {
+                    let now = flavour::lib_now_us();
+                    match cx.shared.ap.lock(|ap| ap.on_host_message(msg, now)) {
+                        HostOutcome::Imu(sample) => {
                             if let Some(at) = flavour::host_imu(cx.local.world, &sample) {
                                 // A sample arriving while the previous one is still being
                                 // processed is skipped (the IMU failsafe watches the rate).
                                 let _ = imu_indi::spawn((sample, at));
                             }
                         }
-                        HostToBoard::ExternalPosition(pos) => {
-                            let now = flavour::lib_now_us();
-                            cx.shared.ap.lock(|ap| ap.on_external_position(&pos, now))
-                        }
-                        HostToBoard::Command(cmd) => {
-                            let now = flavour::lib_now_us();
-                            cx.shared.ap.lock(|ap| ap.on_command(cmd, now))
-                        }
-                        HostToBoard::Param(req) => {
-                            let resp = cx.shared.ap.lock(|ap| ap.on_param_request(&req));
-                            send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Param(resp));
-                        }
-                        HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => {}
+                        HostOutcome::Reply(reply) => send::<_, B2H>(&mut cx.shared.host_tx, &reply),
+                        HostOutcome::Done => {}
                     }
                 }
             }

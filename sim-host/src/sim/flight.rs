@@ -16,8 +16,8 @@ use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
 use protocol::{
-    AutopilotToStereo, Decoder, Estimate, FlightMode, FsmState, Heartbeat, ImuSample, Message,
-    Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+    AutopilotToStereo, Decoder, Estimate, FlightMode, FsmState, Heartbeat, HostToBoard, ImuSample,
+    Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
@@ -421,7 +421,7 @@ pub fn run_flight_observed(
         if t >= next_height {
             next_height += height_period_us;
             let fix = world.height_fix(t);
-            ap.on_external_position(&fix, t);
+            ap.on_host_message(HostToBoard::ExternalPosition(fix), t);
         }
         // The barometer on the autopilot's SPI bus.
         if t >= next_baro {
@@ -431,7 +431,7 @@ pub fn run_flight_observed(
         }
         if !armed && t >= arm_us {
             armed = true;
-            ap.on_command(PilotCommand::Arm, t);
+            ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t);
         }
         // Periodic tasks of both boards.
         releases.clear();

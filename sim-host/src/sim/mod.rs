@@ -49,8 +49,8 @@
 //! Board code runs in zero virtual time (its cost on the Cortex-M4 is what `processing_us` and
 //! the tasks' deadlines stand for). The barometer ([`baro`]) is read at 50 Hz into
 //! `Autopilot::on_baro`, as the MS5611 task would; with motion capture (`FlightConfig::mocap`,
-//! `fly --mocap`) the height fix is handed to `Autopilot::on_external_position` directly, as
-//! the host link would.
+//! `fly --mocap`) the height fix is handed to `Autopilot::on_host_message` directly, as the
+//! firmware's host link does.
 //!
 //! Determinism: every random process draws from a ChaCha8 generator seeded from the flight's
 //! seed, and nothing reads the wall clock, so the same configuration gives the same log bit

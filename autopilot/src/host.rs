@@ -1,0 +1,132 @@
+//! The autopilot's one entry point for host messages: the firmware's `host_rx` task, the
+//! simulator and every hardware-in-the-loop board hand each decoded [`HostToBoard`] to
+//! [`Autopilot::on_host_message`], so that all of them treat a message alike.
+//!
+//! An IMU sample is the one message whose handling depends on where the autopilot runs: it
+//! carries the host's world time, and only a lockstep flavour (simulator, HIL) may run its
+//! control loop on it. It is therefore handed back as [`HostOutcome::Imu`]; a board with its
+//! own IMU refuses it and counts the refusal (the firmware's real flavour does).
+
+use protocol::{BoardToHost, HostToBoard, ImuSample};
+
+use crate::Autopilot;
+
+/// What the caller does after [`Autopilot::on_host_message`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum HostOutcome {
+    /// Handled (or not for this board); nothing to send.
+    Done,
+    /// Handled; send this answer to the host.
+    Reply(BoardToHost),
+    /// An IMU sample from the host: a lockstep caller runs the control loop on it at the
+    /// world time it carries; a board with its own IMU refuses and counts it.
+    Imu(ImuSample),
+}
+
+impl Autopilot {
+    /// Handles one message from the host at board time `now_us`: a height / position fix, a
+    /// pilot command, a parameter request (answered). Heartbeats are liveness only, and frame
+    /// chunks are for the camera board: both are dropped here.
+    pub fn on_host_message(&mut self, msg: HostToBoard, now_us: u64) -> HostOutcome {
+        match msg {
+            HostToBoard::ExternalPosition(pos) => {
+                self.on_external_position(&pos, now_us);
+                HostOutcome::Done
+            }
+            HostToBoard::Command(cmd) => {
+                self.on_command(cmd, now_us);
+                HostOutcome::Done
+            }
+            HostToBoard::Param(req) => {
+                HostOutcome::Reply(BoardToHost::Param(self.on_param_request(&req)))
+            }
+            HostToBoard::Imu(sample) => HostOutcome::Imu(sample),
+            HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => HostOutcome::Done,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::AutopilotConfig;
+    use protocol::{
+        ExternalPosition, FrameChunk, Heartbeat, Node, ParamOp, ParamReply, ParamRequest,
+        PilotCommand, WireTime,
+    };
+
+    fn fix(height_m: f32) -> ExternalPosition {
+        ExternalPosition {
+            timestamp_us: WireTime(0),
+            position_m: [0.0, 0.0, -height_m],
+        }
+    }
+
+    #[test]
+    fn a_position_fix_reaches_the_height_estimate() {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
+        assert_eq!(out, HostOutcome::Done);
+        assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
+    }
+
+    #[test]
+    fn a_parameter_request_is_answered_for_the_autopilot_table_only() {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let ask = |board| {
+            HostToBoard::Param(ParamRequest {
+                board,
+                op: ParamOp::List(0),
+            })
+        };
+        let HostOutcome::Reply(BoardToHost::Param(r)) = ap.on_host_message(ask(Node::Autopilot), 0)
+        else {
+            panic!("a parameter request must be answered");
+        };
+        assert!(matches!(r.reply, ParamReply::Entry(_)));
+        let HostOutcome::Reply(BoardToHost::Param(r)) =
+            ap.on_host_message(ask(Node::StereoBoard), 0)
+        else {
+            panic!("a request for another board must be answered too");
+        };
+        assert!(matches!(r.reply, ParamReply::Error(_)));
+    }
+
+    #[test]
+    fn an_arm_without_sensors_is_refused_and_counted() {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let out = ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 0);
+        assert_eq!(out, HostOutcome::Done);
+        assert_eq!(ap.arm_refused(), 1);
+    }
+
+    #[test]
+    fn an_imu_sample_is_handed_back_to_the_caller() {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let sample = ImuSample {
+            timestamp_us: WireTime(7),
+            gyro_radps: [0.0; 3],
+            accel_mps2: [0.0, 0.0, -9.81],
+        };
+        assert_eq!(
+            ap.on_host_message(HostToBoard::Imu(sample), 0),
+            HostOutcome::Imu(sample)
+        );
+    }
+
+    #[test]
+    fn heartbeats_and_frame_chunks_change_nothing() {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let before = ap.telemetry(0);
+        let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, 0));
+        assert_eq!(ap.on_host_message(hb, 0), HostOutcome::Done);
+        let chunk = HostToBoard::FrameChunk(FrameChunk {
+            frame_id: 0,
+            capture_us: WireTime(0),
+            offset: 0,
+            data: heapless::Vec::new(),
+        });
+        assert_eq!(ap.on_host_message(chunk, 0), HostOutcome::Done);
+        assert_eq!(ap.telemetry(0), before);
+    }
+}
