@@ -371,7 +371,7 @@ impl Dcmi {
             let sensor = camera.sensor.lock();
             (sensor.stream()?, sensor.clock_hz()?)
         };
-        if let Some(scene) = camera.source.frame(camera.frames_streamed) {
+        if let Some(scene) = camera.source.frame(camera.frames_streamed, origin.0) {
             camera.scene = Some(scene);
         }
         let scene = camera.scene.as_ref()?;

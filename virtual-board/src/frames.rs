@@ -123,9 +123,10 @@ impl StereoImage {
 
 /// Where the sensors' images come from: asked once per frame the sensors start.
 pub trait FrameSource: Debug + Send {
-    /// The scene for frame `index` (0 for the first frame the sensors stream), or `None` once the
-    /// source has no more: the sensors then keep seeing the last one.
-    fn frame(&mut self, index: u64) -> Option<StereoImage>;
+    /// The scene for frame `index` (0 for the first frame the sensors stream), which starts at
+    /// `start_ns` of the board's virtual time, or `None` once the source has no more: the
+    /// sensors then keep seeing the last one.
+    fn frame(&mut self, index: u64, start_ns: u64) -> Option<StereoImage>;
 }
 
 /// Recorded images played in order, one per frame.
@@ -160,7 +161,7 @@ impl Recorded {
 }
 
 impl FrameSource for Recorded {
-    fn frame(&mut self, index: u64) -> Option<StereoImage> {
+    fn frame(&mut self, index: u64, _start_ns: u64) -> Option<StereoImage> {
         usize::try_from(index)
             .ok()
             .and_then(|i| self.images.get(i))

@@ -16,6 +16,9 @@
 //!   the bench's stops.
 //!
 //! * [`serve`]: a board's host UART on a TCP socket, for ground tools (`sim-host monitor`).
+//! * [`world`]: sim-host's simulated world (dynamics, barometer, renderer) stepped in lockstep
+//!   with the boards: its state on the IMU, barometer and cameras, the motor duties on its
+//!   dynamics.
 //!
 //! Virtual time is rigless's: 4 ns per instruction at 168 MHz by default (250 M instructions per
 //! virtual second), and a core in WFI skips to its next event.
@@ -40,3 +43,4 @@ pub mod serve;
 pub mod soc;
 pub mod syscfg;
 pub mod tcm8230;
+pub mod world;
