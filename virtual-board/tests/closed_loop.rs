@@ -21,7 +21,7 @@ use std::sync::Arc;
 
 use protocol::{
     BoardToHost, Decoder, FlightMode, HostToBoard, Message, Node, ParamOp, ParamReply,
-    ParamRequest, ParamValue, StereoToAutopilot, Telemetry,
+    ParamRequest, ParamValue, PilotCommand, StereoToAutopilot, Telemetry,
 };
 use virtual_board::bench::{At, Flow, OnBarrier, Options, Probe, Setup, Watching, run, run_pair};
 use virtual_board::boards::autopilot::Autopilot;
@@ -58,6 +58,8 @@ struct Flight {
     /// The host playing the camera board, or `None` when the camera board runs.
     camera: Option<TruthCamera>,
     param: Once,
+    /// The user's `Arm` when no height fixes are sent (the ground station arms otherwise).
+    arm: Option<Once>,
     telemetry: Decoder<BoardToHost, { BoardToHost::MAX_FRAME_BYTES }>,
     telemetry_read: usize,
     /// Every telemetry frame: (bench time of the stop it arrived by, ns; the frame).
@@ -66,7 +68,9 @@ struct Flight {
 }
 
 impl Flight {
-    /// With the camera board played by a [`TruthCamera`] if `truth_camera`.
+    /// With the camera board played by a [`TruthCamera`] if `truth_camera`; with the lab's
+    /// height fixes if `cfg.mocap`, else the autopilot flies on its barometer and
+    /// accelerometer and the user only arms.
     fn new(cfg: &FlightConfig, truth_camera: bool) -> Self {
         let plant = Plant::new(cfg, QUANTUM_NS).expect("the world");
         let horizon_us = u64::from(cfg.autopilot.estimate_horizon_us);
@@ -75,6 +79,7 @@ impl Flight {
             ground: GroundStation::arming_at(ARM_AT, 0.0),
             camera: truth_camera.then(|| TruthCamera::new(25.0, 0.05, 20, horizon_us, cfg.seed)),
             param: Once::at(PARAM_AT),
+            arm: (!cfg.mocap).then(|| Once::at(ARM_AT)),
             telemetry: Decoder::new_mid_stream(),
             telemetry_read: 0,
             telemetries: Vec::new(),
@@ -88,10 +93,17 @@ impl Probe<Autopilot> for Flight {
         let now = at.now;
         let board = at.board();
         self.plant.step(now, board);
-        // The lab's motion capture, through the ground tool.
-        let fix = self.plant.world_mut().height_fix(now / 1_000);
-        self.ground.set_height(-f64::from(fix.position_m[2]));
-        self.ground.step(now, &board.telemetry.rx);
+        if let Some(arm) = &mut self.arm {
+            if arm.due(now) {
+                let arm = HostToBoard::Command(PilotCommand::Arm);
+                board.telemetry.rx.send_at(now, &host::frame(&arm));
+            }
+        } else {
+            // The lab's motion capture, through the ground tool.
+            let fix = self.plant.world_mut().height_fix(now / 1_000);
+            self.ground.set_height(-f64::from(fix.position_m[2]));
+            self.ground.step(now, &board.telemetry.rx);
+        }
         if self.param.due(now) {
             let set = HostToBoard::Param(ParamRequest {
                 board: Node::Autopilot,
@@ -212,12 +224,43 @@ fn judge(name: &str, cfg: &FlightConfig, flight: &Flight, end_ns: u64, wall_s: f
     );
 }
 
-/// The flight's world: the paper's room, seeded.
+/// The flight's world: the paper's room, seeded, with the lab's height fixes.
 fn world(seed: u64) -> FlightConfig {
     FlightConfig {
         seed,
+        mocap: true,
         ..FlightConfig::default()
     }
+}
+
+#[test]
+fn the_autopilot_hovers_on_its_barometer_on_a_truth_camera() {
+    let cfg = FlightConfig {
+        mocap: false,
+        ..world(13)
+    };
+    let outcome = run(
+        Setup {
+            board: Autopilot::new(cfg.seed).expect("the board"),
+            firmware: Firmware::real("autopilot").expect("the autopilot image"),
+            probe: Flight::new(&cfg, true),
+        },
+        Options {
+            until_ns: hover_window().1,
+            step_ns: QUANTUM_NS,
+        },
+    )
+    .expect("the run");
+    let report = outcome.report();
+    outcome.assert_clean();
+    judge(
+        "autopilot image, barometer only, truth camera",
+        &cfg,
+        &outcome.probe,
+        outcome.end_ns,
+        outcome.wall_s,
+        &report,
+    );
 }
 
 #[test]
