@@ -26,7 +26,6 @@ use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
 use crate::velocity_kf::{Fusion, VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
-use protocol::params::{RecordError, RecordStore, StorageStatus};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
     LinkErrorCounts, Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse,
@@ -333,8 +332,6 @@ pub struct Autopilot {
     rc_kill_latched: bool,
     arm_refused: u32,
     baro: Option<(u64, BaroReading)>,
-    /// The parameter storage's state (`None`: a build without storage).
-    storage: Option<StorageStatus>,
 }
 
 /// Why an `Arm` command is refused before the flight-mode checks (see
@@ -400,7 +397,6 @@ impl Autopilot {
             rc_kill_latched: false,
             arm_refused: 0,
             baro: None,
-            storage: None,
             cfg: config,
         }
     }
@@ -443,51 +439,10 @@ impl Autopilot {
         Ok(())
     }
 
-    /// A disarmed autopilot on the configuration saved in `store` ([`params::decode_record`]):
-    /// the saved values when the record is good, otherwise the defaults; why is kept for
-    /// [`ParamOp::Storage`] and returned (`Err`: the defaults are in use).
-    pub fn from_store(store: &impl RecordStore) -> (Self, Result<(), RecordError>) {
-        let (config, loaded) = params::decode_record(store.bytes());
-        let mut ap = Self::new(config);
-        ap.storage = Some(StorageStatus {
-            loaded,
-            saves: 0,
-            failed_saves: 0,
-        });
-        (ap, loaded)
-    }
-
-    /// The parameter storage's state (`None`: built without storage, [`Autopilot::new`]).
-    pub fn storage(&self) -> Option<StorageStatus> {
-        self.storage
-    }
-
-    /// Answers a host's parameter request for this board's table ([`params::TABLE`]) on a
-    /// build without parameter storage: `Save` and `Storage` are answered `NoStorage` (see
-    /// [`Autopilot::on_param_request_stored`]). A request for another board's table is refused
-    /// (`NoSuchBoard`).
+    /// Answers a host's parameter request for this board's table ([`params::TABLE`]); a
+    /// request for another board's table is refused (`NoSuchBoard`). `Save` is answered
+    /// `NoStorage` here: the firmware, which owns the flash, answers it before this is called.
     pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
-        self.answer_param(req, None)
-    }
-
-    /// Answers a host's parameter request, saving to `store` on `Save`: refused while the
-    /// motors may run (`Armed`); otherwise the record of the configuration in use
-    /// ([`params::encode_record`]) is written and read back, and a failure of either is
-    /// `SaveFailed`. The write takes as long as the flash's erase (a second or two for a
-    /// 128 KiB sector), which is why it waits for the ground.
-    pub fn on_param_request_stored(
-        &mut self,
-        req: &ParamRequest,
-        store: &mut impl RecordStore,
-    ) -> ParamResponse {
-        self.answer_param(req, Some(store))
-    }
-
-    pub(crate) fn answer_param(
-        &mut self,
-        req: &ParamRequest,
-        store: Option<&mut dyn RecordStore>,
-    ) -> ParamResponse {
         let reply = if req.board != Node::Autopilot {
             ParamReply::Error(ParamError::NoSuchBoard)
         } else {
@@ -503,47 +458,12 @@ impl Autopilot {
                         ParamReply::Entry,
                     ),
                 ParamOp::Set(name, value) => self.set_param(name, *value),
-                ParamOp::Save => match store {
-                    Some(store) => self.save_params(store),
-                    None => ParamReply::Error(ParamError::NoStorage),
-                },
-                ParamOp::Storage => self.storage.map_or(
-                    ParamReply::Error(ParamError::NoStorage),
-                    ParamReply::Storage,
-                ),
+                ParamOp::Save => ParamReply::Error(ParamError::NoStorage),
             }
         };
         ParamResponse {
             board: req.board,
             reply,
-        }
-    }
-
-    fn save_params(&mut self, store: &mut dyn RecordStore) -> ParamReply {
-        if self.failsafe.mode().motors_enabled() {
-            return ParamReply::Error(ParamError::Armed);
-        }
-        let mut record = [0u8; params::RECORD_BYTES];
-        let written = match params::encode_record(&self.cfg, &mut record) {
-            Ok(n) => {
-                store.write(record.get(..n).unwrap_or(&[])).is_ok()
-                    && store.bytes().get(..n) == record.get(..n)
-            }
-            // The configuration in use passed `params::validate`: it always encodes.
-            Err(_) => false,
-        };
-        // Counted on an autopilot made by `from_store` (one made by `new` has no status).
-        if let Some(status) = self.storage.as_mut() {
-            if written {
-                status.saves = status.saves.saturating_add(1);
-            } else {
-                status.failed_saves = status.failed_saves.saturating_add(1);
-            }
-        }
-        if written {
-            ParamReply::Saved
-        } else {
-            ParamReply::Error(ParamError::SaveFailed)
         }
     }
 

@@ -329,13 +329,6 @@ pub const WATCHDOG_MS: u32 = 50;
 #[cfg(any(feature = "hil", feature = "qemu"))]
 pub const WATCHDOG_MS: u32 = 2_000;
 
-/// Independent-watchdog timeout while a parameter save erases and programs the flash, ms. The
-/// core stalls for the whole erase of the 128 KiB parameter sector (2 s at most at x32,
-/// datasheet "Flash memory programming"), so no task feeds the watchdog meanwhile; 6 s at the
-/// LSI's nominal 32 kHz is 4 s at its fastest 47 kHz, still twice the erase. The save is
-/// refused unless the motors are off, and [`WATCHDOG_MS`] is restored after it.
-pub const SAVE_WATCHDOG_MS: u32 = 6_000;
-
 /// The longest time from the IMU failing (frozen, unplugged, asleep, gone) to every motor at 0,
 /// µs, with the failsafe timings `failsafe`: a frozen sensor's samples still pass for
 /// [`crate::mpu6000::STUCK_SAMPLES`] - 1 loop periods, then no valid sample for the failsafe's
@@ -500,9 +493,6 @@ pub mod hw {
         pub led: Led,
         /// The watchdog (not started).
         pub iwdg: pac::IWDG,
-        /// The flash interface (the clock set-up has set its wait states), for the parameter
-        /// sector.
-        pub flash: pac::FLASH,
     }
 
     /// Brings the board up: clocks, then every pin of [`super::PINS`] in its mode, motors at 0.
@@ -582,7 +572,6 @@ pub mod hw {
             loop_timer,
             led,
             iwdg: dp.IWDG,
-            flash: dp.FLASH,
         }
     }
 

@@ -27,7 +27,13 @@ static FAULTED: AtomicBool = AtomicBool::new(false);
 /// Installs the panic handler and the HardFault handler of a firmware. `$stop` is the path of
 /// the board's `fn()` that forces every actuator output off at the registers.
 ///
-/// The firmware crate must depend on `cortex-m-rt` (for `#[exception]`).
+/// The HardFault handler is entered through [`hard_fault_entry!`]'s instructions, which need no
+/// stack: a HardFault from a stack overflow arrives with the stack pointer below the stack
+/// region (flip-link puts the stack at the bottom of SRAM, so the push that overflowed left
+/// SRAM and faulted), where every push faults again and locks the core up with the motors
+/// running. The entry reads the faulting instruction's address from the exception frame if the
+/// frame lies in the stack region, then moves the stack pointer to the top of the region (what
+/// was on the stack is dead: the fault path never returns) and only then calls the Rust half.
 #[macro_export]
 macro_rules! fault_handlers {
     ($stop:path) => {
@@ -36,10 +42,54 @@ macro_rules! fault_handlers {
             $crate::fault::on_panic($stop, info)
         }
 
-        #[cortex_m_rt::exception]
-        unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
-            $crate::fault::on_hard_fault($stop, frame.pc())
+        /// The HardFault path's Rust half, on a fresh stack: `pc` the faulting instruction's
+        /// address (0 if the frame was lost), `stack_lost` 1 if the stack pointer had left the
+        /// stack region.
+        extern "C" fn board_support_hard_fault(pc: u32, stack_lost: u32) -> ! {
+            $crate::fault::on_hard_fault($stop, pc, stack_lost != 0)
         }
+
+        $crate::hard_fault_entry!(board_support_hard_fault);
+    };
+}
+
+/// The `HardFault` vector's instructions (see [`fault_handlers!`]), calling `$entry(pc,
+/// stack_lost)`. The firmwares run every context on the main stack (RTIC), so the frame is on
+/// MSP. `_stack_end` and `_stack_start` bound the stack region (flip-link's layout, checked by
+/// `cargo xtask size`).
+#[macro_export]
+macro_rules! hard_fault_entry {
+    ($entry:ident) => {
+        core::arch::global_asm!(
+            ".section .HardFault.user, \"ax\"",
+            ".global HardFault",
+            ".type HardFault,%function",
+            ".thumb_func",
+            "HardFault:",
+            // The frame: eight words from MSP, readable only inside the stack region.
+            "mrs r0, MSP",
+            "ldr r1, =_stack_end",
+            "ldr r2, =_stack_start",
+            "cmp r0, r1",
+            "blo 1f",
+            "subs r3, r2, #32",
+            "cmp r0, r3",
+            "bhi 1f",
+            // The stacked PC (ARMv7-M ARM B1.5.6: the seventh word of the frame).
+            "ldr r0, [r0, #24]",
+            "movs r1, #0",
+            "b 2f",
+            "1:",
+            "movs r0, #0",
+            "movs r1, #1",
+            "2:",
+            // A fresh stack at the top of the region, then the Rust half (which never returns).
+            "msr MSP, r2",
+            "b {entry}",
+            ".ltorg",
+            ".size HardFault, . - HardFault",
+            entry = sym $entry,
+        );
     };
 }
 
@@ -60,16 +110,25 @@ pub fn on_panic(stop: fn(), info: &core::panic::PanicInfo) -> ! {
 }
 
 /// The HardFault path (see the module documentation); `pc` is the faulting instruction's
-/// address from the exception frame.
-pub fn on_hard_fault(stop: fn(), pc: u32) -> ! {
+/// address from the exception frame, `stack_lost` whether the stack pointer had left the stack
+/// region (a stack overflow: the frame, and `pc`, are lost).
+pub fn on_hard_fault(stop: fn(), pc: u32, stack_lost: bool) -> ! {
     cortex_m::interrupt::disable();
     stop();
     start_watchdog();
     if !FAULTED.swap(true, Ordering::AcqRel) {
-        defmt::error!("HardFault at pc={=u32:#010x}", pc);
+        if stack_lost {
+            defmt::error!("HardFault: stack overflow (the stack pointer left the stack region)");
+        } else {
+            defmt::error!("HardFault at pc={=u32:#010x}", pc);
+        }
         #[cfg(feature = "qemu")]
         {
-            cortex_m_semihosting::hprintln!("HardFault at pc={:#010x}", pc);
+            cortex_m_semihosting::hprintln!(
+                "HardFault at pc={:#010x} (stack lost: {})",
+                pc,
+                stack_lost
+            );
             cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
         }
     }

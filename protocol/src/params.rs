@@ -186,8 +186,6 @@ pub enum ParamOp {
     Set(ParamName, ParamValue),
     /// Saves every value to flash (refused while the motors may run).
     Save,
-    /// What the board's parameter storage holds (answered with [`ParamReply::Storage`]).
-    Storage,
 }
 
 /// A parameter request to one board (host -> autopilot; the autopilot answers for itself).
@@ -279,32 +277,6 @@ pub enum ParamReply {
     Saved,
     /// The request failed; nothing changed.
     Error(ParamError),
-    /// The board's parameter storage: what the boot loaded, and the saves since.
-    Storage(StorageStatus),
-}
-
-/// What a board's parameter storage says (the answer to [`ParamOp::Storage`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct StorageStatus {
-    /// What the boot found in flash: `Ok`, the saved values are in use; otherwise why the
-    /// board runs on its defaults (a blank sector, a corrupt, older or other-table record, a
-    /// value out of bounds).
-    pub loaded: Result<(), RecordError>,
-    /// Saves written and read back since boot.
-    pub saves: u32,
-    /// Saves that failed since boot (the flash refused, or read back wrong).
-    pub failed_saves: u32,
-}
-
-/// A board's parameter storage: one erasable region (a flash sector, a test's buffer) that
-/// holds one record at its start. The firmware implements it on its flash; the library
-/// decides what is written and checks what reads back.
-pub trait RecordStore {
-    /// The region's bytes from its start (erased bytes read `0xFF`).
-    fn bytes(&self) -> &[u8];
-    /// Erases the region and writes `record` at its start; `SaveFailed` if the flash refused.
-    fn write(&mut self, record: &[u8]) -> Result<(), ParamError>;
 }
 
 /// A parameter answer (board -> host).

@@ -100,6 +100,16 @@ impl Firmware {
             .map(|(name, &address)| (name.as_str(), address))
     }
 
+    /// The `len` bytes the image places at `address` (its code and constants), if one segment
+    /// holds them all.
+    #[must_use]
+    pub fn bytes_at(&self, address: u64, len: usize) -> Option<&[u8]> {
+        self.image.segments().find_map(|(base, bytes)| {
+            let offset = usize::try_from(address.checked_sub(base)?).ok()?;
+            bytes.get(offset..offset.checked_add(len)?)
+        })
+    }
+
     /// Checks that every section the image occupies at run time and every byte it places lies
     /// in the memory `part` really has (the F427 model has more).
     ///

@@ -30,6 +30,19 @@ use crate::dcmi::Dcmi;
 use crate::exti::Exti;
 use crate::syscfg::Syscfg;
 
+/// The reserved space just below SRAM (RM0090 table 1 / DS8626 figure 18: nothing between the
+/// option bytes, 0x1FFF_C000-0x1FFF_C00F, and SRAM at 0x2000_0000), which rigless leaves
+/// unmapped (a store there lands nowhere and the core goes on). On the part the bus matrix
+/// answers it with an error; here a store into it is a bus error too (the [`Syscfg`] model
+/// answers it), which is what makes a stack that runs off the bottom of SRAM fault, as flip-link
+/// relies on. Reads there are not refused (the region reads as erased memory).
+pub const RESERVED_BELOW_SRAM: rigless::soc::Region = rigless::soc::Region::flash(
+    "reserved below SRAM",
+    0x1FFF_C010,
+    0x2000_0000 - 0x1FFF_C010,
+)
+.programmed_by("SYSCFG");
+
 /// The part a board carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Part {
@@ -253,6 +266,7 @@ impl Soc {
     pub fn new(part: Part) -> Result<Self, Error> {
         let mut mcu = Stm32f427::new()?;
         mcu.dma[1] = dma2();
+        mcu.bus_mut().add_region(RESERVED_BELOW_SRAM)?;
         let bus = mcu.bus();
         let slots = Slots {
             exti: bus.slot("EXTI")?,

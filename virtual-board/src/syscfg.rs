@@ -7,6 +7,10 @@
 //! | `CMPCR` | `CMP_PD` (bit 0) stored, `READY` (bit 8) follows it at once | 9.2.7 |
 //!
 //! Left out: the compensation cell's settling time (`READY` is immediate) and the remap itself.
+//!
+//! It also answers the stores into the reserved space below SRAM ([`crate::soc::RESERVED_BELOW_SRAM`])
+//! with a bus error: rigless sends a region's stores to one instance's model, and this is the
+//! model we own that has nothing else to do with them.
 
 use rigless::device::{Device, DeviceContext, RegisterFile};
 use rigless::soc::stm32f427::generated::syscfg::Register;
@@ -37,6 +41,19 @@ const READY: u64 = 1 << 8;
 
 impl Device for Syscfg {
     type Register = Register;
+
+    /// A store into the reserved space below SRAM: the bus answers it with an error.
+    fn write_region(
+        &mut self,
+        _address: u64,
+        _width: rigless::soc::Width,
+        _value: u64,
+        _registers: &mut RegisterFile,
+        context: &mut DeviceContext<'_>,
+    ) -> bool {
+        context.bus_error();
+        true
+    }
 
     fn write(
         &mut self,

@@ -8,8 +8,10 @@
 //! |---|---|---|
 //! | IMU frozen | the MPU-6000's registers stop updating | [`autopilot::board::imu_fault_motors_off_us`] |
 //! | IMU unplugged | MISO pulled high: every byte 0xFF | the same |
+//! | IMU at full scale | a body rate beyond the gyro's +-2000 deg/s range: one axis reads +32767 (the model saturates, RM 4.19), the others stay live | the same |
 //! | IMU reset | the MPU-6000 resets (a brown-out): registers at their defaults, asleep, silent for its reset time; the firmware must configure it again | the same; the chip configured and sampling again within [`IMU_BACK_NS`], the motors off until a new `Arm` |
 //! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF_US`] |
+//! | stack overflow | a runaway recursion: one function of the 512 Hz loop returns into two instructions that push without end ([`virtual_board::inject::RunawayRecursion`]) until the stack leaves SRAM (flip-link: the stack is the bottom of SRAM) | the same: the HardFault path stops the motors although the stack is used up |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
 //! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
 //! | link cut | the camera board's estimates stop | [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
@@ -22,6 +24,7 @@ use protocol::{
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
+use virtual_board::inject::RunawayRecursion;
 use virtual_board::pilot::{Every, GroundStation, MS, Once};
 
 const ARM_AT: u64 = 1_500 * MS;
@@ -34,9 +37,14 @@ const STAY_OFF: u64 = 600 * MS;
 /// and configured again, then its gyro's start-up (30 ms, PS-MPU-6000A-00 table 6.1) before
 /// valid samples; 10 ms of slack for the bench's stops.
 const IMU_BACK_NS: u64 = virtual_board::mpu6000::RESET_TIME_NS + 2 * MS + 30 * MS + 10 * MS;
-/// The IMU-reset run watches this long after the motors stopped: two status lines (1 Hz) with
-/// the chip back, so that its samples are seen to be valid again.
+/// The IMU-reset and full-scale runs watch this long after the motors stopped: two status
+/// lines (1 Hz) after the fault, so that the samples' verdicts are seen in them.
 const IMU_RESET_STAY_OFF: u64 = 2_100 * MS;
+/// The full-scale injection's rate in the chip's axes, rad/s: 40 rad/s (2292 deg/s) about the
+/// chip's z, beyond the +-2000 deg/s range the firmware sets.
+const FULL_SCALE_RATE: [f64; 3] = [0.0, 0.0, 40.0];
+/// The MPU-6000's GYRO_ZOUT_H (RM 4.19).
+const GYRO_ZOUT_H: u8 = 0x47;
 /// SPI2's registers (RM0090 table 1) and its CR1's SPE bit (section 28.5.1).
 const SPI2: (u64, u64) = (0x4000_3800, 0x4000_3C00);
 const SPI_CR1_SPE: u64 = 1 << 6;
@@ -45,8 +53,10 @@ const SPI_CR1_SPE: u64 = 1 << 6;
 enum Fault {
     ImuFrozen,
     ImuUnplugged,
+    ImuFullScale,
     ImuReset,
     BusError,
+    StackOverflow,
     Panic,
     Hang,
     LinkCut,
@@ -132,6 +142,11 @@ struct Pilot {
     fault_at: Once,
     /// Where the logger's "taken" flag lives (the panic injection).
     logger_taken: Option<u64>,
+    /// The stack-overflow injection.
+    runaway: Option<RunawayRecursion>,
+    /// The word 32 bytes above the bottom of the stack region at the first stop after a fault
+    /// handler ran (the stack-overflow run: the runaway's pushes reached it).
+    stack_bottom_word: Option<u64>,
     /// The firmware's telemetry, decoded as it arrives (the link-cut world follows the flight
     /// mode).
     telemetry: Decoder<BoardToHost, { BoardToHost::MAX_FRAME_BYTES }>,
@@ -150,13 +165,15 @@ struct Pilot {
 }
 
 impl Pilot {
-    fn new(fault: Fault, logger_taken: Option<u64>) -> Self {
+    fn new(fault: Fault, logger_taken: Option<u64>, runaway: Option<RunawayRecursion>) -> Self {
         Self {
             fault,
             ground: GroundStation::arming_at(ARM_AT, HOVER_M),
             camera: CameraStandIn::new(),
             fault_at: Once::at(FAULT_AT),
             logger_taken,
+            runaway,
+            stack_bottom_word: None,
             telemetry: Decoder::new_mid_stream(),
             telemetry_read: 0,
             landing: false,
@@ -195,14 +212,40 @@ impl Pilot {
 }
 
 impl Probe<Autopilot> for Pilot {
+    fn hit(
+        &mut self,
+        hit: &rigless::emulator::Hit,
+        session: &mut rigless::session::Session<Autopilot>,
+        host: &mut dyn rigless::emulator::Host,
+    ) {
+        if let Some(runaway) = &mut self.runaway {
+            runaway.hit(hit, session, host);
+        }
+    }
+
     fn at(&mut self, at: &mut At<'_, Autopilot>) -> Flow {
         let now = at.now;
+        if let Some(runaway) = &self.runaway
+            && !at.faults.is_empty()
+            && self.stack_bottom_word.is_none()
+        {
+            // The runaway's last whole push ends at least 32 bytes up from the bottom (the
+            // push that would cross it faults before it stores).
+            let bottom = runaway.stack().0 + 32;
+            self.stack_bottom_word = at.host.read(bottom, rigless::soc::Width::W32).ok();
+        }
         if self.fault_at.due(now) {
             match self.fault {
                 Fault::ImuFrozen => at.board().imu().set_frozen(true),
                 Fault::ImuUnplugged => at.board().imu().set_unplugged(true),
+                Fault::ImuFullScale => at.board().imu().set_rate(FULL_SCALE_RATE),
                 Fault::ImuReset => at.board().imu().power_reset(now),
                 Fault::BusError => at.session.fail_next(SPI2.0, SPI2.1),
+                Fault::StackOverflow => {
+                    if let Some(runaway) = &mut self.runaway {
+                        runaway.arm(at.session);
+                    }
+                }
                 Fault::Panic => {
                     let flag = self.logger_taken.expect("the logger's flag");
                     at.host
@@ -252,7 +295,7 @@ impl Probe<Autopilot> for Pilot {
             }
         }
         // Watched for long enough after the stop (a reset's reboot included).
-        let stay_off = if self.fault == Fault::ImuReset {
+        let stay_off = if matches!(self.fault, Fault::ImuReset | Fault::ImuFullScale) {
             IMU_RESET_STAY_OFF
         } else {
             STAY_OFF
@@ -276,17 +319,36 @@ fn logger_taken_flag(firmware: &Firmware) -> u64 {
         .expect("defmt-rtt's encoder state in the image")
 }
 
+/// board_support::stack::PATTERN: the word the firmware paints its unused stack with.
+const STACK_PAINT: u32 = 0x57AC_C0DE;
+
+/// The function the stack-overflow injection returns from: the MPU-6000 sample check, called
+/// once per 512 Hz step (`autopilot::mpu6000::SampleCheck::check`, not inlined: it is a
+/// library function the loop calls).
+fn runaway_in_the_loop(firmware: &Firmware) -> RunawayRecursion {
+    let mut tried = Vec::new();
+    for (name, _) in firmware.symbols_containing("SampleCheck") {
+        match RunawayRecursion::new(firmware, name) {
+            Ok(runaway) if name.contains("5check") => return runaway,
+            Ok(_) => {}
+            Err(e) => tried.push(e),
+        }
+    }
+    panic!("no function of the loop to return from: {tried:?}");
+}
+
 /// Runs `fault` and checks the motors stop within `promise_ns` of it and stay stopped.
 /// Returns the outcome's report, the time to stop, ns, and when the telemetry first reported
 /// the blind hover after the fault.
 fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String, u64, Option<u64>) {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let logger = (fault == Fault::Panic).then(|| logger_taken_flag(&firmware));
-    let outcome = run(
+    let runaway = (fault == Fault::StackOverflow).then(|| runaway_in_the_loop(&firmware));
+    let mut outcome = run(
         Setup {
             board: Autopilot::new(11).expect("the board"),
             firmware,
-            probe: Pilot::new(fault, logger),
+            probe: Pilot::new(fault, logger, runaway),
         },
         Options::seconds(run_s),
     )
@@ -317,7 +379,27 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
         "{fault:?}: a motor ran again without a new arm\n{report}"
     );
     match fault {
-        Fault::BusError | Fault::Panic => {
+        Fault::BusError | Fault::Panic | Fault::StackOverflow => {
+            if fault == Fault::StackOverflow {
+                let runaway = pilot.runaway.as_ref().expect("the injection");
+                assert!(
+                    runaway.installed_at().is_some(),
+                    "{fault:?}: the runaway was never installed\n{report}"
+                );
+                // The runaway's pushes reached the bottom of the stack region (the paint
+                // pattern there is gone), and the firmware says so: the fault is the overflow's.
+                assert!(
+                    outcome.logged("HardFault: stack overflow"),
+                    "{fault:?}: the HardFault path did not report a stack overflow\n{report}"
+                );
+                assert!(
+                    pilot
+                        .stack_bottom_word
+                        .is_some_and(|w| w != u64::from(STACK_PAINT)),
+                    "{fault:?}: the stack's bottom word {:x?} is still the paint: no overflow\n{report}",
+                    pilot.stack_bottom_word
+                );
+            }
             let handler = if fault == Fault::Panic {
                 "rust_begin_unwind"
             } else {
@@ -354,6 +436,44 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
             );
         }
         _ => outcome.assert_clean(),
+    }
+    if fault == Fault::ImuFullScale {
+        // The injection did what it says: the chip's z rate register sits at +32767, the other
+        // axes still move (not a frozen sensor), and the firmware counted the samples invalid.
+        let imu = outcome.session.board_mut().imu();
+        let z = i16::from_be_bytes([imu.register(GYRO_ZOUT_H), imu.register(GYRO_ZOUT_H + 1)]);
+        assert_eq!(
+            z,
+            i16::MAX,
+            "{fault:?}: the gyro's z is not at full scale\n{report}"
+        );
+        let invalid: Vec<u64> = outcome
+            .log
+            .lines()
+            .iter()
+            .filter_map(|l| {
+                let at = l.text.find("imu_invalid=")?;
+                l.text[at + "imu_invalid=".len()..]
+                    .split(' ')
+                    .next()?
+                    .parse()
+                    .ok()
+            })
+            .collect();
+        let (Some(&first), Some(&last)) = (invalid.first(), invalid.last()) else {
+            panic!("{fault:?}: no status lines\n{report}");
+        };
+        assert_eq!(
+            first, 0,
+            "{fault:?}: samples rejected before the fault\n{report}"
+        );
+        // 512 Hz for the rest of the run after the fault, a status line a second: at least the
+        // samples up to the last status line (a few hundred).
+        assert!(
+            last >= 100,
+            "{fault:?}: only {last} samples counted invalid\n{report}"
+        );
+        println!("{fault:?}: {last} samples counted invalid by the last status line");
     }
     if fault == Fault::ImuReset {
         let back = pilot.imu_back_at.unwrap_or_else(|| {
@@ -433,6 +553,13 @@ fn an_unplugged_imu_stops_the_motors() {
     fault_stops_the_motors(Fault::ImuUnplugged, imu_promise_ns(), 3.0);
 }
 
+/// A sample with an axis at full scale is a bound, not a measurement (issue 12 item 3): counted
+/// invalid, and the IMU failsafe stops the motors within its promise.
+#[test]
+fn an_imu_at_full_scale_stops_the_motors() {
+    fault_stops_the_motors(Fault::ImuFullScale, imu_promise_ns(), 5.0);
+}
+
 /// The MPU-6000 resets in flight (issue 12 item 3): the IMU failsafe stops the motors within
 /// its promise, the firmware configures the chip again (it comes back asleep with its
 /// registers at their defaults), and the motors stay off without a new `Arm`.
@@ -446,6 +573,18 @@ fn a_reset_imu_stops_the_motors_and_is_configured_again() {
 fn a_hard_fault_stops_the_motors_at_once() {
     fault_stops_the_motors(
         Fault::BusError,
+        autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        3.0,
+    );
+}
+
+/// A stack overflow (issue 12 item 6: flip-link): a runaway recursion uses up the stack, the
+/// push that leaves SRAM faults, and the HardFault path stops the motors first, on a stack
+/// that has no room left.
+#[test]
+fn a_stack_overflow_faults_and_stops_the_motors_at_once() {
+    fault_stops_the_motors(
+        Fault::StackOverflow,
         autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
         3.0,
     );

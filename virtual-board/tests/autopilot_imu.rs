@@ -4,7 +4,7 @@
 //! body rate on each axis.
 
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
-use virtual_board::boards::autopilot::Autopilot;
+use virtual_board::boards::autopilot::{Autopilot, MOTOR_PWM_HZ, MOTORS};
 use virtual_board::firmware::Firmware;
 use virtual_board::host;
 use virtual_board::pilot::{GroundStation, MS};
@@ -31,6 +31,9 @@ const LOOP_JITTER_BOUND_US: f64 = 200.0;
 struct Pilot {
     ground: GroundStation,
     baseline: Vec<[f64; 4]>,
+    /// The four outputs' PWM periods (ns, `None`: no PWM) at each baseline stop, in
+    /// [`virtual_board::boards::autopilot::MOTORS`] order.
+    periods: Vec<[Option<u64>; 4]>,
     during: [Vec<[f64; 4]>; 3],
 }
 
@@ -48,6 +51,7 @@ impl Pilot {
         let duties = board.duties_in_mixer_order();
         if (BASELINE.0..BASELINE.1).contains(&now) {
             self.baseline.push(duties);
+            self.periods.push(board.motors().map(|m| m.period_ns));
         }
         let mut rate = [0.0; 3];
         for (axis, &start) in AXIS_START.iter().enumerate() {
@@ -80,6 +84,7 @@ fn the_imu_is_sampled_at_the_loop_rate_and_the_motors_oppose_a_body_rate() {
                 // As if hovering at 0.5 m once armed (the rate test flies no world).
                 ground: GroundStation::arming_at(ARM_AT, 0.5),
                 baseline: Vec::new(),
+                periods: Vec::new(),
                 during: Default::default(),
             },
         },
@@ -159,6 +164,34 @@ fn the_imu_is_sampled_at_the_loop_rate_and_the_motors_oppose_a_body_rate() {
         baseline.iter().all(|&d| d > 0.05),
         "armed, the motors should run: baseline duties {baseline:?}\n{report}"
     );
+    // Each motor output is a PWM at the airframe's 36 kHz (issue 12 item 4), on its pin and
+    // timer channel (PC6 TIM3 CH1, PC7 TIM3 CH2, PA0 TIM5 CH1, PA1 TIM5 CH2), at every stop.
+    let want_ns = 1e9 / MOTOR_PWM_HZ as f64;
+    assert!(!pilot.periods.is_empty(), "no baseline stops\n{report}");
+    for periods in &pilot.periods {
+        for (motor, period) in MOTORS.iter().zip(periods) {
+            let period = period.unwrap_or_else(|| {
+                panic!(
+                    "{} {} CH{}: not a PWM output while armed\n{report}",
+                    virtual_board::pins::name(motor.port, motor.pin),
+                    motor.timer,
+                    motor.channel
+                )
+            });
+            assert!(
+                (period as f64 - want_ns).abs() / want_ns < 0.01,
+                "{} {} CH{}: PWM period {period} ns ({:.0} Hz), the airframe's {MOTOR_PWM_HZ} Hz\n{report}",
+                virtual_board::pins::name(motor.port, motor.pin),
+                motor.timer,
+                motor.channel,
+                1e9 / period as f64
+            );
+        }
+    }
+    println!(
+        "motor PWM: {:?} ns periods ({:.0} Hz wanted)",
+        pilot.periods[0], MOTOR_PWM_HZ as f64
+    );
     for axis in 0..3 {
         let during = mean(&pilot.during[axis]);
         let mut torque = [0.0f32; 3];
@@ -174,4 +207,160 @@ fn the_imu_is_sampled_at_the_loop_rate_and_the_motors_oppose_a_body_rate() {
              positive body rate (mixer pattern {expected:?})\n{report}"
         );
     }
+}
+
+/// The host-link test's phases: the baseline, a window of host IMU samples claiming a roll
+/// rate, a window of the same roll rate on the real sensor, each held after a settle.
+const HOST_BASELINE: (u64, u64) = (2_100 * MS, 2_400 * MS);
+const HOST_WINDOW: u64 = 2_500 * MS;
+const REAL_WINDOW: u64 = 3_000 * MS;
+const WINDOW_HOLD: u64 = 300 * MS;
+/// One host IMU sample this often: a frame is about 40 bytes, 3.5 ms at the telemetry port's
+/// 115,200 Bd, beside the height fixes.
+const HOST_SAMPLE_PERIOD: u64 = 10 * MS;
+/// The claimed (and, in the second window, real) roll rate, rad/s.
+const HOST_RATE: f64 = 1.0;
+
+struct HostImuPilot {
+    ground: GroundStation,
+    samples: virtual_board::pilot::Every,
+    sent: u64,
+    baseline: Vec<[f64; 4]>,
+    host: Vec<[f64; 4]>,
+    real: Vec<[f64; 4]>,
+}
+
+fn in_window(now: u64, start: u64) -> bool {
+    (start + AXIS_SETTLE..start + WINDOW_HOLD).contains(&now)
+}
+
+impl Probe<Autopilot> for HostImuPilot {
+    fn at(&mut self, at: &mut At<'_, Autopilot>) -> Flow {
+        let now = at.now;
+        let board = at.board();
+        self.ground.step(now, &board.telemetry.rx);
+        let duties = board.duties_in_mixer_order();
+        if (HOST_BASELINE.0..HOST_BASELINE.1).contains(&now) {
+            self.baseline.push(duties);
+        }
+        // Host samples: a level, still accelerometer and a roll rate, as `sim-host hil` sends
+        // them to a lockstep board.
+        if (HOST_WINDOW..HOST_WINDOW + WINDOW_HOLD).contains(&now) && self.samples.due(now) {
+            let sample = protocol::HostToBoard::Imu(protocol::ImuSample {
+                timestamp_us: protocol::WireTime((now / 1_000) as u32),
+                gyro_radps: [HOST_RATE as f32, 0.0, 0.0],
+                accel_mps2: [0.0, 0.0, -9.81],
+            });
+            board.telemetry.rx.send_at(now, &host::frame(&sample));
+            self.sent += 1;
+        }
+        if in_window(now, HOST_WINDOW) {
+            self.host.push(duties);
+        }
+        let real = (REAL_WINDOW..REAL_WINDOW + WINDOW_HOLD).contains(&now);
+        board.set_body_rate([if real { HOST_RATE } else { 0.0 }, 0.0, 0.0]);
+        if in_window(now, REAL_WINDOW) {
+            self.real.push(duties);
+        }
+        Flow::Continue
+    }
+}
+
+/// The value of `key=` in the firmware's last status line logged before `before_ns`.
+fn status_before(log: &virtual_board::rtt::RttLog, key: &str, before_ns: u64) -> Option<u64> {
+    let pattern = format!("{key}=");
+    log.lines()
+        .iter()
+        .rev()
+        .filter(|l| l.at_ns < before_ns)
+        .find(|l| l.text.contains("status uptime_ms="))?
+        .text
+        .split_whitespace()
+        .find_map(|field| field.strip_prefix(pattern.as_str()))?
+        .parse()
+        .ok()
+}
+
+/// The value of `key=` in the firmware's last status line.
+fn last_status(log: &virtual_board::rtt::RttLog, key: &str) -> Option<u64> {
+    status_before(log, key, u64::MAX)
+}
+
+/// Issue 12 item 7: the `real` flavour takes no sensor data from the host link. Armed, it is
+/// sent IMU samples on its telemetry port claiming a roll rate: it counts every one refused,
+/// its loop goes on sampling its own IMU at the loop rate, and the motors do not answer the
+/// claimed rate, while the same rate on the real sensor moves them.
+#[test]
+fn the_real_flavour_refuses_imu_samples_from_the_host_link() {
+    let firmware = Firmware::real("autopilot").expect("the autopilot image");
+    let mut outcome = run(
+        Setup {
+            board: Autopilot::new(9).expect("the board"),
+            firmware,
+            probe: HostImuPilot {
+                ground: GroundStation::arming_at(ARM_AT, 0.5),
+                samples: virtual_board::pilot::Every::ns(HOST_SAMPLE_PERIOD),
+                sent: 0,
+                baseline: Vec::new(),
+                host: Vec::new(),
+                real: Vec::new(),
+            },
+        },
+        Options::seconds(3.6),
+    )
+    .expect("the run");
+    let report = outcome.report();
+    outcome.assert_clean();
+    let pilot = &outcome.probe;
+    let rejected = last_status(&outcome.log, "host_sensor_rejected")
+        .unwrap_or_else(|| panic!("no host_sensor_rejected in the status lines\n{report}"));
+    assert!(pilot.sent >= 25, "{} host samples sent", pilot.sent);
+    assert_eq!(
+        rejected, pilot.sent,
+        "host IMU samples sent {}, refused {rejected}\n{report}",
+        pilot.sent
+    );
+    // The loop kept its own clock and its own sensor through the host samples.
+    let reads = outcome.session.board_mut().imu().sensor_reads().to_vec();
+    let in_host_window = reads
+        .iter()
+        .filter(|(t, _)| (HOST_WINDOW..HOST_WINDOW + WINDOW_HOLD).contains(t))
+        .count() as f64;
+    let expected = LOOP_HZ * WINDOW_HOLD as f64 / 1e9;
+    assert!(
+        (in_host_window - expected).abs() <= 0.03 * expected + 1.0,
+        "{in_host_window} IMU reads in the host window, {expected} at the loop rate\n{report}"
+    );
+    // No sample of the real IMU rejected from before the host samples to the end (the gyro's
+    // start-up after boot is rejected, and counted, before that).
+    assert_eq!(
+        last_status(&outcome.log, "imu_invalid"),
+        status_before(&outcome.log, "imu_invalid", HOST_WINDOW),
+        "the real IMU's samples stayed valid\n{report}"
+    );
+    // The roll pattern of the mixer: how far the duties moved the way a positive roll rate
+    // makes them move.
+    let baseline = mean(&pilot.baseline);
+    let expected = autopilot::mixer::mix(0.5, -0.2, 0.0, 0.0).throttle;
+    let neutral = autopilot::mixer::mix(0.5, 0.0, 0.0, 0.0).throttle;
+    let response = |samples: &[[f64; 4]]| -> f64 {
+        let during = mean(samples);
+        (0..4)
+            .map(|m| (during[m] - baseline[m]) * f64::from(expected[m] - neutral[m]))
+            .sum()
+    };
+    let (host, real) = (response(&pilot.host), response(&pilot.real));
+    println!(
+        "host IMU samples: {} sent, {rejected} refused; roll response to the host's rate {host:.2e}, \
+         to the sensor's {real:.2e}",
+        pilot.sent
+    );
+    assert!(
+        real > 0.0,
+        "the real sensor's roll rate moved the motors ({real:.2e})\n{report}"
+    );
+    assert!(
+        host.abs() < 0.2 * real,
+        "the motors answered the host's samples: {host:.2e} against the sensor's {real:.2e}\n{report}"
+    );
 }

@@ -4,30 +4,18 @@
 //! (answering with the value now in use) and refuses one outside them, and every frame it sent
 //! decodes.
 //!
-//! Saved parameters: a record in the parameter sector at power-on (what an earlier save left,
-//! encoded by the autopilot library's `params::encode_record`, the bytes the firmware's save
-//! programs) is what the firmware boots with; a corrupted one means the defaults, reported to
-//! the host and in the log. A save drives rigless's flash interface model through the unlock,
-//! the sector erase (its `BSY` held for the erase time) and the program sequence without a
-//! reset or a sequence error; rigless 0.4.0 does not put programmed bytes into the array (see
-//! [`virtual_board::flash`]), so the firmware's read-back finds the sector unchanged and the
-//! save is answered as failed there.
-//!
 //! The tool is `VBOARD_SIM_HOST` (set by `cargo xtask vboard`, which builds it), else the main
 //! workspace's `target/debug/sim-host`.
 
-use rigless::mcu::Mcu as _;
 use std::net::TcpListener;
 use std::path::PathBuf;
 use std::process::Command;
 
-use autopilot::app::AutopilotConfig;
-use autopilot::params::{self, TABLE};
-use protocol::{BoardToHost, ParamError, ParamReply, ParamValue};
+use autopilot::params::TABLE;
+use protocol::{BoardToHost, ParamReply};
 use virtual_board::bench::{Options, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
-use virtual_board::flash::FlashContents;
 use virtual_board::host;
 use virtual_board::serve::TcpBridge;
 
@@ -44,35 +32,16 @@ fn sim_host() -> PathBuf {
     path
 }
 
-/// What one run of the tool against a freshly booted board left.
-struct Session {
-    ok: bool,
-    out: String,
-    replies: Vec<ParamReply>,
-    log: String,
-    resets: usize,
-    told: Vec<String>,
-    flash_cr: u64,
-    flash_sr: u64,
-}
-
 /// Boots the autopilot image, runs `sim-host param --port tcp:... ARGS` against its telemetry
 /// UART until the tool disconnects; returns whether it succeeded, its output, and the
 /// parameter answers the firmware sent.
 fn param(args: &[&str]) -> (bool, String, Vec<ParamReply>) {
-    let s = param_on(FlashContents::erased(), args);
-    (s.ok, s.out, s.replies)
-}
-
-/// The same on a board whose flash holds `flash` at power-on; also the firmware's log, the
-/// resets, what rigless's models told the session, and the flash interface's `CR` and `SR`.
-fn param_on(flash: FlashContents, args: &[&str]) -> Session {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let listener = TcpListener::bind("127.0.0.1:0").expect("a local port");
     let port = listener.local_addr().unwrap().port();
     let tool = Command::new(sim_host())
         .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
-        .args(["--timeout", "20"])
+        .args(["--timeout", "5"])
         .args(args)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
@@ -82,7 +51,7 @@ fn param_on(flash: FlashContents, args: &[&str]) -> Session {
         .expect("the tool connects");
     let outcome = run(
         Setup {
-            board: Autopilot::new(3).expect("the board").with_flash(flash),
+            board: Autopilot::new(3).expect("the board"),
             firmware,
             probe: bridge,
         },
@@ -91,22 +60,6 @@ fn param_on(flash: FlashContents, args: &[&str]) -> Session {
     .expect("the run");
     let report = outcome.report();
     outcome.assert_clean();
-    let log = outcome.log.text();
-    let resets = outcome.session.resets().len();
-    let told = outcome
-        .session
-        .told()
-        .map(|t| format!("{t:?}"))
-        .collect::<Vec<_>>();
-    let registers = outcome
-        .board()
-        .soc
-        .mcu
-        .bus()
-        .registers("FLASH")
-        .expect("the flash interface's registers");
-    let flash_cr = registers.get(rigless::soc::stm32f427::generated::flash::Register::Cr);
-    let flash_sr = registers.get(rigless::soc::stm32f427::generated::flash::Register::Sr);
     let sent = outcome.board().telemetry.tx.sent_bytes();
     let (messages, errors) = host::decode_board_to_host(&sent);
     assert_eq!(errors, 0, "the firmware's own frames decode\n{report}");
@@ -129,129 +82,7 @@ fn param_on(flash: FlashContents, args: &[&str]) -> Session {
             _ => None,
         })
         .collect();
-    Session {
-        ok: out.status.success(),
-        out: text,
-        replies,
-        log,
-        resets,
-        told,
-        flash_cr,
-        flash_sr,
-    }
-}
-
-/// The parameter sector as a save of `cfg` leaves it.
-fn saved(cfg: &AutopilotConfig) -> Vec<u8> {
-    let mut record = vec![0u8; params::RECORD_BYTES];
-    assert_eq!(
-        params::encode_record(cfg, &mut record),
-        Ok(params::RECORD_BYTES)
-    );
-    record
-}
-
-fn with_target_height(h: f32) -> AutopilotConfig {
-    let mut cfg = AutopilotConfig::default();
-    params::set_by_name(&mut cfg, "target_height", ParamValue::F32(h)).expect("in bounds");
-    cfg
-}
-
-#[test]
-fn a_saved_record_is_what_the_firmware_boots_with() {
-    let record = saved(&with_target_height(0.8));
-    let s = param_on(
-        FlashContents::param_sector(&record),
-        &["get", "target_height"],
-    );
-    assert!(s.ok, "{}", s.out);
-    assert!(s.out.contains(" 0.8 "), "{}", s.out);
-    assert!(
-        s.log.contains("parameters: the saved record is in use"),
-        "{}",
-        s.log
-    );
-    let s = param_on(FlashContents::param_sector(&record), &["storage"]);
-    assert!(s.ok, "{}", s.out);
-    assert!(
-        s.out
-            .contains("the saved parameters are in use; saves since boot: 0, failed: 0"),
-        "{}",
-        s.out
-    );
-    println!(
-        "saved target_height 0.8 read back after a power cycle: {}",
-        s.out.trim()
-    );
-}
-
-#[test]
-fn a_corrupted_or_missing_record_means_the_defaults_and_says_why() {
-    let mut record = saved(&with_target_height(0.8));
-    record[params::RECORD_BYTES / 2] ^= 0x08;
-    let s = param_on(
-        FlashContents::param_sector(&record),
-        &["get", "target_height"],
-    );
-    assert!(s.ok, "{}", s.out);
-    assert!(s.out.contains(" 1 "), "the default, 1 m: {}", s.out);
-    assert!(s.log.contains("parameters: defaults (BadCrc)"), "{}", s.log);
-    let s = param_on(FlashContents::param_sector(&record), &["storage"]);
-    assert!(
-        s.out.contains("defaults in use: corrupt record (bad CRC)"),
-        "{}",
-        s.out
-    );
-    let s = param_on(FlashContents::erased(), &["storage"]);
-    assert!(
-        s.out
-            .contains("defaults in use: nothing saved (erased flash)"),
-        "{}",
-        s.out
-    );
-    assert!(s.log.contains("parameters: defaults (Blank)"), "{}", s.log);
-}
-
-#[test]
-fn a_save_runs_the_flash_sequence_without_a_reset() {
-    let s = param_on(FlashContents::erased(), &["save"]);
-    // Through the whole erase (rigless holds BSY for 1 s at x32) the watchdog was given the
-    // save's timeout: the 50 ms one would have reset the board.
-    assert_eq!(s.resets, 0, "{}", s.log);
-    assert!(s.told.is_empty(), "rigless's models told: {:?}", s.told);
-    // Locked again, no error flag left (PGSERR, PGPERR, PGAERR, WRPERR, OPERR), not busy.
-    assert_eq!(s.flash_cr >> 31, 1, "CR {:#x}", s.flash_cr);
-    assert_eq!(s.flash_sr & 0x1_00f2, 0, "SR {:#x}", s.flash_sr);
-    // rigless 0.4.0 drops the programmed words (module docs): the read-back differs.
-    assert!(
-        s.replies
-            .iter()
-            .all(|r| *r == ParamReply::Error(ParamError::SaveFailed)),
-        "{:?}",
-        s.replies
-    );
-    assert!(!s.replies.is_empty());
-    assert!(
-        s.log.contains("parameters: not saved (SaveFailed)"),
-        "{}",
-        s.log
-    );
-    // The erase held the save (and, by the ap lock, the control loop) for rigless's 1 s.
-    let ms: u32 = s
-        .log
-        .split("parameters: not saved (SaveFailed) in ")
-        .nth(1)
-        .and_then(|rest| rest.split(" ms").next())
-        .and_then(|n| n.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no save line in\n{}", s.log));
-    assert!(
-        (1_000..1_100).contains(&ms),
-        "the save took {ms} ms; told {:?}; CR {:#x} SR {:#x}",
-        s.told,
-        s.flash_cr,
-        s.flash_sr
-    );
-    println!("save on the virtual autopilot: the erase held it {ms} ms, no reset");
+    (out.status.success(), text, replies)
 }
 
 #[test]
