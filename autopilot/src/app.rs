@@ -174,12 +174,18 @@ pub struct AutopilotConfig {
     pub velocity_source: VelocitySource,
     /// Horizontal velocity Kalman filter.
     pub velocity_kf: VelocityKfConfig,
-    /// Time span of an Edge-FS velocity (its flow horizon), µs: each estimate is the mean
-    /// velocity over this long before its frame's capture (Edge-FS's default `horizon_s`).
+    /// Time span an Edge-FS velocity averages over, µs: its flow horizon (`horizon_s`, 0.25 s
+    /// by default) widened by the camera board's output filter, which smooths over several
+    /// frames. The velocity filter takes each estimate as the mean velocity over this long.
     pub estimate_horizon_us: u32,
     /// Time an estimate spends on the link after the camera board sent it, µs (an `Estimate`
     /// frame of ~30 bytes at 115,200 Bd; its `processing_us` covers capture to sending).
     pub estimate_link_us: u32,
+    /// Delay of the camera board's output filter, µs: the averaging window ends this long
+    /// before the frame's capture. The filter (a velocity random walk on the board) passes a
+    /// step in a few frames, so the estimate describes an older, wider window than the flow
+    /// horizon alone; fitted in the simulator on tuning seeds (see `docs/parameters.md`).
+    pub estimate_filter_lag_us: u32,
     /// Estimates are not used for the velocity while the gyro's yaw rate is above this, rad/s
     /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
     /// still count as valid for the failsafe (the camera board is alive).
@@ -226,8 +232,9 @@ impl Default for AutopilotConfig {
             observer: ObserverConfig::default(),
             velocity_source: VelocitySource::Kalman,
             velocity_kf: VelocityKfConfig::default(),
-            estimate_horizon_us: 250_000,
+            estimate_horizon_us: 350_000,
             estimate_link_us: 3_000,
+            estimate_filter_lag_us: 97_000,
             max_yaw_rate_radps: 0.6,
             yaw_settle_us: 150_000,
             gyro_calibration_samples: 256,
@@ -776,10 +783,12 @@ impl Autopilot {
                 return;
             }
             // The Kalman filter has its own innovation gate; it takes the estimate as the mean
-            // velocity over the flow horizon that ended at the frame's capture.
+            // velocity over the window that ended the output filter's lag before the frame's
+            // capture.
             let end = now_us
                 .saturating_sub(u64::from(est.processing_us))
-                .saturating_sub(u64::from(self.cfg.estimate_link_us));
+                .saturating_sub(u64::from(self.cfg.estimate_link_us))
+                .saturating_sub(u64::from(self.cfg.estimate_filter_lag_us));
             let start = end.saturating_sub(u64::from(self.cfg.estimate_horizon_us));
             if self.cfg.velocity_source == VelocitySource::Kalman
                 && matches!(

@@ -530,7 +530,8 @@ fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
         accel_mps2: [0.0, 0.0, -GRAVITY],
     };
     let mut t = 0;
-    for _ in 0..20 {
+    // Long enough for the estimates' windows (about 0.5 s old) to lie after the filter's start.
+    for _ in 0..60 {
         t += 20_000;
         ap.on_imu(&imu(t, 0.0), t);
         ap.on_estimate(&est(0.2), t);

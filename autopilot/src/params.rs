@@ -244,6 +244,7 @@ table! {
     "vkf_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.velocity_kf.max_tilt_rad;
     "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimate_horizon_us;
     "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimate_link_us;
+    "est_filter_lag_us": U32 ["us"] 0, 300_000, true => |c| c.estimate_filter_lag_us;
     "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.max_yaw_rate_radps;
     "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
     "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;
@@ -374,6 +375,16 @@ pub fn validate(cfg: &AutopilotConfig) -> Result<(), Rejected> {
     }
     if cfg.landed_height_m >= cfg.target_height_m {
         return Err(inconsistent("landed_height"));
+    }
+    // The oldest estimate window (the longest processing time an estimate can report, then the
+    // link, the output filter's lag and the window itself) must lie inside the velocity
+    // filter's history, or every estimate would be ignored.
+    let oldest_window_us = u64::from(u16::MAX)
+        + u64::from(cfg.estimate_link_us)
+        + u64::from(cfg.estimate_filter_lag_us)
+        + u64::from(cfg.estimate_horizon_us);
+    if oldest_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
+        return Err(inconsistent("est_horizon_us"));
     }
     Ok(())
 }
@@ -565,6 +576,24 @@ mod tests {
         assert_eq!(c.fsm.variant, FsmVariant::TurnUntilClear);
         set_by_name(&mut c, "fs_hover_land_us", ParamValue::U32(1_500_000)).unwrap();
         assert_eq!(c.failsafe.hover_before_land_us, 1_500_000);
+    }
+
+    #[test]
+    fn an_estimate_window_older_than_the_filter_history_is_inconsistent() {
+        let mut c = AutopilotConfig::default();
+        // Each within its bounds, together reaching past the velocity filter's history (where
+        // every estimate would be ignored and the drone would dead-reckon into a wall).
+        set_by_name(&mut c, "est_horizon_us", ParamValue::U32(300_000)).unwrap();
+        set_by_name(&mut c, "est_filter_lag_us", ParamValue::U32(150_000)).unwrap();
+        let r = set_by_name(&mut c, "est_horizon_us", ParamValue::U32(400_000)).unwrap_err();
+        assert_eq!(
+            (r.name(), r.error),
+            ("est_horizon_us", ParamError::Inconsistent)
+        );
+        let r = set_by_name(&mut c, "est_filter_lag_us", ParamValue::U32(300_000)).unwrap_err();
+        assert_eq!(r.error, ParamError::Inconsistent);
+        assert_eq!(c.estimate_filter_lag_us, 150_000);
+        assert!(validate(&AutopilotConfig::default()).is_ok());
     }
 
     #[test]

@@ -27,7 +27,7 @@
 //! from the measurement.
 
 use crate::velocity_model::{
-    heading_frame_step, tilt_acceleration, VelocityHistory, MAX_SPEED_MPS,
+    heading_frame_step, tilt_acceleration, VelocityHistory, HISTORY_SPACING_US, MAX_SPEED_MPS,
 };
 
 /// Tunables of [`VelocityKf`].
@@ -86,9 +86,12 @@ pub enum Fusion {
     Ignored,
 }
 
-/// History slots (one every 6 ms): 64 reach 384 ms back, the
-/// default horizon plus processing and link with room to spare.
-const HISTORY_LEN: usize = 64;
+/// History slots (one at least every 6 ms).
+const HISTORY_LEN: usize = 96;
+
+/// The oldest window start the filter can always place, µs before the newest prediction
+/// (95 spacings: 570 ms). [`crate::params::validate`] keeps the estimate's window within it.
+pub const MAX_WINDOW_AGE_US: u64 = (HISTORY_LEN as u64 - 1) * HISTORY_SPACING_US;
 
 /// The filter. Fixed size, no heap.
 #[derive(Debug, Clone, Copy, PartialEq)]
