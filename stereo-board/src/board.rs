@@ -15,7 +15,7 @@
 //! * [`SCCB_HZ`]: the original's 25 kHz (the TCM8230 allows more; the bus has 2.8 V pull-ups
 //!   and two sensors on it, so the slow rate is kept).
 //! * [`CAMERA_STOPPED_FRAMES`]: how many frame periods without a VSYNC make the camera stopped.
-//! * [`LINK_BAUD`]: the paper-era 115,200 Bd; a faster rate must be set on both boards.
+//! * [`LINK_BAUD`]: 115,200 Bd as the original harness; one setting both boards share.
 
 /// A GPIO port of the STM32F407.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -373,8 +373,9 @@ pub const TCM8230_ADDRESS: u8 = 0x3C;
 
 /// The autopilot link: UART4 (PA0 TX, PA1 RX).
 pub const LINK_UART: &str = "UART4";
-/// Link baud rate, 8N1.
-pub const LINK_BAUD: u32 = 115_200;
+/// Link baud rate, 8N1: the one setting both boards share ([`board_support::link::LINK_BAUD`],
+/// 115,200 Bd as the original harness runs).
+pub const LINK_BAUD: u32 = board_support::link::LINK_BAUD;
 /// A second UART (USART2, PA2/PA3) exists on the board; the pocket drone leaves it unused, so
 /// the `real` firmware does not touch it ([SB] usart.c:303-330).
 pub const HOST_UART_USED: bool = false;
