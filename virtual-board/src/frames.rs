@@ -2,7 +2,7 @@
 //! recorded data set or from anything that renders them ([`FrameSource`]).
 
 use std::fmt::Debug;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Image width, pixels.
 pub const WIDTH: usize = 128;
@@ -167,6 +167,20 @@ impl FrameSource for Recorded {
             .and_then(|i| self.images.get(i))
             .cloned()
     }
+}
+
+/// Take 1 of the recorded data set (board 1, forward camera), which the bench tests play:
+/// under `VBOARD_DATASET` if set, else `../shared/data/stereoboard_testing` beside the checkout.
+pub fn data_set_take_1() -> PathBuf {
+    std::env::var_os("VBOARD_DATASET")
+        .map_or_else(
+            || {
+                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                    .join("../../shared/data/stereoboard_testing")
+            },
+            PathBuf::from,
+        )
+        .join("database_stereoboard_1/forward_camera/take1")
 }
 
 #[cfg(test)]

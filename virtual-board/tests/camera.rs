@@ -21,18 +21,9 @@ use virtual_board::frames::Recorded;
 /// come in too).
 const FRAMES: usize = 74;
 
-/// Take 1 of the data set: `VBOARD_DATASET` if set, else `../shared/data/stereoboard_testing`
-/// beside the checkout.
+/// The recorded take the test plays (see [`virtual_board::frames::data_set_take_1`]).
 fn take() -> PathBuf {
-    std::env::var_os("VBOARD_DATASET")
-        .map_or_else(
-            || {
-                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                    .join("../../shared/data/stereoboard_testing")
-            },
-            PathBuf::from,
-        )
-        .join("database_stereoboard_1/forward_camera/take1")
+    virtual_board::frames::data_set_take_1()
 }
 
 fn decode(bytes: &[u8]) -> (Vec<StereoToAutopilot>, u32) {

@@ -41,18 +41,10 @@ enum Injection {
     Panic,
 }
 
-/// Take 1 of the data set: `VBOARD_DATASET` if set, else `../shared/data/stereoboard_testing`
-/// beside the checkout. Once its frames are played the sensors keep seeing the last one.
+/// The recorded take the test plays (see [`virtual_board::frames::data_set_take_1`]). Once its
+/// frames are played the sensors keep seeing the last one.
 fn take() -> PathBuf {
-    std::env::var_os("VBOARD_DATASET")
-        .map_or_else(
-            || {
-                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                    .join("../../shared/data/stereoboard_testing")
-            },
-            PathBuf::from,
-        )
-        .join("database_stereoboard_1/forward_camera/take1")
+    virtual_board::frames::data_set_take_1()
 }
 
 /// The camera board's side: injects the fault.
