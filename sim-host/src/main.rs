@@ -16,6 +16,10 @@ enum Command {
     Fly(sim_host::fly::FlyArgs),
     /// Evaluate Edge-FS on a recorded stereo data set against motion-capture ground truth.
     Eval(sim_host::eval::EvalArgs),
+    /// Render each recorded take's motion-capture trajectory in a scene matched to its frames'
+    /// texture statistics, run Edge-FS on the recorded and the rendered frames, and compare
+    /// their errors and statistics.
+    Replay(sim_host::eval::replay::ReplayArgs),
     /// Hardware in the loop: fly the simulated world with the two real boards (serial links)
     /// or the two firmwares in QEMU (TCP), in lockstep on world time.
     Hil(sim_host::hil::HilArgs),
@@ -31,6 +35,7 @@ fn main() -> anyhow::Result<()> {
     match &cli.command {
         Command::Fly(args) => sim_host::fly::run(args),
         Command::Eval(args) => sim_host::eval::run(args),
+        Command::Replay(args) => sim_host::eval::replay::run(args),
         Command::Hil(args) => sim_host::hil::run_cli(args),
         Command::Monitor(args) => sim_host::monitor::run(args),
         Command::Param(args) => sim_host::param::run(args),

@@ -16,9 +16,11 @@
 //! so the attitude carries the yaw only and the rates are zero.
 
 pub mod dataset;
+pub mod frame_stats;
 pub mod metrics;
 pub mod paper_table;
 pub mod plot;
+pub mod replay;
 pub mod truth;
 
 use anyhow::{bail, ensure, Context, Result};
@@ -155,6 +157,42 @@ pub fn evaluate_take_with(
         take.dir.display()
     );
     let truth = truth::ground_truth(take, n, alignment)?;
+    let s = estimate_series(
+        &truth,
+        params,
+        zero_first_2h,
+        &mut |i| load_frame(&take.image_path(i)),
+        on_frame,
+    )?;
+    let (a, b) = s.window;
+    let x = metrics(&s.est_x[a..=b], &s.gt_x[a..=b]);
+    let y = metrics(&s.est_y[a..=b], &s.gt_y[a..=b]);
+    Ok(TakeResult {
+        board: take.board,
+        take: take.take,
+        frames: n,
+        x,
+        y,
+        series: s,
+    })
+}
+
+/// Runs Edge-FS with `params` on images `1..=N-1` of a take under the evaluation's protocol
+/// (attitude = the truth's yaw in the body convention, capture time = the truth's image time,
+/// sideways negated into the data set's convention), `frame(i)` giving image `i` (1-based).
+/// `truth` has one entry per image `1..=N-1`; the evaluation window is `10..=N-11`.
+pub fn estimate_series(
+    truth: &truth::Truth,
+    params: EdgeFsParams,
+    zero_first_2h: bool,
+    frame: &mut dyn FnMut(usize) -> Result<Box<[u8; protocol::STEREO_FRAME_BYTES]>>,
+    on_frame: &(dyn Fn() + Sync),
+) -> Result<Series> {
+    let n = truth.time_s.len() + 1;
+    ensure!(
+        n >= 22,
+        "only {n} images; the evaluation window 10..N-11 needs at least 22"
+    );
     let mut fs = EdgeFs::new(params);
     let mut s = Series {
         time_s: truth.time_s.clone(),
@@ -165,7 +203,7 @@ pub fn evaluate_take_with(
     };
     let h = params.max_horizon as usize;
     for i in 1..n {
-        let frame = load_frame(&take.image_path(i))?;
+        let frame = frame(i)?;
         let t = truth.time_s[i - 1];
         let yaw_body = -(truth.yaw_deg[i - 1] * std::f64::consts::PI / 180.0);
         let motion = GyroAttitude {
@@ -185,17 +223,7 @@ pub fn evaluate_take_with(
         s.est_y.push(ey);
         on_frame();
     }
-    let (a, b) = s.window;
-    let x = metrics(&s.est_x[a..=b], &s.gt_x[a..=b]);
-    let y = metrics(&s.est_y[a..=b], &s.gt_y[a..=b]);
-    Ok(TakeResult {
-        board: take.board,
-        take: take.take,
-        frames: n,
-        x,
-        y,
-        series: s,
-    })
+    Ok(s)
 }
 
 /// Keeps the takes named in `list` (`B/T` or `B/*`, comma-separated).

@@ -134,10 +134,11 @@ fn interp(ts: &[f64], v: &[f64], t: f64) -> f64 {
     v[k - 1] + a * (v[k] - v[k - 1])
 }
 
-/// Corrected alignment (see [`Alignment::Corrected`]).
-pub fn corrected_truth(take: &Take, n_images: usize) -> Result<Truth> {
+/// Image times of images `1..=n_images-1`, s (logging clock): the `%i.bmp.tme` file, or
+/// where there is none the (k+1)-th recorded-frame row of timing.dat for image k.
+pub fn image_times(take: &Take, n_images: usize) -> Result<Vec<f64>> {
     let m = n_images.saturating_sub(1);
-    let times = match read_tme(take)? {
+    let mut times = match read_tme(take)? {
         Some(t) => {
             ensure!(
                 t.len() >= m,
@@ -161,42 +162,90 @@ pub fn corrected_truth(take: &Take, n_images: usize) -> Result<Truth> {
             flagged[1..].to_vec()
         }
     };
-    let path = take.dir.join("position.dat");
-    let pos = read_table(&path, 8, false)?;
-    let mut rows: Vec<&Vec<f64>> = Vec::new();
-    for r in &pos.rows {
-        let sentinel = r[2].abs() > 1e5 || r[3].abs() > 1e5 || r[4].abs() > 1e5;
-        let dup = rows.last().is_some_and(|p| r[0] <= p[0]);
-        if !sentinel && !dup && r.iter().all(|v| v.is_finite()) {
-            rows.push(r);
+    times.truncate(m);
+    Ok(times)
+}
+
+/// The motion-capture track of a take with sentinel rows, duplicate timestamps and
+/// non-finite rows removed, the yaw unwrapped, and smoothed as the ground truth is (MATLAB
+/// `smooth`: positions span 5, yaw span 15, roll and pitch span 19). Data-set axes: X, Z
+/// horizontal, Y up, m; angles in degrees.
+#[derive(Debug, Clone, Default)]
+pub struct MocapTrack {
+    /// Logging-clock time, s (strictly increasing).
+    pub t: Vec<f64>,
+    /// X, m.
+    pub x: Vec<f64>,
+    /// Y (up), m.
+    pub y: Vec<f64>,
+    /// Z, m.
+    pub z: Vec<f64>,
+    /// Roll, deg.
+    pub roll: Vec<f64>,
+    /// Pitch, deg.
+    pub pitch: Vec<f64>,
+    /// Yaw (unwrapped), deg.
+    pub yaw: Vec<f64>,
+}
+
+impl MocapTrack {
+    /// Reads and cleans a take's position.dat.
+    pub fn read(take: &Take) -> Result<Self> {
+        let path = take.dir.join("position.dat");
+        let pos = read_table(&path, 8, false)?;
+        let mut rows: Vec<&Vec<f64>> = Vec::new();
+        for r in &pos.rows {
+            let sentinel = r[2].abs() > 1e5 || r[3].abs() > 1e5 || r[4].abs() > 1e5;
+            let dup = rows.last().is_some_and(|p| r[0] <= p[0]);
+            if !sentinel && !dup && r.iter().all(|v| v.is_finite()) {
+                rows.push(r);
+            }
         }
+        ensure!(
+            rows.len() >= 16,
+            "{}: only {} valid motion-capture rows",
+            path.display(),
+            rows.len()
+        );
+        let mut yaw_unwrapped: Vec<f64> = Vec::with_capacity(rows.len());
+        for r in &rows {
+            let y = r[7];
+            let y = match yaw_unwrapped.last() {
+                Some(&p) => p + (y - p + 180.0).rem_euclid(360.0) - 180.0,
+                None => y,
+            };
+            yaw_unwrapped.push(y);
+        }
+        let col = |c: usize| -> Vec<f64> { rows.iter().map(|r| r[c]).collect() };
+        Ok(Self {
+            t: col(0),
+            x: matlab_smooth(&col(2), 5),
+            y: matlab_smooth(&col(3), 5),
+            z: matlab_smooth(&col(4), 5),
+            roll: matlab_smooth(&col(5), 19),
+            pitch: matlab_smooth(&col(6), 19),
+            yaw: matlab_smooth(&yaw_unwrapped, 15),
+        })
     }
-    ensure!(
-        rows.len() >= 16,
-        "{}: only {} valid motion-capture rows",
-        path.display(),
-        rows.len()
-    );
-    let t: Vec<f64> = rows.iter().map(|r| r[0]).collect();
-    let mut yaw_unwrapped: Vec<f64> = Vec::with_capacity(rows.len());
-    for r in &rows {
-        let y = r[7];
-        let y = match yaw_unwrapped.last() {
-            Some(&p) => p + (y - p + 180.0).rem_euclid(360.0) - 180.0,
-            None => y,
-        };
-        yaw_unwrapped.push(y);
+
+    /// `v` (one of the track's columns) linearly interpolated at `t`, clamped at the ends.
+    pub fn at(&self, v: &[f64], t: f64) -> f64 {
+        interp(&self.t, v, t)
     }
-    let x = matlab_smooth(&rows.iter().map(|r| r[2]).collect::<Vec<_>>(), 5);
-    let z = matlab_smooth(&rows.iter().map(|r| r[4]).collect::<Vec<_>>(), 5);
-    let yaw = matlab_smooth(&yaw_unwrapped, 15);
+}
+
+/// Corrected alignment (see [`Alignment::Corrected`]).
+pub fn corrected_truth(take: &Take, n_images: usize) -> Result<Truth> {
+    let times = image_times(take, n_images)?;
+    let track = MocapTrack::read(take)?;
+    let (t, x, z, yaw) = (&track.t, &track.x, &track.z, &track.yaw);
     let sign = if take.board == 2 { -1.0 } else { 1.0 };
     let h = 0.05;
     let mut truth = Truth::default();
-    for &tf in times.iter().take(m) {
-        let vx = (interp(&t, &x, tf + h) - interp(&t, &x, tf - h)) / (2.0 * h);
-        let vz = (interp(&t, &z, tf + h) - interp(&t, &z, tf - h)) / (2.0 * h);
-        let yd = interp(&t, &yaw, tf);
+    for &tf in &times {
+        let vx = (interp(t, x, tf + h) - interp(t, x, tf - h)) / (2.0 * h);
+        let vz = (interp(t, z, tf + h) - interp(t, z, tf - h)) / (2.0 * h);
+        let yd = interp(t, yaw, tf);
         let psi = yd.to_radians();
         let (c, s) = (psi.cos(), psi.sin());
         truth.time_s.push(tf);

@@ -1,0 +1,696 @@
+//! `sim-host replay`: the renderer's fidelity against the recorded takes.
+//!
+//! Per take:
+//! 1. the recorded frames' texture statistics ([`FrameStats`], means over images `1..=N-1`)
+//!    and the median stereo depth Edge-FS measures on them ([`real_depth_m`]);
+//! 2. a scene built from those statistics alone ([`fit_scene`]; the take's velocity error is
+//!    never looked at);
+//! 3. the take's OptiTrack trajectory (position and attitude, smoothed as the ground truth is,
+//!    interpolated to the image times) rendered in that scene by the simulator's stereo camera
+//!    (its default model: exposure, gain, noise, motion blur; only the board's calibrated
+//!    stereo shift is taken over, since Edge-FS is configured with it);
+//! 4. Edge-FS (default configuration, the board's stereo shift) on the recorded and on the
+//!    rendered frames under the evaluation's protocol ([`super::estimate_series`]), both scored
+//!    with the evaluation's metrics against the same ground truth.
+//!
+//! Axes: the data set's X, Z are horizontal and Y is up; the simulator's world is x north,
+//! y east, z down. A take is placed with `x = Z`, `y = -X`, `z = -Y`. The camera's forward
+//! direction is the one the ground truth projects on (`(sin ψ, cos ψ)` in (X, Z), negated on
+//! board 2), its heading the angle of that direction in the simulator's frame (so the rendered
+//! yaw changes as the truth's yaw does). Roll and pitch are taken as rotations about the
+//! camera's forward and right axes with the data set's sign (Motive's right-handed
+//! convention): simulator roll = `s·roll`, pitch = `-s·pitch`, `s = ±1` the board's forward
+//! sign.
+
+use super::dataset::{discover_takes, load_frame, stereo_shift, Take};
+use super::frame_stats::{FrameStats, TakeStats};
+use super::metrics::{metrics, Metrics};
+use super::truth::{ground_truth, image_times, Alignment, MocapTrack};
+use super::{estimate_series, params_for, select_takes, Config};
+use crate::sim::camera::{CameraParams, Motion, StereoCamera};
+use crate::sim::math::{Quat, V3};
+use crate::sim::scene::Scene;
+use crate::sim::scene_spec::{SceneSpec, Surface, TextureKind};
+use anyhow::{bail, ensure, Context, Result};
+use protocol::STEREO_FRAME_BYTES;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use std::path::PathBuf;
+use stereo_board::edge_fs::{EdgeFs, IMG_H, IMG_W};
+
+/// A stereo frame.
+pub type Frame = Box<[u8; STEREO_FRAME_BYTES]>;
+
+/// Output format of `sim-host replay`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ReplayFormat {
+    /// Two rows per take (recorded, rendered) with the errors and statistics, and the scene.
+    Table,
+    /// One row per take, full precision (header names every column).
+    Csv,
+}
+
+/// Command-line arguments of `sim-host replay`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ReplayArgs {
+    /// Data set directory (layout of stereoboard_testing).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Takes to replay, BOARD/TAKE (e.g. `--take 1/3 --take 2/3`, or `1/3,2/3`, or `1/*`);
+    /// default all.
+    #[arg(long = "take", value_name = "BOARD/TAKE")]
+    pub takes: Vec<String>,
+    /// Image-to-ground-truth alignment of the scoring (both the recorded and the rendered
+    /// frames are scored against the same truth). The rendering always uses the images'
+    /// recorded times.
+    #[arg(long, value_enum, default_value_t = Alignment::Corrected)]
+    pub alignment: Alignment,
+    /// Seed of the rendered textures and the camera noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = ReplayFormat::Table)]
+    pub format: ReplayFormat,
+}
+
+/// The scene parameters chosen for a take (see [`fit_scene`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneChoice {
+    /// Texture of the walls.
+    pub wall_texture: TextureKind,
+    /// Contrast of the walls relative to the texture's default.
+    pub wall_contrast: f32,
+    /// Albedo of the walls.
+    pub wall_albedo: f32,
+    /// Texture of the floor.
+    pub floor_texture: TextureKind,
+    /// Scene light.
+    pub light: f32,
+    /// Room size, m (x, y, ceiling).
+    pub size_m: [f32; 3],
+    /// Statistics distance of the choice ([`FrameStats::texture_distance`]) on the fitting
+    /// poses.
+    pub distance: f64,
+}
+
+/// Result of one replayed take.
+#[derive(Debug, Clone)]
+pub struct ReplayResult {
+    /// Board number.
+    pub board: u32,
+    /// Take number.
+    pub take: u32,
+    /// Images in the take.
+    pub frames: usize,
+    /// Statistics of the recorded frames.
+    pub real_stats: FrameStats,
+    /// Statistics of the rendered frames.
+    pub rendered_stats: FrameStats,
+    /// Median Edge-FS stereo depth on the recorded frames, m.
+    pub real_depth_m: f64,
+    /// Median Edge-FS stereo depth on the rendered frames, m.
+    pub rendered_depth_m: f64,
+    /// Forward-velocity metrics on the recorded frames.
+    pub real_x: Metrics,
+    /// Sideways-velocity metrics on the recorded frames.
+    pub real_y: Metrics,
+    /// Forward-velocity metrics on the rendered frames.
+    pub rendered_x: Metrics,
+    /// Sideways-velocity metrics on the rendered frames.
+    pub rendered_y: Metrics,
+    /// The scene.
+    pub scene: SceneChoice,
+}
+
+impl ReplayResult {
+    /// Rendered / recorded forward MSE.
+    pub fn ratio_x(&self) -> f64 {
+        self.rendered_x.mse / self.real_x.mse
+    }
+
+    /// Rendered / recorded sideways MSE.
+    pub fn ratio_y(&self) -> f64 {
+        self.rendered_y.mse / self.real_y.mse
+    }
+}
+
+/// One image's camera pose in the simulator's world.
+#[derive(Debug, Clone, Copy)]
+pub struct Pose {
+    /// Position, m.
+    pub pos: V3,
+    /// Attitude (body to world).
+    pub att: Quat,
+    /// Velocity and body rates over the exposure.
+    pub motion: Motion,
+}
+
+/// The camera poses of images `1..=N-1` from the take's motion capture, interpolated at the
+/// images' recorded times (see the module docs for the axes).
+pub fn trajectory(take: &Take, n_images: usize) -> Result<Vec<Pose>> {
+    let times = image_times(take, n_images)?;
+    let track = MocapTrack::read(take)?;
+    let s = if take.board == 2 { -1.0 } else { 1.0 };
+    let at = |t: f64| -> (V3, f64, f64, f64) {
+        let pos = V3::new(
+            track.at(&track.z, t),
+            -track.at(&track.x, t),
+            -track.at(&track.y, t),
+        );
+        let psi = track.at(&track.yaw, t).to_radians();
+        // Forward (X, Z) = s (sin ψ, cos ψ) -> simulator (x, y) = (Z, -X).
+        let heading = (-s * psi.sin()).atan2(s * psi.cos());
+        let roll = s * track.at(&track.roll, t).to_radians();
+        let pitch = -s * track.at(&track.pitch, t).to_radians();
+        (pos, roll, pitch, heading)
+    };
+    let h = 0.05;
+    Ok(times
+        .iter()
+        .map(|&t| {
+            let (pos, roll, pitch, yaw) = at(t);
+            let (p0, r0, q0, y0) = at(t - h);
+            let (p1, r1, q1, y1) = at(t + h);
+            let att = Quat::from_euler(roll, pitch, yaw);
+            let d = |a: f64, b: f64| (b - a) / (2.0 * h);
+            let wrap = |a: f64| a - std::f64::consts::TAU * (a / std::f64::consts::TAU).round();
+            // Euler-angle rates as body rates (small roll and pitch).
+            let rates = V3::new(d(r0, r1), d(q0, q1), wrap(y1 - y0) / (2.0 * h));
+            Pose {
+                pos,
+                att,
+                motion: Motion {
+                    vel: (p1 - p0) * (1.0 / (2.0 * h)),
+                    rates,
+                },
+            }
+        })
+        .collect())
+}
+
+/// Median over frames of the per-frame median depth of Edge-FS's confident stereo columns
+/// (default configuration, the take's stereo shift), m; NaN if no frame has one.
+pub fn real_depth_m(frames: &[Frame], stereo_shift_px: i32) -> f64 {
+    let mut p = stereo_board::edge_fs::EdgeFsParams::default_config();
+    p.stereo_shift_px = stereo_shift_px;
+    let mut fs = EdgeFs::new(p);
+    let mut per_frame = Vec::new();
+    for (i, f) in frames.iter().enumerate() {
+        fs.process(f, 143_000 * i as u64, None);
+        let d = fs.diagnostics();
+        let mut v: Vec<f64> = d
+            .depth_m
+            .iter()
+            .zip(&d.confidence)
+            .filter(|(z, c)| **z > 0.0 && **c > 0.0)
+            .map(|(z, _)| f64::from(*z))
+            .collect();
+        if !v.is_empty() {
+            per_frame.push(median(&mut v));
+        }
+    }
+    if per_frame.is_empty() {
+        f64::NAN
+    } else {
+        median(&mut per_frame)
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+/// Rows that are black in most recorded frames (the recorder's padding); the rendered frames
+/// get the same black rows.
+fn black_rows(frames: &[Frame]) -> Vec<usize> {
+    (0..IMG_H)
+        .filter(|&y| {
+            let black = frames
+                .iter()
+                .filter(|f| (0..IMG_W).all(|x| f[2 * (y * IMG_W + x)] == 0))
+                .count();
+            2 * black > frames.len()
+        })
+        .collect()
+}
+
+/// The camera the rendered frames come from: the simulator's default model with the board's
+/// stereo shift.
+pub fn camera_for(take: &Take) -> Result<CameraParams> {
+    Ok(CameraParams {
+        misalign_px: stereo_shift(take)? as f32,
+        ..CameraParams::default()
+    })
+}
+
+/// Renders the poses in `scene`, the camera's auto-exposure running from the first pose on.
+pub fn render(
+    scene: &Scene,
+    camera: &CameraParams,
+    poses: &[Pose],
+    black: &[usize],
+    seed: u64,
+) -> Vec<Frame> {
+    let mut cam = StereoCamera::new(camera.clone());
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4e9a1);
+    poses
+        .iter()
+        .map(|p| {
+            let mut f = Box::new([0u8; STEREO_FRAME_BYTES]);
+            cam.render_moving(scene, p.pos, p.att, p.motion, &mut rng, &mut f);
+            for &y in black {
+                f[2 * y * IMG_W..2 * (y + 1) * IMG_W].fill(0);
+            }
+            f
+        })
+        .collect()
+}
+
+/// The room around a trajectory: its horizontal bounding box grown by `margin` m on every
+/// side, 3 m high.
+fn room_around(poses: &[Pose], margin: f64) -> ([f32; 3], V3) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in poses {
+        for (k, v) in [p.pos.x, p.pos.y].into_iter().enumerate() {
+            lo[k] = lo[k].min(v);
+            hi[k] = hi[k].max(v);
+        }
+    }
+    let size = [
+        (hi[0] - lo[0] + 2.0 * margin) as f32,
+        (hi[1] - lo[1] + 2.0 * margin) as f32,
+        3.0,
+    ];
+    (size, V3::new(lo[0] - margin, lo[1] - margin, 0.0))
+}
+
+/// The scene a [`SceneChoice`] describes, and the offset that moves the take's positions into
+/// it.
+fn build_scene(c: &SceneChoice, seed: u64) -> Result<Scene> {
+    let wall = Surface {
+        contrast: c.wall_contrast,
+        albedo: c.wall_albedo,
+        ..Surface::of(c.wall_texture)
+    };
+    let spec = SceneSpec {
+        name: "replay".into(),
+        size_m: c.size_m,
+        start_xy: [c.size_m[0] * 0.5, c.size_m[1] * 0.5],
+        start_yaw_rad: Some(0.0),
+        light: c.light,
+        walls: [wall.clone(), wall.clone(), wall.clone(), wall],
+        floor: Surface::of(c.floor_texture),
+        ceiling: Surface::of(TextureKind::Plain),
+        obstacles: Vec::new(),
+    };
+    Scene::build(&spec, seed)
+}
+
+/// Wall textures and contrasts the fit tries.
+const WALL_KINDS: [TextureKind; 5] = [
+    TextureKind::Plain,
+    TextureKind::Stripes,
+    TextureKind::Posters,
+    TextureKind::Bricks,
+    TextureKind::Wood,
+];
+const CONTRASTS: [f32; 6] = [0.15, 0.3, 0.5, 0.8, 1.2, 1.8];
+const FLOOR_KINDS: [TextureKind; 3] = [TextureKind::Tiles, TextureKind::Carpet, TextureKind::Plain];
+/// Poses rendered per candidate scene.
+const FIT_POSES: usize = 8;
+
+/// Light that gives the rendered frames the recorded noise: the camera's noise at its
+/// auto-exposure target with gain `g` is `sqrt(target·g/e + (r·g/e)²)` DN (`e` electrons per
+/// DN, `r` read noise); the gain that gives `noise_dn` (at least 1) is reached when the
+/// longest exposure no longer suffices, i.e. at `light = target / (response · max_exposure ·
+/// g · albedo)`. Noise at or below the camera's floor (gain 1) keeps the default light.
+pub fn light_for_noise(camera: &CameraParams, noise_dn: f64, albedo: f64) -> f32 {
+    let e = f64::from(camera.electrons_per_dn);
+    let r = f64::from(camera.read_noise_e);
+    let target = f64::from(camera.target_dn);
+    // (r/e)² g² + (target/e) g - noise² = 0.
+    let a = (r / e).powi(2);
+    let b = target / e;
+    let c = -noise_dn * noise_dn;
+    let g =
+        ((-b + (b * b - 4.0 * a * c).sqrt()) / (2.0 * a)).clamp(1.0, f64::from(camera.max_gain));
+    if g <= 1.0 {
+        return 1.0;
+    }
+    let response = f64::from(camera.dn_per_albedo_s);
+    let light = target / (response * f64::from(camera.max_exposure_s) * g * albedo.max(0.05));
+    light.clamp(0.01, 1.0) as f32
+}
+
+/// Chooses the scene of a take from the recorded frames' statistics alone:
+/// * room: the trajectory's bounding box grown on every side by the median stereo depth
+///   Edge-FS measures on the recorded frames (clamped to 0.8-8 m), 3 m high;
+/// * wall albedo: the recorded mean level / 255; light: [`light_for_noise`] of the recorded
+///   noise level;
+/// * wall texture and contrast, then the floor texture: the candidates ([`WALL_KINDS`] x
+///   [`CONTRASTS`], then [`FLOOR_KINDS`]) are rendered at [`FIT_POSES`] poses spread over the
+///   take, and the one whose statistics are nearest the recorded ones
+///   ([`FrameStats::texture_distance`]) is kept.
+pub fn fit_scene(
+    real: &FrameStats,
+    depth_m: f64,
+    poses: &[Pose],
+    camera: &CameraParams,
+    black: &[usize],
+    seed: u64,
+) -> Result<(SceneChoice, V3)> {
+    let margin = if depth_m.is_finite() {
+        depth_m.clamp(0.8, 8.0)
+    } else {
+        3.0
+    };
+    let (size_m, origin) = room_around(poses, margin);
+    let albedo = (real.mean_dn / 255.0).clamp(0.05, 0.95) as f32;
+    let light = light_for_noise(camera, real.noise_dn, f64::from(albedo));
+    let step = (poses.len() / FIT_POSES).max(1);
+    let sample: Vec<Pose> = poses
+        .iter()
+        .step_by(step)
+        .map(|p| Pose {
+            pos: p.pos - origin,
+            ..*p
+        })
+        .collect();
+    let score = |c: &SceneChoice| -> Result<f64> {
+        let scene = build_scene(c, seed)?;
+        let frames = render(&scene, camera, &sample, black, seed);
+        let mut st = TakeStats::default();
+        for f in &frames {
+            st.add(f);
+        }
+        Ok(st
+            .mean()
+            .map_or(f64::INFINITY, |m| m.texture_distance(real)))
+    };
+    let mut best: Option<SceneChoice> = None;
+    for kind in WALL_KINDS {
+        let contrasts: &[f32] = if kind == TextureKind::Plain {
+            &[1.0]
+        } else {
+            &CONTRASTS
+        };
+        for &contrast in contrasts {
+            let mut c = SceneChoice {
+                wall_texture: kind,
+                wall_contrast: contrast,
+                wall_albedo: albedo,
+                floor_texture: TextureKind::Tiles,
+                light,
+                size_m,
+                distance: 0.0,
+            };
+            c.distance = score(&c)?;
+            if best.as_ref().is_none_or(|b| c.distance < b.distance) {
+                best = Some(c);
+            }
+        }
+    }
+    let mut best = best.context("no candidate scene")?;
+    for floor in FLOOR_KINDS.into_iter().skip(1) {
+        let mut c = SceneChoice {
+            floor_texture: floor,
+            ..best.clone()
+        };
+        c.distance = score(&c)?;
+        if c.distance < best.distance {
+            best = c;
+        }
+    }
+    Ok((best, origin))
+}
+
+/// Replays one take (see the module docs).
+pub fn replay_take(take: &Take, alignment: Alignment, seed: u64) -> Result<ReplayResult> {
+    let n = take.image_count();
+    ensure!(
+        n >= 22,
+        "{}: only {n} images; the evaluation window 10..N-11 needs at least 22",
+        take.dir.display()
+    );
+    let real: Vec<Frame> = (1..n)
+        .map(|i| load_frame(&take.image_path(i)))
+        .collect::<Result<_>>()?;
+    let mut real_st = TakeStats::default();
+    for f in &real {
+        real_st.add(f);
+    }
+    let real_stats = real_st.mean().context("no frames")?;
+    let shift = stereo_shift(take)?;
+    let depth = real_depth_m(&real, shift);
+    let poses = trajectory(take, n)?;
+    let camera = camera_for(take)?;
+    let black = black_rows(&real);
+    let (scene_choice, origin) = fit_scene(&real_stats, depth, &poses, &camera, &black, seed)?;
+    let scene = build_scene(&scene_choice, seed)?;
+    let placed: Vec<Pose> = poses
+        .iter()
+        .map(|p| Pose {
+            pos: p.pos - origin,
+            ..*p
+        })
+        .collect();
+    let rendered = render(&scene, &camera, &placed, &black, seed);
+    let mut ren_st = TakeStats::default();
+    for f in &rendered {
+        ren_st.add(f);
+    }
+    let rendered_stats = ren_st.mean().context("no frames")?;
+    let rendered_depth = real_depth_m(&rendered, shift);
+
+    let truth = ground_truth(take, n, alignment)?;
+    let params = params_for(Config::Default, take)?;
+    let score = |frames: &[Frame]| -> Result<(Metrics, Metrics)> {
+        let s = estimate_series(
+            &truth,
+            params,
+            false,
+            &mut |i| Ok(frames[i - 1].clone()),
+            &|| {},
+        )?;
+        let (a, b) = s.window;
+        Ok((
+            metrics(&s.est_x[a..=b], &s.gt_x[a..=b]),
+            metrics(&s.est_y[a..=b], &s.gt_y[a..=b]),
+        ))
+    };
+    let (real_x, real_y) = score(&real)?;
+    let (rendered_x, rendered_y) = score(&rendered)?;
+    Ok(ReplayResult {
+        board: take.board,
+        take: take.take,
+        frames: n,
+        real_stats,
+        rendered_stats,
+        real_depth_m: depth,
+        rendered_depth_m: rendered_depth,
+        real_x,
+        real_y,
+        rendered_x,
+        rendered_y,
+        scene: scene_choice,
+    })
+}
+
+/// Runs `sim-host replay`.
+pub fn run(args: &ReplayArgs) -> Result<()> {
+    let list = args.takes.join(",");
+    let takes = select_takes(
+        discover_takes(&args.dataset)?,
+        (!list.is_empty()).then_some(list.as_str()),
+    )?;
+    let results: Vec<(Take, Result<ReplayResult>)> = takes
+        .par_iter()
+        .map(|t| (t.clone(), replay_take(t, args.alignment, args.seed)))
+        .collect();
+    let mut ok = Vec::new();
+    let mut failed = 0;
+    for (take, r) in results {
+        match r {
+            Ok(r) => ok.push(r),
+            Err(e) => {
+                failed += 1;
+                eprintln!("error: board {} take {}: {e:#}", take.board, take.take);
+            }
+        }
+    }
+    match args.format {
+        ReplayFormat::Table => print!("{}", table(&ok, args.alignment)),
+        ReplayFormat::Csv => print!("{}", csv(&ok)),
+    }
+    if failed > 0 {
+        bail!("{failed} take(s) could not be replayed (see above)");
+    }
+    Ok(())
+}
+
+/// The table output: per take a recorded and a rendered row (MSE of both axes, then the
+/// statistics), the ratios, and the scene; a summary of the ratios at the end.
+pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
+    let mut s = format!(
+        "Edge-FS default config, alignment {alignment:?}; ratio = rendered MSE / recorded MSE (goal 0.5..2)\n"
+    );
+    s += "board take source   |   mse_x   mse_y | edge_dens p10..p90    textured |g|>=4 |g|>=16 | noise  mean  contr | depth\n";
+    let stats_cols = |st: &FrameStats, depth: f64| {
+        format!(
+            "{:>9.4} {:.3}..{:.3} {:>8.3} {:>6.3} {:>6.3} | {:>5.2} {:>5.1} {:>6.1} | {:>5.2}",
+            st.mean_edge_density(),
+            st.edge_density_quantile(0.1),
+            st.edge_density_quantile(0.9),
+            st.textured_columns,
+            st.gradient_fraction_above(4),
+            st.gradient_fraction_above(16),
+            st.noise_dn,
+            st.mean_dn,
+            st.contrast_dn,
+            depth
+        )
+    };
+    let mut in_band = 0;
+    for r in results {
+        s += &format!(
+            "{:>5} {:>4} recorded | {:>7.4} {:>7.4} | {}\n",
+            r.board,
+            r.take,
+            r.real_x.mse,
+            r.real_y.mse,
+            stats_cols(&r.real_stats, r.real_depth_m)
+        );
+        s += &format!(
+            "{:>5} {:>4} rendered | {:>7.4} {:>7.4} | {}\n",
+            r.board,
+            r.take,
+            r.rendered_x.mse,
+            r.rendered_y.mse,
+            stats_cols(&r.rendered_stats, r.rendered_depth_m)
+        );
+        let c = &r.scene;
+        s += &format!(
+            "           ratio    | {:>7.2} {:>7.2} | scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m (distance {:.3})\n",
+            r.ratio_x(),
+            r.ratio_y(),
+            c.wall_texture.name(),
+            c.wall_contrast,
+            c.wall_albedo,
+            c.floor_texture.name(),
+            c.light,
+            c.size_m[0],
+            c.size_m[1],
+            c.distance
+        );
+        let band = |v: f64| (0.5..=2.0).contains(&v);
+        if band(r.ratio_x()) && band(r.ratio_y()) {
+            in_band += 1;
+        }
+    }
+    s += &format!(
+        "takes with both ratios within 0.5..2: {in_band}/{}\n",
+        results.len()
+    );
+    s
+}
+
+/// The CSV output: one row per take, full precision.
+pub fn csv(results: &[ReplayResult]) -> String {
+    let stat_names = [
+        "edge_density",
+        "edge_density_p10",
+        "edge_density_p90",
+        "textured_columns",
+        "grad_ge4",
+        "grad_ge16",
+        "noise_dn",
+        "mean_dn",
+        "contrast_dn",
+        "depth_m",
+    ];
+    let mut s = String::from(
+        "board,take,frames,real_mse_x,real_mse_y,rendered_mse_x,rendered_mse_y,ratio_x,ratio_y",
+    );
+    for src in ["real", "rendered"] {
+        for n in stat_names {
+            s += &format!(",{src}_{n}");
+        }
+        for b in super::frame_stats::GRADIENT_BINS_DN {
+            s += &format!(",{src}_hist_{b}");
+        }
+    }
+    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,fit_distance\n";
+    let stats = |st: &FrameStats, depth: f64| {
+        let mut v = vec![
+            st.mean_edge_density(),
+            st.edge_density_quantile(0.1),
+            st.edge_density_quantile(0.9),
+            st.textured_columns,
+            st.gradient_fraction_above(4),
+            st.gradient_fraction_above(16),
+            st.noise_dn,
+            st.mean_dn,
+            st.contrast_dn,
+            depth,
+        ];
+        v.extend(st.gradient_hist);
+        v.iter().map(|x| format!(",{x}")).collect::<String>()
+    };
+    for r in results {
+        let c = &r.scene;
+        s += &format!(
+            "{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{}\n",
+            r.board,
+            r.take,
+            r.frames,
+            r.real_x.mse,
+            r.real_y.mse,
+            r.rendered_x.mse,
+            r.rendered_y.mse,
+            r.ratio_x(),
+            r.ratio_y(),
+            stats(&r.real_stats, r.real_depth_m),
+            stats(&r.rendered_stats, r.rendered_depth_m),
+            c.wall_texture.name(),
+            c.wall_contrast,
+            c.wall_albedo,
+            c.floor_texture.name(),
+            c.light,
+            c.size_m[0],
+            c.size_m[1],
+            c.distance
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn light_follows_the_noise_the_camera_must_show() {
+        let cam = CameraParams::default();
+        // At or below the camera's noise at unity gain (about 2.3 DN): the default light.
+        assert_eq!(light_for_noise(&cam, 1.5, 0.5), 1.0);
+        assert_eq!(light_for_noise(&cam, 2.2, 0.5), 1.0);
+        // More noise needs more gain, i.e. less light; the gain that light forces gives the
+        // noise back.
+        let light = light_for_noise(&cam, 6.0, 0.5);
+        assert!(light < 1.0);
+        let product = cam.target_dn / (cam.dn_per_albedo_s * light * 0.5);
+        let gain = f64::from(product / cam.max_exposure_s);
+        let e = f64::from(cam.electrons_per_dn) / gain;
+        let noise =
+            (f64::from(cam.target_dn) / e + (f64::from(cam.read_noise_e) / e).powi(2)).sqrt();
+        assert!((noise - 6.0).abs() < 0.05, "{noise}");
+        assert!(light_for_noise(&cam, 7.0, 0.5) < light);
+    }
+}

@@ -1,0 +1,70 @@
+//! `sim-host replay` on two recorded takes: the frame statistics are computed for the recorded
+//! and the rendered frames, both Edge-FS errors are finite, the table and the CSV carry every
+//! take, and the rendered sideways error is within 0.5x-2x of the recorded one on board 1 take
+//! 11 (the axis and take where the replay reaches the band; see docs/replay.md).
+
+use integration_tests::shared_dataset_dir;
+use sim_host::eval::dataset::discover_takes;
+use sim_host::eval::frame_stats::N_BINS;
+use sim_host::eval::replay::{csv, replay_take, table, ReplayResult};
+use sim_host::eval::{select_takes, Alignment};
+
+fn replay(list: &str) -> Vec<ReplayResult> {
+    let takes = select_takes(discover_takes(&shared_dataset_dir()).unwrap(), Some(list)).unwrap();
+    takes
+        .iter()
+        .map(|t| replay_take(t, Alignment::Corrected, 1).expect("replay"))
+        .collect()
+}
+
+#[test]
+fn replay_prints_both_errors_and_statistics() {
+    let results = replay("1/3,1/11");
+    assert_eq!(results.len(), 2);
+    for r in &results {
+        let name = format!("board {} take {}", r.board, r.take);
+        for st in [&r.real_stats, &r.rendered_stats] {
+            assert!(st.mean_edge_density() > 0.01, "{name}: edge density {st:?}");
+            assert!((st.gradient_hist.iter().sum::<f64>() - 1.0).abs() < 1e-9);
+            assert_eq!(st.gradient_hist.len(), N_BINS);
+            assert!(
+                st.noise_dn > 0.5 && st.noise_dn < 20.0,
+                "{name}: noise {}",
+                st.noise_dn
+            );
+            assert!(st.mean_dn > 20.0 && st.mean_dn < 235.0);
+        }
+        for m in [r.real_x, r.real_y, r.rendered_x, r.rendered_y] {
+            assert!(m.mse.is_finite() && m.mse > 0.0, "{name}: {m:?}");
+        }
+        assert!(r.ratio_x().is_finite() && r.ratio_y().is_finite());
+        // The scene was chosen from the statistics: it is nearer to them than a plain room.
+        assert!(
+            r.scene.distance < 1.0,
+            "{name}: fit distance {}",
+            r.scene.distance
+        );
+    }
+    let t = table(&results, Alignment::Corrected);
+    for take in [
+        "    1    3 recorded",
+        "    1    3 rendered",
+        "    1   11 recorded",
+    ] {
+        assert!(t.contains(take), "{take:?} missing in\n{t}");
+    }
+    assert!(t.contains("ratio") && t.contains("scene: walls"), "{t}");
+    let c = csv(&results);
+    let lines: Vec<&str> = c.lines().collect();
+    assert_eq!(lines.len(), 3, "{c}");
+    let cols = lines[0].split(',').count();
+    assert!(lines[0].starts_with("board,take,frames,real_mse_x"));
+    assert!(lines[1..].iter().all(|l| l.split(',').count() == cols));
+
+    let t11 = &results[1];
+    assert!(
+        (0.5..=2.0).contains(&t11.ratio_y()),
+        "board 1 take 11 sideways ratio {}",
+        t11.ratio_y()
+    );
+}
