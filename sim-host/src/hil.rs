@@ -1115,8 +1115,15 @@ mod tests {
                         if due.telemetry {
                             send_host(&mut s, &BoardToHost::Telemetry(ap.telemetry(now)));
                         }
+                        if let Some(answer) = ap.take_camera_param_reply() {
+                            send_host(&mut s, &BoardToHost::Param(answer));
+                        }
                     }
                     HostOutcome::Reply(reply) => send_host(&mut s, &reply),
+                    HostOutcome::ToCamera(msg) => {
+                        let mut w = to_camera.lock().unwrap();
+                        crate::sim::boards::send(&msg, &mut |b| w.extend_from_slice(b));
+                    }
                     HostOutcome::Done => {}
                 }
             }

@@ -85,7 +85,8 @@ pub enum ParamAction {
     Set {
         /// Its name.
         name: String,
-        /// The value: a number, or true / false.
+        /// The value: a number (negative ones too: `set stereo_shift -4`), or true / false.
+        #[arg(allow_negative_numbers = true)]
         value: String,
     },
     /// Saves every value to the board's flash (refused while armed).
@@ -111,6 +112,10 @@ pub fn parse_value(kind: ParamKind, text: &str) -> Result<ParamValue, String> {
             .parse::<u32>()
             .map(ParamValue::U32)
             .map_err(|_| format!("{t:?} is not a whole number >= 0 (the parameter is a u32)")),
+        ParamKind::I32 => t
+            .parse::<i32>()
+            .map(ParamValue::I32)
+            .map_err(|_| format!("{t:?} is not a whole number (the parameter is an i32)")),
         ParamKind::Bool => match t {
             "true" | "1" => Ok(ParamValue::Bool(true)),
             "false" | "0" => Ok(ParamValue::Bool(false)),
@@ -425,6 +430,9 @@ fn toml_value(kind: ParamKind, v: &toml::Value) -> Result<ParamValue, String> {
         (ParamKind::U32, toml::Value::Integer(x)) => u32::try_from(*x)
             .map(ParamValue::U32)
             .map_err(|_| format!("{x} is not a u32 (0 ..= {})", u32::MAX)),
+        (ParamKind::I32, toml::Value::Integer(x)) => i32::try_from(*x)
+            .map(ParamValue::I32)
+            .map_err(|_| format!("{x} is not an i32 ({} ..= {})", i32::MIN, i32::MAX)),
         (ParamKind::Bool, toml::Value::Boolean(b)) => Ok(ParamValue::Bool(*b)),
         (kind, other) => Err(format!(
             "expected a {} value, got {} ({other})",
