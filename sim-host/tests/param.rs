@@ -236,7 +236,14 @@ fn fly_reads_a_parameter_file_and_refuses_a_bad_one() {
         text.contains("outside the parameter's bounds [0.2 ..= 3] m"),
         "{text}"
     );
-    let (ok, text) = fly("[autopilot]\ntarget_height = 0.8\nfsm_variant = 1\n");
+    let (ok, text) = fly("[camera]\nstereo_shift = 30\n");
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("params.toml: [camera] stereo_shift: parameter stereo_shift"),
+        "{text}"
+    );
+    let (ok, text) =
+        fly("[autopilot]\ntarget_height = 0.8\nfsm_variant = 1\n[camera]\nstereo_shift = -2\n");
     assert!(ok, "{text}");
     assert!(text.contains("seed,duration_s"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
