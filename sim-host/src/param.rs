@@ -147,17 +147,24 @@ pub fn format_entry(e: &ParamEntry) -> String {
     )
 }
 
+/// Where a [`ParamClient`] gets the board's decoded messages: the next one within the
+/// wait it is given, `Ok(None)` on silence, `Err` once the link closed.
+pub type MessageSource<'a> =
+    Box<dyn FnMut(Duration) -> Result<Option<BoardToHost>, LinkClosed> + 'a>;
+
+/// The board's link closed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkClosed;
+
 /// A parameter session with one board over a telemetry link.
-pub struct ParamClient {
-    link: Box<dyn Link>,
-    rx: mpsc::Receiver<Vec<u8>>,
-    decoder: BoardToHostDecoder,
+pub struct ParamClient<'a> {
+    out: Box<dyn std::io::Write + 'a>,
+    source: MessageSource<'a>,
     board: Node,
     timeout: Duration,
-    pending: std::collections::VecDeque<BoardToHost>,
 }
 
-impl ParamClient {
+impl ParamClient<'static> {
     /// Talks to `board` over `link`, waiting `timeout` for each answer.
     pub fn new(link: Box<dyn Link>, board: Node, timeout: Duration) -> anyhow::Result<Self> {
         let mut reader = link
@@ -166,11 +173,14 @@ impl ParamClient {
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
             let mut buf = [0u8; 1024];
+            let mut decoder = BoardToHostDecoder::new();
             loop {
                 match reader.read(&mut buf) {
                     Ok(0) => return,
                     Ok(n) => {
-                        if tx.send(buf[..n].to_vec()).is_err() {
+                        let mut open = true;
+                        decoder.feed(&buf[..n], |m| open &= tx.send(m).is_ok());
+                        if !open {
                             return;
                         }
                     }
@@ -179,19 +189,41 @@ impl ParamClient {
                 }
             }
         });
-        Ok(Self {
-            link,
-            rx,
-            decoder: BoardToHostDecoder::new(),
+        let source: MessageSource<'static> = Box::new(move |wait| match rx.recv_timeout(wait) {
+            Ok(m) => Ok(Some(m)),
+            Err(mpsc::RecvTimeoutError::Timeout) => Ok(None),
+            Err(mpsc::RecvTimeoutError::Disconnected) => Err(LinkClosed),
+        });
+        Ok(ParamClient::with_source(
+            Box::new(link),
+            source,
             board,
             timeout,
-            pending: Default::default(),
-        })
+        ))
     }
 
     /// Opens `port` (serial at `baud`, or `tcp:HOST:PORT`).
     pub fn open(port: &str, baud: u32, board: Node, timeout: Duration) -> anyhow::Result<Self> {
         Self::new(open_link(port, baud)?, board, timeout)
+    }
+}
+
+impl<'a> ParamClient<'a> {
+    /// Talks to `board`, writing requests to `out` and taking the board's messages from
+    /// `source` (for a caller that already decodes the link, such as `hil`); messages other
+    /// than this board's parameter answers are dropped.
+    pub fn with_source(
+        out: Box<dyn std::io::Write + 'a>,
+        source: MessageSource<'a>,
+        board: Node,
+        timeout: Duration,
+    ) -> Self {
+        Self {
+            out,
+            source,
+            board,
+            timeout,
+        }
     }
 
     fn send(&mut self, op: &ParamOp) -> anyhow::Result<()> {
@@ -201,31 +233,24 @@ impl ParamClient {
         });
         let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&msg)
             .map_err(|e| anyhow!("encoding: {e:?}"))?;
-        self.link.write_all(&frame).context("writing the request")?;
-        self.link.flush().context("writing the request")
+        self.out.write_all(&frame).context("writing the request")?;
+        self.out.flush().context("writing the request")
     }
 
     /// The next parameter answer, or `None` at the deadline.
     fn next_reply(&mut self, deadline: Instant) -> anyhow::Result<Option<ParamReply>> {
         loop {
-            while let Some(m) = self.pending.pop_front() {
-                if let BoardToHost::Param(r) = m {
-                    if r.board == self.board {
-                        return Ok(Some(r.reply));
-                    }
-                }
-            }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Ok(None);
             }
-            match self.rx.recv_timeout(left) {
-                Ok(bytes) => {
-                    let pending = &mut self.pending;
-                    self.decoder.feed(&bytes, |m| pending.push_back(m));
+            match (self.source)(left) {
+                Ok(Some(BoardToHost::Param(r))) if r.board == self.board => {
+                    return Ok(Some(r.reply))
                 }
-                Err(mpsc::RecvTimeoutError::Timeout) => return Ok(None),
-                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("the link closed"),
+                Ok(Some(_)) => {}
+                Ok(None) => return Ok(None),
+                Err(LinkClosed) => bail!("the link closed"),
             }
         }
     }
@@ -436,6 +461,54 @@ impl ParamFile {
             sections.push(section);
         }
         Ok((out, sections))
+    }
+}
+
+impl FileSection {
+    /// The section's name in a file: `autopilot` or `camera`.
+    pub fn name(&self) -> &'static str {
+        match self.board {
+            Node::StereoBoard => "camera",
+            _ => "autopilot",
+        }
+    }
+
+    /// Sends every value to the board with `set` through `c` (a client for this section's
+    /// board), then reads each back with `get`. The first refusal, silence or read-back that
+    /// differs from what was sent is an error naming `file`, the section and the key.
+    pub fn send_and_verify(&self, c: &mut ParamClient<'_>, file: &str) -> anyhow::Result<()> {
+        let board = self.name();
+        for (key, v) in &self.values {
+            c.set_value(key, *v)
+                .with_context(|| format!("{file}: [{board}] {key}: the board refused the set"))?;
+        }
+        for (key, v) in &self.values {
+            let e = c
+                .get(key)
+                .with_context(|| format!("{file}: [{board}] {key}: reading it back"))?;
+            check_read_back(file, board, key, *v, e.value)?;
+        }
+        Ok(())
+    }
+}
+
+/// `Ok` when a board reads back the value that was `sent`; otherwise the error naming the
+/// file, the section and the key.
+pub fn check_read_back(
+    file: &str,
+    board: &str,
+    key: &str,
+    sent: ParamValue,
+    read: ParamValue,
+) -> anyhow::Result<()> {
+    if sent == read {
+        Ok(())
+    } else {
+        bail!(
+            "{file}: [{board}] {key}: set to {}, but the board reads back {}",
+            format_value(sent),
+            format_value(read)
+        )
     }
 }
 

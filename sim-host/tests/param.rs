@@ -91,7 +91,7 @@ fn board(s: &mut TcpStream, boards: &Boards) {
     }
 }
 
-fn client(port: u16, board: Node) -> ParamClient {
+fn client(port: u16, board: Node) -> ParamClient<'static> {
     ParamClient::open(
         &format!("tcp:127.0.0.1:{port}"),
         0,
