@@ -8,4 +8,3 @@ pub mod app;
 pub mod board;
 pub mod camera;
 pub mod edge_fs;
-pub mod params;

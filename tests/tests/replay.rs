@@ -1,7 +1,7 @@
 //! `sim-host replay` on two recorded takes: the frame statistics are computed for the recorded
 //! and the rendered frames, both Edge-FS errors are finite, the table and the CSV carry every
-//! take, and the rendered sideways error is within 0.5x-2x of the recorded one on board 1 take
-//! 11 (the axis and take where the replay reaches the band; see docs/replay.md).
+//! take, and the rendered error is within 0.5x-2x of the recorded one on both axes of board 1
+//! takes 11 and 13 (two of the takes where the replay reaches the band; see docs/replay.md).
 
 use integration_tests::shared_dataset_dir;
 use sim_host::eval::dataset::discover_takes;
@@ -13,13 +13,13 @@ fn replay(list: &str) -> Vec<ReplayResult> {
     let takes = select_takes(discover_takes(&shared_dataset_dir()).unwrap(), Some(list)).unwrap();
     takes
         .iter()
-        .map(|t| replay_take(t, Alignment::Corrected, 1).expect("replay"))
+        .map(|t| replay_take(t, Alignment::Corrected, 1, 3).expect("replay"))
         .collect()
 }
 
 #[test]
 fn replay_prints_both_errors_and_statistics() {
-    let results = replay("1/3,1/11");
+    let results = replay("1/11,1/13");
     assert_eq!(results.len(), 2);
     for r in &results {
         let name = format!("board {} take {}", r.board, r.take);
@@ -47,9 +47,9 @@ fn replay_prints_both_errors_and_statistics() {
     }
     let t = table(&results, Alignment::Corrected);
     for take in [
-        "    1    3 recorded",
-        "    1    3 rendered",
         "    1   11 recorded",
+        "    1   11 rendered",
+        "    1   13 recorded",
     ] {
         assert!(t.contains(take), "{take:?} missing in\n{t}");
     }
@@ -61,10 +61,14 @@ fn replay_prints_both_errors_and_statistics() {
     assert!(lines[0].starts_with("board,take,frames,real_mse_x"));
     assert!(lines[1..].iter().all(|l| l.split(',').count() == cols));
 
-    let t11 = &results[1];
-    assert!(
-        (0.5..=2.0).contains(&t11.ratio_y()),
-        "board 1 take 11 sideways ratio {}",
-        t11.ratio_y()
-    );
+    for r in &results {
+        for (axis, ratio) in [("forward", r.ratio_x()), ("sideways", r.ratio_y())] {
+            assert!(
+                (0.5..=2.0).contains(&ratio),
+                "board {} take {} {axis} ratio {ratio}",
+                r.board,
+                r.take
+            );
+        }
+    }
 }

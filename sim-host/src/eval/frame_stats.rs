@@ -1,5 +1,5 @@
 //! Texture statistics of stereo frames, the quantities `sim-host replay` matches a rendered
-//! scene to. Every statistic is computed on the left camera image (the even bytes of an
+//! scene to. Every statistic but the right/left ratios is computed on the left camera image (the even bytes of an
 //! interleaved frame, [`protocol::STEREO_FRAME_BYTES`]) over its *valid rows*: the rows that are
 //! not entirely zero (the recorder pads most data-set images from 94 to 96 rows with black rows).
 //!
@@ -20,7 +20,9 @@
 //! * **mean level** and **contrast**: the mean and the standard deviation of `I`, DN;
 //! * **textured columns**: the fraction of columns whose Edge-FS column histogram
 //!   (`sum_y |g(x, y)|` over all 96 rows) reaches the default configuration's `min_texture`
-//!   (the columns Edge-FS can match at all).
+//!   (the columns Edge-FS can match at all);
+//! * **right/left level** and **right/left edges**: the right camera's mean grey level and
+//!   summed `|g|` over the left camera's (the only statistics that read the right image).
 //!
 //! A take's statistics ([`TakeStats`]) are the means of its frames' statistics.
 
@@ -52,6 +54,10 @@ pub struct FrameStats {
     pub contrast_dn: f64,
     /// Fraction of columns with an Edge-FS histogram of at least `min_texture`.
     pub textured_columns: f64,
+    /// Right over left camera: ratio of the mean grey levels.
+    pub right_left_level: f64,
+    /// Right over left camera: ratio of the summed `|g|` (edge energy).
+    pub right_left_edges: f64,
 }
 
 impl FrameStats {
@@ -123,6 +129,19 @@ impl FrameStats {
         }
         let mean_dn = sum / n;
         let contrast_dn = (sq / n - mean_dn * mean_dn).max(0.0).sqrt();
+        let (mut lsum, mut rsum, mut le, mut re) = (0.0, 0.0, 0.0, 0.0);
+        for &y in &valid {
+            for x in 0..IMG_W {
+                let i = 2 * (y * IMG_W + x);
+                lsum += f64::from(frame[i]);
+                rsum += f64::from(frame[i + 1]);
+                if (1..IMG_W - 1).contains(&x) {
+                    let (a, b) = (i - 2, i + 2);
+                    le += f64::from(frame[b].abs_diff(frame[a]));
+                    re += f64::from(frame[b + 1].abs_diff(frame[a + 1]));
+                }
+            }
+        }
         let min_texture = EdgeFsParams::default_config().min_texture;
         let textured = col_sum.iter().filter(|&&s| s >= min_texture).count();
         Self {
@@ -132,6 +151,8 @@ impl FrameStats {
             mean_dn,
             contrast_dn,
             textured_columns: textured as f64 / IMG_W as f64,
+            right_left_level: if lsum > 0.0 { rsum / lsum } else { 1.0 },
+            right_left_edges: if le > 0.0 { re / le } else { 1.0 },
         }
     }
 
@@ -209,6 +230,8 @@ impl TakeStats {
                 t.mean_dn += s.mean_dn;
                 t.contrast_dn += s.contrast_dn;
                 t.textured_columns += s.textured_columns;
+                t.right_left_level += s.right_left_level;
+                t.right_left_edges += s.right_left_edges;
             }
         }
     }
@@ -232,6 +255,8 @@ impl TakeStats {
         m.mean_dn *= k;
         m.contrast_dn *= k;
         m.textured_columns *= k;
+        m.right_left_level *= k;
+        m.right_left_edges *= k;
         Some(m)
     }
 }

@@ -30,7 +30,7 @@ use super::{estimate_series, params_for, select_takes, Config};
 use crate::sim::camera::{CameraParams, Motion, StereoCamera};
 use crate::sim::math::{Quat, V3};
 use crate::sim::scene::Scene;
-use crate::sim::scene_spec::{SceneSpec, Surface, TextureKind};
+use crate::sim::scene_spec::{ObstacleSpec, SceneSpec, Shape, Surface, TextureKind};
 use anyhow::{bail, ensure, Context, Result};
 use protocol::STEREO_FRAME_BYTES;
 use rand::SeedableRng;
@@ -69,6 +69,10 @@ pub struct ReplayArgs {
     /// Seed of the rendered textures and the camera noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Renderings per take (textures and noise from their own seeds); the rendered error is
+    /// their mean MSE.
+    #[arg(long, default_value_t = 3)]
+    pub renders: usize,
     /// Output format.
     #[arg(long, value_enum, default_value_t = ReplayFormat::Table)]
     pub format: ReplayFormat,
@@ -89,6 +93,9 @@ pub struct SceneChoice {
     pub light: f32,
     /// Room size, m (x, y, ceiling).
     pub size_m: [f32; 3],
+    /// The take's obstacles in the room ([`take_obstacles`]): footprint and whether it is
+    /// textured (then painted as the walls, else plain at the walls' albedo).
+    pub obstacles: Vec<(Shape, bool)>,
     /// Statistics distance of the choice ([`FrameStats::texture_distance`]) on the fitting
     /// poses.
     pub distance: f64,
@@ -115,10 +122,16 @@ pub struct ReplayResult {
     pub real_x: Metrics,
     /// Sideways-velocity metrics on the recorded frames.
     pub real_y: Metrics,
-    /// Forward-velocity metrics on the rendered frames.
+    /// Forward-velocity metrics on the rendered frames (means over the renderings).
     pub rendered_x: Metrics,
-    /// Sideways-velocity metrics on the rendered frames.
+    /// Sideways-velocity metrics on the rendered frames (means over the renderings).
     pub rendered_y: Metrics,
+    /// Renderings of the take (each with its own texture and noise seed).
+    pub renders: usize,
+    /// Smallest and largest forward MSE ratio of a single rendering.
+    pub ratio_x_range: (f64, f64),
+    /// Smallest and largest sideways MSE ratio of a single rendering.
+    pub ratio_y_range: (f64, f64),
     /// The scene.
     pub scene: SceneChoice,
 }
@@ -192,6 +205,27 @@ pub fn trajectory(take: &Take, n_images: usize) -> Result<Vec<Pose>> {
 /// Median over frames of the per-frame median depth of Edge-FS's confident stereo columns
 /// (default configuration, the take's stereo shift), m; NaN if no frame has one.
 pub fn real_depth_m(frames: &[Frame], stereo_shift_px: i32) -> f64 {
+    let mut d = frame_depths_m(frames, stereo_shift_px);
+    if d.is_empty() {
+        f64::NAN
+    } else {
+        median(&mut d)
+    }
+}
+
+/// The `q`-quantile of the frames' median stereo depths (see [`real_depth_m`]), m; NaN if no
+/// frame has one.
+pub fn depth_quantile_m(frames: &[Frame], stereo_shift_px: i32, q: f64) -> f64 {
+    let mut d = frame_depths_m(frames, stereo_shift_px);
+    if d.is_empty() {
+        return f64::NAN;
+    }
+    d.sort_by(f64::total_cmp);
+    d[((d.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+}
+
+/// Per frame with confident stereo columns: the median of their depths, m.
+fn frame_depths_m(frames: &[Frame], stereo_shift_px: i32) -> Vec<f64> {
     let mut p = stereo_board::edge_fs::EdgeFsParams::default_config();
     p.stereo_shift_px = stereo_shift_px;
     let mut fs = EdgeFs::new(p);
@@ -210,11 +244,7 @@ pub fn real_depth_m(frames: &[Frame], stereo_shift_px: i32) -> f64 {
             per_frame.push(median(&mut v));
         }
     }
-    if per_frame.is_empty() {
-        f64::NAN
-    } else {
-        median(&mut per_frame)
-    }
+    per_frame
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -242,11 +272,19 @@ fn black_rows(frames: &[Frame]) -> Vec<usize> {
 }
 
 /// The camera the rendered frames come from: the simulator's default model with the board's
-/// stereo shift.
-pub fn camera_for(take: &Take) -> Result<CameraParams> {
+/// stereo shift, and the right camera's gain and offset set to the recorded right/left
+/// mismatch: gain = the recorded right/left edge-energy ratio (edges scale with the gain),
+/// offset = (recorded level ratio - gain) x the auto-exposure target, so the levels' ratio
+/// matches too.
+pub fn camera_for(take: &Take, real: &FrameStats) -> Result<CameraParams> {
+    let d = CameraParams::default();
+    let gain = real.right_left_edges.clamp(0.5, 2.0) as f32;
+    let level = real.right_left_level.clamp(0.5, 2.0) as f32;
     Ok(CameraParams {
         misalign_px: stereo_shift(take)? as f32,
-        ..CameraParams::default()
+        gain_right: gain,
+        offset_right_dn: (level - gain) * d.target_dn,
+        ..d
     })
 }
 
@@ -273,12 +311,16 @@ pub fn render(
         .collect()
 }
 
-/// The room around a trajectory: its horizontal bounding box grown by `margin` m on every
-/// side, 3 m high.
-fn room_around(poses: &[Pose], margin: f64) -> ([f32; 3], V3) {
+/// The room around a trajectory and the obstacles' points: their horizontal bounding box grown
+/// by `margin` m on every side, 3 m high.
+fn room_around(poses: &[Pose], extra: &[[f64; 2]], margin: f64) -> ([f32; 3], V3) {
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in poses {
-        for (k, v) in [p.pos.x, p.pos.y].into_iter().enumerate() {
+    let points = poses
+        .iter()
+        .map(|p| [p.pos.x, p.pos.y])
+        .chain(extra.iter().copied());
+    for p in points {
+        for (k, v) in p.into_iter().enumerate() {
             lo[k] = lo[k].min(v);
             hi[k] = hi[k].max(v);
         }
@@ -305,12 +347,189 @@ fn build_scene(c: &SceneChoice, seed: u64) -> Result<Scene> {
         start_xy: [c.size_m[0] * 0.5, c.size_m[1] * 0.5],
         start_yaw_rad: Some(0.0),
         light: c.light,
-        walls: [wall.clone(), wall.clone(), wall.clone(), wall],
+        walls: [wall.clone(), wall.clone(), wall.clone(), wall.clone()],
         floor: Surface::of(c.floor_texture),
         ceiling: Surface::of(TextureKind::Plain),
-        obstacles: Vec::new(),
+        obstacles: c
+            .obstacles
+            .iter()
+            .map(|&(shape, textured)| ObstacleSpec {
+                shape,
+                height: OBSTACLE_HEIGHT_M,
+                surface: if textured {
+                    Surface {
+                        trim: false,
+                        ..wall.clone()
+                    }
+                } else {
+                    Surface {
+                        albedo: c.wall_albedo,
+                        trim: false,
+                        ..Surface::of(TextureKind::Plain)
+                    }
+                },
+            })
+            .collect(),
     };
     Scene::build(&spec, seed)
+}
+
+/// Height of the replayed obstacles, m (the READMEs give footprints only).
+pub const OBSTACLE_HEIGHT_M: f32 = 2.0;
+/// Radius of the data set's cylinders (50 cm diameter), m.
+const CYLINDER_RADIUS_M: f64 = 0.25;
+/// Width of the data set's screens, m.
+const SCREEN_WIDTH_M: f64 = 1.0;
+
+/// An obstacle the data set's READMEs list for a take.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DatasetObstacle {
+    /// A 50 cm cylinder at (X, Z), m.
+    Cylinder([f64; 2]),
+    /// A 1 m screen at (X, Z), m, facing the camera (perpendicular to the take's mean
+    /// forward direction) or, with `along`, parallel to it (the corridor takes).
+    Screen {
+        /// Centre (X, Z), m.
+        at: [f64; 2],
+        /// Parallel to the direction of travel.
+        along: bool,
+        /// Textured (else plain).
+        textured: bool,
+    },
+    /// A textured 1 m screen whose position the README does not give, turned by `angle_deg`
+    /// from facing the camera: placed ahead of the take's last position at the 10th percentile
+    /// of the recorded frames' median stereo depths (board 2).
+    ScreenAhead {
+        /// Orientation relative to facing the camera, degrees.
+        angle_deg: f64,
+    },
+}
+
+/// The obstacles of a forward take as the data set's READMEs list them (board 1: positions in
+/// mm of X/Z; board 2 takes 1-6: a textured screen at 0, 30 or 60 degrees); none for the
+/// takes the READMEs do not describe.
+pub fn take_obstacles(board: u32, take: u32) -> Vec<DatasetObstacle> {
+    use DatasetObstacle::{Cylinder, Screen, ScreenAhead};
+    let screen = |x: f64, z: f64, along: bool, textured: bool| Screen {
+        at: [x, z],
+        along,
+        textured,
+    };
+    match (board, take) {
+        (1, 1 | 2) => vec![Cylinder([0.870, -1.706])],
+        (1, 3) => vec![Cylinder([-2.237, 2.776])],
+        (1, 4 | 5) => vec![Cylinder([-2.237, 2.776]), Cylinder([-1.637, 3.322])],
+        (1, 6..=8) => vec![screen(-1.588, 2.083, false, true)],
+        (1, 9..=12) => vec![Cylinder([-3.013, 3.768])],
+        (1, 13..=18) => vec![screen(-2.696, 3.619, false, take >= 16)],
+        (1, 19..=22) => vec![
+            screen(-3.388, 3.342, true, take >= 21),
+            screen(-2.049, 3.298, true, take >= 21),
+        ],
+        (2, 1..=6) => vec![ScreenAhead {
+            angle_deg: [0.0, 30.0, 60.0][((take - 1) / 2) as usize],
+        }],
+        _ => Vec::new(),
+    }
+}
+
+/// The take's obstacles as footprints in the simulator's world (before the room offset):
+/// data set (X, Z) -> (Z, -X); `ahead_m` places [`DatasetObstacle::ScreenAhead`].
+fn place_obstacles(
+    obstacles: &[DatasetObstacle],
+    poses: &[Pose],
+    ahead_m: f64,
+) -> Vec<(Shape, bool)> {
+    let n = poses.len().max(1) as f64;
+    let (mut fx, mut fy) = (0.0, 0.0);
+    for p in poses {
+        let f = p.att.rotate(V3::new(1.0, 0.0, 0.0));
+        fx += f.x / n;
+        fy += f.y / n;
+    }
+    let norm = fx.hypot(fy).max(1e-9);
+    let (fx, fy) = (fx / norm, fy / norm);
+    let sim = |xz: [f64; 2]| [xz[1], -xz[0]];
+    let panel = |c: [f64; 2], d: [f64; 2]| {
+        let h = 0.5 * SCREEN_WIDTH_M;
+        Shape::Panel {
+            a: [(c[0] - h * d[0]) as f32, (c[1] - h * d[1]) as f32],
+            b: [(c[0] + h * d[0]) as f32, (c[1] + h * d[1]) as f32],
+        }
+    };
+    obstacles
+        .iter()
+        .map(|o| match *o {
+            DatasetObstacle::Cylinder(xz) => {
+                let c = sim(xz);
+                (
+                    Shape::Cylinder {
+                        centre: [c[0] as f32, c[1] as f32],
+                        radius: CYLINDER_RADIUS_M as f32,
+                    },
+                    true,
+                )
+            }
+            DatasetObstacle::Screen {
+                at,
+                along,
+                textured,
+            } => {
+                let d = if along { [fx, fy] } else { [-fy, fx] };
+                (panel(sim(at), d), textured)
+            }
+            DatasetObstacle::ScreenAhead { angle_deg } => {
+                let last = poses.last().map_or(V3::new(0.0, 0.0, 0.0), |p| p.pos);
+                let c = [last.x + ahead_m * fx, last.y + ahead_m * fy];
+                let (s, k) = angle_deg.to_radians().sin_cos();
+                // The facing direction (-fy, fx) turned by the angle.
+                let d = [-fy * k - fx * s, fx * k - fy * s];
+                (panel(c, d), true)
+            }
+        })
+        .collect()
+}
+
+/// Every corner or extreme point of the footprints (to size the room around them).
+fn footprint_points(obstacles: &[(Shape, bool)]) -> Vec<[f64; 2]> {
+    let mut v = Vec::new();
+    for (s, _) in obstacles {
+        match *s {
+            Shape::Cylinder { centre, radius } => {
+                for (dx, dy) in [(-1.0, 0.0), (1.0, 0.0), (0.0, -1.0), (0.0, 1.0)] {
+                    v.push([
+                        f64::from(centre[0] + dx * radius),
+                        f64::from(centre[1] + dy * radius),
+                    ]);
+                }
+            }
+            Shape::Panel { a, b } => {
+                v.push([f64::from(a[0]), f64::from(a[1])]);
+                v.push([f64::from(b[0]), f64::from(b[1])]);
+            }
+            Shape::Box { min, max } => {
+                v.push([f64::from(min[0]), f64::from(min[1])]);
+                v.push([f64::from(max[0]), f64::from(max[1])]);
+            }
+        }
+    }
+    v
+}
+
+/// Moves a footprint by `-origin`.
+fn shifted(shape: Shape, origin: V3) -> Shape {
+    let m = |p: [f32; 2]| [p[0] - origin.x as f32, p[1] - origin.y as f32];
+    match shape {
+        Shape::Cylinder { centre, radius } => Shape::Cylinder {
+            centre: m(centre),
+            radius,
+        },
+        Shape::Panel { a, b } => Shape::Panel { a: m(a), b: m(b) },
+        Shape::Box { min, max } => Shape::Box {
+            min: m(min),
+            max: m(max),
+        },
+    }
 }
 
 /// Wall textures and contrasts the fit tries.
@@ -349,51 +568,67 @@ pub fn light_for_noise(camera: &CameraParams, noise_dn: f64, albedo: f64) -> f32
     light.clamp(0.01, 1.0) as f32
 }
 
-/// Chooses the scene of a take from the recorded frames' statistics alone:
-/// * room: the trajectory's bounding box grown on every side by the median stereo depth
-///   Edge-FS measures on the recorded frames (clamped to 0.8-8 m), 3 m high;
+/// Room margins the depth fit tries, m.
+const MARGINS_M: [f64; 7] = [0.8, 1.5, 2.5, 3.5, 5.0, 6.5, 8.0];
+
+/// Chooses the scene of a take from the recorded frames alone (their statistics and the
+/// stereo depth Edge-FS measures on them):
+/// * obstacles: those of the take's README ([`take_obstacles`]), given as `obstacles`;
 /// * wall albedo: the recorded mean level / 255; light: [`light_for_noise`] of the recorded
 ///   noise level;
-/// * wall texture and contrast, then the floor texture: the candidates ([`WALL_KINDS`] x
-///   [`CONTRASTS`], then [`FLOOR_KINDS`]) are rendered at [`FIT_POSES`] poses spread over the
-///   take, and the one whose statistics are nearest the recorded ones
-///   ([`FrameStats::texture_distance`]) is kept.
+/// * wall texture and contrast: the candidates ([`WALL_KINDS`] x [`CONTRASTS`]) are rendered
+///   at [`FIT_POSES`] poses spread over the take, and the one whose statistics are nearest
+///   the recorded ones ([`FrameStats::texture_distance`]) is kept;
+/// * room: the bounding box of the trajectory and the obstacles grown on every side by the
+///   margin ([`MARGINS_M`]) whose rendered median stereo depth at those poses is nearest (in
+///   ratio) the recorded frames' at the same images, 3 m high;
+/// * floor: as the walls, from [`FLOOR_KINDS`].
+#[allow(clippy::too_many_arguments)]
 pub fn fit_scene(
+    real_frames: &[Frame],
     real: &FrameStats,
-    depth_m: f64,
+    obstacles: &[(Shape, bool)],
     poses: &[Pose],
     camera: &CameraParams,
     black: &[usize],
     seed: u64,
 ) -> Result<(SceneChoice, V3)> {
-    let margin = if depth_m.is_finite() {
-        depth_m.clamp(0.8, 8.0)
-    } else {
-        3.0
+    let step = (poses.len() / FIT_POSES).max(1);
+    let idx: Vec<usize> = (0..poses.len()).step_by(step).collect();
+    let shift = camera.misalign_px.round() as i32;
+    let real_sample: Vec<Frame> = idx.iter().map(|&i| real_frames[i].clone()).collect();
+    let real_depth = real_depth_m(&real_sample, shift);
+    let points = footprint_points(obstacles);
+    // The room for a margin: size, origin, obstacles and sample poses moved into it.
+    let layout = |margin: f64| {
+        let (size_m, origin) = room_around(poses, &points, margin);
+        let obs: Vec<(Shape, bool)> = obstacles
+            .iter()
+            .map(|&(sh, t)| (shifted(sh, origin), t))
+            .collect();
+        let sample: Vec<Pose> = idx
+            .iter()
+            .map(|&i| Pose {
+                pos: poses[i].pos - origin,
+                ..poses[i]
+            })
+            .collect();
+        (size_m, origin, obs, sample)
     };
-    let (size_m, origin) = room_around(poses, margin);
     let albedo = (real.mean_dn / 255.0).clamp(0.05, 0.95) as f32;
     let light = light_for_noise(camera, real.noise_dn, f64::from(albedo));
-    let step = (poses.len() / FIT_POSES).max(1);
-    let sample: Vec<Pose> = poses
-        .iter()
-        .step_by(step)
-        .map(|p| Pose {
-            pos: p.pos - origin,
-            ..*p
-        })
-        .collect();
-    let score = |c: &SceneChoice| -> Result<f64> {
-        let scene = build_scene(c, seed)?;
-        let frames = render(&scene, camera, &sample, black, seed);
+    let render_sample = |c: &SceneChoice, sample: &[Pose]| -> Result<Vec<Frame>> {
+        Ok(render(&build_scene(c, seed)?, camera, sample, black, seed))
+    };
+    let texture_score = |frames: &[Frame]| {
         let mut st = TakeStats::default();
-        for f in &frames {
+        for f in frames {
             st.add(f);
         }
-        Ok(st
-            .mean()
-            .map_or(f64::INFINITY, |m| m.texture_distance(real)))
+        st.mean()
+            .map_or(f64::INFINITY, |m| m.texture_distance(real))
     };
+    let (size_m, mut origin, obs, mut sample) = layout(3.5);
     let mut best: Option<SceneChoice> = None;
     for kind in WALL_KINDS {
         let contrasts: &[f32] = if kind == TextureKind::Plain {
@@ -409,21 +644,46 @@ pub fn fit_scene(
                 floor_texture: TextureKind::Tiles,
                 light,
                 size_m,
+                obstacles: obs.clone(),
                 distance: 0.0,
             };
-            c.distance = score(&c)?;
+            c.distance = texture_score(&render_sample(&c, &sample)?);
             if best.as_ref().is_none_or(|b| c.distance < b.distance) {
                 best = Some(c);
             }
         }
     }
     let mut best = best.context("no candidate scene")?;
+    if real_depth.is_finite() {
+        let mut best_err = f64::INFINITY;
+        for m in MARGINS_M {
+            let (size_m, o, obs, smp) = layout(m);
+            let c = SceneChoice {
+                size_m,
+                obstacles: obs,
+                ..best.clone()
+            };
+            let d = real_depth_m(&render_sample(&c, &smp)?, shift);
+            let err = if d.is_finite() {
+                (d / real_depth).ln().abs()
+            } else {
+                f64::INFINITY
+            };
+            if err < best_err {
+                (best_err, origin, sample) = (err, o, smp);
+                best = SceneChoice {
+                    distance: texture_score(&render_sample(&c, &sample)?),
+                    ..c
+                };
+            }
+        }
+    }
     for floor in FLOOR_KINDS.into_iter().skip(1) {
         let mut c = SceneChoice {
             floor_texture: floor,
             ..best.clone()
         };
-        c.distance = score(&c)?;
+        c.distance = texture_score(&render_sample(&c, &sample)?);
         if c.distance < best.distance {
             best = c;
         }
@@ -431,8 +691,14 @@ pub fn fit_scene(
     Ok((best, origin))
 }
 
-/// Replays one take (see the module docs).
-pub fn replay_take(take: &Take, alignment: Alignment, seed: u64) -> Result<ReplayResult> {
+/// Replays one take (see the module docs), rendering it `renders` times (seeds `seed`,
+/// `seed + 1000`, ...; the scene is fitted with `seed`); the rendered error is the mean MSE.
+pub fn replay_take(
+    take: &Take,
+    alignment: Alignment,
+    seed: u64,
+    renders: usize,
+) -> Result<ReplayResult> {
     let n = take.image_count();
     ensure!(
         n >= 22,
@@ -450,10 +716,24 @@ pub fn replay_take(take: &Take, alignment: Alignment, seed: u64) -> Result<Repla
     let shift = stereo_shift(take)?;
     let depth = real_depth_m(&real, shift);
     let poses = trajectory(take, n)?;
-    let camera = camera_for(take)?;
+    let camera = camera_for(take, &real_stats)?;
     let black = black_rows(&real);
-    let (scene_choice, origin) = fit_scene(&real_stats, depth, &poses, &camera, &black, seed)?;
-    let scene = build_scene(&scene_choice, seed)?;
+    let ahead = depth_quantile_m(&real, shift, 0.1);
+    let ahead = if ahead.is_finite() {
+        ahead.clamp(0.5, 8.0)
+    } else {
+        2.0
+    };
+    let obstacles = place_obstacles(&take_obstacles(take.board, take.take), &poses, ahead);
+    let (scene_choice, origin) = fit_scene(
+        &real,
+        &real_stats,
+        &obstacles,
+        &poses,
+        &camera,
+        &black,
+        seed,
+    )?;
     let placed: Vec<Pose> = poses
         .iter()
         .map(|p| Pose {
@@ -461,14 +741,6 @@ pub fn replay_take(take: &Take, alignment: Alignment, seed: u64) -> Result<Repla
             ..*p
         })
         .collect();
-    let rendered = render(&scene, &camera, &placed, &black, seed);
-    let mut ren_st = TakeStats::default();
-    for f in &rendered {
-        ren_st.add(f);
-    }
-    let rendered_stats = ren_st.mean().context("no frames")?;
-    let rendered_depth = real_depth_m(&rendered, shift);
-
     let truth = ground_truth(take, n, alignment)?;
     let params = params_for(Config::Default, take)?;
     let score = |frames: &[Frame]| -> Result<(Metrics, Metrics)> {
@@ -486,7 +758,38 @@ pub fn replay_take(take: &Take, alignment: Alignment, seed: u64) -> Result<Repla
         ))
     };
     let (real_x, real_y) = score(&real)?;
-    let (rendered_x, rendered_y) = score(&rendered)?;
+    // Several renderings (textures and noise drawn from their own seeds) of the same scene.
+    let mut ren_st = TakeStats::default();
+    let (mut depths, mut xs, mut ys) = (Vec::new(), Vec::new(), Vec::new());
+    for r in 0..renders.max(1) {
+        let s = seed.wrapping_add(1000 * r as u64);
+        let rendered = render(&build_scene(&scene_choice, s)?, &camera, &placed, &black, s);
+        for f in &rendered {
+            ren_st.add(f);
+        }
+        depths.push(real_depth_m(&rendered, shift));
+        let (x, y) = score(&rendered)?;
+        xs.push(x);
+        ys.push(y);
+    }
+    let rendered_stats = ren_st.mean().context("no frames")?;
+    let rendered_depth = depths.iter().sum::<f64>() / depths.len() as f64;
+    let mean_metrics = |v: &[Metrics]| {
+        let k = 1.0 / v.len() as f64;
+        Metrics {
+            nmxm: v.iter().map(|m| m.nmxm).sum::<f64>() * k,
+            mse: v.iter().map(|m| m.mse).sum::<f64>() * k,
+            var: v.iter().map(|m| m.var).sum::<f64>() * k,
+        }
+    };
+    let range = |v: &[Metrics], real: f64| {
+        v.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), m| {
+                (lo.min(m.mse / real), hi.max(m.mse / real))
+            })
+    };
+    let (ratio_x_range, ratio_y_range) = (range(&xs, real_x.mse), range(&ys, real_y.mse));
+    let (rendered_x, rendered_y) = (mean_metrics(&xs), mean_metrics(&ys));
     Ok(ReplayResult {
         board: take.board,
         take: take.take,
@@ -499,6 +802,9 @@ pub fn replay_take(take: &Take, alignment: Alignment, seed: u64) -> Result<Repla
         real_y,
         rendered_x,
         rendered_y,
+        renders: renders.max(1),
+        ratio_x_range,
+        ratio_y_range,
         scene: scene_choice,
     })
 }
@@ -512,7 +818,12 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     )?;
     let results: Vec<(Take, Result<ReplayResult>)> = takes
         .par_iter()
-        .map(|t| (t.clone(), replay_take(t, args.alignment, args.seed)))
+        .map(|t| {
+            (
+                t.clone(),
+                replay_take(t, args.alignment, args.seed, args.renders),
+            )
+        })
         .collect();
     let mut ok = Vec::new();
     let mut failed = 0;
@@ -577,9 +888,14 @@ pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
         );
         let c = &r.scene;
         s += &format!(
-            "           ratio    | {:>7.2} {:>7.2} | scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m (distance {:.3})\n",
+            "           ratio    | {:>7.2} {:>7.2} | per rendering x {:.2}..{:.2}, y {:.2}..{:.2} ({})\n                     scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m, {} obstacle(s) (distance {:.3})\n",
             r.ratio_x(),
             r.ratio_y(),
+            r.ratio_x_range.0,
+            r.ratio_x_range.1,
+            r.ratio_y_range.0,
+            r.ratio_y_range.1,
+            r.renders,
             c.wall_texture.name(),
             c.wall_contrast,
             c.wall_albedo,
@@ -587,6 +903,7 @@ pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
             c.light,
             c.size_m[0],
             c.size_m[1],
+            c.obstacles.len(),
             c.distance
         );
         let band = |v: f64| (0.5..=2.0).contains(&v);
@@ -613,10 +930,12 @@ pub fn csv(results: &[ReplayResult]) -> String {
         "noise_dn",
         "mean_dn",
         "contrast_dn",
+        "right_left_level",
+        "right_left_edges",
         "depth_m",
     ];
     let mut s = String::from(
-        "board,take,frames,real_mse_x,real_mse_y,rendered_mse_x,rendered_mse_y,ratio_x,ratio_y",
+        "board,take,frames,real_mse_x,real_mse_y,rendered_mse_x,rendered_mse_y,ratio_x,ratio_y,renders,ratio_x_min,ratio_x_max,ratio_y_min,ratio_y_max",
     );
     for src in ["real", "rendered"] {
         for n in stat_names {
@@ -626,7 +945,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
             s += &format!(",{src}_hist_{b}");
         }
     }
-    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,fit_distance\n";
+    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,obstacles,fit_distance\n";
     let stats = |st: &FrameStats, depth: f64| {
         let mut v = vec![
             st.mean_edge_density(),
@@ -638,6 +957,8 @@ pub fn csv(results: &[ReplayResult]) -> String {
             st.noise_dn,
             st.mean_dn,
             st.contrast_dn,
+            st.right_left_level,
+            st.right_left_edges,
             depth,
         ];
         v.extend(st.gradient_hist);
@@ -646,7 +967,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
     for r in results {
         let c = &r.scene;
         s += &format!(
-            "{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{},{}\n",
             r.board,
             r.take,
             r.frames,
@@ -656,6 +977,11 @@ pub fn csv(results: &[ReplayResult]) -> String {
             r.rendered_y.mse,
             r.ratio_x(),
             r.ratio_y(),
+            r.renders,
+            r.ratio_x_range.0,
+            r.ratio_x_range.1,
+            r.ratio_y_range.0,
+            r.ratio_y_range.1,
             stats(&r.real_stats, r.real_depth_m),
             stats(&r.rendered_stats, r.rendered_depth_m),
             c.wall_texture.name(),
@@ -665,6 +991,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
             c.light,
             c.size_m[0],
             c.size_m[1],
+            c.obstacles.len(),
             c.distance
         );
     }
@@ -692,5 +1019,56 @@ mod tests {
             (f64::from(cam.target_dn) / e + (f64::from(cam.read_noise_e) / e).powi(2)).sqrt();
         assert!((noise - 6.0).abs() < 0.05, "{noise}");
         assert!(light_for_noise(&cam, 7.0, 0.5) < light);
+    }
+
+    fn pose(x: f64, y: f64, yaw: f64) -> Pose {
+        Pose {
+            pos: V3::new(x, y, -0.9),
+            att: Quat::from_euler(0.0, 0.0, yaw),
+            motion: Motion::default(),
+        }
+    }
+
+    #[test]
+    fn readme_obstacles_are_placed_in_the_simulator_frame() {
+        // Board 1 take 3: a cylinder at X = -2.237, Z = 2.776 -> x = Z, y = -X.
+        let obs = take_obstacles(1, 3);
+        let poses = [pose(0.0, 2.2, 0.0), pose(1.0, 2.2, 0.0)];
+        let placed = place_obstacles(&obs, &poses, 2.0);
+        let Shape::Cylinder { centre, radius } = placed[0].0 else {
+            panic!("{placed:?}")
+        };
+        assert!((centre[0] - 2.776).abs() < 1e-5 && (centre[1] - 2.237).abs() < 1e-5);
+        assert_eq!(radius, 0.25);
+        // A facing screen is across the direction of travel (here x), 1 m wide.
+        let placed = place_obstacles(&take_obstacles(1, 16), &poses, 2.0);
+        let (Shape::Panel { a, b }, true) = placed[0] else {
+            panic!("{placed:?}")
+        };
+        assert!((a[0] - b[0]).abs() < 1e-5 && ((a[1] - b[1]).abs() - 1.0).abs() < 1e-5);
+        // Untextured screens of takes 13-15; corridor screens along the travel direction.
+        assert!(!place_obstacles(&take_obstacles(1, 13), &poses, 2.0)[0].1);
+        let corridor = place_obstacles(&take_obstacles(1, 19), &poses, 2.0);
+        assert_eq!(corridor.len(), 2);
+        let Shape::Panel { a, b } = corridor[0].0 else {
+            panic!()
+        };
+        assert!((a[1] - b[1]).abs() < 1e-5 && ((a[0] - b[0]).abs() - 1.0).abs() < 1e-5);
+        // Board 2: a screen ahead of the last pose, turned by 30 degrees.
+        let ahead = place_obstacles(&take_obstacles(2, 3), &poses, 2.0);
+        let Shape::Panel { a, b } = ahead[0].0 else {
+            panic!()
+        };
+        let c = [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0];
+        assert!(
+            (c[0] - 3.0).abs() < 1e-5 && (c[1] - 2.2).abs() < 1e-5,
+            "{c:?}"
+        );
+        let turn = (b[0] - a[0]).atan2(b[1] - a[1]).abs().to_degrees();
+        assert!(
+            (turn - 30.0).abs() < 1e-3 || (turn - 150.0).abs() < 1e-3,
+            "{turn}"
+        );
+        assert!(take_obstacles(2, 7).is_empty());
     }
 }
