@@ -28,8 +28,8 @@ use crate::velocity_kf::{Fusion, VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
-    LinkErrorCounts, Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse,
-    PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
+    LinkErrorCounts, Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand,
+    StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
 };
 use timebase::WireTime;
 
@@ -336,6 +336,7 @@ pub struct Autopilot {
     stereo_heartbeat: Option<(u64, Heartbeat)>,
     stereo_status: Option<StereoStatus>,
     stereo_config_ack: Option<ConfigResult>,
+    camera_param_reply: Option<ParamResponse>,
     rc_kill_latched: bool,
     arm_refused: u32,
     baro: Option<(u64, BaroReading)>,
@@ -401,6 +402,7 @@ impl Autopilot {
             stereo_heartbeat: None,
             stereo_status: None,
             stereo_config_ack: None,
+            camera_param_reply: None,
             rc_kill_latched: false,
             arm_refused: 0,
             baro: None,
@@ -426,10 +428,7 @@ impl Autopilot {
     /// state; the INDI (filters and adapted effectiveness) restarts if its part changed.
     pub fn set_config(&mut self, config: AutopilotConfig) -> Result<(), Rejected> {
         if self.failsafe.mode().motors_enabled() {
-            return Err(Rejected {
-                index: None,
-                error: ParamError::Armed,
-            });
+            return Err(Rejected::refused(ParamError::Armed));
         }
         params::validate(&config)?;
         self.att.set_config(config.attitude);
@@ -447,26 +446,15 @@ impl Autopilot {
     }
 
     /// Answers a host's parameter request for this board's table ([`params::TABLE`]); a
-    /// request for another board's table is refused (`NoSuchBoard`). `Save` is answered
-    /// `NoStorage` here: the firmware, which owns the flash, answers it before this is called.
+    /// request for another board's table is refused (`NoSuchBoard`; [`Autopilot::on_host_message`]
+    /// passes the camera board's on). `Save` is answered `NoStorage` here: the firmware, which
+    /// owns the flash, answers it before this is called.
     pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
         let reply = if req.board != Node::Autopilot {
             ParamReply::Error(ParamError::NoSuchBoard)
         } else {
-            match &req.op {
-                ParamOp::List(i) => params::entry(&self.cfg, usize::from(*i)).map_or(
-                    ParamReply::Error(ParamError::UnknownIndex),
-                    ParamReply::Entry,
-                ),
-                ParamOp::Get(name) => params::index_of(name)
-                    .and_then(|i| params::entry(&self.cfg, i))
-                    .map_or(
-                        ParamReply::Error(ParamError::UnknownName),
-                        ParamReply::Entry,
-                    ),
-                ParamOp::Set(name, value) => self.set_param(name, *value),
-                ParamOp::Save => ParamReply::Error(ParamError::NoStorage),
-            }
+            let cfg = self.cfg;
+            params::AUTOPILOT.answer(&cfg, &req.op, |next| self.set_config(next))
         };
         ParamResponse {
             board: req.board,
@@ -474,19 +462,10 @@ impl Autopilot {
         }
     }
 
-    fn set_param(&mut self, name: &str, value: protocol::ParamValue) -> ParamReply {
-        let Some(index) = params::index_of(name) else {
-            return ParamReply::Error(ParamError::UnknownName);
-        };
-        let mut next = self.cfg;
-        let applied = params::set(&mut next, index, value).and_then(|()| self.set_config(next));
-        match applied {
-            Ok(()) => params::entry(&self.cfg, index).map_or(
-                ParamReply::Error(ParamError::UnknownIndex),
-                ParamReply::Entry,
-            ),
-            Err(r) => ParamReply::Error(r.error),
-        }
+    /// The camera board's latest answer to a parameter request passed on to it, for the host
+    /// (taken once; a newer answer replaces one not yet taken).
+    pub fn take_camera_param_reply(&mut self) -> Option<ParamResponse> {
+        self.camera_param_reply.take()
     }
 
     /// Current flight mode (failsafe state).
@@ -631,6 +610,7 @@ impl Autopilot {
                 self.stereo_status = Some(s);
             }
             StereoToAutopilot::ConfigAck(a) => self.stereo_config_ack = Some(a),
+            StereoToAutopilot::Param(r) => self.camera_param_reply = Some(r),
         }
     }
 

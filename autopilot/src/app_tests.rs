@@ -10,6 +10,7 @@ use super::*;
 use crate::attitude::GRAVITY;
 use crate::indi::IndiConfig;
 use proptest::prelude::*;
+use protocol::ParamOp;
 use std::vec::Vec;
 
 const IMU_US: u64 = 1_953;
@@ -989,6 +990,31 @@ fn parameters_set_on_the_ground_take_effect_and_are_refused_in_flight() {
         param_request(&mut r.ap, Node::Autopilot, ParamOp::Save),
         ParamReply::Error(ParamError::NoStorage)
     );
+    // A camera-board change is refused here too, not passed on; a camera read is.
+    let mut camera = |op| {
+        r.ap.on_host_message(
+            protocol::HostToBoard::Param(ParamRequest {
+                board: Node::StereoBoard,
+                op,
+            }),
+            0,
+        )
+    };
+    let shift = ParamOp::Set(
+        ParamName::try_from("stereo_shift").unwrap(),
+        ParamValue::I32(3),
+    );
+    assert_eq!(
+        camera(shift),
+        crate::host::HostOutcome::Reply(protocol::BoardToHost::Param(ParamResponse {
+            board: Node::StereoBoard,
+            reply: ParamReply::Error(ParamError::Armed),
+        }))
+    );
+    assert!(matches!(
+        camera(ParamOp::List(0)),
+        crate::host::HostOutcome::ToCamera(_)
+    ));
     // Reads still answer in flight.
     let get = ParamOp::Get(ParamName::try_from("target_height").unwrap());
     assert!(matches!(

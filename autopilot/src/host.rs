@@ -7,7 +7,10 @@
 //! control loop on it. It is therefore handed back as [`HostOutcome::Imu`]; a board with its
 //! own IMU refuses it and counts the refusal (the firmware's real flavour does).
 
-use protocol::{BoardToHost, HostToBoard, ImuSample};
+use protocol::{
+    AutopilotToStereo, BoardToHost, HostToBoard, ImuSample, Node, ParamError, ParamOp, ParamReply,
+    ParamResponse,
+};
 
 use crate::Autopilot;
 
@@ -18,6 +21,9 @@ pub enum HostOutcome {
     Done,
     /// Handled; send this answer to the host.
     Reply(BoardToHost),
+    /// A request for the camera board: send this to it over the board-to-board link (its
+    /// answer comes back through [`Autopilot::take_camera_param_reply`]).
+    ToCamera(AutopilotToStereo),
     /// An IMU sample from the host: a lockstep caller runs the control loop on it at the
     /// world time it carries; a board with its own IMU refuses and counts it.
     Imu(ImuSample),
@@ -25,8 +31,10 @@ pub enum HostOutcome {
 
 impl Autopilot {
     /// Handles one message from the host at board time `now_us`: a height / position fix, a
-    /// pilot command, a parameter request (answered). Heartbeats are liveness only, and frame
-    /// chunks are for the camera board: both are dropped here.
+    /// pilot command, a parameter request (answered; one for the camera board's table is
+    /// passed on to it, except a set or save while the motors may run, which is refused here).
+    /// Heartbeats are liveness only, and frame chunks are for the camera board: both are
+    /// dropped here.
     pub fn on_host_message(&mut self, msg: HostToBoard, now_us: u64) -> HostOutcome {
         match msg {
             HostToBoard::ExternalPosition(pos) => {
@@ -36,6 +44,17 @@ impl Autopilot {
             HostToBoard::Command(cmd) => {
                 self.on_command(cmd, now_us);
                 HostOutcome::Done
+            }
+            HostToBoard::Param(req) if req.board == Node::StereoBoard => {
+                let changes = matches!(req.op, ParamOp::Set(..) | ParamOp::Save);
+                if changes && self.mode().motors_enabled() {
+                    HostOutcome::Reply(BoardToHost::Param(ParamResponse {
+                        board: req.board,
+                        reply: ParamReply::Error(ParamError::Armed),
+                    }))
+                } else {
+                    HostOutcome::ToCamera(AutopilotToStereo::Param(req))
+                }
             }
             HostToBoard::Param(req) => {
                 HostOutcome::Reply(BoardToHost::Param(self.on_param_request(&req)))
@@ -84,12 +103,32 @@ mod tests {
             panic!("a parameter request must be answered");
         };
         assert!(matches!(r.reply, ParamReply::Entry(_)));
-        let HostOutcome::Reply(BoardToHost::Param(r)) =
-            ap.on_host_message(ask(Node::StereoBoard), 0)
+        let HostOutcome::Reply(BoardToHost::Param(r)) = ap.on_host_message(ask(Node::Host), 0)
         else {
             panic!("a request for another board must be answered too");
         };
-        assert!(matches!(r.reply, ParamReply::Error(_)));
+        assert_eq!(r.reply, ParamReply::Error(ParamError::NoSuchBoard));
+    }
+
+    #[test]
+    fn a_camera_parameter_request_is_passed_on_and_its_answer_back() {
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        let req = ParamRequest {
+            board: Node::StereoBoard,
+            op: ParamOp::List(3),
+        };
+        assert_eq!(
+            ap.on_host_message(HostToBoard::Param(req.clone()), 0),
+            HostOutcome::ToCamera(AutopilotToStereo::Param(req))
+        );
+        assert_eq!(ap.take_camera_param_reply(), None);
+        let answer = ParamResponse {
+            board: Node::StereoBoard,
+            reply: ParamReply::Error(ParamError::UnknownIndex),
+        };
+        ap.on_stereo_message(protocol::StereoToAutopilot::Param(answer.clone()), 0);
+        assert_eq!(ap.take_camera_param_reply(), Some(answer));
+        assert_eq!(ap.take_camera_param_reply(), None, "taken once");
     }
 
     #[test]

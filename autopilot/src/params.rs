@@ -16,63 +16,19 @@
 use crate::app::{AutopilotConfig, VelocitySource};
 use crate::fsm::FsmVariant;
 use crate::guidance::MAX_MEASUREMENT_DELAY_US;
-use protocol::{ParamEntry, ParamError, ParamKind, ParamName, ParamSpec, ParamUnit, ParamValue};
+use protocol::params::{ParamField, ParamTable};
+use protocol::{ParamEntry, ParamValue};
 
-/// A configuration field's type, seen as a parameter value.
-trait Field: Sized + Copy {
-    fn value(self) -> ParamValue;
-    fn from_value(v: ParamValue) -> Option<Self>;
-}
+pub use protocol::params::Rejected;
 
-impl Field for f32 {
-    fn value(self) -> ParamValue {
-        ParamValue::F32(self)
-    }
-    fn from_value(v: ParamValue) -> Option<Self> {
-        match v {
-            ParamValue::F32(x) => Some(x),
-            _ => None,
-        }
-    }
-}
-
-impl Field for bool {
-    fn value(self) -> ParamValue {
-        ParamValue::Bool(self)
-    }
-    fn from_value(v: ParamValue) -> Option<Self> {
-        match v {
-            ParamValue::Bool(x) => Some(x),
-            _ => None,
-        }
-    }
-}
-
-macro_rules! unsigned_field {
-    ($($t:ty),*) => {$(
-        impl Field for $t {
-            fn value(self) -> ParamValue {
-                ParamValue::U32(u32::try_from(self).unwrap_or(u32::MAX))
-            }
-            fn from_value(v: ParamValue) -> Option<Self> {
-                match v {
-                    ParamValue::U32(x) => <$t>::try_from(x).ok(),
-                    _ => None,
-                }
-            }
-        }
-    )*};
-}
-unsigned_field!(u8, u16, u32, u64);
-
-impl Field for FsmVariant {
-    fn value(self) -> ParamValue {
+impl ParamField for FsmVariant {
+    fn to_param(self) -> ParamValue {
         ParamValue::U32(match self {
             FsmVariant::Paper => 0,
             FsmVariant::TurnUntilClear => 1,
         })
     }
-    fn from_value(v: ParamValue) -> Option<Self> {
+    fn from_param(v: ParamValue) -> Option<Self> {
         match v {
             ParamValue::U32(0) => Some(FsmVariant::Paper),
             ParamValue::U32(1) => Some(FsmVariant::TurnUntilClear),
@@ -81,14 +37,14 @@ impl Field for FsmVariant {
     }
 }
 
-impl Field for VelocitySource {
-    fn value(self) -> ParamValue {
+impl ParamField for VelocitySource {
+    fn to_param(self) -> ParamValue {
         ParamValue::U32(match self {
             VelocitySource::Kalman => 0,
             VelocitySource::MedianObserver => 1,
         })
     }
-    fn from_value(v: ParamValue) -> Option<Self> {
+    fn from_param(v: ParamValue) -> Option<Self> {
         match v {
             ParamValue::U32(0) => Some(VelocitySource::Kalman),
             ParamValue::U32(1) => Some(VelocitySource::MedianObserver),
@@ -97,46 +53,12 @@ impl Field for VelocitySource {
     }
 }
 
-/// Reads and writes one field of the configuration.
-struct Accessor {
-    get: fn(&AutopilotConfig) -> ParamValue,
-    set: fn(&mut AutopilotConfig, ParamValue) -> bool,
-}
-
-macro_rules! table {
-    ($( $name:literal : $kind:ident [$unit:literal] $min:expr, $max:expr, $writable:literal
-        => |$c:ident| $place:expr; )*) => {
-        /// The autopilot's parameters, in the order they are listed and stored.
-        pub const TABLE: &[ParamSpec] = &[$(
-            ParamSpec {
-                name: $name,
-                kind: ParamKind::$kind,
-                unit: $unit,
-                min: ParamValue::$kind($min),
-                max: ParamValue::$kind($max),
-                writable: $writable,
-            },
-        )*];
-
-        const ACCESS: &[Accessor] = &[$(
-            Accessor {
-                get: |$c: &AutopilotConfig| Field::value($place),
-                set: |$c: &mut AutopilotConfig, v: ParamValue| match Field::from_value(v) {
-                    Some(x) => {
-                        $place = x;
-                        true
-                    }
-                    None => false,
-                },
-            },
-        )*];
-    };
-}
-
 const PI: f32 = core::f32::consts::PI;
 const LOOP_HZ: f32 = crate::board::LOOP_RATE_HZ as f32;
 
-table! {
+protocol::param_table! {
+    /// The autopilot's parameters, in the order they are listed and stored.
+    pub TABLE, ACCESS: AutopilotConfig {
     "att_kp": F32 ["1/s"] 0.0, 10.0, true => |c| c.attitude.kp;
     "att_ki": F32 ["1/s2"] 0.0, 1.0, true => |c| c.attitude.ki;
     "att_max_bias": F32 ["rad/s"] 0.0, 1.0, true => |c| c.attitude.max_bias;
@@ -249,84 +171,37 @@ table! {
     "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
     "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;
     "gyro_cal_still": F32 ["rad/s"] 0.001, 1.0, true => |c| c.gyro_calibration_still_radps;
+    }
 }
+
+/// The autopilot's table with its accessors, defaults and consistency check ([`validate`]).
+pub const AUTOPILOT: ParamTable<AutopilotConfig> = ParamTable {
+    specs: TABLE,
+    access: ACCESS,
+    defaults: <AutopilotConfig as Default>::default,
+    consistent,
+};
 
 /// Number of parameters.
 pub const COUNT: usize = TABLE.len();
 
 /// Version of [`TABLE`] for flash records: see [`protocol::params::table_hash`].
-pub const TABLE_HASH: u32 = protocol::params::table_hash(TABLE);
-
-/// Why a configuration (or one parameter change) was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Rejected {
-    /// The parameter at fault (its index in [`TABLE`]); `None` for a refusal that is not about
-    /// one value (e.g. while armed).
-    pub index: Option<usize>,
-    /// Why.
-    pub error: ParamError,
-}
-
-impl Rejected {
-    /// The name of the parameter at fault, or `""`.
-    pub fn name(&self) -> &'static str {
-        self.index.and_then(|i| TABLE.get(i)).map_or("", |s| s.name)
-    }
-}
-
-impl core::fmt::Display for Rejected {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self.index.and_then(|i| TABLE.get(i).map(|s| (i, s))) {
-            Some((i, s)) => {
-                write!(f, "parameter {} ({}): {}", s.name, i, self.error.describe())?;
-                if self.error == ParamError::OutOfBounds {
-                    write!(f, " [{} ..= {}] {}", s.min, s.max, s.unit)?;
-                }
-                Ok(())
-            }
-            None => f.write_str(self.error.describe()),
-        }
-    }
-}
+pub const TABLE_HASH: u32 = AUTOPILOT.hash();
 
 /// Index of the parameter called `name`.
 pub fn index_of(name: &str) -> Option<usize> {
-    protocol::params::find_param(TABLE, name)
+    AUTOPILOT.index_of(name)
 }
 
 /// The value of parameter `index` in `cfg`.
 pub fn get(cfg: &AutopilotConfig, index: usize) -> Option<ParamValue> {
-    ACCESS.get(index).map(|a| (a.get)(cfg))
+    AUTOPILOT.get(cfg, index)
 }
 
 /// Writes parameter `index` of `cfg`, if the value has its kind, lies within its bounds and
 /// leaves the configuration consistent ([`validate`]); otherwise `cfg` is unchanged.
 pub fn set(cfg: &mut AutopilotConfig, index: usize, value: ParamValue) -> Result<(), Rejected> {
-    let reject = |error| Rejected {
-        index: Some(index),
-        error,
-    };
-    let (spec, access) = match (TABLE.get(index), ACCESS.get(index)) {
-        (Some(s), Some(a)) => (s, a),
-        _ => return Err(reject(ParamError::UnknownIndex)),
-    };
-    if !spec.writable {
-        return Err(reject(ParamError::ReadOnly));
-    }
-    spec.check(value).map_err(reject)?;
-    let mut next = *cfg;
-    if !(access.set)(&mut next, value) {
-        return Err(reject(ParamError::WrongKind));
-    }
-    match validate(&next) {
-        Ok(()) => {
-            *cfg = next;
-            Ok(())
-        }
-        // The change made another value inconsistent: name the one that was set.
-        Err(r) if r.error == ParamError::Inconsistent => Err(reject(ParamError::Inconsistent)),
-        Err(r) => Err(r),
-    }
+    AUTOPILOT.set(cfg, index, value)
 }
 
 /// Writes parameter `name` of `cfg` (see [`set`]).
@@ -335,46 +210,36 @@ pub fn set_by_name(
     name: &str,
     value: ParamValue,
 ) -> Result<(), Rejected> {
-    let index = index_of(name).ok_or(Rejected {
-        index: None,
-        error: ParamError::UnknownName,
-    })?;
-    set(cfg, index, value)
+    AUTOPILOT.set_by_name(cfg, name, value)
 }
 
 /// Checks a whole configuration: every value within its bounds (read-only ones at their fixed
 /// value), and the values consistent with each other.
 pub fn validate(cfg: &AutopilotConfig) -> Result<(), Rejected> {
-    for (i, (spec, access)) in TABLE.iter().zip(ACCESS).enumerate() {
-        spec.check((access.get)(cfg)).map_err(|error| Rejected {
-            index: Some(i),
-            error,
-        })?;
-    }
-    // Values that only make sense together; the first of each pair is named.
-    let inconsistent = |name: &str| Rejected {
-        index: index_of(name),
-        error: ParamError::Inconsistent,
-    };
+    AUTOPILOT.validate(cfg)
+}
+
+/// Values that only make sense together: the name of the first parameter of a pair at fault.
+fn consistent(cfg: &AutopilotConfig) -> Result<(), &'static str> {
     let h = &cfg.height;
     if h.min_thrust > h.hover_thrust || h.hover_thrust > h.max_thrust {
-        return Err(inconsistent("height_hover_thrust"));
+        return Err("height_hover_thrust");
     }
     let i = &cfg.indi;
     if i.g1_min > i.g1_max {
-        return Err(inconsistent("indi_g1_min"));
+        return Err("indi_g1_min");
     }
     if i.g1.iter().any(|&g| g < i.g1_min || g > i.g1_max) {
-        return Err(inconsistent("indi_g1_p"));
+        return Err("indi_g1_p");
     }
     if i.g2 > i.g2_max {
-        return Err(inconsistent("indi_g2"));
+        return Err("indi_g2");
     }
     if cfg.fsm.clear_distance_m < cfg.fsm.obstacle_distance_m {
-        return Err(inconsistent("fsm_clear_dist"));
+        return Err("fsm_clear_dist");
     }
     if cfg.landed_height_m >= cfg.target_height_m {
-        return Err(inconsistent("landed_height"));
+        return Err("landed_height");
     }
     // The oldest estimate window (the longest processing time an estimate can report, then the
     // link, the output filter's lag and the window itself) must lie inside the velocity
@@ -384,41 +249,21 @@ pub fn validate(cfg: &AutopilotConfig) -> Result<(), Rejected> {
         + u64::from(cfg.estimate_filter_lag_us)
         + u64::from(cfg.estimate_horizon_us);
     if oldest_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
-        return Err(inconsistent("est_horizon_us"));
+        return Err("est_horizon_us");
     }
     Ok(())
 }
 
-fn wire_str<const N: usize>(s: &str) -> heapless::String<N> {
-    let mut out = heapless::String::new();
-    for ch in s.chars() {
-        if out.push(ch).is_err() {
-            break;
-        }
-    }
-    out
-}
-
 /// Parameter `index` of `cfg` as it goes on the wire.
 pub fn entry(cfg: &AutopilotConfig, index: usize) -> Option<ParamEntry> {
-    let spec = TABLE.get(index)?;
-    let defaults = AutopilotConfig::default();
-    Some(ParamEntry {
-        index: index as u16,
-        count: COUNT as u16,
-        name: wire_str::<{ protocol::params::PARAM_NAME_LEN }>(spec.name) as ParamName,
-        unit: wire_str::<{ protocol::params::PARAM_UNIT_LEN }>(spec.unit) as ParamUnit,
-        value: get(cfg, index)?,
-        default: get(&defaults, index)?,
-        min: spec.min,
-        max: spec.max,
-        writable: spec.writable,
-    })
+    AUTOPILOT.entry(cfg, index)
 }
 
 /// Every value of `cfg` in table order (for a flash record).
 pub fn values(cfg: &AutopilotConfig) -> [ParamValue; COUNT] {
-    core::array::from_fn(|i| get(cfg, i).unwrap_or(ParamValue::U32(0)))
+    let mut out = [ParamValue::U32(0); COUNT];
+    AUTOPILOT.values(cfg, &mut out);
+    out
 }
 
 /// Bytes of the autopilot's flash record.
@@ -439,28 +284,14 @@ pub fn encode_record(
 /// set of values is reported as [`protocol::params::RecordError::BadValue`] of the parameter
 /// at fault).
 pub fn decode_record(bytes: &[u8]) -> (AutopilotConfig, Result<(), protocol::params::RecordError>) {
-    let defaults = AutopilotConfig::default();
-    let mut cfg = defaults;
-    let mut stored = true;
-    let decoded = protocol::params::decode_record(TABLE, bytes, |i, v| {
-        stored &= ACCESS.get(i).is_some_and(|a| (a.set)(&mut cfg, v));
-    });
-    let result = match decoded {
-        Err(e) => Err(e),
-        Ok(()) if !stored => Err(protocol::params::RecordError::BadValue(0)),
-        Ok(()) => validate(&cfg)
-            .map_err(|r| protocol::params::RecordError::BadValue(r.index.unwrap_or(0) as u16)),
-    };
-    match result {
-        Ok(()) => (cfg, Ok(())),
-        Err(e) => (defaults, Err(e)),
-    }
+    AUTOPILOT.decode_record(bytes)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use protocol::params::RecordError;
+    use protocol::ParamError;
 
     #[test]
     fn a_saved_configuration_loads_back_and_a_bad_record_means_defaults() {

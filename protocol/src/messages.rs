@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 4;
+pub const PROTOCOL_VERSION: u8 = 5;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -248,10 +248,13 @@ pub enum StereoToAutopilot {
     Status(StereoStatus),
     /// Answer to a configuration request.
     ConfigAck(ConfigResult),
+    /// The answer to a [`AutopilotToStereo::Param`] request (the autopilot passes it on to
+    /// the host as [`BoardToHost::Param`]).
+    Param(crate::ParamResponse),
 }
 
 impl Message for StereoToAutopilot {
-    const VARIANT_COUNT: u32 = 4;
+    const VARIANT_COUNT: u32 = 5;
     const MAX_FRAME_BYTES: usize = 128;
 }
 
@@ -338,10 +341,13 @@ pub enum AutopilotToStereo {
     GyroAttitude(GyroAttitude),
     /// Change Edge-FS parameters (answered with [`StereoToAutopilot::ConfigAck`]).
     Config(EdgeFsConfig),
+    /// A host's request for the camera board's parameter table, passed on by the autopilot
+    /// (answered with [`StereoToAutopilot::Param`]).
+    Param(crate::ParamRequest),
 }
 
 impl Message for AutopilotToStereo {
-    const VARIANT_COUNT: u32 = 3;
+    const VARIANT_COUNT: u32 = 4;
     const MAX_FRAME_BYTES: usize = 64;
 }
 

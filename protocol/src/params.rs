@@ -36,6 +36,8 @@ pub enum ParamKind {
     U32,
     /// Flag.
     Bool,
+    /// Signed integer (calibration offsets).
+    I32,
 }
 
 impl ParamKind {
@@ -45,6 +47,7 @@ impl ParamKind {
             ParamKind::F32 => "f32",
             ParamKind::U32 => "u32",
             ParamKind::Bool => "bool",
+            ParamKind::I32 => "i32",
         }
     }
 }
@@ -59,6 +62,8 @@ pub enum ParamValue {
     U32(u32),
     /// A flag.
     Bool(bool),
+    /// A signed integer.
+    I32(i32),
 }
 
 impl ParamValue {
@@ -68,15 +73,18 @@ impl ParamValue {
             ParamValue::F32(_) => ParamKind::F32,
             ParamValue::U32(_) => ParamKind::U32,
             ParamValue::Bool(_) => ParamKind::Bool,
+            ParamValue::I32(_) => ParamKind::I32,
         }
     }
 
-    /// The 32 bits the flash record stores (f32 bit pattern, the integer, 0 / 1).
+    /// The 32 bits the flash record stores (f32 bit pattern, the integer (two's complement
+    /// for a signed one), 0 / 1).
     pub fn to_bits(self) -> u32 {
         match self {
             ParamValue::F32(x) => x.to_bits(),
             ParamValue::U32(x) => x,
             ParamValue::Bool(b) => u32::from(b),
+            ParamValue::I32(x) => u32::from_le_bytes(x.to_le_bytes()),
         }
     }
 
@@ -90,6 +98,7 @@ impl ParamValue {
                 1 => Some(ParamValue::Bool(true)),
                 _ => None,
             },
+            ParamKind::I32 => Some(ParamValue::I32(i32::from_le_bytes(bits.to_le_bytes()))),
         }
     }
 }
@@ -100,6 +109,7 @@ impl core::fmt::Display for ParamValue {
             ParamValue::F32(x) => write!(f, "{x}"),
             ParamValue::U32(x) => write!(f, "{x}"),
             ParamValue::Bool(b) => write!(f, "{b}"),
+            ParamValue::I32(x) => write!(f, "{x}"),
         }
     }
 }
@@ -133,6 +143,7 @@ impl ParamSpec {
                 x.is_finite() && x >= lo && x <= hi
             }
             (ParamValue::U32(x), ParamValue::U32(lo), ParamValue::U32(hi)) => x >= lo && x <= hi,
+            (ParamValue::I32(x), ParamValue::I32(lo), ParamValue::I32(hi)) => x >= lo && x <= hi,
             (ParamValue::Bool(_), _, _) => true,
             _ => false,
         };
@@ -165,12 +176,367 @@ pub const fn table_hash(table: &[ParamSpec]) -> u32 {
             ParamKind::F32 => 1u32,
             ParamKind::U32 => 2,
             ParamKind::Bool => 3,
+            ParamKind::I32 => 4,
         };
         // A separator and the kind after each name.
         h = (h ^ (0x100 | kind)).wrapping_mul(0x0100_0193);
         i += 1;
     }
     h
+}
+
+/// A configuration field's type, seen as a parameter value (`u8`..`u64` as [`ParamKind::U32`],
+/// `i8`..`i32` as [`ParamKind::I32`]; a board implements it for its own enum choices).
+pub trait ParamField: Sized + Copy {
+    /// The field as a parameter value (an unsigned field above `u32::MAX` saturates).
+    fn to_param(self) -> ParamValue;
+    /// The field of value `v`; `None` for another kind or a value the field cannot hold.
+    fn from_param(v: ParamValue) -> Option<Self>;
+}
+
+impl ParamField for f32 {
+    fn to_param(self) -> ParamValue {
+        ParamValue::F32(self)
+    }
+    fn from_param(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::F32(x) => Some(x),
+            _ => None,
+        }
+    }
+}
+
+impl ParamField for bool {
+    fn to_param(self) -> ParamValue {
+        ParamValue::Bool(self)
+    }
+    fn from_param(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::Bool(x) => Some(x),
+            _ => None,
+        }
+    }
+}
+
+macro_rules! integer_field {
+    ($variant:ident, $wide:ty, $sat:expr; $($t:ty),*) => {$(
+        impl ParamField for $t {
+            fn to_param(self) -> ParamValue {
+                ParamValue::$variant(<$wide>::try_from(self).unwrap_or($sat))
+            }
+            fn from_param(v: ParamValue) -> Option<Self> {
+                match v {
+                    ParamValue::$variant(x) => <$t>::try_from(x).ok(),
+                    _ => None,
+                }
+            }
+        }
+    )*};
+}
+integer_field!(U32, u32, u32::MAX; u8, u16, u32, u64);
+integer_field!(I32, i32, i32::MAX; i8, i16, i32);
+
+/// Reads and writes one field of a configuration `C` (one per [`ParamSpec`]; built by
+/// [`crate::param_table!`]).
+pub struct ParamAccess<C> {
+    /// The field's value.
+    pub get: fn(&C) -> ParamValue,
+    /// Writes the field; false (nothing written) for a value the field cannot hold.
+    pub set: fn(&mut C, ParamValue) -> bool,
+}
+
+/// Declares a board's parameter table over its configuration type: a `const` slice of
+/// [`ParamSpec`]s and one of [`ParamAccess`]es, entry by entry in the same order.
+///
+/// ```
+/// #[derive(Clone, Copy, Default)]
+/// struct Config { gain: f32, shift: i8 }
+/// protocol::param_table! {
+///     /// The table.
+///     pub SPECS, ACCESS: Config {
+///         "gain": F32 ["-"] 0.0, 2.0, true => |c| c.gain;
+///         "shift": I32 ["px"] -20, 20, true => |c| c.shift;
+///     }
+/// }
+/// assert_eq!(SPECS[1].name, "shift");
+/// let mut c = Config::default();
+/// assert!((ACCESS[1].set)(&mut c, protocol::ParamValue::I32(-3)));
+/// assert_eq!(c.shift, -3);
+/// ```
+#[macro_export]
+macro_rules! param_table {
+    ($(#[$meta:meta])* $vis:vis $specs:ident, $access:ident : $cfg:ty {
+        $( $name:literal : $kind:ident [$unit:literal] $min:expr, $max:expr, $writable:literal
+            => |$c:ident| $place:expr; )*
+    }) => {
+        $(#[$meta])*
+        $vis const $specs: &[$crate::params::ParamSpec] = &[$(
+            $crate::params::ParamSpec {
+                name: $name,
+                kind: $crate::params::ParamKind::$kind,
+                unit: $unit,
+                min: $crate::params::ParamValue::$kind($min),
+                max: $crate::params::ParamValue::$kind($max),
+                writable: $writable,
+            },
+        )*];
+
+        const $access: &[$crate::params::ParamAccess<$cfg>] = &[$(
+            $crate::params::ParamAccess {
+                get: |$c: &$cfg| $crate::params::ParamField::to_param($place),
+                set: |$c: &mut $cfg, v: $crate::params::ParamValue| {
+                    match $crate::params::ParamField::from_param(v) {
+                        Some(x) => {
+                            $place = x;
+                            true
+                        }
+                        None => false,
+                    }
+                },
+            },
+        )*];
+    };
+}
+
+/// Why a configuration, or one parameter change, was refused.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rejected {
+    /// The parameter at fault (its index in the table); `None` for a refusal that is not about
+    /// one value (e.g. while armed).
+    pub index: Option<usize>,
+    /// Its entry in the table.
+    pub spec: Option<&'static ParamSpec>,
+    /// Why.
+    pub error: ParamError,
+}
+
+impl Rejected {
+    /// A refusal that is not about one parameter.
+    pub const fn refused(error: ParamError) -> Self {
+        Self {
+            index: None,
+            spec: None,
+            error,
+        }
+    }
+
+    /// The name of the parameter at fault, or `""`.
+    pub fn name(&self) -> &'static str {
+        self.spec.map_or("", |s| s.name)
+    }
+}
+
+impl core::fmt::Display for Rejected {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match (self.index, self.spec) {
+            (Some(i), Some(s)) => {
+                write!(f, "parameter {} ({}): {}", s.name, i, self.error.describe())?;
+                if self.error == ParamError::OutOfBounds {
+                    write!(f, " [{} ..= {}] {}", s.min, s.max, s.unit)?;
+                }
+                Ok(())
+            }
+            _ => f.write_str(self.error.describe()),
+        }
+    }
+}
+
+/// A board's parameter table over its configuration type `C`: the specs, how each reaches
+/// its field, the defaults and the check of values that only make sense together. Both
+/// boards serve theirs through it, so listing, reading, writing and the flash record behave
+/// alike on each.
+pub struct ParamTable<C: 'static> {
+    /// The entries, in the order they are listed and stored.
+    pub specs: &'static [ParamSpec],
+    /// One accessor per entry.
+    pub access: &'static [ParamAccess<C>],
+    /// The configuration the firmware starts with.
+    pub defaults: fn() -> C,
+    /// Checks values against each other (each is already within its bounds): `Err(name)` of
+    /// the parameter at fault.
+    pub consistent: fn(&C) -> Result<(), &'static str>,
+}
+
+/// Copies `s` into a wire string, cut at its capacity.
+fn wire_str<const N: usize>(s: &str) -> heapless::String<N> {
+    let mut out = heapless::String::new();
+    for ch in s.chars() {
+        if out.push(ch).is_err() {
+            break;
+        }
+    }
+    out
+}
+
+impl<C: Copy> ParamTable<C> {
+    /// Number of parameters.
+    pub const fn len(&self) -> usize {
+        self.specs.len()
+    }
+
+    /// True for a table without parameters.
+    pub const fn is_empty(&self) -> bool {
+        self.specs.is_empty()
+    }
+
+    /// The table's version for flash records ([`table_hash`]).
+    pub const fn hash(&self) -> u32 {
+        table_hash(self.specs)
+    }
+
+    /// Index of the parameter called `name`.
+    pub fn index_of(&self, name: &str) -> Option<usize> {
+        find_param(self.specs, name)
+    }
+
+    /// The value of parameter `index` in `cfg`.
+    pub fn get(&self, cfg: &C, index: usize) -> Option<ParamValue> {
+        self.access.get(index).map(|a| (a.get)(cfg))
+    }
+
+    fn rejected(&self, index: usize, error: ParamError) -> Rejected {
+        Rejected {
+            index: Some(index),
+            spec: self.specs.get(index),
+            error,
+        }
+    }
+
+    /// Writes parameter `index` of `cfg`, if it is writable, the value has its kind, lies
+    /// within its bounds and leaves the configuration consistent ([`ParamTable::validate`]);
+    /// otherwise `cfg` is unchanged.
+    pub fn set(&self, cfg: &mut C, index: usize, value: ParamValue) -> Result<(), Rejected> {
+        let (spec, access) = match (self.specs.get(index), self.access.get(index)) {
+            (Some(s), Some(a)) => (s, a),
+            _ => return Err(self.rejected(index, ParamError::UnknownIndex)),
+        };
+        if !spec.writable {
+            return Err(self.rejected(index, ParamError::ReadOnly));
+        }
+        spec.check(value).map_err(|e| self.rejected(index, e))?;
+        let mut next = *cfg;
+        if !(access.set)(&mut next, value) {
+            return Err(self.rejected(index, ParamError::WrongKind));
+        }
+        match self.validate(&next) {
+            Ok(()) => {
+                *cfg = next;
+                Ok(())
+            }
+            // The change made another value inconsistent: name the one that was set.
+            Err(r) if r.error == ParamError::Inconsistent => {
+                Err(self.rejected(index, ParamError::Inconsistent))
+            }
+            Err(r) => Err(r),
+        }
+    }
+
+    /// Writes parameter `name` of `cfg` (see [`ParamTable::set`]).
+    pub fn set_by_name(&self, cfg: &mut C, name: &str, value: ParamValue) -> Result<(), Rejected> {
+        let index = self
+            .index_of(name)
+            .ok_or(Rejected::refused(ParamError::UnknownName))?;
+        self.set(cfg, index, value)
+    }
+
+    /// Checks a whole configuration: every value within its bounds (read-only ones at their
+    /// fixed value), and the values consistent with each other.
+    pub fn validate(&self, cfg: &C) -> Result<(), Rejected> {
+        for (i, (spec, access)) in self.specs.iter().zip(self.access).enumerate() {
+            spec.check((access.get)(cfg))
+                .map_err(|e| self.rejected(i, e))?;
+        }
+        (self.consistent)(cfg).map_err(|name| match self.index_of(name) {
+            Some(i) => self.rejected(i, ParamError::Inconsistent),
+            None => Rejected::refused(ParamError::Inconsistent),
+        })
+    }
+
+    /// Parameter `index` of `cfg` as it goes on the wire.
+    pub fn entry(&self, cfg: &C, index: usize) -> Option<ParamEntry> {
+        let spec = self.specs.get(index)?;
+        let defaults = (self.defaults)();
+        Some(ParamEntry {
+            index: u16::try_from(index).ok()?,
+            count: u16::try_from(self.len()).unwrap_or(u16::MAX),
+            name: wire_str(spec.name),
+            unit: wire_str(spec.unit),
+            value: self.get(cfg, index)?,
+            default: self.get(&defaults, index)?,
+            min: spec.min,
+            max: spec.max,
+            writable: spec.writable,
+        })
+    }
+
+    /// Answers `op` for the configuration `cfg`: `List` and `Get` with the entry; `Set` by
+    /// [`ParamTable::set`] on a copy, which `apply` then puts in use (it may refuse, e.g.
+    /// while armed), answered with the entry now in use. `Save` is answered `NoStorage`: a
+    /// board with storage answers it before this is called.
+    pub fn answer(
+        &self,
+        cfg: &C,
+        op: &ParamOp,
+        apply: impl FnOnce(C) -> Result<(), Rejected>,
+    ) -> ParamReply {
+        let entry_or = |c: &C, i: Option<usize>, e: ParamError| {
+            i.and_then(|i| self.entry(c, i))
+                .map_or(ParamReply::Error(e), ParamReply::Entry)
+        };
+        match op {
+            ParamOp::List(i) => entry_or(cfg, Some(usize::from(*i)), ParamError::UnknownIndex),
+            ParamOp::Get(name) => entry_or(cfg, self.index_of(name), ParamError::UnknownName),
+            ParamOp::Set(name, value) => {
+                let Some(index) = self.index_of(name) else {
+                    return ParamReply::Error(ParamError::UnknownName);
+                };
+                let mut next = *cfg;
+                match self
+                    .set(&mut next, index, *value)
+                    .and_then(|()| apply(next))
+                {
+                    Ok(()) => entry_or(&next, Some(index), ParamError::UnknownIndex),
+                    Err(r) => ParamReply::Error(r.error),
+                }
+            }
+            ParamOp::Save => ParamReply::Error(ParamError::NoStorage),
+        }
+    }
+
+    /// Writes every value of `cfg` in table order into `out` (at least [`ParamTable::len`]
+    /// long; returns the number written).
+    pub fn values(&self, cfg: &C, out: &mut [ParamValue]) -> usize {
+        let mut n = 0;
+        for (slot, a) in out.iter_mut().zip(self.access) {
+            *slot = (a.get)(cfg);
+            n += 1;
+        }
+        n
+    }
+
+    /// The configuration a flash record holds: every value from the record when the whole
+    /// record is good and the values agree ([`ParamTable::validate`]); otherwise the defaults
+    /// and why (an inconsistent set of values is [`RecordError::BadValue`] of the parameter
+    /// at fault).
+    pub fn decode_record(&self, bytes: &[u8]) -> (C, Result<(), RecordError>) {
+        let defaults = (self.defaults)();
+        let mut cfg = defaults;
+        let mut stored = true;
+        let decoded = decode_record(self.specs, bytes, |i, v| {
+            stored &= self.access.get(i).is_some_and(|a| (a.set)(&mut cfg, v));
+        });
+        let result = match decoded {
+            Err(e) => Err(e),
+            Ok(()) if !stored => Err(RecordError::BadValue(0)),
+            Ok(()) => self.validate(&cfg).map_err(|r| {
+                RecordError::BadValue(u16::try_from(r.index.unwrap_or(0)).unwrap_or(u16::MAX))
+            }),
+        };
+        match result {
+            Ok(()) => (cfg, Ok(())),
+            Err(e) => (defaults, Err(e)),
+        }
+    }
 }
 
 /// What a host asks a board's parameter table.
@@ -188,7 +554,8 @@ pub enum ParamOp {
     Save,
 }
 
-/// A parameter request to one board (host -> autopilot; the autopilot answers for itself).
+/// A parameter request to one board (host -> autopilot; the autopilot answers for itself and
+/// passes a request for the camera board on over the board-to-board link, and its answer back).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ParamRequest {
@@ -450,6 +817,120 @@ mod tests {
         buf
     }
 
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    struct Cfg {
+        gain: f32,
+        shift: i8,
+        lo: u8,
+        hi: u8,
+    }
+
+    const CFG_DEFAULT: Cfg = Cfg {
+        gain: 1.0,
+        shift: -2,
+        lo: 1,
+        hi: 5,
+    };
+
+    crate::param_table! {
+        CFG_SPECS, CFG_ACCESS: Cfg {
+            "gain": F32 ["-"] 0.0, 2.0, true => |c| c.gain;
+            "shift": I32 ["px"] -20, 20, true => |c| c.shift;
+            "lo": U32 ["-"] 0, 10, true => |c| c.lo;
+            "hi": U32 ["-"] 0, 10, false => |c| c.hi;
+        }
+    }
+
+    const CFG_TABLE: ParamTable<Cfg> = ParamTable {
+        specs: CFG_SPECS,
+        access: CFG_ACCESS,
+        defaults: || CFG_DEFAULT,
+        consistent: |c| if c.lo > c.hi { Err("lo") } else { Ok(()) },
+    };
+
+    #[test]
+    fn signed_values_keep_their_sign_bounds_and_bits() {
+        let spec = &CFG_SPECS[1];
+        assert_eq!(spec.check(ParamValue::I32(-20)), Ok(()));
+        assert_eq!(
+            spec.check(ParamValue::I32(-21)),
+            Err(ParamError::OutOfBounds)
+        );
+        assert_eq!(spec.check(ParamValue::U32(3)), Err(ParamError::WrongKind));
+        for x in [i32::MIN, -1, 0, 7, i32::MAX] {
+            let v = ParamValue::I32(x);
+            assert_eq!(ParamValue::from_bits(ParamKind::I32, v.to_bits()), Some(v));
+        }
+        // A narrow field refuses what it cannot hold instead of wrapping.
+        assert_eq!(<i8 as ParamField>::from_param(ParamValue::I32(200)), None);
+        assert_eq!(
+            <i8 as ParamField>::from_param(ParamValue::I32(-7)),
+            Some(-7)
+        );
+        assert_eq!(<u8 as ParamField>::from_param(ParamValue::I32(3)), None);
+    }
+
+    #[test]
+    fn a_table_sets_checks_and_answers_through_its_accessors() {
+        let t = CFG_TABLE;
+        let mut c = CFG_DEFAULT;
+        t.set_by_name(&mut c, "shift", ParamValue::I32(-9)).unwrap();
+        assert_eq!(c.shift, -9);
+        let r = t
+            .set_by_name(&mut c, "shift", ParamValue::I32(21))
+            .unwrap_err();
+        assert_eq!((r.name(), r.error), ("shift", ParamError::OutOfBounds));
+        assert!(std::format!("{r}").contains("[-20 ..= 20] px"), "{r}");
+        let r = t.set_by_name(&mut c, "lo", ParamValue::U32(6)).unwrap_err();
+        assert_eq!((r.name(), r.error), ("lo", ParamError::Inconsistent));
+        let r = t.set_by_name(&mut c, "hi", ParamValue::U32(9)).unwrap_err();
+        assert_eq!(r.error, ParamError::ReadOnly);
+        assert_eq!(c.lo, 1);
+
+        // Set answers with the entry in use once `apply` took it; a refusal changes nothing.
+        let set = |v| ParamOp::Set(ParamName::try_from("shift").unwrap(), ParamValue::I32(v));
+        let mut applied = None;
+        match t.answer(&c, &set(4), |n| {
+            applied = Some(n);
+            Ok(())
+        }) {
+            ParamReply::Entry(e) => {
+                assert_eq!(
+                    (e.value, e.default),
+                    (ParamValue::I32(4), ParamValue::I32(-2))
+                );
+                assert_eq!((e.index, e.count), (1, 4));
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(applied.map(|n| n.shift), Some(4));
+        let refused = t.answer(&c, &set(5), |_| Err(Rejected::refused(ParamError::Armed)));
+        assert_eq!(refused, ParamReply::Error(ParamError::Armed));
+        assert_eq!(
+            t.answer(&c, &ParamOp::List(4), |_| Ok(())),
+            ParamReply::Error(ParamError::UnknownIndex)
+        );
+        assert_eq!(
+            t.answer(&c, &ParamOp::Save, |_| Ok(())),
+            ParamReply::Error(ParamError::NoStorage)
+        );
+
+        // A record with a negative value reads back; an inconsistent one means defaults.
+        let mut vals = [ParamValue::U32(0); 4];
+        assert_eq!(t.values(&c, &mut vals), 4);
+        let mut rec = [0xffu8; 64];
+        encode_record(CFG_SPECS, &vals, &mut rec).unwrap();
+        assert_eq!(t.decode_record(&rec), (c, Ok(())));
+        let mut bad = c;
+        bad.lo = 9;
+        t.values(&bad, &mut vals);
+        encode_record(CFG_SPECS, &vals, &mut rec).unwrap();
+        assert_eq!(
+            t.decode_record(&rec),
+            (CFG_DEFAULT, Err(RecordError::BadValue(2)))
+        );
+    }
+
     #[test]
     fn bounds_and_kinds_are_checked() {
         assert_eq!(TABLE[0].check(ParamValue::F32(2.0)), Ok(()));
@@ -541,7 +1022,9 @@ mod tests {
 
     #[test]
     fn the_largest_messages_fit_their_frames() {
-        use crate::{encode, BoardToHost, HostToBoard, Message};
+        use crate::{
+            encode, AutopilotToStereo, BoardToHost, HostToBoard, Message, StereoToAutopilot,
+        };
         let name = ParamName::try_from("n".repeat(PARAM_NAME_LEN).as_str()).unwrap();
         let unit = ParamUnit::try_from("u".repeat(PARAM_UNIT_LEN).as_str()).unwrap();
         // Values whose encodings are the longest (u32::MAX is a 5-byte varint).
@@ -563,12 +1046,19 @@ mod tests {
         let mut buf = [0u8; 1024];
         let n = encode(&answer, &mut buf).unwrap();
         assert!(n <= BoardToHost::MAX_FRAME_BYTES, "{n} bytes");
-        let request = HostToBoard::Param(ParamRequest {
+        let BoardToHost::Param(response) = answer else {
+            unreachable!()
+        };
+        let n = encode(&StereoToAutopilot::Param(response), &mut buf).unwrap();
+        assert!(n <= StereoToAutopilot::MAX_FRAME_BYTES, "{n} bytes");
+        let req = ParamRequest {
             board: Node::StereoBoard,
             op: ParamOp::Set(name, big),
-        });
-        let n = encode(&request, &mut buf).unwrap();
+        };
+        let n = encode(&HostToBoard::Param(req.clone()), &mut buf).unwrap();
         assert!(n <= HostToBoard::MAX_FRAME_BYTES, "{n} bytes");
+        let n = encode(&AutopilotToStereo::Param(req), &mut buf).unwrap();
+        assert!(n <= AutopilotToStereo::MAX_FRAME_BYTES, "{n} bytes");
     }
 
     #[test]

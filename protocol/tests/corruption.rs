@@ -254,12 +254,15 @@ fn truncated_oversized_and_empty_frames_are_rejected_and_counted() {
     // Unknown message: a valid frame of another direction's larger tag space.
     let mut decoder = AutopilotToStereoDecoder::new();
     let foreign = encode(
-        &StereoToAutopilot::ConfigAck(ConfigResult::Applied),
+        &StereoToAutopilot::Param(ParamResponse {
+            board: Node::StereoBoard,
+            reply: ParamReply::Saved,
+        }),
         &mut wire,
     )
     .unwrap();
     decoder.feed(&wire[..foreign], |_| {
-        panic!("tag 3 is unknown to AutopilotToStereo")
+        panic!("tag 4 is unknown to AutopilotToStereo")
     });
     assert_eq!(decoder.errors().unknown_message, 1);
 }

@@ -18,6 +18,59 @@ fn node() -> impl Strategy<Value = Node> {
         Just(Node::Host)
     ]
 }
+fn param_value() -> impl Strategy<Value = ParamValue> {
+    prop_oneof![
+        finite().prop_map(ParamValue::F32),
+        any::<u32>().prop_map(ParamValue::U32),
+        any::<bool>().prop_map(ParamValue::Bool),
+        any::<i32>().prop_map(ParamValue::I32),
+    ]
+}
+fn param_name() -> impl Strategy<Value = ParamName> {
+    "[a-z_]{1,24}".prop_map(|s| ParamName::try_from(s.as_str()).unwrap())
+}
+fn param_request() -> impl Strategy<Value = ParamRequest> {
+    (
+        node(),
+        prop_oneof![
+            any::<u16>().prop_map(ParamOp::List),
+            param_name().prop_map(ParamOp::Get),
+            (param_name(), param_value()).prop_map(|(n, v)| ParamOp::Set(n, v)),
+            Just(ParamOp::Save),
+        ],
+    )
+        .prop_map(|(board, op)| ParamRequest { board, op })
+}
+fn param_response() -> impl Strategy<Value = ParamResponse> {
+    let entry = (
+        any::<(u16, u16, bool)>(),
+        param_name(),
+        "[a-z/0-9]{0,8}",
+        [param_value(), param_value(), param_value(), param_value()],
+    )
+        .prop_map(|((index, count, writable), name, unit, v)| {
+            ParamReply::Entry(ParamEntry {
+                index,
+                count,
+                name,
+                unit: ParamUnit::try_from(unit.as_str()).unwrap(),
+                value: v[0],
+                default: v[1],
+                min: v[2],
+                max: v[3],
+                writable,
+            })
+        });
+    (
+        node(),
+        prop_oneof![
+            entry,
+            Just(ParamReply::Saved),
+            Just(ParamReply::Error(ParamError::OutOfBounds)),
+        ],
+    )
+        .prop_map(|(board, reply)| ParamResponse { board, reply })
+}
 fn heartbeat() -> impl Strategy<Value = Heartbeat> {
     (node(), any::<u8>(), any::<u32>()).prop_map(|(node, protocol_version, uptime_ms)| Heartbeat {
         node,
@@ -121,6 +174,7 @@ fn stereo_to_autopilot() -> impl Strategy<Value = StereoToAutopilot> {
             config_error().prop_map(ConfigResult::Rejected)
         ]
         .prop_map(StereoToAutopilot::ConfigAck),
+        param_response().prop_map(StereoToAutopilot::Param),
     ]
 }
 fn edge_fs_config() -> impl Strategy<Value = EdgeFsConfig> {
@@ -142,6 +196,7 @@ fn autopilot_to_stereo() -> impl Strategy<Value = AutopilotToStereo> {
             })
         }),
         edge_fs_config().prop_map(AutopilotToStereo::Config),
+        param_request().prop_map(AutopilotToStereo::Param),
     ]
 }
 fn host_to_board() -> impl Strategy<Value = HostToBoard> {
@@ -180,6 +235,7 @@ fn host_to_board() -> impl Strategy<Value = HostToBoard> {
             Just(PilotCommand::Kill)
         ]
         .prop_map(HostToBoard::Command),
+        param_request().prop_map(HostToBoard::Param),
     ]
 }
 fn board_to_host() -> impl Strategy<Value = BoardToHost> {
@@ -228,6 +284,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                 }
             ),
         estimate().prop_map(BoardToHost::Estimate),
+        param_response().prop_map(BoardToHost::Param),
     ]
 }
 

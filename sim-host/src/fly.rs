@@ -21,6 +21,7 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
+use stereo_board::edge_fs::EdgeFsParams;
 
 /// Avoidance FSM choice on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -84,8 +85,9 @@ pub struct FlyArgs {
     /// `velocity_source`, else the Kalman filter).
     #[arg(long, value_enum)]
     pub velocity: Option<VelocityArg>,
-    /// Autopilot parameters (TOML, `[autopilot]` table keyed by the names of
-    /// `sim-host param list`; see docs/parameters.md) over the defaults.
+    /// Board parameters (TOML, `[autopilot]` and `[camera]` tables keyed by the names of
+    /// `sim-host param list`; see docs/parameters.md) over the defaults; `[camera]` configures
+    /// the simulated camera board's Edge-FS.
     #[arg(long)]
     pub params: Option<PathBuf>,
     /// Output directory.
@@ -191,6 +193,7 @@ impl FlyArgs {
                 (None, _) => Fsm::Paper,
             },
             autopilot: params.map_or_else(AutopilotConfig::default, |p| p.autopilot),
+            edge_fs: params.map_or_else(EdgeFsParams::default_config, |p| p.camera),
             baud: self.baud,
             faults_s2a: faults.clone(),
             faults_a2s: faults,
@@ -528,4 +531,33 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
         args.out.join("suite.csv").display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        fly: FlyArgs,
+    }
+
+    #[test]
+    fn a_parameter_file_configures_both_simulated_boards() {
+        let args = Cli::parse_from(["fly"]).fly;
+        let scene = SceneSpec::preset(&args.scenario).unwrap();
+        let file = ParamFile::parse(
+            "[camera]\nstereo_shift = -3\nhalf_window = 5\n[autopilot]\nguid_kp = 0.25\n",
+            "p.toml",
+        )
+        .unwrap();
+        let cfg = args.config(&scene, 1, Some(&file));
+        assert_eq!(cfg.edge_fs.stereo_shift_px, -3);
+        assert_eq!(cfg.edge_fs.half_window, 5);
+        assert_eq!(cfg.autopilot.guidance.kp, 0.25);
+        let plain = args.config(&scene, 1, None);
+        assert_eq!(plain.edge_fs, EdgeFsParams::default_config());
+    }
 }

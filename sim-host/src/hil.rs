@@ -29,6 +29,10 @@
 //!   (it waits, holding the lockstep). So the boards always see frames at `fps` of world time
 //!   with at most one frame period of latency, however slow the link.
 //! * Arming: a `PilotCommand::Arm` at [`HilConfig::arm_at_s`].
+//! * Parameters (`--params FILE`, [`HilConfig::params`]): after both heartbeats and before the
+//!   world starts, every value of the file is set with a parameter request on the autopilot's
+//!   host link (a `[camera]` one passed on by the autopilot to the camera board) and read
+//!   back; a refusal, silence or another value read back stops the run, naming the key.
 //!
 //! A reply that does not come within [`HilConfig::reply_timeout`] (a byte lost in the link)
 //! is counted and the world goes on with the previous commands.
@@ -54,6 +58,7 @@
 
 use crate::log::records::{EstimateRecord, LinkRecord, MotorsRecord, TruthRecord};
 use crate::log::{ns as log_ns, write_telemetry, FlightLog, TelemetryExtras, Thinner};
+use crate::param::{FileSection, LinkClosed, MessageSource, ParamClient, ParamFile};
 use crate::sim::dynamics::Drone;
 use crate::sim::flight::FlightConfig;
 use crate::sim::scene_spec::SceneSpec;
@@ -218,6 +223,11 @@ pub struct HilConfig {
     pub frame_timeout: Duration,
     /// Longest wait for both boards' first heartbeat, wall time.
     pub boot_timeout: Duration,
+    /// Parameters to send before the flight (`hil --params`): the file's name and its
+    /// sections. Each value is set on its board over the autopilot's host link (the camera
+    /// board's passed on by the autopilot) and read back; a refusal, silence or a different
+    /// read-back ends the run before the world starts, naming the key.
+    pub params: Option<(String, Vec<FileSection>)>,
 }
 
 impl Default for HilConfig {
@@ -231,6 +241,7 @@ impl Default for HilConfig {
             reply_timeout: Duration::from_secs(5),
             frame_timeout: Duration::from_secs(60),
             boot_timeout: Duration::from_secs(60),
+            params: None,
         }
     }
 }
@@ -577,6 +588,9 @@ pub fn run_logged(
     let result = (|| {
         wait_heartbeat(&ap_rx, "autopilot", cfg.boot_timeout)?;
         wait_heartbeat(&cam_rx, "camera board", cfg.boot_timeout)?;
+        if let Some((file, sections)) = &cfg.params {
+            send_params(file, sections, &mut ap_tx, &ap_rx, cfg.reply_timeout)?;
+        }
         lockstep(
             cfg,
             &mut world,
@@ -592,6 +606,30 @@ pub fn run_logged(
     })();
     stop.store(true, Ordering::Relaxed);
     result
+}
+
+/// Sets and reads back every value of `sections` over the autopilot's host link, before the
+/// world starts (the boards are disarmed); the first failure is the error.
+fn send_params(
+    file: &str,
+    sections: &[FileSection],
+    ap_tx: &mut Box<dyn Link>,
+    ap_rx: &BoardRx,
+    timeout: Duration,
+) -> anyhow::Result<()> {
+    for section in sections {
+        let source: MessageSource<'_> = Box::new(|wait| match ap_rx.rx.recv_timeout(wait) {
+            Ok(m) => Ok(Some(m)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(LinkClosed),
+        });
+        let mut c =
+            ParamClient::with_source(Box::new(&mut **ap_tx), source, section.board, timeout);
+        section
+            .send_and_verify(&mut c, file)
+            .context("not flying: the boards do not run the parameter file")?;
+    }
+    Ok(())
 }
 
 /// The lockstep loop (see the module docs).
@@ -984,6 +1022,11 @@ pub struct HilArgs {
     /// Where to write the MCAP flight log (default: flight.mcap in --out, if given).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Board parameters (TOML, `[autopilot]` and `[camera]`, as `fly --params`; see
+    /// docs/parameters.md): set on the boards and read back before the flight; any refusal or
+    /// mismatch stops the run before arming.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
 }
 
 /// Runs `sim-host hil`.
@@ -997,6 +1040,13 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         duration_s: args.duration,
         fps: args.fps,
         reply_timeout: Duration::from_secs_f64(args.reply_timeout.max(0.01)),
+        params: match &args.params {
+            Some(path) => Some((
+                path.display().to_string(),
+                ParamFile::load_sections(path)?.1,
+            )),
+            None => None,
+        },
         ..HilConfig::default()
     };
     let stereo = open_link(&args.stereo, args.baud)?;
@@ -1027,6 +1077,10 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         mcap.as_mut(),
     )?;
     eprintln!();
+    if let Some((file, sections)) = &cfg.params {
+        let n: usize = sections.iter().map(|s| s.values.len()).sum();
+        println!("parameters        {n} from {file} set and read back");
+    }
     println!("{}", r.summary());
     if let Some(dir) = &args.out {
         write_log_csv(&r, &dir.join("hil_log.csv"))?;
@@ -1115,8 +1169,28 @@ mod tests {
                         if due.telemetry {
                             send_host(&mut s, &BoardToHost::Telemetry(ap.telemetry(now)));
                         }
+                        if let Some(answer) = ap.take_camera_param_reply() {
+                            send_host(&mut s, &BoardToHost::Param(answer));
+                        }
                     }
                     HostOutcome::Reply(reply) => send_host(&mut s, &reply),
+                    HostOutcome::ToCamera(msg) => {
+                        {
+                            let mut w = to_camera.lock().unwrap();
+                            crate::sim::boards::send(&msg, &mut |b| w.extend_from_slice(b));
+                        }
+                        // As the firmware's link task: the answer goes to the host as it comes
+                        // (the camera board answers on its own thread).
+                        let deadline = Instant::now() + Duration::from_secs(2);
+                        while Instant::now() < deadline {
+                            ap.on_stereo_bytes(&take(&from_camera), clock.now_us());
+                            if let Some(answer) = ap.take_camera_param_reply() {
+                                send_host(&mut s, &BoardToHost::Param(answer));
+                                break;
+                            }
+                            std::thread::sleep(Duration::from_millis(1));
+                        }
+                    }
                     HostOutcome::Done => {}
                 }
             }
@@ -1133,13 +1207,29 @@ mod tests {
         );
         let mut world = timebase::Instant::ZERO;
         let mut buf = [0u8; 4096];
-        while let Ok(n) = s.read(&mut buf) {
-            if n == 0 {
-                return;
-            }
+        // Until the first frame the board also answers the autopilot link as bytes come (the
+        // parameter requests before a flight); from then on at each frame, as before.
+        let mut first_frame_seen = false;
+        s.set_read_timeout(Some(Duration::from_millis(2))).unwrap();
+        loop {
+            let n = match s.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => n,
+                Err(e) if is_transient_read_error(&e) => {
+                    if !first_frame_seen {
+                        let mut w = to_autopilot.lock().unwrap();
+                        cb.on_rx_bytes(&take(&from_autopilot), world, &mut |b| {
+                            w.extend_from_slice(b)
+                        });
+                    }
+                    continue;
+                }
+                Err(_) => return,
+            };
             let mut ready = None;
             cb.on_host_bytes(&buf[..n], &mut frames, |_, t| ready = Some(t));
             if let Some(capture) = ready {
+                first_frame_seen = true;
                 world = world.max(capture);
                 let mut w = to_autopilot.lock().unwrap();
                 cb.on_rx_bytes(&take(&from_autopilot), world, &mut |b| {
@@ -1162,8 +1252,9 @@ mod tests {
         (c, s)
     }
 
-    #[test]
-    fn lockstep_flies_software_boards_off_the_floor() {
+    /// The two software boards, wired to each other; returns the host ends (camera,
+    /// autopilot).
+    fn software_boards() -> (TcpStream, TcpStream) {
         let (a2s, s2a): (Wire, Wire) = Default::default();
         let (ap_host, ap_board) = pair();
         let (cam_host, cam_board) = pair();
@@ -1175,6 +1266,76 @@ mod tests {
             let (a, b) = (Arc::clone(&s2a), Arc::clone(&a2s));
             std::thread::spawn(move || camera_board(cam_board, a, b));
         }
+        (cam_host, ap_host)
+    }
+
+    fn fly_with(sections: Vec<FileSection>) -> anyhow::Result<HilResult> {
+        let (cam_host, ap_host) = software_boards();
+        let cfg = HilConfig {
+            duration_s: 0.2,
+            fps: 10.0,
+            reply_timeout: Duration::from_secs(2),
+            params: Some(("p.toml".into(), sections)),
+            ..HilConfig::default()
+        };
+        run(
+            &cfg,
+            Box::new(cam_host),
+            Box::new(ap_host),
+            None,
+            &mut |_| {},
+        )
+    }
+
+    #[test]
+    fn params_are_set_and_read_back_on_both_boards_before_the_flight() {
+        let (_, sections) = ParamFile::parse_sections(
+            "[camera]\nstereo_shift = -3\nhalf_window = 5\n[autopilot]\ntarget_height = 0.8\n",
+            "p.toml",
+        )
+        .unwrap();
+        let r = fly_with(sections).unwrap();
+        assert_eq!(
+            r.motor_replies,
+            r.imu_samples,
+            "the flight ran: {}",
+            r.summary()
+        );
+        assert!(r.imu_samples > 100, "{}", r.summary());
+
+        // A value the board refuses (read-only on the autopilot) stops the run, naming it.
+        let refused = vec![FileSection {
+            board: Node::Autopilot,
+            values: vec![("indi_rate_hz".into(), protocol::ParamValue::F32(512.0))],
+        }];
+        let e = format!("{:#}", fly_with(refused).unwrap_err());
+        assert!(
+            e.contains("not flying")
+                && e.contains("[autopilot] indi_rate_hz")
+                && e.contains("read-only"),
+            "{e}"
+        );
+
+        // A read-back that differs from the value sent (the key set twice: the board holds the
+        // second) stops it too.
+        let v = protocol::ParamValue::I32;
+        let twice = vec![FileSection {
+            board: Node::StereoBoard,
+            values: vec![
+                ("stereo_shift".into(), v(-3)),
+                ("stereo_shift".into(), v(4)),
+            ],
+        }];
+        let e = format!("{:#}", fly_with(twice).unwrap_err());
+        assert!(
+            e.contains("p.toml: [camera] stereo_shift: set to -3, but the board reads back 4"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn lockstep_flies_software_boards_off_the_floor() {
+        let (cam_host, ap_host) = software_boards();
         let cfg = HilConfig {
             duration_s: 3.0,
             fps: 10.0,

@@ -1,7 +1,7 @@
 //! Parameters: `sim-host param` (list, read, write and save a board's parameter table over its
 //! telemetry link) and the parameter files `fly --params` reads.
 //!
-//! The link is the autopilot's telemetry port: a serial device or `tcp:HOST:PORT` (a virtual
+//! The link is the autopilot's telemetry port (it passes the camera board's requests on): a serial device or `tcp:HOST:PORT` (a virtual
 //! board's `vboard serve autopilot`, a QEMU socket), the same ports `monitor` opens. One
 //! request is in flight at a time; an answer that does not match it is skipped, and a request
 //! with no answer within `--timeout` is sent again (twice) before the command fails.
@@ -15,6 +15,9 @@
 //! fsm_variant = 1          # turn until clear
 //! fs_hover_land_us = 2000000
 //! indi_adapt = false
+//!
+//! [camera]
+//! stereo_shift = -2        # the camera pair's calibration, px
 //! ```
 //!
 //! An unknown board or name, a value of the wrong type, a value out of bounds or one that makes
@@ -24,6 +27,7 @@ use crate::hil::{open_link, Link};
 use anyhow::{anyhow, bail, Context as _};
 use autopilot::app::AutopilotConfig;
 use autopilot::params as ap_params;
+use protocol::params::ParamTable;
 use protocol::{
     BoardToHost, BoardToHostDecoder, HostToBoard, Message as _, Node, ParamEntry, ParamError,
     ParamKind, ParamName, ParamOp, ParamReply, ParamRequest, ParamValue,
@@ -31,6 +35,8 @@ use protocol::{
 use std::path::Path;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
+use stereo_board::edge_fs::EdgeFsParams;
+use stereo_board::params as cam_params;
 
 /// Which board's table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -85,7 +91,8 @@ pub enum ParamAction {
     Set {
         /// Its name.
         name: String,
-        /// The value: a number, or true / false.
+        /// The value: a number (negative ones too: `set stereo_shift -4`), or true / false.
+        #[arg(allow_negative_numbers = true)]
         value: String,
     },
     /// Saves every value to the board's flash (refused while armed).
@@ -111,6 +118,10 @@ pub fn parse_value(kind: ParamKind, text: &str) -> Result<ParamValue, String> {
             .parse::<u32>()
             .map(ParamValue::U32)
             .map_err(|_| format!("{t:?} is not a whole number >= 0 (the parameter is a u32)")),
+        ParamKind::I32 => t
+            .parse::<i32>()
+            .map(ParamValue::I32)
+            .map_err(|_| format!("{t:?} is not a whole number (the parameter is an i32)")),
         ParamKind::Bool => match t {
             "true" | "1" => Ok(ParamValue::Bool(true)),
             "false" | "0" => Ok(ParamValue::Bool(false)),
@@ -136,17 +147,24 @@ pub fn format_entry(e: &ParamEntry) -> String {
     )
 }
 
+/// Where a [`ParamClient`] gets the board's decoded messages: the next one within the
+/// wait it is given, `Ok(None)` on silence, `Err` once the link closed.
+pub type MessageSource<'a> =
+    Box<dyn FnMut(Duration) -> Result<Option<BoardToHost>, LinkClosed> + 'a>;
+
+/// The board's link closed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkClosed;
+
 /// A parameter session with one board over a telemetry link.
-pub struct ParamClient {
-    link: Box<dyn Link>,
-    rx: mpsc::Receiver<Vec<u8>>,
-    decoder: BoardToHostDecoder,
+pub struct ParamClient<'a> {
+    out: Box<dyn std::io::Write + 'a>,
+    source: MessageSource<'a>,
     board: Node,
     timeout: Duration,
-    pending: std::collections::VecDeque<BoardToHost>,
 }
 
-impl ParamClient {
+impl ParamClient<'static> {
     /// Talks to `board` over `link`, waiting `timeout` for each answer.
     pub fn new(link: Box<dyn Link>, board: Node, timeout: Duration) -> anyhow::Result<Self> {
         let mut reader = link
@@ -155,11 +173,14 @@ impl ParamClient {
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
             let mut buf = [0u8; 1024];
+            let mut decoder = BoardToHostDecoder::new();
             loop {
                 match reader.read(&mut buf) {
                     Ok(0) => return,
                     Ok(n) => {
-                        if tx.send(buf[..n].to_vec()).is_err() {
+                        let mut open = true;
+                        decoder.feed(&buf[..n], |m| open &= tx.send(m).is_ok());
+                        if !open {
                             return;
                         }
                     }
@@ -168,19 +189,41 @@ impl ParamClient {
                 }
             }
         });
-        Ok(Self {
-            link,
-            rx,
-            decoder: BoardToHostDecoder::new(),
+        let source: MessageSource<'static> = Box::new(move |wait| match rx.recv_timeout(wait) {
+            Ok(m) => Ok(Some(m)),
+            Err(mpsc::RecvTimeoutError::Timeout) => Ok(None),
+            Err(mpsc::RecvTimeoutError::Disconnected) => Err(LinkClosed),
+        });
+        Ok(ParamClient::with_source(
+            Box::new(link),
+            source,
             board,
             timeout,
-            pending: Default::default(),
-        })
+        ))
     }
 
     /// Opens `port` (serial at `baud`, or `tcp:HOST:PORT`).
     pub fn open(port: &str, baud: u32, board: Node, timeout: Duration) -> anyhow::Result<Self> {
         Self::new(open_link(port, baud)?, board, timeout)
+    }
+}
+
+impl<'a> ParamClient<'a> {
+    /// Talks to `board`, writing requests to `out` and taking the board's messages from
+    /// `source` (for a caller that already decodes the link, such as `hil`); messages other
+    /// than this board's parameter answers are dropped.
+    pub fn with_source(
+        out: Box<dyn std::io::Write + 'a>,
+        source: MessageSource<'a>,
+        board: Node,
+        timeout: Duration,
+    ) -> Self {
+        Self {
+            out,
+            source,
+            board,
+            timeout,
+        }
     }
 
     fn send(&mut self, op: &ParamOp) -> anyhow::Result<()> {
@@ -190,31 +233,24 @@ impl ParamClient {
         });
         let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&msg)
             .map_err(|e| anyhow!("encoding: {e:?}"))?;
-        self.link.write_all(&frame).context("writing the request")?;
-        self.link.flush().context("writing the request")
+        self.out.write_all(&frame).context("writing the request")?;
+        self.out.flush().context("writing the request")
     }
 
     /// The next parameter answer, or `None` at the deadline.
     fn next_reply(&mut self, deadline: Instant) -> anyhow::Result<Option<ParamReply>> {
         loop {
-            while let Some(m) = self.pending.pop_front() {
-                if let BoardToHost::Param(r) = m {
-                    if r.board == self.board {
-                        return Ok(Some(r.reply));
-                    }
-                }
-            }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Ok(None);
             }
-            match self.rx.recv_timeout(left) {
-                Ok(bytes) => {
-                    let pending = &mut self.pending;
-                    self.decoder.feed(&bytes, |m| pending.push_back(m));
+            match (self.source)(left) {
+                Ok(Some(BoardToHost::Param(r))) if r.board == self.board => {
+                    return Ok(Some(r.reply))
                 }
-                Err(mpsc::RecvTimeoutError::Timeout) => return Ok(None),
-                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("the link closed"),
+                Ok(Some(_)) => {}
+                Ok(None) => return Ok(None),
+                Err(LinkClosed) => bail!("the link closed"),
             }
         }
     }
@@ -350,60 +386,159 @@ pub fn run(args: &ParamArgs) -> anyhow::Result<()> {
 pub struct ParamFile {
     /// The autopilot's configuration.
     pub autopilot: AutopilotConfig,
+    /// The camera board's Edge-FS configuration.
+    pub camera: EdgeFsParams,
     /// Whether the file set `fsm_variant` (which then wins over `fly --fsm`'s default).
     pub sets_fsm_variant: bool,
+}
+
+impl Default for ParamFile {
+    fn default() -> Self {
+        Self {
+            autopilot: AutopilotConfig::default(),
+            camera: EdgeFsParams::default_config(),
+            sets_fsm_variant: false,
+        }
+    }
+}
+
+/// One board's section of a parameter file: the board it names and each `key = value`
+/// (sorted by name), checked against that board's table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileSection {
+    /// The board.
+    pub board: Node,
+    /// `(name, value)`, each of the parameter's kind and within its bounds.
+    pub values: Vec<(String, ParamValue)>,
 }
 
 impl ParamFile {
     /// Reads `path` (see the module docs).
     pub fn load(path: &Path) -> anyhow::Result<Self> {
+        Ok(Self::load_sections(path)?.0)
+    }
+
+    /// Reads `path` and also returns its sections as written (what `hil --params` sends).
+    pub fn load_sections(path: &Path) -> anyhow::Result<(Self, Vec<FileSection>)> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("reading parameter file {}", path.display()))?;
-        Self::parse(&text, &path.display().to_string())
+        Self::parse_sections(&text, &path.display().to_string())
     }
 
     /// Parses a parameter file's `text`; errors name `file`, the key and the problem.
     pub fn parse(text: &str, file: &str) -> anyhow::Result<Self> {
+        Ok(Self::parse_sections(text, file)?.0)
+    }
+
+    /// [`ParamFile::parse`], also returning the sections as written.
+    pub fn parse_sections(text: &str, file: &str) -> anyhow::Result<(Self, Vec<FileSection>)> {
         let doc: toml::Table = toml::from_str(text).map_err(|e| anyhow!("{file}: {e}"))?;
-        let mut autopilot = AutopilotConfig::default();
-        let mut sets_fsm_variant = false;
+        let mut out = Self::default();
+        let mut sections = Vec::new();
         for (board, table) in &doc {
             let toml::Value::Table(table) = table else {
-                bail!("{file}: `{board}` must be a table ([autopilot])");
+                bail!("{file}: `{board}` must be a table ([autopilot] or [camera])");
             };
-            match board.as_str() {
-                "autopilot" => {}
-                "camera" => bail!(
-                    "{file}: [camera]: the camera board's parameters are not read from files yet \
-                     (only [autopilot])"
-                ),
-                other => bail!("{file}: unknown board [{other}] (expected [autopilot])"),
-            }
-            for (key, value) in table {
-                let at = |problem: String| anyhow!("{file}: [{board}] {key}: {problem}");
-                let index = ap_params::index_of(key)
-                    .ok_or_else(|| at("no such parameter (see `sim-host param list`)".into()))?;
-                let spec = &ap_params::TABLE[index];
-                let v = toml_value(spec.kind, value).map_err(at)?;
-                ap_params::set(&mut autopilot, index, v).map_err(|r| at(r.to_string()))?;
-                sets_fsm_variant |= key == "fsm_variant";
-            }
+            let section = match board.as_str() {
+                "autopilot" => {
+                    let s = apply_section(&ap_params::AUTOPILOT, &mut out.autopilot, table)
+                        .map_err(|(key, problem)| anyhow!("{file}: [{board}] {key}: {problem}"))?;
+                    out.sets_fsm_variant |= s.iter().any(|(k, _)| k == "fsm_variant");
+                    FileSection {
+                        board: Node::Autopilot,
+                        values: s,
+                    }
+                }
+                "camera" => FileSection {
+                    board: Node::StereoBoard,
+                    values: apply_section(&cam_params::CAMERA, &mut out.camera, table)
+                        .map_err(|(key, problem)| anyhow!("{file}: [{board}] {key}: {problem}"))?,
+                },
+                other => {
+                    bail!("{file}: unknown board [{other}] (expected [autopilot] or [camera])")
+                }
+            };
+            sections.push(section);
         }
-        Ok(Self {
-            autopilot,
-            sets_fsm_variant,
-        })
+        Ok((out, sections))
     }
 }
 
-/// The autopilot's table as the markdown table docs/parameters.md holds (between its
-/// `<!-- autopilot-table -->` markers; a test keeps the two equal).
-pub fn autopilot_markdown_table() -> String {
-    let d = AutopilotConfig::default();
+impl FileSection {
+    /// The section's name in a file: `autopilot` or `camera`.
+    pub fn name(&self) -> &'static str {
+        match self.board {
+            Node::StereoBoard => "camera",
+            _ => "autopilot",
+        }
+    }
+
+    /// Sends every value to the board with `set` through `c` (a client for this section's
+    /// board), then reads each back with `get`. The first refusal, silence or read-back that
+    /// differs from what was sent is an error naming `file`, the section and the key.
+    pub fn send_and_verify(&self, c: &mut ParamClient<'_>, file: &str) -> anyhow::Result<()> {
+        let board = self.name();
+        for (key, v) in &self.values {
+            c.set_value(key, *v)
+                .with_context(|| format!("{file}: [{board}] {key}: the board refused the set"))?;
+        }
+        for (key, v) in &self.values {
+            let e = c
+                .get(key)
+                .with_context(|| format!("{file}: [{board}] {key}: reading it back"))?;
+            check_read_back(file, board, key, *v, e.value)?;
+        }
+        Ok(())
+    }
+}
+
+/// `Ok` when a board reads back the value that was `sent`; otherwise the error naming the
+/// file, the section and the key.
+pub fn check_read_back(
+    file: &str,
+    board: &str,
+    key: &str,
+    sent: ParamValue,
+    read: ParamValue,
+) -> anyhow::Result<()> {
+    if sent == read {
+        Ok(())
+    } else {
+        bail!(
+            "{file}: [{board}] {key}: set to {}, but the board reads back {}",
+            format_value(sent),
+            format_value(read)
+        )
+    }
+}
+
+/// Applies one section's keys to `cfg` through `table`; an error is `(key, problem)`.
+fn apply_section<C: Copy>(
+    table: &ParamTable<C>,
+    cfg: &mut C,
+    section: &toml::Table,
+) -> Result<Vec<(String, ParamValue)>, (String, String)> {
+    let mut values = Vec::new();
+    for (key, value) in section {
+        let at = |problem: String| (key.clone(), problem);
+        let index = table
+            .index_of(key)
+            .ok_or_else(|| at("no such parameter (see `sim-host param list`)".into()))?;
+        let v = toml_value(table.specs[index].kind, value).map_err(at)?;
+        table.set(cfg, index, v).map_err(|r| at(r.to_string()))?;
+        values.push((key.clone(), v));
+    }
+    Ok(values)
+}
+
+/// A board's table as the markdown table docs/parameters.md holds (between its
+/// `<!-- NAME-table -->` markers; a test keeps the two equal).
+pub fn markdown_table<C: Copy>(table: &ParamTable<C>) -> String {
+    let d = (table.defaults)();
     let mut out =
         String::from("| name | type | unit | default | min | max |\n|---|---|---|---|---|---|\n");
-    for (i, s) in ap_params::TABLE.iter().enumerate() {
-        let default = ap_params::get(&d, i).map_or(String::new(), format_value);
+    for (i, s) in table.specs.iter().enumerate() {
+        let default = table.get(&d, i).map_or(String::new(), format_value);
         out.push_str(&format!(
             "| `{}`{} | {} | {} | {} | {} | {} |\n",
             s.name,
@@ -418,6 +553,16 @@ pub fn autopilot_markdown_table() -> String {
     out
 }
 
+/// The autopilot's table as markdown (see [`markdown_table`]).
+pub fn autopilot_markdown_table() -> String {
+    markdown_table(&ap_params::AUTOPILOT)
+}
+
+/// The camera board's table as markdown (see [`markdown_table`]).
+pub fn camera_markdown_table() -> String {
+    markdown_table(&cam_params::CAMERA)
+}
+
 fn toml_value(kind: ParamKind, v: &toml::Value) -> Result<ParamValue, String> {
     match (kind, v) {
         (ParamKind::F32, toml::Value::Float(x)) => Ok(ParamValue::F32(*x as f32)),
@@ -425,6 +570,9 @@ fn toml_value(kind: ParamKind, v: &toml::Value) -> Result<ParamValue, String> {
         (ParamKind::U32, toml::Value::Integer(x)) => u32::try_from(*x)
             .map(ParamValue::U32)
             .map_err(|_| format!("{x} is not a u32 (0 ..= {})", u32::MAX)),
+        (ParamKind::I32, toml::Value::Integer(x)) => i32::try_from(*x)
+            .map(ParamValue::I32)
+            .map_err(|_| format!("{x} is not an i32 ({} ..= {})", i32::MIN, i32::MAX)),
         (ParamKind::Bool, toml::Value::Boolean(b)) => Ok(ParamValue::Bool(*b)),
         (kind, other) => Err(format!(
             "expected a {} value, got {} ({other})",
@@ -452,7 +600,28 @@ mod tests {
         assert_eq!(f.autopilot.force_field.gain, 2.0);
         assert!(f.sets_fsm_variant);
         let empty = ParamFile::parse("", "p.toml").unwrap();
-        assert_eq!(empty.autopilot, AutopilotConfig::default());
+        assert_eq!(empty, ParamFile::default());
+
+        let (f, sections) = ParamFile::parse_sections(
+            "[camera]\nstereo_shift = -3\nmax_horizon = 4\n[autopilot]\nguid_kp = 0.25\n",
+            "p.toml",
+        )
+        .unwrap();
+        assert_eq!(f.camera.stereo_shift_px, -3);
+        assert_eq!(f.camera.max_horizon, 4);
+        assert_eq!(f.autopilot.guidance.kp, 0.25);
+        assert!(!f.sets_fsm_variant);
+        let camera = sections
+            .iter()
+            .find(|s| s.board == Node::StereoBoard)
+            .unwrap();
+        assert_eq!(
+            camera.values,
+            vec![
+                ("max_horizon".to_string(), ParamValue::U32(4)),
+                ("stereo_shift".to_string(), ParamValue::I32(-3)),
+            ]
+        );
     }
 
     #[test]
@@ -478,24 +647,42 @@ mod tests {
         assert!(e.contains("inconsistent"), "{e}");
         let e = err("[autopilto]\nguid_kp = 0.2\n");
         assert!(e.contains("unknown board"), "{e}");
+        let e = err("[camera]\nstereo_shift = 25\n");
+        assert!(
+            e.contains("[camera] stereo_shift") && e.contains("[-20 ..= 20] px"),
+            "{e}"
+        );
+        let e = err("[camera]\nguid_kp = 0.2\n");
+        assert!(e.contains("[camera] guid_kp: no such parameter"), "{e}");
+        let e = err("[camera]\nhalf_window = 2.5\n");
+        assert!(e.contains("expected a u32"), "{e}");
         let e = err("guid_kp = 0.2\n");
         assert!(e.contains("must be a table"), "{e}");
     }
 
     #[test]
-    fn the_docs_list_the_table() {
+    fn the_docs_list_both_tables() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/parameters.md");
         let docs = std::fs::read_to_string(path).unwrap();
-        let marker = "<!-- autopilot-table -->\n";
-        let table = docs.split(marker).nth(1).unwrap_or("");
-        let want = autopilot_markdown_table();
-        if table != want {
-            let gen = std::env::temp_dir().join("autopilot-parameters.md");
-            std::fs::write(&gen, &want).unwrap();
-            panic!(
-                "docs/parameters.md's table differs from autopilot::params::TABLE: paste {} between its markers",
-                gen.display()
-            );
+        for (board, want) in [
+            ("autopilot", autopilot_markdown_table()),
+            ("camera", camera_markdown_table()),
+        ] {
+            let open = format!("<!-- {board}-table -->\n");
+            let close = format!("<!-- /{board}-table -->");
+            let table = docs
+                .split(&open)
+                .nth(1)
+                .and_then(|rest| rest.split(&close).next())
+                .unwrap_or("");
+            if table != want {
+                let gen = std::env::temp_dir().join(format!("{board}-parameters.md"));
+                std::fs::write(&gen, &want).unwrap();
+                panic!(
+                    "docs/parameters.md's {board} table differs from the board's table: paste {} between its markers {open:?} and {close:?}",
+                    gen.display()
+                );
+            }
         }
     }
 

@@ -12,23 +12,44 @@ use std::net::{TcpListener, TcpStream};
 use std::process::Command;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use stereo_board::app::StereoBoardApp;
+use stereo_board::edge_fs::EdgeFsParams;
 
-/// Serves `ap` to every client that connects, one after the other (a telemetry frame before
-/// each answer, as the firmware's 10 Hz telemetry interleaves).
-fn serve(ap: Arc<Mutex<Autopilot>>) -> u16 {
+/// The boards a test serves: the autopilot, and the camera board behind it on the
+/// board-to-board link.
+#[derive(Clone)]
+struct Boards {
+    ap: Arc<Mutex<Autopilot>>,
+    camera: Arc<Mutex<Box<StereoBoardApp>>>,
+}
+
+impl Boards {
+    fn new() -> Self {
+        Self {
+            ap: Arc::new(Mutex::new(Autopilot::new(AutopilotConfig::default()))),
+            camera: Arc::new(Mutex::new(Box::new(StereoBoardApp::new(
+                EdgeFsParams::default_config(),
+            )))),
+        }
+    }
+}
+
+/// Serves the boards to every client that connects, one after the other (a telemetry frame
+/// before each answer, as the firmware's 10 Hz telemetry interleaves).
+fn serve(boards: Boards) -> u16 {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
     std::thread::spawn(move || {
         for stream in listener.incoming() {
             let Ok(mut s) = stream else { return };
-            let ap = ap.clone();
-            std::thread::spawn(move || board(&mut s, &ap));
+            let boards = boards.clone();
+            std::thread::spawn(move || board(&mut s, &boards));
         }
     });
     port
 }
 
-fn board(s: &mut TcpStream, ap: &Mutex<Autopilot>) {
+fn board(s: &mut TcpStream, boards: &Boards) {
     let mut dec = HostToBoardDecoder::new();
     let mut buf = [0u8; 256];
     while let Ok(n) = s.read(&mut buf) {
@@ -38,9 +59,27 @@ fn board(s: &mut TcpStream, ap: &Mutex<Autopilot>) {
         let mut msgs = Vec::new();
         dec.feed(&buf[..n], |m| msgs.push(m));
         for m in msgs {
-            let mut ap = ap.lock().unwrap();
+            let mut ap = boards.ap.lock().unwrap();
             let telemetry = BoardToHost::Telemetry(ap.telemetry(0));
-            if let HostOutcome::Reply(answer) = ap.on_host_message(m, 0) {
+            let answer = match ap.on_host_message(m, 0) {
+                HostOutcome::Reply(answer) => Some(answer),
+                // The camera board's request goes over the link as encoded bytes, and its
+                // answer comes back the same way, as on the boards.
+                HostOutcome::ToCamera(msg) => {
+                    let frame = protocol::encode_to_vec::<_, 64>(&msg).unwrap();
+                    let mut back = Vec::new();
+                    let now = timebase::Instant::ZERO;
+                    boards
+                        .camera
+                        .lock()
+                        .unwrap()
+                        .on_rx_bytes(&frame, now, &mut |b| back.extend_from_slice(b));
+                    ap.on_stereo_bytes(&back, 0);
+                    ap.take_camera_param_reply().map(BoardToHost::Param)
+                }
+                _ => None,
+            };
+            if let Some(answer) = answer {
                 for msg in [telemetry, answer] {
                     let frame = protocol::encode_to_vec::<_, 128>(&msg).unwrap();
                     if s.write_all(&frame).is_err() {
@@ -52,11 +91,11 @@ fn board(s: &mut TcpStream, ap: &Mutex<Autopilot>) {
     }
 }
 
-fn client(port: u16) -> ParamClient {
+fn client(port: u16, board: Node) -> ParamClient<'static> {
     ParamClient::open(
         &format!("tcp:127.0.0.1:{port}"),
         0,
-        Node::Autopilot,
+        board,
         Duration::from_secs(2),
     )
     .unwrap()
@@ -64,8 +103,9 @@ fn client(port: u16) -> ParamClient {
 
 #[test]
 fn the_client_lists_reads_and_writes_the_autopilots_table() {
-    let ap = Arc::new(Mutex::new(Autopilot::new(AutopilotConfig::default())));
-    let mut c = client(serve(ap.clone()));
+    let boards = Boards::new();
+    let ap = boards.ap.clone();
+    let mut c = client(serve(boards), Node::Autopilot);
     let all = c.list().unwrap();
     assert_eq!(all.len(), params::COUNT);
     for (i, (e, spec)) in all.iter().zip(params::TABLE).enumerate() {
@@ -95,8 +135,9 @@ fn the_client_lists_reads_and_writes_the_autopilots_table() {
 
 #[test]
 fn the_command_line_works_over_tcp() {
-    let ap = Arc::new(Mutex::new(Autopilot::new(AutopilotConfig::default())));
-    let port = serve(ap.clone());
+    let boards = Boards::new();
+    let (ap, camera) = (boards.ap.clone(), boards.camera.clone());
+    let port = serve(boards);
     let run = |args: &[&str]| {
         let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
             .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
@@ -120,8 +161,23 @@ fn the_command_line_works_over_tcp() {
     assert_eq!(ap.lock().unwrap().config().land_rate_mps, 0.4);
     let (ok, _, err) = run(&["set", "land_rate", "true"]);
     assert!(!ok && err.contains("not a finite number"), "{err}");
-    let (ok, _, err) = run(&["--board", "camera", "list"]);
-    assert!(!ok && err.contains("does not serve"), "{err}");
+    // The camera board's table, through the autopilot.
+    let (ok, out, err) = run(&["--board", "camera", "list"]);
+    assert!(ok, "{err}");
+    assert_eq!(out.lines().count(), stereo_board::params::COUNT, "{out}");
+    assert!(out.contains("stereo_shift"), "{out}");
+    let (ok, out, err) = run(&["--board", "camera", "set", "stereo_shift", "-4"]);
+    assert!(ok && out.contains("stereo_shift"), "{out}{err}");
+    assert_eq!(camera.lock().unwrap().params().stereo_shift_px, -4);
+    let (ok, out, _) = run(&["--board", "camera", "get", "stereo_shift"]);
+    assert!(ok && out.contains(" -4 "), "{out}");
+    let (ok, _, err) = run(&["--board", "camera", "set", "stereo_shift", "30"]);
+    assert!(!ok && err.contains("outside [-20 ..= 20] px"), "{err}");
+    let (ok, _, err) = run(&["--board", "camera", "set", "half_window", "-1"]);
+    assert!(!ok && err.contains("not a whole number >= 0"), "{err}");
+    assert_eq!(camera.lock().unwrap().params().half_window, 6);
+    let (ok, _, err) = run(&["--board", "camera", "save"]);
+    assert!(!ok && err.contains("no parameter storage"), "{err}");
 }
 
 #[test]
@@ -180,7 +236,14 @@ fn fly_reads_a_parameter_file_and_refuses_a_bad_one() {
         text.contains("outside the parameter's bounds [0.2 ..= 3] m"),
         "{text}"
     );
-    let (ok, text) = fly("[autopilot]\ntarget_height = 0.8\nfsm_variant = 1\n");
+    let (ok, text) = fly("[camera]\nstereo_shift = 30\n");
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("params.toml: [camera] stereo_shift: parameter stereo_shift"),
+        "{text}"
+    );
+    let (ok, text) =
+        fly("[autopilot]\ntarget_height = 0.8\nfsm_variant = 1\n[camera]\nstereo_shift = -2\n");
     assert!(ok, "{text}");
     assert!(text.contains("seed,duration_s"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);

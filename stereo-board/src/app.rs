@@ -18,8 +18,9 @@
 use crate::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
 use protocol::{
     encode, AutopilotToStereo, BoardToHost, CaptureCounts, ConfigResult, Decoder, Estimate,
-    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, StereoStatus,
-    StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
+    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamError,
+    ParamReply, ParamRequest, ParamResponse, StereoStatus, StereoToAutopilot, FRAME_CHUNK_BYTES,
+    STEREO_FRAME_BYTES,
 };
 use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
@@ -435,7 +436,8 @@ impl StereoBoardApp {
     /// `uart_rx` task: bytes from the autopilot, as they arrive. Gyro/attitude samples are kept
     /// for derotation (non-finite ones are rejected and counted); a `Config` is validated,
     /// applied from the next frame on (clearing the flow history) and answered with a
-    /// `ConfigAck` through `tx`; heartbeats record the peer's uptime.
+    /// `ConfigAck` through `tx`; a parameter request is answered through `tx`
+    /// ([`StereoBoardApp::on_param_request`]); heartbeats record the peer's uptime.
     pub fn on_rx_bytes(&mut self, bytes: &[u8], now: Instant, tx: &mut impl FnMut(&[u8])) {
         for &byte in bytes {
             if let Some(msg) = self.rx.push(byte) {
@@ -468,8 +470,7 @@ impl StereoBoardApp {
                 let mut params = self.params;
                 let result = match params.apply(&cfg) {
                     Ok(()) => {
-                        self.params = params;
-                        self.edge_fs.set_params(params);
+                        self.set_params(params);
                         self.counters.config_applied =
                             self.counters.config_applied.saturating_add(1);
                         ConfigResult::Applied
@@ -482,7 +483,38 @@ impl StereoBoardApp {
                 };
                 send_to_autopilot(&StereoToAutopilot::ConfigAck(result), tx);
             }
+            AutopilotToStereo::Param(req) => {
+                let answer = self.on_param_request(&req);
+                send_to_autopilot(&StereoToAutopilot::Param(answer), tx);
+            }
         }
+    }
+
+    /// Answers a parameter request for this board's table ([`crate::params::TABLE`]), passed
+    /// on by the autopilot from the host: a set takes effect from the next frame on and clears
+    /// the flow history. A request for another board's table is refused (`NoSuchBoard`);
+    /// `Save` is answered `NoStorage` (this board keeps no parameters in flash).
+    pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
+        let reply = if req.board != Node::StereoBoard {
+            ParamReply::Error(ParamError::NoSuchBoard)
+        } else {
+            let current = self.params;
+            crate::params::CAMERA.answer(&current, &req.op, |next| {
+                self.set_params(next);
+                Ok(())
+            })
+        };
+        ParamResponse {
+            board: req.board,
+            reply,
+        }
+    }
+
+    /// Makes `params` Edge-FS's from the next frame on (the flow history restarts). The caller
+    /// checks them ([`crate::params::CAMERA`]'s `validate`); out-of-range values are clamped.
+    pub fn set_params(&mut self, params: EdgeFsParams) {
+        self.params = params;
+        self.edge_fs.set_params(params);
     }
 
     /// `host_rx` task (HIL and QEMU flavours): bytes from the host. Frame chunks are assembled

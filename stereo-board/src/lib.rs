@@ -8,3 +8,4 @@ pub mod app;
 pub mod board;
 pub mod camera;
 pub mod edge_fs;
+pub mod params;

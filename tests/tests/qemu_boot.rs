@@ -101,7 +101,7 @@ fn both_firmwares_talk_over_loopback_without_errors() {
                     StereoToAutopilot::Heartbeat(_) => g.s2a_heartbeat += 1,
                     StereoToAutopilot::Status(_) => g.s2a_status += 1,
                     StereoToAutopilot::Estimate(_) => g.s2a_estimate += 1,
-                    StereoToAutopilot::ConfigAck(_) => {}
+                    StereoToAutopilot::ConfigAck(_) | StereoToAutopilot::Param(_) => {}
                 });
                 g.s2a_errors = dec.errors();
             },
@@ -115,7 +115,7 @@ fn both_firmwares_talk_over_loopback_without_errors() {
             dec.feed(bytes, |m| match m {
                 AutopilotToStereo::Heartbeat(_) => g.a2s_heartbeat += 1,
                 AutopilotToStereo::GyroAttitude(_) => g.a2s_gyro += 1,
-                AutopilotToStereo::Config(_) => {}
+                AutopilotToStereo::Config(_) | AutopilotToStereo::Param(_) => {}
             });
             g.a2s_errors = dec.errors();
         });

@@ -12,7 +12,7 @@
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
-//! | `host_rx` | 4 | woken by `telemetry_uart` | position / command / parameter requests from the host (IMU samples: lockstep only) |
+//! | `host_rx` | 4 | woken by `telemetry_uart` | position / command / parameter requests from the host (the camera board's passed on over the link; IMU samples: lockstep only) |
 //! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms (only with `board::RC_RECEIVER`) | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
 //! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`, watchdog (real) |
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
@@ -513,8 +513,9 @@ mod app {
         }
     }
 
-    /// Camera-board bytes: estimates, status, heartbeats, config acks.
-    #[task(priority = 4, shared = [ap, stereo_msgs], local = [link_out, link_wake_rx])]
+    /// Camera-board bytes: estimates, status, heartbeats, config acks; a parameter answer is
+    /// passed on to the host.
+    #[task(priority = 4, shared = [ap, stereo_msgs, host_tx], local = [link_out, link_wake_rx])]
     async fn stereo_rx(mut cx: stereo_rx::Context) {
         let mut buf = [0u8; 64];
         while cx.local.link_wake_rx.recv().await.is_ok() {
@@ -525,10 +526,16 @@ mod app {
                 }
                 let now = flavour::lib_now_us();
                 let bytes = buf.get(..n).unwrap_or(&[]);
-                let decoded = cx.shared.ap.lock(|ap| ap.on_stereo_bytes(bytes, now));
+                let (decoded, answer) = cx
+                    .shared
+                    .ap
+                    .lock(|ap| (ap.on_stereo_bytes(bytes, now), ap.take_camera_param_reply()));
                 cx.shared
                     .stereo_msgs
                     .lock(|c| *c = c.wrapping_add(decoded as u32));
+                if let Some(answer) = answer {
+                    send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Param(answer));
+                }
             }
         }
     }
@@ -536,7 +543,7 @@ mod app {
     /// Host bytes: external position (motion capture), pilot commands, parameter requests
     /// (answered on the telemetry port), and IMU samples (only the lockstep flavours take them;
     /// the real flavour refuses and counts them).
-    #[task(priority = 4, shared = [ap, host_tx], local = [host_out, host_wake_rx, host_decoder, world])]
+    #[task(priority = 4, shared = [ap, host_tx, link_tx], local = [host_out, host_wake_rx, host_decoder, world])]
     async fn host_rx(mut cx: host_rx::Context) {
         let mut buf = [0u8; 64];
         while cx.local.host_wake_rx.recv().await.is_ok() {
@@ -559,6 +566,7 @@ mod app {
                             }
                         }
                         HostOutcome::Reply(reply) => send::<_, B2H>(&mut cx.shared.host_tx, &reply),
+                        HostOutcome::ToCamera(msg) => send::<_, A2S>(&mut cx.shared.link_tx, &msg),
                         HostOutcome::Done => {}
                     }
                 }

@@ -4,7 +4,8 @@ extern crate std;
 
 use super::*;
 use protocol::{
-    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, StereoToAutopilotDecoder,
+    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, ParamName, ParamOp,
+    ParamValue, StereoToAutopilotDecoder,
 };
 use std::{boxed::Box, vec, vec::Vec};
 
@@ -194,6 +195,87 @@ fn non_finite_gyro_is_rejected_and_counted() {
     );
     assert_eq!(board.current_gyro(at(10)), None);
     assert_eq!(board.counters().gyro_rejected, 2);
+}
+
+/// Sends one parameter request over the autopilot link and returns the board's one answer.
+fn ask(board: &mut StereoBoardApp, node: Node, op: ParamOp) -> ParamReply {
+    let mut wire = Vec::new();
+    let req = AutopilotToStereo::Param(ParamRequest { board: node, op });
+    board.on_rx_bytes(&enc(&req), at(0), &mut |b| wire.extend_from_slice(b));
+    let (msgs, errors) = decode_out(&wire);
+    assert_eq!(errors.total(), 0);
+    match msgs.as_slice() {
+        [StereoToAutopilot::Param(r)] => {
+            assert_eq!(r.board, node);
+            r.reply.clone()
+        }
+        other => panic!("one parameter answer expected, got {other:?}"),
+    }
+}
+
+#[test]
+fn parameters_are_listed_read_and_set_over_the_link() {
+    let mut board = app();
+    let name = |n: &str| ParamName::try_from(n).unwrap();
+    let ParamReply::Entry(first) = ask(&mut board, Node::StereoBoard, ParamOp::List(0)) else {
+        panic!("entry 0");
+    };
+    assert_eq!(usize::from(first.count), crate::params::COUNT);
+    assert_eq!(first.name.as_str(), "half_window");
+
+    // A signed value is set, answered with the value now in use, and reaches Edge-FS.
+    let set = ParamOp::Set(name("stereo_shift"), ParamValue::I32(-6));
+    let ParamReply::Entry(e) = ask(&mut board, Node::StereoBoard, set) else {
+        panic!("set stereo_shift");
+    };
+    assert_eq!(
+        (e.value, e.default),
+        (ParamValue::I32(-6), ParamValue::I32(0))
+    );
+    assert_eq!(board.params().stereo_shift_px, -6);
+    assert_eq!(board.edge_fs().params().stereo_shift_px, -6);
+    let ParamReply::Entry(e) = ask(
+        &mut board,
+        Node::StereoBoard,
+        ParamOp::Get(name("stereo_shift")),
+    ) else {
+        panic!("get stereo_shift");
+    };
+    assert_eq!(e.value, ParamValue::I32(-6));
+
+    // Refusals change nothing.
+    let before = *board.params();
+    let cases = [
+        (
+            ParamOp::Set(name("stereo_shift"), ParamValue::I32(-21)),
+            ParamError::OutOfBounds,
+        ),
+        (
+            ParamOp::Set(name("half_window"), ParamValue::F32(3.0)),
+            ParamError::WrongKind,
+        ),
+        (
+            ParamOp::Set(name("no_such"), ParamValue::U32(1)),
+            ParamError::UnknownName,
+        ),
+        (
+            ParamOp::List(crate::params::COUNT as u16),
+            ParamError::UnknownIndex,
+        ),
+        (ParamOp::Save, ParamError::NoStorage),
+    ];
+    for (op, want) in cases {
+        assert_eq!(
+            ask(&mut board, Node::StereoBoard, op.clone()),
+            ParamReply::Error(want),
+            "{op:?}"
+        );
+    }
+    assert_eq!(
+        ask(&mut board, Node::Autopilot, ParamOp::List(0)),
+        ParamReply::Error(ParamError::NoSuchBoard)
+    );
+    assert_eq!(*board.params(), before);
 }
 
 #[test]
