@@ -812,10 +812,12 @@ pub fn replay_take(
 /// Runs `sim-host replay`.
 pub fn run(args: &ReplayArgs) -> Result<()> {
     let list = args.takes.join(",");
+    // The selection's errors name eval's `--takes`; this command's flag is `--take`.
     let takes = select_takes(
         discover_takes(&args.dataset)?,
         (!list.is_empty()).then_some(list.as_str()),
-    )?;
+    )
+    .map_err(|e| anyhow::anyhow!("{}", format!("{e:#}").replace("--takes", "--take")))?;
     let results: Vec<(Take, Result<ReplayResult>)> = takes
         .par_iter()
         .map(|t| {
