@@ -138,6 +138,11 @@ pub struct AutopilotConfig {
     pub climb_rate_mps: f32,
     /// Height-setpoint descent rate when landing, m/s.
     pub land_rate_mps: f32,
+    /// Descent rate instead of `land_rate_mps` while no vision velocity has been fused for
+    /// the failsafe's estimate timeout, m/s: the drone then drifts on its trim (an
+    /// accelerometer bias of 0.01 g is 0.1 m/s² of unobserved acceleration), so the sooner
+    /// it is down, the shorter the drift.
+    pub blind_land_rate_mps: f32,
     /// Below this height the drone counts as on the floor, m (height integrator off, touchdown).
     pub landed_height_m: f32,
     /// Touchdown confirmed after this long below `landed_height_m` while landing, µs.
@@ -190,6 +195,10 @@ pub struct AutopilotConfig {
     /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
     /// still count as valid for the failsafe (the camera board is alive).
     pub max_yaw_rate_radps: f32,
+    /// Estimates are not used for the velocity below this height, m: near the floor the view
+    /// is mostly floor nearer than the stereo range, and a wrong take-off estimate teaches the
+    /// velocity filter a wrong bias. They still count as valid for the failsafe.
+    pub min_vision_height_m: f32,
     /// ... nor until this long after the yaw rate was last above the limit, µs (covers the
     /// exposure-to-arrival latency and the estimator's history).
     pub yaw_settle_us: u64,
@@ -218,6 +227,7 @@ impl Default for AutopilotConfig {
             target_height_m: 1.0,
             climb_rate_mps: 0.5,
             land_rate_mps: 0.3,
+            blind_land_rate_mps: 0.6,
             landed_height_m: 0.06,
             landed_time_us: 500_000,
             fsm_start_height_tolerance_m: 0.15,
@@ -235,6 +245,7 @@ impl Default for AutopilotConfig {
             estimate_horizon_us: 350_000,
             estimate_link_us: 3_000,
             estimate_filter_lag_us: 97_000,
+            min_vision_height_m: 0.6,
             max_yaw_rate_radps: 0.6,
             yaw_settle_us: 150_000,
             gyro_calibration_samples: 256,
@@ -253,21 +264,28 @@ pub enum VelocitySource {
     MedianObserver,
 }
 
+/// While landing, the height setpoint ramps down to this height below the floor, m, and stays
+/// there: the drone, lagging the ramp, is pushed onto the floor rather than hovering just above
+/// it.
+const LAND_SETPOINT_FLOOR_M: f32 = -0.2;
+
 impl AutopilotConfig {
     /// The longest time from the camera board's estimates stopping (a cut link, a dead board)
     /// to every motor at 0, µs, for a drone flying at up to `target_height_m`: the estimate
-    /// timeout, the hover before landing, the descent at `land_rate_mps` from the target height
-    /// to the floor, the touchdown confirmation, and one guidance period to act on it.
+    /// timeout, then as [`AutopilotConfig::camera_stopped_motors_off_us`].
     pub fn link_loss_motors_off_us(&self) -> u64 {
         self.failsafe.estimate_timeout_us + self.camera_stopped_motors_off_us()
     }
 
     /// The longest time from the camera board's `Status` reporting its camera stopped to every
-    /// motor at 0, µs: as [`AutopilotConfig::link_loss_motors_off_us`] without the estimate
-    /// timeout (the report ends the estimates at once): the hover before landing, the descent
-    /// from the target height, the touchdown confirmation, one guidance period.
+    /// motor at 0, µs (the report ends the estimates at once): the hover before landing; the
+    /// height setpoint's ramp at `blind_land_rate_mps` from the target height down to its stop
+    /// 0.2 m below the floor (not just to the floor: the drone lags the ramp, by more the
+    /// faster it is, and is down when the setpoint stops at the latest); the touchdown
+    /// confirmation; one guidance period.
     pub fn camera_stopped_motors_off_us(&self) -> u64 {
-        let descent_s = self.target_height_m.max(0.0) / self.land_rate_mps.abs().max(0.01);
+        let ramp_m = self.target_height_m.max(0.0) - LAND_SETPOINT_FLOOR_M;
+        let descent_s = ramp_m / self.blind_land_rate_mps.abs().max(0.01);
         self.failsafe.hover_before_land_us
             + (descent_s * 1e6) as u64
             + self.landed_time_us
@@ -275,14 +293,15 @@ impl AutopilotConfig {
     }
 }
 
-/// Flags that make an estimate's obstacle distance unusable (the velocity may still be invalid
-/// for flow reasons while the stereo distance is fine).
-const OBSTACLE_INVALID: EstimateFlags = EstimateFlags(
-    EstimateFlags::TOO_DARK.0
-        | EstimateFlags::TOO_BRIGHT.0
-        | EstimateFlags::NO_TEXTURE.0
-        | EstimateFlags::NO_STEREO_MATCH.0,
-);
+/// Flags of a frame that says nothing about obstacles (the image itself is unusable).
+const UNSEEN: EstimateFlags =
+    EstimateFlags(EstimateFlags::TOO_DARK.0 | EstimateFlags::TOO_BRIGHT.0);
+
+/// Flags of a frame whose stereo failed: an obstacle it reports stands (a surface nearer than
+/// the stereo range leaves few matches), its "nothing in range" does not (the velocity may
+/// still be invalid for flow reasons while the stereo part is fine).
+const NO_DEPTH: EstimateFlags =
+    EstimateFlags(EstimateFlags::NO_TEXTURE.0 | EstimateFlags::NO_STEREO_MATCH.0);
 
 /// Setpoints the guidance layer hands to the 512 Hz loop (and to telemetry).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -721,13 +740,16 @@ impl Autopilot {
 
     /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a
     /// plausibility gate ([`AutopilotConfig::max_velocity_jump_mps`]) and go through the
-    /// median-5 filter; the obstacle distance is kept when the stereo part is usable.
+    /// median-5 filter. An obstacle distance is kept unless the image is unusable; "nothing in
+    /// range" only from a frame whose stereo part is usable.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
         self.estimates_received = self.estimates_received.wrapping_add(1);
-        if est.flags.0 & OBSTACLE_INVALID.0 == 0 {
+        if est.flags.0 & UNSEEN.0 == 0 {
             let d = match est.obstacle_m {
                 Some(d) if d.is_finite() && d >= 0.0 => Some(Some(d)),
                 Some(_) => None, // garbage: no reading
+                // A frame whose stereo failed says nothing of free space.
+                None if est.flags.0 & NO_DEPTH.0 != 0 => None,
                 None => Some(None),
             };
             if let Some(distance_m) = d {
@@ -750,6 +772,13 @@ impl Autopilot {
             if gap {
                 self.median.reset();
                 self.outliers_in_a_row = 0;
+            }
+            if self.height.height_m() < self.cfg.min_vision_height_m {
+                // Valid for the failsafe, not for the velocity (see `min_vision_height_m`).
+                self.median.reset();
+                self.outliers_in_a_row = 0;
+                self.last_valid_estimate_us = Some(now_us);
+                return;
             }
             let yawing = matches!(self.last_fast_yaw_us,
                 Some(t) if now_us.saturating_sub(t) <= self.cfg.yaw_settle_us);
@@ -953,8 +982,15 @@ impl Autopilot {
         let mut sp_rate = 0.0;
         match mode {
             FlightMode::Landing => {
-                sp_rate = -self.cfg.land_rate_mps.abs();
-                self.sp.height_m = (self.sp.height_m + sp_rate * dt).max(-0.2);
+                let blind = !matches!(self.last_velocity_fix_us(),
+                    Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.estimate_timeout_us);
+                let rate = if blind {
+                    self.cfg.blind_land_rate_mps
+                } else {
+                    self.cfg.land_rate_mps
+                };
+                sp_rate = -rate.abs();
+                self.sp.height_m = (self.sp.height_m + sp_rate * dt).max(LAND_SETPOINT_FLOOR_M);
             }
             _ => {
                 let step = self.cfg.climb_rate_mps.abs() * dt;

@@ -147,6 +147,8 @@ impl Quad {
             quality: 200,
             flags: EstimateFlags::NONE,
             processing_us: 0,
+            depth_coverage: 255,
+            near_columns: 0,
         }
     }
 
@@ -310,7 +312,8 @@ fn estimate_loss_hovers_then_lands_and_disarms() {
         (land - lost_at) / 1000
     );
     assert!(hover - lost_at <= 560_000);
-    assert!((land - hover).abs_diff(3_000_000) <= 40_000);
+    let hover_time = AutopilotConfig::default().failsafe.hover_before_land_us;
+    assert!((land - hover).abs_diff(hover_time) <= 40_000);
     assert_eq!(disarm.1, FlightMode::Disarmed);
     assert!(r.quad.height() < 0.02);
     assert_eq!(r.ap.motors(), [0.0; 4]);
@@ -433,6 +436,20 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
     assert_eq!(ap.mode(), FlightMode::Flying);
 }
 
+/// An autopilot told (one motion-capture fix) that it is at 1 m, above
+/// [`AutopilotConfig::min_vision_height_m`], so that it uses the estimates for its velocity.
+fn autopilot_at_height() -> Autopilot {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    ap.on_external_position(
+        &ExternalPosition {
+            timestamp_us: WireTime(0),
+            position_m: [0.0, 0.0, -1.0],
+        },
+        0,
+    );
+    ap
+}
+
 /// A valid estimate of `forward_mps` straight ahead, nothing in range.
 fn forward_estimate(forward_mps: f32) -> Estimate {
     Estimate {
@@ -444,12 +461,66 @@ fn forward_estimate(forward_mps: f32) -> Estimate {
         quality: 200,
         flags: EstimateFlags::NONE,
         processing_us: 0,
+        depth_coverage: 255,
+        near_columns: 0,
     }
 }
 
 #[test]
-fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
+fn a_frame_whose_stereo_failed_reports_obstacles_but_not_free_space() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
+    let est = |obstacle_m, flags| Estimate {
+        obstacle_m,
+        flags,
+        ..forward_estimate(0.0)
+    };
+    ap.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 40_000);
+    assert_eq!(ap.telemetry(40_000).obstacle_m, Some(2.0));
+    // A plain view: its "nothing in range" does not clear the last reading.
+    ap.on_estimate(&est(None, EstimateFlags::NO_STEREO_MATCH), 80_000);
+    ap.on_estimate(&est(None, EstimateFlags::NO_TEXTURE), 120_000);
+    assert_eq!(ap.telemetry(120_000).obstacle_m, Some(2.0));
+    // A surface nearer than the stereo range, reported from a frame with few matches: kept.
+    ap.on_estimate(&est(Some(0.53), EstimateFlags::NO_STEREO_MATCH), 160_000);
+    assert_eq!(ap.telemetry(160_000).obstacle_m, Some(0.53));
+    // A dark frame says nothing at all.
+    ap.on_estimate(&est(Some(0.2), EstimateFlags::TOO_DARK), 200_000);
+    assert_eq!(ap.telemetry(200_000).obstacle_m, Some(0.53));
+    // A usable view with nothing in range clears it.
+    ap.on_estimate(&est(None, EstimateFlags::NONE), 240_000);
+    assert_eq!(ap.telemetry(240_000).obstacle_m, None);
+}
+
+#[test]
+fn estimates_below_the_min_vision_height_keep_the_failsafe_quiet_but_are_not_fused() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let fix = |ap: &mut Autopilot, h: f32, t: u64| {
+        ap.on_external_position(
+            &ExternalPosition {
+                timestamp_us: WireTime(t as u32),
+                position_m: [0.0, 0.0, -h],
+            },
+            t,
+        )
+    };
+    fix(&mut ap, 0.3, 0);
+    for k in 1..=10u64 {
+        ap.on_estimate(&forward_estimate(0.4), k * 40_000);
+    }
+    assert_eq!(ap.freshness().last_valid_estimate_us, Some(400_000));
+    assert_eq!(ap.velocity(), None);
+    assert_eq!(ap.velocity_estimate(), None);
+    // Above it, the same estimates are fused.
+    fix(&mut ap, 0.7, 420_000);
+    for k in 11..=20u64 {
+        ap.on_estimate(&forward_estimate(0.4), k * 40_000);
+    }
+    assert_eq!(ap.velocity(), Some([0.4, 0.0]));
+}
+
+#[test]
+fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
+    let mut ap = autopilot_at_height();
     let est = forward_estimate;
     let mut t = 0;
     let mut feed = |ap: &mut Autopilot, f: f32| {
@@ -523,7 +594,7 @@ fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
 
 #[test]
 fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
-    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut ap = autopilot_at_height();
     let est = forward_estimate;
     let imu = |t: u64, yaw_rate: f32| ImuSample {
         timestamp_us: WireTime(t as u32),
@@ -780,7 +851,7 @@ fn telemetry_and_gyro_attitude_reflect_state() {
 
 #[test]
 fn stereo_bytes_are_decoded_in_any_chunking() {
-    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut ap = autopilot_at_height();
     let quad = Quad::new();
     let mut wire = Vec::new();
     let mut buf = [0u8; 128];
@@ -869,6 +940,7 @@ proptest! {
                 Input::Est(f, s, o, fl) => ap.on_estimate(&Estimate {
                     seq: 0, capture_us: WireTime(0), forward_mps: f, sideways_mps: s, obstacle_m: o,
                     quality: 255, flags: EstimateFlags(fl & 0x01), processing_us: 0,
+                    depth_coverage: 255, near_columns: 0,
                 }, now),
                 Input::Pos(z) => ap.on_external_position(&ExternalPosition {
                     timestamp_us: WireTime(now as u32), position_m: [0.0, 0.0, z],

@@ -35,7 +35,7 @@ impl Default for FailsafeConfig {
     fn default() -> Self {
         Self {
             estimate_timeout_us: 500_000,
-            hover_before_land_us: 3_000_000,
+            hover_before_land_us: 1_500_000,
             imu_timeout_us: 20_000,
             height_timeout_us: 500_000,
         }
@@ -273,15 +273,15 @@ mod tests {
         // An estimate comes back: flying again.
         f.last_valid_estimate_us = Some(1000 * MS);
         assert_eq!(fs.update(&at(1000 * MS, &f), 1000 * MS), FlightMode::Flying);
-        // Lost again at 1.5 s: hover from 1.5 s, land 3 s later.
+        // Lost again at 1.5 s: hover from 1.5 s, land 1.5 s later.
         fs.update(&at(1501 * MS, &f), 1501 * MS);
         assert_eq!(fs.mode(), FlightMode::HoverNoEstimate);
         assert_eq!(
-            fs.update(&at(4500 * MS, &f), 4500 * MS),
+            fs.update(&at(3000 * MS, &f), 3000 * MS),
             FlightMode::HoverNoEstimate
         );
         assert_eq!(
-            fs.update(&at(4501 * MS, &f), 4501 * MS),
+            fs.update(&at(3001 * MS, &f), 3001 * MS),
             FlightMode::Landing
         );
         // Landing does not go back to flying on its own, and ends on touchdown.

@@ -136,6 +136,7 @@ protocol::param_table! {
     "target_height": F32 ["m"] 0.2, 3.0, true => |c| c.target_height_m;
     "climb_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.climb_rate_mps;
     "land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.land_rate_mps;
+    "blind_land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.blind_land_rate_mps;
     "landed_height": F32 ["m"] 0.01, 0.5, true => |c| c.landed_height_m;
     "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.landed_time_us;
     "fsm_start_height_tol": F32 ["m"] 0.01, 1.0, true => |c| c.fsm_start_height_tolerance_m;
@@ -146,6 +147,7 @@ protocol::param_table! {
     "max_estimate": F32 ["m/s"] 0.1, 20.0, true => |c| c.max_estimate_mps;
     "max_velocity_jump": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_velocity_jump_mps;
     "max_outliers": U32 ["-"] 0, 20, true => |c| c.max_consecutive_outliers;
+    "min_vision_height": F32 ["m"] 0.0, 2.0, true => |c| c.min_vision_height_m;
     "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.velocity_max_age_us;
     "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.observer.drag_per_s;
     "obs_velocity_gain": F32 ["-"] 0.0, 1.0, true => |c| c.observer.velocity_gain;

@@ -7,7 +7,7 @@
 //! ```
 //!
 //! The CRC covers the version byte and the payload. Its width depends on the raw length, so
-//! that the 25 Hz [`crate::Estimate`] stays within 32 bytes on the wire while long frames keep
+//! that the 25 Hz [`crate::Estimate`] stays within 34 bytes on the wire while long frames keep
 //! a strong check:
 //!
 //! * raw length <= [`SHORT_RAW_MAX`] (64 bytes): CRC-16/IBM-3740 (CCITT polynomial 0x1021,
@@ -466,6 +466,8 @@ mod tests {
             quality: 200,
             flags: EstimateFlags::NONE,
             processing_us: 900,
+            depth_coverage: 180,
+            near_columns: 3,
         }
     }
 

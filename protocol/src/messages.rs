@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 5;
+pub const PROTOCOL_VERSION: u8 = 6;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -131,7 +131,7 @@ impl core::ops::BitOr for EstimateFlags {
 /// Edge-FS result for one processed stereo frame (camera board -> autopilot, at the frame rate).
 ///
 /// Body axes of the camera: forward along the optical axis, sideways positive to the right.
-/// Worst case 32 bytes on the wire (tested).
+/// Worst case 34 bytes on the wire (tested).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Estimate {
@@ -152,12 +152,24 @@ pub struct Estimate {
     pub flags: EstimateFlags,
     /// Time from frame capture to this estimate, µs (saturates at 65,535).
     pub processing_us: u16,
+    /// How much of the view has a stereo depth: the fraction of the searchable columns with a
+    /// confident disparity, 0 (none) ..= 255 (all). `obstacle_m == None` over a view with
+    /// little depth means "unknown", not "clear".
+    pub depth_coverage: u8,
+    /// Textured columns whose disparity search ran out of range: something is nearer than the
+    /// minimum stereo range there (0..=128).
+    pub near_columns: u8,
 }
 
 impl Estimate {
     /// True when the estimate may be used for control.
     pub fn is_valid(&self) -> bool {
         self.flags.is_valid()
+    }
+
+    /// [`Estimate::depth_coverage`] as a fraction, 0..=1.
+    pub fn depth_fraction(&self) -> f32 {
+        f32::from(self.depth_coverage) / 255.0
     }
 }
 

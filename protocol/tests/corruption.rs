@@ -29,6 +29,8 @@ fn random_estimate(rng: &mut ChaCha8Rng) -> Estimate {
         quality: rng.random(),
         flags: EstimateFlags(rng.random()),
         processing_us: rng.random(),
+        depth_coverage: rng.random(),
+        near_columns: rng.random(),
     }
 }
 

@@ -88,17 +88,22 @@ fn estimate() -> impl Strategy<Value = Estimate> {
         any::<u8>(),
         any::<u8>(),
         any::<u16>(),
+        any::<[u8; 2]>(),
     )
         .prop_map(
-            |(seq, capture_us, f, s, obstacle_m, quality, flags, processing_us)| Estimate {
-                seq,
-                capture_us: WireTime(capture_us),
-                forward_mps: f,
-                sideways_mps: s,
-                obstacle_m,
-                quality,
-                flags: EstimateFlags(flags),
-                processing_us,
+            |(seq, capture_us, f, s, obstacle_m, quality, flags, processing_us, [dc, nc])| {
+                Estimate {
+                    seq,
+                    capture_us: WireTime(capture_us),
+                    forward_mps: f,
+                    sideways_mps: s,
+                    obstacle_m,
+                    quality,
+                    flags: EstimateFlags(flags),
+                    processing_us,
+                    depth_coverage: dc,
+                    near_columns: nc,
+                }
             },
         )
 }
@@ -343,6 +348,7 @@ proptest! {
             seq: 1, capture_us: WireTime(2),
             forward_mps: f32::from_bits(bits[0]), sideways_mps: f32::from_bits(bits[1]),
             obstacle_m: None, quality: 0, flags: EstimateFlags::NONE, processing_us: 0,
+            depth_coverage: 0, near_columns: 0,
         };
         let (_, out, _) = through_the_wire::<_, { StereoToAutopilot::MAX_FRAME_BYTES }>(&StereoToAutopilot::Estimate(est));
         match out.as_slice() {
@@ -388,9 +394,9 @@ proptest! {
     }
 }
 
-/// The wire-size budget: an `Estimate` fits in 32 bytes on the wire, whatever its values.
+/// The wire-size budget: an `Estimate` fits in 34 bytes on the wire, whatever its values.
 #[test]
-fn estimate_worst_case_fits_in_32_bytes() {
+fn estimate_worst_case_fits_in_34_bytes() {
     let worst = Estimate {
         seq: u16::MAX,
         capture_us: WireTime(u32::MAX),
@@ -400,13 +406,15 @@ fn estimate_worst_case_fits_in_32_bytes() {
         quality: u8::MAX,
         flags: EstimateFlags(u8::MAX),
         processing_us: u16::MAX,
+        depth_coverage: u8::MAX,
+        near_columns: u8::MAX,
     };
     let mut wire = [0u8; 64];
     let n = encode(&StereoToAutopilot::Estimate(worst), &mut wire).unwrap();
-    assert!(n <= 32, "worst-case Estimate takes {n} bytes on the wire");
+    assert!(n <= 34, "worst-case Estimate takes {n} bytes on the wire");
     let n = encode(&BoardToHost::Estimate(worst), &mut wire).unwrap();
     assert!(
-        n <= 32,
+        n <= 34,
         "worst-case mirrored Estimate takes {n} bytes on the wire"
     );
 }

@@ -392,6 +392,8 @@ impl StereoBoardApp {
             quality: out.quality,
             flags: out.flags,
             processing_us,
+            depth_coverage: out.depth_coverage,
+            near_columns: out.near_columns,
         };
         self.seq = self.seq.wrapping_add(1);
         self.counters.frames_processed = self.counters.frames_processed.wrapping_add(1);

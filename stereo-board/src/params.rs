@@ -45,6 +45,9 @@ protocol::param_table! {
         "max_rotation": F32 ["px"] 0.0, 40.0, true => |p| p.max_rotation_px;
         "gyro_age": F32 ["s"] 0.0, 0.5, true => |p| p.gyro_age_s;
         "max_derot_error": F32 ["px"] 0.0, 10.0, true => |p| p.max_derotation_error_px;
+        "min_depth_coverage": F32 ["-"] 0.0, 1.0, true => |p| p.min_depth_coverage;
+        "min_fit_spread": F32 ["px"] 0.0, 128.0, true => |p| p.min_fit_spread_px;
+        "min_near_run": U32 ["px"] 0, 128, true => |p| p.min_near_run;
     }
 }
 

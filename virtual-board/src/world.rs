@@ -390,6 +390,9 @@ impl TruthCamera {
                 quality: 200,
                 flags: EstimateFlags::NONE,
                 processing_us: u16::try_from(self.processing_ns / 1_000).unwrap_or(u16::MAX),
+                // No stereo: the view's depth is unknown, never clear.
+                depth_coverage: 0,
+                near_columns: 0,
             };
             self.pending
                 .push_back((now_ns + self.processing_ns, estimate));

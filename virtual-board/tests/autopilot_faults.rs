@@ -130,6 +130,8 @@ impl CameraStandIn {
                 quality: 200,
                 flags: EstimateFlags::NONE,
                 processing_us: 5_000,
+                depth_coverage: 255,
+                near_columns: 0,
             }));
         }
     }
@@ -203,7 +205,8 @@ impl Pilot {
         }
         self.telemetry_read = sent.len();
         if self.landing {
-            let rate = autopilot::app::AutopilotConfig::default().land_rate_mps;
+            // No estimates: the autopilot descends at its blind rate.
+            let rate = autopilot::app::AutopilotConfig::default().blind_land_rate_mps;
             let dt = (now - self.last_ns) as f64 / 1e9;
             let height = (self.ground.height_m() - f64::from(rate) * dt).max(0.0);
             self.ground.set_height(height);

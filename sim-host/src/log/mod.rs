@@ -369,6 +369,8 @@ mod tests {
             quality: 99,
             flags: EstimateFlags::NO_TEXTURE | EstimateFlags::NO_GYRO,
             processing_us: 9_000,
+            depth_coverage: 255,
+            near_columns: 0,
         };
         log.write(1_000, &EstimateRecord::from(&e)).unwrap();
         log.write(

@@ -62,6 +62,10 @@ pub struct EstimateRecord {
     pub flag_names: Vec<&'static str>,
     /// Time from exposure to the estimate, µs.
     pub processing_us: u16,
+    /// Fraction of the view's columns with a stereo depth, 0..=1.
+    pub depth_coverage: f32,
+    /// Textured columns nearer than the minimum stereo range.
+    pub near_columns: u8,
 }
 
 impl Record for EstimateRecord {
@@ -82,6 +86,8 @@ impl From<&Estimate> for EstimateRecord {
             flags: e.flags.0,
             flag_names: flag_names(e.flags),
             processing_us: e.processing_us,
+            depth_coverage: e.depth_fraction(),
+            near_columns: e.near_columns,
         }
     }
 }

@@ -27,7 +27,12 @@
 //!   the true capture times across the horizon; robust (Huber, MAD scale) fit; quality and
 //!   validity flags; a temporal filter ([`AxisFilter`]: constant-velocity Kalman per axis,
 //!   measurement noise from the fit's residual scale, innovation gating that rejects and flags
-//!   outliers). Flow is
+//!   outliers). The default mode also says what it does not know: the share of the view with
+//!   a confident depth ([`EdgeFsOutput::depth_coverage`]; below
+//!   [`EdgeFsParams::min_depth_coverage`] the velocity is invalid), a fit over too narrow a
+//!   patch of columns is flagged, and textured columns whose disparity search ran out of range
+//!   are counted ([`EdgeFsOutput::near_columns`]): a run of them is an obstacle at the minimum
+//!   range, never "nothing there". Flow is
 //!   tracked in the right image, the one the disparity is indexed by, so a column's depth and
 //!   flow belong to the same scene point (the paper-era code mixes left-image flow with
 //!   right-indexed depth). Integer SAD, f32 elsewhere (no f64 in the hot path).
@@ -167,6 +172,19 @@ pub struct EdgeFsParams {
     pub gyro_age_s: f32,
     /// Default mode: largest tolerated derotation uncertainty, px (see `gyro_age_s`).
     pub max_derotation_error_px: f32,
+    /// Default mode: smallest fraction of the searchable columns with a confident stereo depth
+    /// for a valid velocity (0..=1); below it the frame is flagged
+    /// [`EstimateFlags::NO_STEREO_MATCH`]: a few matched columns on an otherwise plain view
+    /// are not enough to trust a velocity.
+    pub min_depth_coverage: f32,
+    /// Default mode: the columns used in the velocity fit must span at least this many
+    /// pixels, else [`EstimateFlags::POOR_FIT`] (a slope over a narrow patch is unfounded).
+    pub min_fit_spread_px: f32,
+    /// Default mode: this many adjacent textured columns whose disparity search ran out of
+    /// range (nearer than the minimum range) are an obstacle at the minimum range. 0: off.
+    /// 12 (not 5): floor tiles seen at a slant give short false runs, and a false obstacle at
+    /// the minimum range pushes the drone backwards through the force field.
+    pub min_near_run: u8,
 }
 
 impl EdgeFsParams {
@@ -201,6 +219,9 @@ impl EdgeFsParams {
             max_rotation_px: 40.0,
             gyro_age_s: 0.0,
             max_derotation_error_px: 0.0,
+            min_depth_coverage: 0.0,
+            min_fit_spread_px: 0.0,
+            min_near_run: 0,
         }
     }
 
@@ -266,6 +287,9 @@ impl EdgeFsParams {
             max_rotation_px: 30.0,
             gyro_age_s: 0.02,
             max_derotation_error_px: 1.0,
+            min_depth_coverage: 0.1,
+            min_fit_spread_px: 16.0,
+            min_near_run: 12,
         }
     }
 
@@ -325,6 +349,11 @@ impl EdgeFsParams {
         }
         self.gyro_age_s = finite_or_zero(self.gyro_age_s);
         self.max_derotation_error_px = finite_or_zero(self.max_derotation_error_px);
+        self.min_depth_coverage = finite_or_zero(self.min_depth_coverage);
+        if self.min_depth_coverage > 1.0 {
+            self.min_depth_coverage = 1.0;
+        }
+        self.min_fit_spread_px = finite_or_zero(self.min_fit_spread_px);
         self
     }
 
@@ -374,6 +403,12 @@ pub struct EdgeFsOutput {
     pub quality: u8,
     /// Why the velocity must not be used (empty: valid).
     pub flags: EstimateFlags,
+    /// Fraction of the searchable columns with a confident stereo depth, 0 (none) ..= 255
+    /// (all): how much of the view is known. An unknown view is not a clear one.
+    pub depth_coverage: u8,
+    /// Textured columns whose disparity search ran out of range: something nearer than the
+    /// minimum stereo range (default mode; 0 in paper mode).
+    pub near_columns: u8,
 }
 
 impl EdgeFsOutput {
@@ -383,6 +418,8 @@ impl EdgeFsOutput {
         obstacle_m: None,
         quality: 0,
         flags: EstimateFlags::NONE,
+        depth_coverage: 0,
+        near_columns: 0,
     };
 }
 
@@ -674,6 +711,7 @@ impl EdgeFs {
             (-(fit.intercept + 64.0 * fit.slope) * f64::from(p.fov_x_rad) / IMG_W as f64) as f32;
         out.quality = (fit.r2.clamp(0.0, 1.0) * 255.0) as u8;
         out.obstacle_m = self.nearest_obstacle();
+        out.depth_coverage = coverage_u8(np, IMG_W.saturating_sub(2 * w));
         if np < 2 {
             out.flags.insert(EstimateFlags::NO_STEREO_MATCH);
         }
@@ -761,6 +799,8 @@ impl EdgeFs {
         // Stereo with sub-pixel refinement and confidence masking.
         let mut stereo_ok = [false; IMG_W];
         let mut n_stereo = 0;
+        let mut near = [false; IMG_W];
+        let mut n_near = 0usize;
         let mut texture = [0u32; IMG_W];
         {
             let cur = &self.ring[self.idx(0)].hist;
@@ -770,6 +810,12 @@ impl EdgeFs {
             stereo_row(&self.other, cur, ds, s, w, |c, m| {
                 let disp = m.best as f32 + m.subpixel();
                 diag.disparity_px[c] = disp;
+                if m.best >= ds && texture[c] >= p.min_texture {
+                    // Textured, best match at the end of the search: nearer than the range.
+                    near[c] = true;
+                    n_near += 1;
+                    return;
+                }
                 // The peak ratio (a scan of all candidates) only where the rest holds.
                 let usable = m.best > 0
                     && m.best < ds
@@ -788,11 +834,22 @@ impl EdgeFs {
             });
         }
         out.obstacle_m = self.nearest_obstacle();
+        let run = usize::from(p.min_near_run);
+        if run > 0 && longest_run(&near) >= run {
+            // Something nearer than the stereo range fills part of the view.
+            let min_range_m = f * p.baseline_m / f32::from(p.stereo_range.max(1));
+            out.obstacle_m = Some(out.obstacle_m.map_or(min_range_m, |d| d.min(min_range_m)));
+        }
+        out.near_columns = n_near.min(usize::from(u8::MAX)) as u8;
+        let searchable = IMG_W.saturating_sub(2 * w);
+        out.depth_coverage = coverage_u8(n_stereo, searchable);
         let total_texture: u32 = texture.iter().step_by(2 * w + 1).sum();
         if total_texture < p.min_texture.saturating_mul(4) {
             out.flags.insert(EstimateFlags::NO_TEXTURE);
         }
-        if n_stereo < usize::from(p.min_fit_columns).max(2) {
+        if n_stereo < usize::from(p.min_fit_columns).max(2)
+            || (n_stereo as f32) < p.min_depth_coverage * searchable as f32
+        {
             out.flags.insert(EstimateFlags::NO_STEREO_MATCH);
         }
 
@@ -933,6 +990,12 @@ impl EdgeFs {
         if rms_mps > p.max_fit_rms_mps {
             out.flags.insert(EstimateFlags::POOR_FIT);
         }
+        let (lo, hi) = pts.iter().fold((f32::MAX, f32::MIN), |(lo, hi), pt| {
+            (lo.min(pt.0), hi.max(pt.0))
+        });
+        if hi - lo < p.min_fit_spread_px {
+            out.flags.insert(EstimateFlags::POOR_FIT);
+        }
         let k = usize::from(p.output_median).clamp(1, MEDIAN_MAX);
         if k > 1 {
             self.recent.rotate_right(1);
@@ -1006,6 +1069,24 @@ impl EdgeFs {
         end_run(run, sum, &mut best);
         best.filter(|&z| z <= self.params.max_obstacle_m)
     }
+}
+
+/// `n` of `of` as a fraction 0..=255 (0 when `of` is 0).
+fn coverage_u8(n: usize, of: usize) -> u8 {
+    if of == 0 {
+        return 0;
+    }
+    (n.min(of) * 255 / of) as u8
+}
+
+/// Length of the longest run of `true` in `v`.
+fn longest_run(v: &[bool]) -> usize {
+    let (mut best, mut run) = (0, 0);
+    for &b in v {
+        run = if b { run + 1 } else { 0 };
+        best = best.max(run);
+    }
+    best
 }
 
 /// Median of a short slice (mean of the two middle values for even lengths, 0 when empty),

@@ -429,3 +429,96 @@ fn nearest_obstacle_counts_runs_of_five_including_one_at_the_image_edge() {
     fs.diag.depth_m[40..45].fill(6.0);
     assert_eq!(fs.nearest_obstacle(), None, "beyond max_obstacle_m");
 }
+
+/// A wall at `z` textured only in image columns `band` (plain mid-grey elsewhere), the camera
+/// moving forward at `vf`: `frames` frames at 25 Hz; the last output.
+fn fly_banded(
+    params: EdgeFsParams,
+    z0: f32,
+    vf: f32,
+    band: core::ops::Range<usize>,
+    frames: u32,
+) -> EdgeFsOutput {
+    let mut fs = EdgeFs::new(params);
+    let mut out = EdgeFsOutput::EMPTY;
+    for i in 0..frames {
+        let t = i as f32 / 25.0;
+        let mut frame = render(z0 - vf * t, 0.0, 0.0, &params);
+        for row in 0..IMG_H {
+            for c in (0..IMG_W).filter(|c| !band.contains(c)) {
+                frame[2 * (row * IMG_W + c)] = 128;
+                frame[2 * (row * IMG_W + c) + 1] = 128;
+            }
+        }
+        out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(0.0)));
+    }
+    out
+}
+
+#[test]
+fn depth_coverage_says_how_much_of_the_view_has_depth() {
+    let p = EdgeFsParams::default_config();
+    let full = fly_banded(p, 1.5, 0.3, 0..IMG_W, 12);
+    assert!(full.flags.is_valid(), "{:?}", full.flags);
+    assert!(
+        full.depth_coverage > 200,
+        "coverage {}",
+        full.depth_coverage
+    );
+    // A plain wall with one textured strip of 7 columns (the matching window spreads it over
+    // a few more): some depth, far too little of the view for a velocity.
+    let strip = fly_banded(p, 1.5, 0.3, 60..67, 12);
+    assert!(
+        strip.depth_coverage > 0,
+        "coverage {}",
+        strip.depth_coverage
+    );
+    assert!(
+        strip.depth_coverage < 26,
+        "coverage {}",
+        strip.depth_coverage
+    );
+    assert!(
+        strip.flags.contains(EstimateFlags::NO_STEREO_MATCH),
+        "{:?}",
+        strip.flags
+    );
+    // A plain wall: no depth at all.
+    let plain = fly_banded(p, 1.5, 0.3, 0..0, 12);
+    assert_eq!(plain.depth_coverage, 0);
+    assert!(!plain.flags.is_valid());
+}
+
+#[test]
+fn a_textured_wall_nearer_than_the_stereo_range_is_an_obstacle_at_the_minimum_range() {
+    let p = EdgeFsParams::default_config();
+    let min_range = p.focal_px() * p.baseline_m / f32::from(p.stereo_range);
+    // Beyond the range: measured, not flagged near.
+    let (far, _) = fly(p, 0.9, 0.0, 0.0, 0.0, 3);
+    assert!(
+        matches!(far.obstacle_m, Some(d) if (d - 0.9).abs() < 0.15),
+        "{:?}",
+        far.obstacle_m
+    );
+    // Nearer than the range (its disparity beyond the search): the minimum range, not None.
+    let (near, _) = fly(p, 0.6 * min_range, 0.0, 0.0, 0.0, 3);
+    assert!(
+        near.near_columns >= 12,
+        "{} near columns",
+        near.near_columns
+    );
+    assert_eq!(near.obstacle_m, Some(min_range));
+    // Off: the old silence.
+    let (off, _) = fly(
+        EdgeFsParams {
+            min_near_run: 0,
+            ..p
+        },
+        0.6 * min_range,
+        0.0,
+        0.0,
+        0.0,
+        3,
+    );
+    assert_ne!(off.obstacle_m, Some(min_range));
+}

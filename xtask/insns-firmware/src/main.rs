@@ -263,6 +263,8 @@ mod bench {
             quality: 180,
             flags: EstimateFlags::NONE,
             processing_us: 1_200,
+            depth_coverage: 255,
+            near_columns: 0,
         }
     }
 
