@@ -199,6 +199,18 @@ pub struct AutopilotConfig {
     /// is mostly floor nearer than the stereo range, and a wrong take-off estimate teaches the
     /// velocity filter a wrong bias. They still count as valid for the failsafe.
     pub min_vision_height_m: f32,
+    /// Estimates are not used for the velocity while the drone climbs or descends faster than
+    /// this, m/s: Edge-FS takes all image motion for horizontal translation, and a climb over a
+    /// floor seen in perspective moves its edges sideways as a forward flight would (in a room
+    /// with plain walls a take-off read as 1.1 m/s forward). They still count as valid for the
+    /// failsafe.
+    pub max_vision_climb_mps: f32,
+    /// A valid estimate counts (for the velocity and for the failsafe) only as the
+    /// `min_valid_run`-th or later of an unbroken run of valid ones. On a textured view nearly
+    /// every frame is valid; a lone valid frame among invalid ones comes from a scrap of
+    /// texture (the floor's perspective lines at the bottom of a view of a plain wall, which
+    /// pitch and heave move sideways as forward flight would) and was seen 1 m/s wrong.
+    pub min_valid_run: u8,
     /// ... nor until this long after the yaw rate was last above the limit, µs (covers the
     /// exposure-to-arrival latency and the estimator's history).
     pub yaw_settle_us: u64,
@@ -246,6 +258,8 @@ impl Default for AutopilotConfig {
             estimate_link_us: 3_000,
             estimate_filter_lag_us: 97_000,
             min_vision_height_m: 0.6,
+            max_vision_climb_mps: 0.25,
+            min_valid_run: 3,
             max_yaw_rate_radps: 0.6,
             yaw_settle_us: 150_000,
             gyro_calibration_samples: 256,
@@ -349,6 +363,8 @@ pub struct Autopilot {
     motors: [f32; 4],
     estimates_received: u32,
     outliers_in_a_row: u8,
+    /// Valid estimates in a row (saturating), see [`AutopilotConfig::min_valid_run`].
+    valid_run: u8,
     last_outlier: [f32; 2],
     outliers_total: u32,
     stereo_rx: StereoToAutopilotDecoder,
@@ -415,6 +431,7 @@ impl Autopilot {
             motors: MOTORS_OFF,
             estimates_received: 0,
             outliers_in_a_row: 0,
+            valid_run: 0,
             last_outlier: [0.0; 2],
             outliers_total: 0,
             stereo_rx: StereoToAutopilotDecoder::new_mid_stream(),
@@ -740,8 +757,9 @@ impl Autopilot {
 
     /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a
     /// plausibility gate ([`AutopilotConfig::max_velocity_jump_mps`]) and go through the
-    /// median-5 filter. An obstacle distance is kept unless the image is unusable; "nothing in
-    /// range" only from a frame whose stereo part is usable.
+    /// median-5 filter. The obstacle reading (distance and how much of the view has depth) is
+    /// kept unless the image is unusable; "nothing in range" only from a frame whose stereo
+    /// part is usable.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
         self.estimates_received = self.estimates_received.wrapping_add(1);
         if est.flags.0 & UNSEEN.0 == 0 {
@@ -752,10 +770,16 @@ impl Autopilot {
                 None if est.flags.0 & NO_DEPTH.0 != 0 => None,
                 None => Some(None),
             };
+            let depth_fraction = if est.flags.0 & NO_DEPTH.0 == 0 {
+                est.depth_fraction()
+            } else {
+                0.0
+            };
             if let Some(distance_m) = d {
                 self.obstacle = Some(ObstacleReading {
                     received_us: now_us,
                     distance_m,
+                    depth_fraction,
                 });
             }
         }
@@ -764,83 +788,91 @@ impl Autopilot {
             && est.sideways_mps.is_finite()
             && est.forward_mps.abs() <= lim
             && est.sideways_mps.abs() <= lim;
-        if est.is_valid() && est.quality >= self.cfg.min_quality && v_ok {
-            let gap = match self.last_valid_estimate_us {
-                Some(t) => now_us.saturating_sub(t) > self.cfg.median_reset_gap_us,
-                None => true,
-            };
-            if gap {
-                self.median.reset();
-                self.outliers_in_a_row = 0;
-            }
-            if self.height.height_m() < self.cfg.min_vision_height_m {
-                // Valid for the failsafe, not for the velocity (see `min_vision_height_m`).
-                self.median.reset();
-                self.outliers_in_a_row = 0;
-                self.last_valid_estimate_us = Some(now_us);
-                return;
-            }
-            let yawing = matches!(self.last_fast_yaw_us,
-                Some(t) if now_us.saturating_sub(t) <= self.cfg.yaw_settle_us);
-            if yawing {
-                // Valid for the failsafe, not for the velocity; the median restarts after the
-                // turn (its samples are in the old heading).
-                self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
-                self.median.reset();
-                self.outliers_in_a_row = 0;
-                self.last_valid_estimate_us = Some(now_us);
-                return;
-            }
-            // The Kalman filter has its own innovation gate; it takes the estimate as the mean
-            // velocity over the window that ended the output filter's lag before the frame's
-            // capture.
-            let end = now_us
-                .saturating_sub(u64::from(est.processing_us))
-                .saturating_sub(u64::from(self.cfg.estimate_link_us))
-                .saturating_sub(u64::from(self.cfg.estimate_filter_lag_us));
-            let start = end.saturating_sub(u64::from(self.cfg.estimate_horizon_us));
-            if self.cfg.velocity_source == VelocitySource::Kalman
-                && matches!(
-                    self.kf
-                        .correct([est.forward_mps, est.sideways_mps], est.quality, start, end),
-                    Fusion::Fused | Fusion::Initialised
-                )
-            {
-                self.last_kf_fused_us = Some(now_us);
-            }
-            let jump = self.cfg.max_velocity_jump_mps;
-            let outlier = match self.median.output() {
-                Some([f, s]) => {
-                    (est.forward_mps - f).abs() > jump || (est.sideways_mps - s).abs() > jump
-                }
-                None => false,
-            };
-            if outlier {
-                let [f, s] = self.last_outlier;
-                let agrees = self.outliers_in_a_row > 0
-                    && (est.forward_mps - f).abs() <= jump
-                    && (est.sideways_mps - s).abs() <= jump;
-                let run = if agrees { self.outliers_in_a_row } else { 0 };
-                if run < self.cfg.max_consecutive_outliers {
-                    self.outliers_in_a_row = run + 1;
-                    self.last_outlier = [est.forward_mps, est.sideways_mps];
-                    self.outliers_total = self.outliers_total.wrapping_add(1);
-                    return;
-                }
-            }
-            if outlier {
-                self.median.reset();
-            }
-            self.outliers_in_a_row = 0;
-            self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
-            if let (Some(v), VelocitySource::MedianObserver) =
-                (self.velocity, self.cfg.velocity_source)
-            {
-                self.observer.correct(v, now_us);
-                self.last_fused_us = Some(now_us);
-            }
-            self.last_valid_estimate_us = Some(now_us);
+        if !(est.is_valid() && est.quality >= self.cfg.min_quality && v_ok) {
+            self.valid_run = 0;
+            return;
         }
+        self.valid_run = self.valid_run.saturating_add(1);
+        if self.valid_run < self.cfg.min_valid_run {
+            return;
+        }
+        let gap = match self.last_valid_estimate_us {
+            Some(t) => now_us.saturating_sub(t) > self.cfg.median_reset_gap_us,
+            None => true,
+        };
+        if gap {
+            self.median.reset();
+            self.outliers_in_a_row = 0;
+        }
+        if self.height.height_m() < self.cfg.min_vision_height_m
+            || self.height.climb_mps().abs() > self.cfg.max_vision_climb_mps
+        {
+            // Valid for the failsafe, not for the velocity (see `min_vision_height_m` and
+            // `max_vision_climb_mps`).
+            self.median.reset();
+            self.outliers_in_a_row = 0;
+            self.last_valid_estimate_us = Some(now_us);
+            return;
+        }
+        let yawing = matches!(self.last_fast_yaw_us,
+            Some(t) if now_us.saturating_sub(t) <= self.cfg.yaw_settle_us);
+        if yawing {
+            // Valid for the failsafe, not for the velocity; the median restarts after the
+            // turn (its samples are in the old heading).
+            self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
+            self.median.reset();
+            self.outliers_in_a_row = 0;
+            self.last_valid_estimate_us = Some(now_us);
+            return;
+        }
+        // The Kalman filter has its own innovation gate; it takes the estimate as the mean
+        // velocity over the window that ended the output filter's lag before the frame's
+        // capture.
+        let end = now_us
+            .saturating_sub(u64::from(est.processing_us))
+            .saturating_sub(u64::from(self.cfg.estimate_link_us))
+            .saturating_sub(u64::from(self.cfg.estimate_filter_lag_us));
+        let start = end.saturating_sub(u64::from(self.cfg.estimate_horizon_us));
+        if self.cfg.velocity_source == VelocitySource::Kalman
+            && matches!(
+                self.kf
+                    .correct([est.forward_mps, est.sideways_mps], est.quality, start, end),
+                Fusion::Fused | Fusion::Initialised
+            )
+        {
+            self.last_kf_fused_us = Some(now_us);
+        }
+        let jump = self.cfg.max_velocity_jump_mps;
+        let outlier = match self.median.output() {
+            Some([f, s]) => {
+                (est.forward_mps - f).abs() > jump || (est.sideways_mps - s).abs() > jump
+            }
+            None => false,
+        };
+        if outlier {
+            let [f, s] = self.last_outlier;
+            let agrees = self.outliers_in_a_row > 0
+                && (est.forward_mps - f).abs() <= jump
+                && (est.sideways_mps - s).abs() <= jump;
+            let run = if agrees { self.outliers_in_a_row } else { 0 };
+            if run < self.cfg.max_consecutive_outliers {
+                self.outliers_in_a_row = run + 1;
+                self.last_outlier = [est.forward_mps, est.sideways_mps];
+                self.outliers_total = self.outliers_total.wrapping_add(1);
+                return;
+            }
+        }
+        if outlier {
+            self.median.reset();
+        }
+        self.outliers_in_a_row = 0;
+        self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
+        if let (Some(v), VelocitySource::MedianObserver) = (self.velocity, self.cfg.velocity_source)
+        {
+            self.observer.correct(v, now_us);
+            self.last_fused_us = Some(now_us);
+        }
+        self.last_valid_estimate_us = Some(now_us);
     }
 
     /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
@@ -1021,6 +1053,10 @@ impl Autopilot {
                 let out = self.fsm.step(now_us, yaw, obstacle);
                 v_sp[0] = out.forward_mps;
                 yaw_sp = out.yaw_sp_rad;
+                if out.land {
+                    // No way to go found within the FSM's timeouts: land where it is.
+                    self.failsafe.command(PilotCommand::Land, &f, now_us);
+                }
             }
         } else {
             self.fsm_active = false;

@@ -510,12 +510,87 @@ fn estimates_below_the_min_vision_height_keep_the_failsafe_quiet_but_are_not_fus
     assert_eq!(ap.freshness().last_valid_estimate_us, Some(400_000));
     assert_eq!(ap.velocity(), None);
     assert_eq!(ap.velocity_estimate(), None);
-    // Above it, the same estimates are fused.
-    fix(&mut ap, 0.7, 420_000);
-    for k in 11..=20u64 {
+    // Above it, level, the same estimates are fused.
+    for k in 42..=140u64 {
+        fix(&mut ap, 0.7, k * 10_000);
+    }
+    for k in 36..=45u64 {
         ap.on_estimate(&forward_estimate(0.4), k * 40_000);
     }
     assert_eq!(ap.velocity(), Some([0.4, 0.0]));
+}
+
+/// A climb over a floor seen in perspective looks like forward flight to Edge-FS: estimates
+/// taken while the height changes fast keep the failsafe quiet but do not reach the velocity.
+#[test]
+fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut t = 0u64;
+    let mut h = 0.8f32;
+    // Motion-capture fixes at 100 Hz of a drone climbing at 0.5 m/s from 0.8 m; estimates
+    // once the climb rate has settled.
+    for k in 0..80 {
+        t += 10_000;
+        h += 0.005;
+        ap.on_external_position(
+            &ExternalPosition {
+                timestamp_us: WireTime(t as u32),
+                position_m: [0.0, 0.0, -h],
+            },
+            t,
+        );
+        if k >= 40 && t % 40_000 == 0 {
+            ap.on_estimate(&forward_estimate(1.1), t);
+        }
+    }
+    assert!(ap.height.climb_mps() > AutopilotConfig::default().max_vision_climb_mps);
+    assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
+    assert_eq!(ap.velocity(), None);
+    assert_eq!(ap.velocity_estimate(), None);
+    // Level again: the same estimates are fused.
+    for _ in 0..100 {
+        t += 10_000;
+        ap.on_external_position(
+            &ExternalPosition {
+                timestamp_us: WireTime(t as u32),
+                position_m: [0.0, 0.0, -h],
+            },
+            t,
+        );
+        if t % 40_000 == 0 {
+            ap.on_estimate(&forward_estimate(0.4), t);
+        }
+    }
+    assert_eq!(ap.velocity(), Some([0.4, 0.0]));
+}
+
+/// Lone valid estimates among invalid ones (a scrap of texture on a plain view) count for
+/// nothing, neither for the velocity nor for the failsafe; a run of them does.
+#[test]
+fn a_valid_estimate_counts_only_within_a_run_of_valid_ones() {
+    let mut ap = autopilot_at_height();
+    let run = AutopilotConfig::default().min_valid_run;
+    assert!(run >= 2);
+    let mut invalid = forward_estimate(1.1);
+    invalid.flags = EstimateFlags::NO_FLOW_MATCH;
+    let mut t = 0;
+    for k in 0..40 {
+        t += 40_000;
+        if k % u32::from(run) == 0 {
+            ap.on_estimate(&invalid, t);
+        } else {
+            ap.on_estimate(&forward_estimate(1.1), t);
+        }
+    }
+    assert_eq!(ap.velocity(), None);
+    assert_eq!(ap.velocity_estimate(), None);
+    assert_eq!(ap.freshness().last_valid_estimate_us, None);
+    for _ in 0..run {
+        t += 40_000;
+        ap.on_estimate(&forward_estimate(0.3), t);
+    }
+    assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
+    assert_eq!(ap.velocity(), Some([0.3, 0.0]));
 }
 
 #[test]
@@ -526,7 +601,7 @@ fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
     let mut feed = |ap: &mut Autopilot, f: f32| {
         t += 40_000;
         ap.on_estimate(&est(f), t);
-        ap.velocity().unwrap()[0]
+        ap.velocity().map_or(f32::NAN, |v| v[0])
     };
     for _ in 0..5 {
         feed(&mut ap, 0.3);
@@ -877,7 +952,8 @@ fn stereo_bytes_are_decoded_in_any_chunking() {
     assert_eq!(decoded, 4);
     assert_eq!(ap.estimates_received(), 3);
     assert_eq!(ap.stereo_heartbeat(), Some((1_000, hb)));
-    assert_eq!(ap.velocity(), Some([0.1, 0.0]));
+    // Only the third of a run of valid estimates counts (`min_valid_run`).
+    assert_eq!(ap.velocity(), Some([0.2, 0.0]));
     let errors = ap.link_errors();
     assert_eq!(
         errors.crc + errors.cobs + errors.too_short + errors.malformed,

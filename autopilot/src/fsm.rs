@@ -1,13 +1,27 @@
-//! Obstacle-avoidance state machine (paper, section "Autonomous Obstacle Avoidance").
+//! Obstacle-avoidance state machine (paper, section "Autonomous Obstacle Avoidance"), flying
+//! on evidence: a way counts as clear only when the camera saw free space, never because it saw
+//! nothing.
 //!
-//! Four states:
+//! Each obstacle reading is one of three kinds of evidence ([`Evidence`]):
 //!
-//! * [`FsmState::Check`]: wait for a fresh obstacle reading (one received after entering the
-//!   state), holding zero velocity. Obstacle within [`FsmConfig::obstacle_distance_m`] (1 m) ->
-//!   `Hover`; clear -> `Forward`.
+//! * blocked: an obstacle nearer than the state's threshold;
+//! * clear: nothing nearer than the threshold over a view of which at least
+//!   [`FsmConfig::min_clear_depth`] has a stereo depth;
+//! * unknown: nothing nearer, but too little of the view has depth to say so (a plain wall, a
+//!   dark room). Unknown is never taken for clear.
+//!
+//! Four states, each with a timeout that ends in a safe action:
+//!
+//! * [`FsmState::Check`]: wait for a fresh reading (one received after entering the state),
+//!   holding zero velocity. Blocked within [`FsmConfig::obstacle_distance_m`] (1 m) ->
+//!   `Hover`; clear -> `Forward`. No clear or blocked reading for
+//!   [`FsmConfig::check_timeout_us`] -> `Turn` (look elsewhere); after
+//!   [`FsmConfig::max_searches`] such searches in a row the FSM asks to land
+//!   ([`FsmOutput::land`]).
 //! * [`FsmState::Forward`]: fly forward at [`FsmConfig::forward_speed_mps`] (0.3 m/s), guided by
-//!   the Edge-FS velocity. Obstacle within 1 m -> `Hover`; also `Hover` when no obstacle
-//!   reading has arrived for [`FsmConfig::reading_timeout_us`] (flying blind is not clear).
+//!   the Edge-FS velocity. Blocked within 1 m -> `Hover`; also `Hover` when no clear reading has
+//!   arrived for [`FsmConfig::reading_timeout_us`] (flying blind is not clear), and after
+//!   [`FsmConfig::forward_timeout_us`] in the state.
 //! * [`FsmState::Hover`]: hold zero velocity for [`FsmConfig::hover_time_us`] (1 s) -> `Turn`.
 //! * [`FsmState::Turn`]: depends on the [`FsmVariant`]:
 //!   * [`FsmVariant::Paper`]: the yaw setpoint ramps by [`FsmConfig::turn_angle_rad`] (60 deg)
@@ -16,11 +30,13 @@
 //!     -> `Check`.
 //!   * [`FsmVariant::TurnUntilClear`] (the improvement the paper proposes: check and turn
 //!     merged): the yaw setpoint keeps turning at the turn rate until
-//!     [`FsmConfig::clear_confirm`] consecutive fresh readings show nothing closer than
+//!     [`FsmConfig::clear_confirm`] consecutive fresh readings are clear beyond
 //!     [`FsmConfig::clear_distance_m`]; then the heading is held where it is -> `Forward`.
+//!     No clear direction within [`FsmConfig::search_timeout_us`] (a full turn and more by
+//!     default) -> the FSM asks to land.
 //!
-//! A reading is "blocked" when its distance is finite and below the threshold; `None` (nothing in
-//! range) is clear. The numbering of the states (their `u8` value) is what telemetry carries.
+//! Once it has asked to land the FSM holds zero velocity and its heading until it is reset.
+//! The numbering of the states (their `u8` value) is what telemetry carries.
 
 use crate::attitude::wrap_pi;
 
@@ -59,8 +75,21 @@ pub struct FsmConfig {
     pub clear_distance_m: f32,
     /// Turn-until-clear: consecutive clear readings needed to stop turning.
     pub clear_confirm: u8,
-    /// `Forward` stops (-> `Hover`) when the newest obstacle reading is older than this, µs.
+    /// `Forward` stops (-> `Hover`) when the newest clear reading is older than this, µs.
     pub reading_timeout_us: u64,
+    /// Smallest fraction of the view with a stereo depth (0..=1) for a reading without a near
+    /// obstacle to count as clear; below it the reading is unknown.
+    pub min_clear_depth: f32,
+    /// `Check` without a clear or blocked reading for this long -> `Turn`, µs.
+    pub check_timeout_us: u64,
+    /// Consecutive `Check` timeouts (searches in new headings that found no evidence) after
+    /// which the FSM asks to land.
+    pub max_searches: u8,
+    /// Longest time in `Forward` before a `Hover` (and a new look), µs.
+    pub forward_timeout_us: u64,
+    /// Turn-until-clear: longest time turning without a confirmed clear direction before the
+    /// FSM asks to land, µs.
+    pub search_timeout_us: u64,
 }
 
 impl Default for FsmConfig {
@@ -77,6 +106,11 @@ impl Default for FsmConfig {
             clear_distance_m: 1.5,
             clear_confirm: 3,
             reading_timeout_us: 300_000,
+            min_clear_depth: 0.25,
+            check_timeout_us: 2_000_000,
+            max_searches: 6,
+            forward_timeout_us: 60_000_000,
+            search_timeout_us: 6_000_000,
         }
     }
 }
@@ -86,8 +120,33 @@ impl Default for FsmConfig {
 pub struct ObstacleReading {
     /// When the autopilot received it, µs.
     pub received_us: u64,
-    /// Nearest obstacle, m; `None`: nothing within range.
+    /// Nearest obstacle, m; `None`: nothing within range where the view has depth.
     pub distance_m: Option<f32>,
+    /// Fraction of the view with a stereo depth, 0..=1 (how much `distance_m == None` says).
+    pub depth_fraction: f32,
+}
+
+/// What one obstacle reading says about the way ahead, against a distance threshold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Evidence {
+    /// An obstacle nearer than the threshold.
+    Blocked,
+    /// Nothing nearer than the threshold over a view with enough depth.
+    Clear,
+    /// Nothing nearer, but too little of the view has depth to tell.
+    Unknown,
+}
+
+impl ObstacleReading {
+    /// The evidence of this reading against `threshold_m`, counting it clear only when at
+    /// least `min_depth` of the view has depth.
+    pub fn evidence(&self, threshold_m: f32, min_depth: f32) -> Evidence {
+        match self.distance_m {
+            Some(d) if d.is_finite() && d < threshold_m => Evidence::Blocked,
+            _ if self.depth_fraction >= min_depth => Evidence::Clear,
+            _ => Evidence::Unknown,
+        }
+    }
 }
 
 /// What the FSM asks of guidance.
@@ -97,6 +156,8 @@ pub struct FsmOutput {
     pub forward_mps: f32,
     /// Heading setpoint, rad (wrapped to (-pi, pi]).
     pub yaw_sp_rad: f32,
+    /// The FSM found no way to go within its timeouts and asks to land.
+    pub land: bool,
 }
 
 /// Avoidance state machine.
@@ -110,7 +171,12 @@ pub struct AvoidanceFsm {
     /// Time the yaw ramp of the paper variant finished.
     ramp_done_us: Option<u64>,
     last_reading_us: Option<u64>,
+    /// When the newest clear reading (against the obstacle distance) arrived, µs.
+    last_clear_us: Option<u64>,
     clear_count: u8,
+    /// `Check` timeouts in a row.
+    searches: u8,
+    land: bool,
     last_step_us: u64,
     transitions: u32,
 }
@@ -132,7 +198,10 @@ impl AvoidanceFsm {
             turn_start_yaw: yaw,
             ramp_done_us: None,
             last_reading_us: None,
+            last_clear_us: None,
             clear_count: 0,
+            searches: 0,
+            land: false,
             last_step_us: now_us,
             transitions: 0,
         }
@@ -165,15 +234,21 @@ impl AvoidanceFsm {
         self.transitions
     }
 
+    /// True once the FSM has asked to land (until [`AvoidanceFsm::reset`]).
+    pub fn wants_to_land(&self) -> bool {
+        self.land
+    }
+
     /// Current output without stepping.
     pub fn output(&self) -> FsmOutput {
         FsmOutput {
-            forward_mps: if self.state == FsmState::Forward {
+            forward_mps: if self.state == FsmState::Forward && !self.land {
                 self.cfg.forward_speed_mps
             } else {
                 0.0
             },
             yaw_sp_rad: self.yaw_sp,
+            land: self.land,
         }
     }
 
@@ -185,8 +260,13 @@ impl AvoidanceFsm {
         self.transitions = self.transitions.wrapping_add(1);
     }
 
-    fn blocked(&self, d: Option<f32>, threshold: f32) -> bool {
-        matches!(d, Some(x) if x.is_finite() && x < threshold)
+    fn evidence(&self, r: &ObstacleReading, threshold_m: f32) -> Evidence {
+        r.evidence(threshold_m, self.cfg.min_clear_depth)
+    }
+
+    fn start_turn(&mut self, now_us: u64) {
+        self.turn_start_yaw = self.yaw_sp;
+        self.enter(FsmState::Turn, now_us);
     }
 
     /// One step at `now_us` with the current heading `yaw_rad` and the latest obstacle reading.
@@ -216,39 +296,60 @@ impl AvoidanceFsm {
             }
             _ => None,
         };
+        if self.land {
+            return self.output();
+        }
+        let obstacle_m = self.cfg.obstacle_distance_m;
+        let fresh_evidence = fresh.map(|r| self.evidence(&r, obstacle_m));
+        if let (Some(r), Some(Evidence::Clear)) = (fresh, fresh_evidence) {
+            self.last_clear_us = Some(r.received_us);
+        }
+        let in_state = now_us.saturating_sub(self.entered_us);
         let rate = self.cfg.turn_rate_radps.abs();
         match self.state {
-            FsmState::Check => {
-                if let Some(r) = fresh {
-                    if self.blocked(r.distance_m, self.cfg.obstacle_distance_m) {
-                        self.enter(FsmState::Hover, now_us);
+            FsmState::Check => match fresh_evidence {
+                Some(Evidence::Blocked) => {
+                    self.searches = 0;
+                    self.enter(FsmState::Hover, now_us);
+                }
+                Some(Evidence::Clear) => {
+                    self.searches = 0;
+                    self.enter(FsmState::Forward, now_us);
+                }
+                _ if in_state >= self.cfg.check_timeout_us => {
+                    // Nothing known this way: look elsewhere, or give up after a full search.
+                    self.searches = self.searches.saturating_add(1);
+                    if self.searches >= self.cfg.max_searches.max(1) {
+                        self.land = true;
                     } else {
-                        self.enter(FsmState::Forward, now_us);
+                        self.start_turn(now_us);
                     }
                 }
-            }
+                _ => {}
+            },
             FsmState::Forward => {
-                let stale = match reading {
-                    Some(r) => now_us.saturating_sub(r.received_us) > self.cfg.reading_timeout_us,
-                    None => true,
-                };
-                let blocked = matches!(fresh,
-                    Some(r) if self.blocked(r.distance_m, self.cfg.obstacle_distance_m));
-                if blocked || stale {
+                // No reading at all is stale at once; otherwise the newest clear one counts
+                // (entering the state on a clear reading counts as one).
+                let clear_since = self
+                    .last_clear_us
+                    .map_or(self.entered_us, |t| t.max(self.entered_us));
+                let stale = reading.is_none()
+                    || now_us.saturating_sub(clear_since) > self.cfg.reading_timeout_us;
+                let blocked = fresh_evidence == Some(Evidence::Blocked);
+                if blocked || stale || in_state >= self.cfg.forward_timeout_us {
                     self.enter(FsmState::Hover, now_us);
                 }
             }
             FsmState::Hover => {
-                if now_us.saturating_sub(self.entered_us) >= self.cfg.hover_time_us {
-                    self.turn_start_yaw = self.yaw_sp;
-                    self.enter(FsmState::Turn, now_us);
+                if in_state >= self.cfg.hover_time_us {
+                    self.start_turn(now_us);
                 }
             }
             FsmState::Turn => match self.cfg.variant {
                 FsmVariant::Paper => {
                     let angle = self.cfg.turn_angle_rad;
                     let target = wrap_pi(self.turn_start_yaw + angle);
-                    let elapsed = now_us.saturating_sub(self.entered_us) as f32 * 1e-6;
+                    let elapsed = in_state as f32 * 1e-6;
                     let turned = (rate * elapsed).min(angle.abs());
                     self.yaw_sp = wrap_pi(self.turn_start_yaw + turned * angle.signum());
                     if turned >= angle.abs() {
@@ -273,15 +374,22 @@ impl AvoidanceFsm {
                         self.yaw_sp = wrap_pi(self.yaw_sp + dir * rate * dt);
                     }
                     if let Some(r) = fresh {
-                        if self.blocked(r.distance_m, self.cfg.clear_distance_m) {
-                            self.clear_count = 0;
-                        } else {
+                        if self.evidence(&r, self.cfg.clear_distance_m) == Evidence::Clear {
                             self.clear_count = self.clear_count.saturating_add(1);
+                        } else {
+                            self.clear_count = 0;
                         }
                         if self.clear_count >= self.cfg.clear_confirm.max(1) {
                             self.yaw_sp = yaw;
+                            self.last_clear_us = Some(r.received_us);
                             self.enter(FsmState::Forward, now_us);
+                            return self.output();
                         }
+                    }
+                    if in_state >= self.cfg.search_timeout_us {
+                        // A full turn without a clear direction: hold the heading, land.
+                        self.yaw_sp = yaw;
+                        self.land = true;
                     }
                 }
             },
@@ -297,10 +405,21 @@ mod tests {
     const S: u64 = 1_000_000;
     const STEP: u64 = 20_000;
 
+    /// A reading over a view that has depth everywhere.
     fn reading(t: u64, d: Option<f32>) -> Option<ObstacleReading> {
         Some(ObstacleReading {
             received_us: t,
             distance_m: d,
+            depth_fraction: 1.0,
+        })
+    }
+
+    /// A reading with nothing in range over a view with little depth (a plain wall).
+    fn unknown(t: u64) -> Option<ObstacleReading> {
+        Some(ObstacleReading {
+            received_us: t,
+            distance_m: None,
+            depth_fraction: 0.05,
         })
     }
 
@@ -484,5 +603,149 @@ mod tests {
             f.step(t, 0.0, None);
         }
         assert!(f.output().yaw_sp_rad <= 0.5 + 1e-4);
+    }
+
+    #[test]
+    fn evidence_needs_depth_to_be_clear() {
+        let r = |d, depth| ObstacleReading {
+            received_us: 0,
+            distance_m: d,
+            depth_fraction: depth,
+        };
+        assert_eq!(r(Some(0.5), 0.0).evidence(1.0, 0.25), Evidence::Blocked);
+        assert_eq!(r(Some(1.5), 0.3).evidence(1.0, 0.25), Evidence::Clear);
+        assert_eq!(r(None, 0.25).evidence(1.0, 0.25), Evidence::Clear);
+        assert_eq!(r(None, 0.2).evidence(1.0, 0.25), Evidence::Unknown);
+        assert_eq!(r(Some(f32::NAN), 1.0).evidence(1.0, 0.25), Evidence::Clear);
+        assert_eq!(r(Some(3.0), 0.0).evidence(1.0, 0.25), Evidence::Unknown);
+    }
+
+    #[test]
+    fn check_does_not_take_silence_for_clear_and_searches_then_lands() {
+        let cfg = FsmConfig::default();
+        let mut f = paper();
+        // Unknown readings at 25 Hz: Check holds, zero speed, until its timeout.
+        let mut t = 0;
+        while t + 40_000 < cfg.check_timeout_us {
+            t += 40_000;
+            let out = f.step(t, f.output().yaw_sp_rad, unknown(t));
+            assert_eq!(
+                (f.state(), out.forward_mps, out.land),
+                (FsmState::Check, 0.0, false)
+            );
+        }
+        // Timed out: turn to look elsewhere; each search in a new heading times out too.
+        let mut searches = 0;
+        let mut turns = 0;
+        for _ in 0..20_000 {
+            t += 40_000;
+            let before = f.state();
+            let out = f.step(t, f.output().yaw_sp_rad, unknown(t));
+            assert_eq!(out.forward_mps, 0.0, "never forward on unknown readings");
+            if before == FsmState::Check && f.state() == FsmState::Turn {
+                turns += 1;
+            }
+            if before == FsmState::Check && (f.state() != FsmState::Check || out.land) {
+                searches += 1;
+            }
+            if out.land {
+                break;
+            }
+        }
+        assert!(f.wants_to_land());
+        assert_eq!(searches, usize::from(cfg.max_searches));
+        assert_eq!(turns, usize::from(cfg.max_searches) - 1);
+        // Bounded: each search is the check timeout plus a 60 deg turn.
+        let turn_us = (cfg.turn_angle_rad / cfg.turn_rate_radps * 1e6) as u64 + 40_000;
+        assert!(t <= u64::from(cfg.max_searches) * (cfg.check_timeout_us + turn_us) + 80_000);
+        // Landing is kept (zero speed) whatever comes, until a reset.
+        let out = f.step(t + 40_000, 0.0, reading(t + 40_000, None));
+        assert!(out.land && out.forward_mps == 0.0);
+        f.reset(t + 80_000, 0.0);
+        assert!(!f.wants_to_land());
+        assert_eq!(f.state(), FsmState::Check);
+    }
+
+    #[test]
+    fn a_clear_reading_during_the_search_goes_forward_and_restarts_the_count() {
+        let cfg = FsmConfig::default();
+        let mut f = paper();
+        f.step(cfg.check_timeout_us, 0.0, unknown(cfg.check_timeout_us));
+        assert_eq!(f.state(), FsmState::Turn);
+        let mut t = cfg.check_timeout_us;
+        while f.state() != FsmState::Check {
+            t += STEP;
+            f.step(t, f.output().yaw_sp_rad, None);
+        }
+        t += STEP;
+        f.step(t, f.output().yaw_sp_rad, reading(t, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        assert_eq!(f.searches, 0);
+    }
+
+    #[test]
+    fn forward_stops_when_clear_evidence_stops() {
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, None));
+        assert_eq!(f.state(), FsmState::Forward);
+        // Readings keep coming, but over a plain view: 300 ms after the last clear one, stop.
+        let mut t = STEP;
+        while t < STEP + 300_000 {
+            t += STEP;
+            f.step(t, 0.0, unknown(t));
+            assert_eq!(f.state(), FsmState::Forward, "at {t}");
+        }
+        t += STEP;
+        f.step(t, 0.0, unknown(t));
+        assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, t));
+    }
+
+    #[test]
+    fn forward_times_out_into_hover() {
+        let cfg = FsmConfig::default();
+        let mut f = paper();
+        f.step(STEP, 0.0, reading(STEP, None));
+        let end = STEP + cfg.forward_timeout_us;
+        let mut t = STEP;
+        while t + 100_000 < end {
+            t += 100_000;
+            f.step(t, 0.0, reading(t, None));
+            assert_eq!(f.state(), FsmState::Forward);
+        }
+        f.step(end, 0.0, reading(end, None));
+        assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, end));
+    }
+
+    #[test]
+    fn turn_until_clear_needs_clear_evidence_and_lands_after_its_timeout() {
+        let cfg = FsmConfig {
+            variant: FsmVariant::TurnUntilClear,
+            ..FsmConfig::default()
+        };
+        let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, Some(0.6)));
+        f.step(STEP + S, 0.0, None);
+        assert_eq!(f.state(), FsmState::Turn);
+        let start = STEP + S;
+        let mut t = start;
+        // Unknown readings all the way round: no Forward, and a landing at the timeout.
+        while t < start + cfg.search_timeout_us - STEP {
+            t += STEP;
+            let out = f.step(t, f.output().yaw_sp_rad, unknown(t));
+            assert_eq!(
+                (f.state(), out.forward_mps, out.land),
+                (FsmState::Turn, 0.0, false)
+            );
+        }
+        t += STEP;
+        let yaw = f.output().yaw_sp_rad;
+        let out = f.step(t, yaw, unknown(t));
+        assert!(out.land);
+        assert_eq!(out.forward_mps, 0.0);
+        assert_eq!(out.yaw_sp_rad, yaw, "holds the heading it has");
+        // The timeout covers more than a full turn.
+        assert!(
+            cfg.search_timeout_us as f32 * 1e-6 * cfg.turn_rate_radps > 2.0 * core::f32::consts::PI
+        );
     }
 }

@@ -129,6 +129,11 @@ protocol::param_table! {
     "fsm_clear_dist": F32 ["m"] 0.1, 10.0, true => |c| c.fsm.clear_distance_m;
     "fsm_clear_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.clear_confirm;
     "fsm_reading_timeout_us": U32 ["us"] 10_000, 5_000_000, true => |c| c.fsm.reading_timeout_us;
+    "fsm_min_clear_depth": F32 ["-"] 0.0, 1.0, true => |c| c.fsm.min_clear_depth;
+    "fsm_check_timeout_us": U32 ["us"] 100_000, 30_000_000, true => |c| c.fsm.check_timeout_us;
+    "fsm_max_searches": U32 ["-"] 1, 60, true => |c| c.fsm.max_searches;
+    "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;
+    "fsm_search_timeout_us": U32 ["us"] 500_000, 60_000_000, true => |c| c.fsm.search_timeout_us;
     "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout_us;
     "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
     "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;
@@ -148,6 +153,8 @@ protocol::param_table! {
     "max_velocity_jump": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_velocity_jump_mps;
     "max_outliers": U32 ["-"] 0, 20, true => |c| c.max_consecutive_outliers;
     "min_vision_height": F32 ["m"] 0.0, 2.0, true => |c| c.min_vision_height_m;
+    "max_vision_climb": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_vision_climb_mps;
+    "min_valid_run": U32 ["-"] 1, 20, true => |c| c.min_valid_run;
     "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.velocity_max_age_us;
     "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.observer.drag_per_s;
     "obs_velocity_gain": F32 ["-"] 0.0, 1.0, true => |c| c.observer.velocity_gain;
