@@ -1,16 +1,17 @@
 //! Closed-loop flights in rooms with plain walls: the avoidance never takes "no stereo depth"
 //! for a clear path.
 //!
-//! Seeds: the Edge-FS thresholds (`min_depth_coverage`, `min_fit_spread_px`, `min_near_run`) and
-//! the FSM's evidence and timeouts (`min_clear_depth`, `check_timeout_us`, `max_searches`,
-//! `search_timeout_us`) were tuned on seeds 101-104 only; these tests fly seeds 501-503, which
-//! were not used for tuning.
+//! Seeds: the Edge-FS thresholds (`min_depth_coverage`, `min_fit_spread_px`, `min_near_run`), the
+//! FSM's evidence and timeouts (`min_clear_depth`, `check_timeout_us`, `max_searches`,
+//! `search_timeout_us`) and the estimate gates (`min_valid_run`, `max_vision_climb`, the landing of
+//! a drone that never saw) were tuned on seeds 101-104 and 501-510; these tests fly seeds
+//! 701-703, which were not used for tuning.
 
 use protocol::FlightMode;
 use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm};
 use sim_host::sim::scene_spec::SceneSpec;
 
-const SEEDS: std::ops::RangeInclusive<u64> = 501..=503;
+const SEEDS: std::ops::RangeInclusive<u64> = 701..=703;
 
 fn fly(cfg: &FlightConfig) -> FlightResult {
     run_flight(cfg, &mut |_| {}).expect("flight runs")
