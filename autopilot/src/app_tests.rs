@@ -10,7 +10,7 @@ use super::*;
 use crate::attitude::GRAVITY;
 use crate::indi::IndiConfig;
 use proptest::prelude::*;
-use protocol::ParamOp;
+use protocol::{FrameFit, ParamOp};
 use std::vec::Vec;
 
 const IMU_US: u64 = 1_953;
@@ -149,6 +149,11 @@ impl Quad {
             processing_us: 0,
             depth_coverage: 255,
             near_columns: 0,
+            fit: Some(FrameFit {
+                forward_mps: vb[0],
+                sideways_mps: vb[1],
+                quality: 200,
+            }),
         }
     }
 
@@ -463,15 +468,21 @@ fn forward_estimate(forward_mps: f32) -> Estimate {
         processing_us: 0,
         depth_coverage: 255,
         near_columns: 0,
+        fit: Some(FrameFit {
+            forward_mps,
+            sideways_mps: 0.0,
+            quality: 200,
+        }),
     }
 }
 
 #[test]
 fn a_frame_whose_stereo_failed_reports_obstacles_but_not_free_space() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
-    let est = |obstacle_m, flags| Estimate {
+    let est = |obstacle_m, flags: EstimateFlags| Estimate {
         obstacle_m,
         flags,
+        fit: forward_estimate(0.0).fit.filter(|_| flags.is_valid()),
         ..forward_estimate(0.0)
     };
     ap.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 40_000);
@@ -573,6 +584,7 @@ fn a_valid_estimate_counts_only_within_a_run_of_valid_ones() {
     assert!(run >= 2);
     let mut invalid = forward_estimate(1.1);
     invalid.flags = EstimateFlags::NO_FLOW_MATCH;
+    invalid.fit = None;
     let mut t = 0;
     for k in 0..40 {
         t += 40_000;
@@ -591,6 +603,45 @@ fn a_valid_estimate_counts_only_within_a_run_of_valid_ones() {
     }
     assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
     assert_eq!(ap.velocity(), Some([0.3, 0.0]));
+}
+
+/// `VelocitySource::KalmanFits` flies on each frame's own fit, also when the board's filter
+/// flagged the frame (its track disagreed), and ignores frames without a fit; the default
+/// source takes the board's output.
+#[test]
+fn the_fit_source_takes_each_frames_own_fit() {
+    let frame = |t: u64| {
+        let mut e = forward_estimate(0.1);
+        e.flags = EstimateFlags::POOR_FIT;
+        e.fit = Some(FrameFit {
+            forward_mps: 0.3,
+            sideways_mps: 0.0,
+            quality: 200,
+        });
+        (e, t)
+    };
+    let mut fits = autopilot_at_height();
+    let mut cfg = *fits.config();
+    cfg.velocity_source = VelocitySource::KalmanFits;
+    fits.set_config(cfg).unwrap();
+    let mut output = autopilot_at_height();
+    for k in 1..=10u64 {
+        let (e, t) = frame(k * 40_000);
+        fits.on_estimate(&e, t);
+        output.on_estimate(&e, t);
+    }
+    assert_eq!(fits.freshness().last_valid_estimate_us, Some(400_000));
+    assert_eq!(fits.velocity(), Some([0.3, 0.0]));
+    assert_eq!(output.freshness().last_valid_estimate_us, None);
+    // Without a fit, the fit source has nothing.
+    let mut e = forward_estimate(0.3);
+    e.fit = None;
+    let mut fits = autopilot_at_height();
+    fits.set_config(cfg).unwrap();
+    for k in 1..=10u64 {
+        fits.on_estimate(&e, k * 40_000);
+    }
+    assert_eq!(fits.freshness().last_valid_estimate_us, None);
 }
 
 #[test]
@@ -934,6 +985,10 @@ fn stereo_bytes_are_decoded_in_any_chunking() {
     for seq in 0..3u16 {
         let mut e = quad.estimate(seq);
         e.forward_mps = 0.1 * seq as f32;
+        e.fit = e.fit.map(|f| FrameFit {
+            forward_mps: e.forward_mps,
+            ..f
+        });
         let n = protocol::encode(&StereoToAutopilot::Estimate(e), &mut buf).unwrap();
         wire.extend_from_slice(&buf[..n]);
         first_frame_len = first_frame_len.max(n * usize::from(seq == 0));
@@ -1017,6 +1072,7 @@ proptest! {
                     seq: 0, capture_us: WireTime(0), forward_mps: f, sideways_mps: s, obstacle_m: o,
                     quality: 255, flags: EstimateFlags(fl & 0x01), processing_us: 0,
                     depth_coverage: 255, near_columns: 0,
+                    fit: (fl & 0x01 == 0).then_some(FrameFit { forward_mps: f, sideways_mps: s, quality: 255 }),
                 }, now),
                 Input::Pos(z) => ap.on_external_position(&ExternalPosition {
                     timestamp_us: WireTime(now as u32), position_m: [0.0, 0.0, z],

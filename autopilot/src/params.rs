@@ -4,7 +4,8 @@
 //!
 //! Array fields appear once per axis (`indi_kp_p`, `indi_kp_q`, `indi_kp_r`); durations are
 //! `u32` microseconds; `fsm_variant` is 0 (the paper's FSM) or 1 (turn until clear);
-//! `velocity_source` is 0 (the Kalman filter) or 1 (the paper's median-5 and observer). The
+//! `velocity_source` is 0 (the Kalman filter on the camera board's output), 1 (the paper's
+//! median-5 and observer) or 2 (the Kalman filter on each frame's own fit). The
 //! defaults are [`AutopilotConfig::default`]'s. `indi_rate_hz` is read-only: the loop runs at
 //! the IMU's [`crate::board::LOOP_RATE_HZ`] whatever it says.
 //!
@@ -42,12 +43,14 @@ impl ParamField for VelocitySource {
         ParamValue::U32(match self {
             VelocitySource::Kalman => 0,
             VelocitySource::MedianObserver => 1,
+            VelocitySource::KalmanFits => 2,
         })
     }
     fn from_param(v: ParamValue) -> Option<Self> {
         match v {
             ParamValue::U32(0) => Some(VelocitySource::Kalman),
             ParamValue::U32(1) => Some(VelocitySource::MedianObserver),
+            ParamValue::U32(2) => Some(VelocitySource::KalmanFits),
             _ => None,
         }
     }
@@ -162,7 +165,7 @@ protocol::param_table! {
     "obs_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.observer.max_bias_mps2;
     "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY_US, true => |c| c.observer.measurement_delay_us;
     "obs_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.observer.max_tilt_rad;
-    "velocity_source": U32 ["enum"] 0, 1, true => |c| c.velocity_source;
+    "velocity_source": U32 ["enum"] 0, 2, true => |c| c.velocity_source;
     "vkf_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.velocity_kf.drag_per_s;
     "vkf_accel_noise": F32 ["m/s2"] 0.001, 10.0, true => |c| c.velocity_kf.accel_noise;
     "vkf_bias_walk": F32 ["m/s2"] 0.0, 1.0, true => |c| c.velocity_kf.bias_walk;
@@ -176,6 +179,7 @@ protocol::param_table! {
     "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimate_horizon_us;
     "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimate_link_us;
     "est_filter_lag_us": U32 ["us"] 0, 300_000, true => |c| c.estimate_filter_lag_us;
+    "fit_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.fit_horizon_us;
     "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.max_yaw_rate_radps;
     "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
     "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;
@@ -259,6 +263,11 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), &'static str> {
         + u64::from(cfg.estimate_horizon_us);
     if oldest_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
         return Err("est_horizon_us");
+    }
+    let oldest_fit_window_us =
+        u64::from(u16::MAX) + u64::from(cfg.estimate_link_us) + u64::from(cfg.fit_horizon_us);
+    if oldest_fit_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
+        return Err("fit_horizon_us");
     }
     Ok(())
 }

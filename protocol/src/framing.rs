@@ -468,6 +468,11 @@ mod tests {
             processing_us: 900,
             depth_coverage: 180,
             near_columns: 3,
+            fit: Some(FrameFit {
+                forward_mps: 0.35,
+                sideways_mps: -0.04,
+                quality: 150,
+            }),
         }
     }
 

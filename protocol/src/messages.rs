@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 6;
+pub const PROTOCOL_VERSION: u8 = 7;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -131,7 +131,7 @@ impl core::ops::BitOr for EstimateFlags {
 /// Edge-FS result for one processed stereo frame (camera board -> autopilot, at the frame rate).
 ///
 /// Body axes of the camera: forward along the optical axis, sideways positive to the right.
-/// Worst case 34 bytes on the wire (tested).
+/// Worst case 46 bytes on the wire (tested).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Estimate {
@@ -159,6 +159,26 @@ pub struct Estimate {
     /// Textured columns whose disparity search ran out of range: something is nearer than the
     /// minimum stereo range there (0..=128).
     pub near_columns: u8,
+    /// The frame's own velocity fit, before the camera board's temporal filter, when that fit
+    /// is valid (`None`: no valid fit, or the paper's estimator, which has no filter). For a
+    /// receiver that filters on its own (the autopilot's velocity Kalman filter): the board's
+    /// filter smooths over several frames and, once its track is wrong, flags the right fits
+    /// as outliers, so the filtered velocity lags and can stay wrong; the fit of one frame is
+    /// noisier but describes exactly its flow window.
+    pub fit: Option<FrameFit>,
+}
+
+/// One frame's Edge-FS velocity fit, before any filtering across frames (see
+/// [`Estimate::fit`]). Same axes as [`Estimate`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameFit {
+    /// Forward velocity, m/s (positive: moving towards the scene).
+    pub forward_mps: f32,
+    /// Sideways velocity, m/s (positive: moving to the right).
+    pub sideways_mps: f32,
+    /// Confidence of this fit, 0 (none) ..= 255 (best), as [`Estimate::quality`].
+    pub quality: u8,
 }
 
 impl Estimate {

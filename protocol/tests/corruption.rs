@@ -31,6 +31,11 @@ fn random_estimate(rng: &mut ChaCha8Rng) -> Estimate {
         processing_us: rng.random(),
         depth_coverage: rng.random(),
         near_columns: rng.random(),
+        fit: rng.random_bool(0.5).then(|| FrameFit {
+            forward_mps: random_f32(rng),
+            sideways_mps: random_f32(rng),
+            quality: rng.random(),
+        }),
     }
 }
 

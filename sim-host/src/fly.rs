@@ -39,6 +39,8 @@ pub enum VelocityArg {
     Kalman,
     /// The paper's median-5 of the estimates into the velocity observer.
     Median,
+    /// The Kalman filter on each frame's own fit instead of the camera board's filtered output.
+    KalmanFits,
 }
 
 /// Output format of the summary.
@@ -211,6 +213,9 @@ impl FlyArgs {
             Some(VelocityArg::Kalman) => cfg.autopilot.velocity_source = VelocitySource::Kalman,
             Some(VelocityArg::Median) => {
                 cfg.autopilot.velocity_source = VelocitySource::MedianObserver
+            }
+            Some(VelocityArg::KalmanFits) => {
+                cfg.autopilot.velocity_source = VelocitySource::KalmanFits
             }
             None => {}
         }

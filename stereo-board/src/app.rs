@@ -394,6 +394,7 @@ impl StereoBoardApp {
             processing_us,
             depth_coverage: out.depth_coverage,
             near_columns: out.near_columns,
+            fit: out.fit,
         };
         self.seq = self.seq.wrapping_add(1);
         self.counters.frames_processed = self.counters.frames_processed.wrapping_add(1);

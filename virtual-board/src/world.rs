@@ -25,7 +25,7 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
-use protocol::{Estimate, EstimateFlags, Heartbeat, Message, Node, StereoToAutopilot};
+use protocol::{Estimate, EstimateFlags, FrameFit, Heartbeat, Message, Node, StereoToAutopilot};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::SeedableRng;
 use sim_host::sim::camera::{Motion, StereoCamera};
@@ -381,11 +381,13 @@ impl TruthCamera {
             let n = window.len().max(1) as f64;
             let mean = window.iter().fold(V3::ZERO, |a, &v| a + v) * (1.0 / n);
             self.seq = self.seq.wrapping_add(1);
+            let forward_mps = (mean.x + gauss(&mut self.rng) * self.noise_mps) as f32;
+            let sideways_mps = (mean.y + gauss(&mut self.rng) * self.noise_mps) as f32;
             let estimate = Estimate {
                 seq: self.seq,
                 capture_us: protocol::WireTime((now_ns / 1_000) as u32),
-                forward_mps: (mean.x + gauss(&mut self.rng) * self.noise_mps) as f32,
-                sideways_mps: (mean.y + gauss(&mut self.rng) * self.noise_mps) as f32,
+                forward_mps,
+                sideways_mps,
                 obstacle_m: None,
                 quality: 200,
                 flags: EstimateFlags::NONE,
@@ -393,6 +395,12 @@ impl TruthCamera {
                 // No stereo: the view's depth is unknown, never clear.
                 depth_coverage: 0,
                 near_columns: 0,
+                // The labelled mean over the window is this frame's own "fit".
+                fit: Some(FrameFit {
+                    forward_mps,
+                    sideways_mps,
+                    quality: 200,
+                }),
             };
             self.pending
                 .push_back((now_ns + self.processing_ns, estimate));

@@ -18,7 +18,7 @@
 //! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::app::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
 
 use protocol::{
-    BoardToHost, CaptureCounts, Decoder, Estimate, EstimateFlags, FlightMode, Heartbeat,
+    BoardToHost, CaptureCounts, Decoder, Estimate, EstimateFlags, FlightMode, FrameFit, Heartbeat,
     LinkErrorCounts, Message, Node, StereoStatus, StereoToAutopilot,
 };
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
@@ -132,6 +132,11 @@ impl CameraStandIn {
                 processing_us: 5_000,
                 depth_coverage: 255,
                 near_columns: 0,
+                fit: Some(FrameFit {
+                    forward_mps: 0.0,
+                    sideways_mps: 0.0,
+                    quality: 200,
+                }),
             }));
         }
     }

@@ -371,6 +371,7 @@ mod tests {
             processing_us: 9_000,
             depth_coverage: 255,
             near_columns: 0,
+            fit: None,
         };
         log.write(1_000, &EstimateRecord::from(&e)).unwrap();
         log.write(

@@ -66,6 +66,13 @@ pub struct EstimateRecord {
     pub depth_coverage: f32,
     /// Textured columns nearer than the minimum stereo range.
     pub near_columns: u8,
+    /// The frame's own fit before the camera board's temporal filter: forward velocity, m/s
+    /// (null: no valid fit).
+    pub fit_forward_mps: Option<f32>,
+    /// The frame's own fit: sideways velocity (positive right), m/s.
+    pub fit_sideways_mps: Option<f32>,
+    /// The frame's own fit: confidence, 0 ..= 255.
+    pub fit_quality: Option<u8>,
 }
 
 impl Record for EstimateRecord {
@@ -88,6 +95,9 @@ impl From<&Estimate> for EstimateRecord {
             processing_us: e.processing_us,
             depth_coverage: e.depth_fraction(),
             near_columns: e.near_columns,
+            fit_forward_mps: e.fit.map(|f| f.forward_mps),
+            fit_sideways_mps: e.fit.map(|f| f.sideways_mps),
+            fit_quality: e.fit.map(|f| f.quality),
         }
     }
 }

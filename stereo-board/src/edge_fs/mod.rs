@@ -58,7 +58,9 @@ pub use matching::{
 };
 pub use temporal::{AxisFilter, Update};
 
-use protocol::{ConfigError, EdgeFsConfig, EstimateFlags, GyroAttitude, STEREO_FRAME_BYTES};
+use protocol::{
+    ConfigError, EdgeFsConfig, EstimateFlags, FrameFit, GyroAttitude, STEREO_FRAME_BYTES,
+};
 
 /// Image width, px.
 pub const IMG_W: usize = 128;
@@ -409,6 +411,9 @@ pub struct EdgeFsOutput {
     /// Textured columns whose disparity search ran out of range: something nearer than the
     /// minimum stereo range (default mode; 0 in paper mode).
     pub near_columns: u8,
+    /// Default mode: the frame's own velocity fit before the temporal filter, when it is valid
+    /// (`None` otherwise, and always in paper mode); see [`protocol::Estimate::fit`].
+    pub fit: Option<FrameFit>,
 }
 
 impl EdgeFsOutput {
@@ -420,6 +425,7 @@ impl EdgeFsOutput {
         flags: EstimateFlags::NONE,
         depth_coverage: 0,
         near_columns: 0,
+        fit: None,
     };
 }
 
@@ -732,6 +738,13 @@ impl EdgeFs {
         has_gyro: bool,
     ) -> EdgeFsOutput {
         let (mut out, sigma) = self.fit_default(frame, has_gyro);
+        if out.flags.is_valid() {
+            out.fit = Some(FrameFit {
+                forward_mps: out.forward_mps,
+                sideways_mps: out.sideways_mps,
+                quality: out.quality,
+            });
+        }
         let p = self.params;
         if p.filter_accel_mps2 <= 0.0 {
             return out;

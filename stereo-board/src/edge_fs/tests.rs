@@ -115,6 +115,25 @@ fn forward_motion_towards_a_wall() {
     assert!(out.quality > 100, "quality {}", out.quality);
 }
 
+/// Default mode sends each valid frame's own fit beside the filtered output; a frame without
+/// a valid fit and the paper's estimator send none.
+#[test]
+fn a_valid_frame_carries_its_own_fit() {
+    let (out, _) = fly(EdgeFsParams::default_config(), 1.5, 0.5, 0.0, 0.0, 12);
+    let fit = out.fit.expect("a valid frame has its fit");
+    assert!((fit.forward_mps - 0.5).abs() < 0.1, "fit {fit:?}");
+    assert!(fit.quality > 0);
+    let mut fs = EdgeFs::new(EdgeFsParams::default_config());
+    let blank = [0u8; STEREO_FRAME_BYTES];
+    for i in 0..3u64 {
+        let out = fs.process(&blank, i * 40_000, Some(&gyro(0.0)));
+        assert!(!out.flags.is_valid());
+        assert_eq!(out.fit, None);
+    }
+    let (out, _) = fly(EdgeFsParams::paper(), 1.5, 0.5, 0.0, 0.0, 12);
+    assert_eq!(out.fit, None);
+}
+
 #[test]
 fn sideways_motion_to_the_right_is_positive() {
     let (out, _) = fly(EdgeFsParams::default_config(), 1.5, 0.0, 0.3, 0.0, 12);

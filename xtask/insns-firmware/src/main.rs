@@ -265,6 +265,11 @@ mod bench {
             processing_us: 1_200,
             depth_coverage: 255,
             near_columns: 0,
+            fit: Some(protocol::FrameFit {
+                forward_mps: 0.31,
+                sideways_mps: -0.03,
+                quality: 170,
+            }),
         }
     }
 
