@@ -452,6 +452,15 @@ pub mod hw {
     pub type TelemetryUart = pac::USART1;
     /// Its interrupt.
     pub const TELEMETRY_IRQ: pac::Interrupt = pac::Interrupt::USART1;
+    /// The DMA stream that takes the telemetry port's received bytes in the `hil` flavour
+    /// (921,600 Bd; see `board_support::uart_dma`): USART1_RX is DMA2 stream 2, channel 4
+    /// (RM0090 table 43).
+    pub const TELEMETRY_RX_DMA: board_support::uart_dma::RxStream =
+        board_support::uart_dma::RxStream {
+            controller: board_support::uart_dma::Controller::Dma2,
+            stream: 2,
+            channel: 4,
+        };
     /// The UART of the RC receiver (receive only).
     pub type RcUart = pac::UART5;
     /// Its interrupt.

@@ -24,11 +24,6 @@ use stm32f4xx_hal::{nb, pac, serial};
 /// bound keeps the interrupt short however fast bytes come).
 const MAX_BYTES_PER_INTERRUPT: usize = 64;
 
-/// Back-pressure of the board-to-board link, USART1 on both boards. Its RXNE interrupt feeds
-/// the queue only in the `qemu` flavour; elsewhere the DMA path ([`crate::uart_dma`]) does, and
-/// never pauses, so [`RxFlow::take`] on it is a plain [`take`] there.
-pub static LINK_FLOW: RxFlow = RxFlow::new(pac::Interrupt::USART1);
-
 /// Back-pressure state of one receive interrupt.
 pub struct RxFlow {
     irq: pac::Interrupt,
@@ -67,6 +62,21 @@ impl RxFlow {
             self.resume();
         }
         n
+    }
+}
+
+/// A UART's receive side as its interrupt sees it: the RXNE path of this module (the HAL's
+/// `Rx`), or a circular DMA ([`crate::uart_dma::DmaRx`], which never pauses).
+pub trait Receiver {
+    /// The receive interrupt's body: moves the bytes received since the last call into
+    /// `queue` and counts lost ones in `lost` (the caller then wakes the decoding task).
+    fn receive(&mut self, queue: &mut Producer<'static, u8>, flow: &RxFlow, lost: &AtomicU32);
+}
+
+impl<U: serial::Instance> Receiver for serial::Rx<U> {
+    /// [`drain`].
+    fn receive(&mut self, queue: &mut Producer<'static, u8>, flow: &RxFlow, lost: &AtomicU32) {
+        drain(self, queue, flow, lost);
     }
 }
 

@@ -1,12 +1,27 @@
-//! Hardware-in-the-loop: the world simulation of [`crate::sim`] flown by the two real boards
-//! (or the two firmwares in QEMU) over serial links.
+//! Hardware-in-the-loop: the world simulation of [`crate::sim`] flown by the two boards'
+//! lockstep firmwares (the `hil` flavour; the `qemu` flavour in QEMU) over byte streams, one
+//! per board's host UART.
 //!
 //! ```text
-//!   sim-host hil                       camera board (hil flavour)      autopilot (hil flavour)
-//!   world: dynamics, IMU, scene  --FrameChunk-->  USART2                USART2  <--Imu, ExternalPosition, Command--
-//!   camera renderer              <--Estimate----                        USART2  --Motors, Telemetry, Heartbeat-->
-//!                                               USART1 <--------------> USART1   (direct, or relayed by sim-host)
+//!   sim-host hil                  camera board                         autopilot
+//!   world: dynamics, IMU, scene  --FrameChunk--> host UART   host UART <--Imu, ExternalPosition, Command--
+//!   camera renderer              <--Estimate----             (USART1)  --Motors, Telemetry, Heartbeat-->
+//!                                                link UART <-------> link UART
 //! ```
+//!
+//! The same contract, wherever the boards are:
+//!
+//! * real boards: each host UART on its own USB-serial adapter (`--stereo /dev/ttyUSB0
+//!   --autopilot /dev/ttyUSB1`, 921,600 Bd), the link UARTs wired to each other as in the drone;
+//! * the virtual boards (`virtual-board/`, `vboard serve hil`): both `hil` images on emulated
+//!   STM32F4s, the link UARTs joined on the bench, each host UART on a TCP socket
+//!   (`--stereo tcp:127.0.0.1:4011 --autopilot tcp:127.0.0.1:4012`); `docs/virtual-board.md`;
+//! * QEMU (the `qemu` flavour): each host UART on a `-chardev socket`, the link UARTs joined
+//!   directly or relayed through this host ([`Relay`]).
+//!
+//! The camera board's host UART is its second UART, USART2 (PA2/PA3; USART2 in QEMU too), its
+//! link UART4 (USART1 in QEMU); the autopilot's host UART is its telemetry port USART1, its link
+//! USART2.
 //!
 //! # Timing: lockstep on world time
 //!
@@ -19,7 +34,7 @@
 //!   only then does it integrate the world one IMU period with those motor commands. The
 //!   autopilot releases guidance (50 Hz), gyro-to-camera (128 Hz) and telemetry (10 Hz) from
 //!   the same world clock. The world therefore runs exactly as fast as the link allows: slower
-//!   than real time in QEMU, real time on a fast serial link and fast boards.
+//!   than real time in QEMU and on the virtual boards, about real time on a fast serial link.
 //! * Height: an `ExternalPosition` (truth + noise) at [`HilConfig::height_rate_hz`], sent just
 //!   before the IMU sample of the same instant.
 //! * Camera: a frame is rendered at world time `t` (its exposure time on the wire) every
@@ -37,24 +52,28 @@
 //! A reply that does not come within [`HilConfig::reply_timeout`] (a byte lost in the link)
 //! is counted and the world goes on with the previous commands.
 //!
-//! # Link rates (measured)
+//! # Link rates
 //!
-//! QEMU 7.2's STM32 USART model accepts one received byte per main-loop iteration: about
-//! 11 kB/s into the firmware under `-icount shift=auto` on the 2-core CI machine (stereo
-//! firmware, host link; see `docs/hardware.md`). One frame (24,576 pixel bytes, 25.2 kB
-//! framed) then takes about 2.3 s, so the QEMU hover test runs the camera at a few frames per
-//! second of world time. On hardware, 25 fps of frames need 25.2 kB x 25 = 630 kB/s, i.e.
-//! about 6.3 Mbit/s with 8N1 framing on the host-to-camera link: a 3 Mbaud USB-serial adapter
-//! carries about 12 fps, so use `--fps 10` there (or a faster link); the autopilot link needs
-//! about 70 B x 512 Hz = 36 kB/s (921,600 Bd is enough).
+//! The `hil` flavour runs both host UARTs at 921,600 Bd (`board_support::link::HOST_BAUD`) and
+//! takes their bytes by DMA. One frame (24,576 pixel bytes in 48 `FrameChunk`s, 25.2 kB
+//! framed) takes 0.27 s of it, so the camera link carries 3.6 frames per second of real time:
+//! at `--fps 4` (the default) the world runs at about 0.9x real time on the boards, at 25 fps
+//! at 0.15x. The autopilot link needs about 70 B x 512 Hz = 36 kB/s of its 92 kB/s. Four frames
+//! per second is also the lowest rate at which one invalid estimate (a gap of two frame
+//! periods) stays within the autopilot's 0.5 s estimate timeout. Measured on the virtual boards
+//! (`virtual-board/tests/hil.rs`, 2-core machine): 8.5 s of world time at 4 fps in 9.4 s of
+//! virtual time (the autopilot's lockstep takes about 1 ms of virtual time per 1.95 ms IMU
+//! period; the frames set the pace) and 12 s of wall time. In QEMU 7.2, whose STM32 USART takes
+//! one received byte per main-loop iteration (about 11 kB/s into the firmware under `-icount
+//! shift=auto`; the `qemu` flavour's host links run at 115,200 Bd), a frame takes about 2.3 s.
 //!
 //! # The board-to-board UART
 //!
-//! On hardware the boards are wired to each other. In QEMU the two firmwares' USART1 can be
-//! joined directly (one QEMU `-chardev socket,server=on`, the other connecting to it), or
-//! through this host ([`Relay`], used by the CI test): the relay copies bytes both ways
-//! unchanged and decodes them on the way, so the test can check for decode errors on the
-//! inter-board link too.
+//! On hardware the boards are wired to each other, and the bench joins the virtual boards'
+//! link UARTs. In QEMU the two firmwares' link UARTs can be joined directly (one QEMU
+//! `-chardev socket,server=on`, the other connecting to it), or through this host ([`Relay`]):
+//! the relay copies bytes both ways unchanged and decodes them on the way, so the run counts
+//! decode errors on the inter-board link too.
 
 use crate::log::records::{EstimateRecord, LinkRecord, MotorsRecord, TruthRecord};
 use crate::log::{ns as log_ns, write_telemetry, FlightLog, TelemetryExtras, Thinner};
@@ -219,7 +238,7 @@ pub struct HilConfig {
     /// lost, wall time.
     pub reply_timeout: Duration,
     /// Longest wait for the estimate of a frame, from when it was handed to the link (a frame
-    /// takes seconds through QEMU's USART), wall time.
+    /// takes 0.27 s of a 921,600 Bd link, seconds through QEMU's USART), wall time.
     pub frame_timeout: Duration,
     /// Longest wait for both boards' first heartbeat, wall time.
     pub boot_timeout: Duration,
@@ -573,7 +592,7 @@ pub fn run_logged(
     let ap_rx = BoardRx::start(autopilot.try_clone_link()?, Arc::clone(&stop));
     let cam_rx = BoardRx::start(stereo.try_clone_link()?, Arc::clone(&stop));
     let mut ap_tx = autopilot;
-    // Frames are written by their own thread: a frame takes seconds through QEMU's USART.
+    // Frames are written by their own thread: a frame takes 0.27 s of a 921,600 Bd link.
     let (frame_tx, frame_rx): (Sender<Vec<u8>>, Receiver<Vec<u8>>) = mpsc::channel();
     {
         let mut link = stereo;
@@ -979,20 +998,23 @@ pub fn write_log_csv(r: &HilResult, path: &std::path::Path) -> anyhow::Result<()
     std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
 }
 
-/// `sim-host hil`: fly the simulated world with the real boards (or QEMU) in the loop.
+/// `sim-host hil`: fly the simulated world with the boards' lockstep firmwares in the loop: on
+/// the real boards, on the virtual boards or in QEMU.
 #[derive(Debug, clap::Args)]
 pub struct HilArgs {
-    /// The camera board's host link: a serial device (/dev/ttyUSB0) or tcp:HOST:PORT (a QEMU
-    /// `-chardev socket,server=on`).
+    /// The camera board's host link: a serial device (/dev/ttyUSB0) or tcp:HOST:PORT (`vboard
+    /// serve hil`, a QEMU `-chardev socket,server=on`).
     #[arg(long)]
     pub stereo: String,
     /// The autopilot's host link (same forms as --stereo).
     #[arg(long)]
     pub autopilot: String,
-    /// Relay the board-to-board UART through this host: the camera board's USART1 ...
+    /// Relay the board-to-board UART through this host: the camera board's link UART (USART1
+    /// in QEMU) ...
     #[arg(long, requires = "relay_autopilot")]
     pub relay_stereo: Option<String>,
-    /// ... and the autopilot's USART1 (for two QEMUs; wired boards do not need it).
+    /// ... and the autopilot's (USART2; for two QEMUs: wired boards and the virtual boards do
+    /// not need it).
     #[arg(long, requires = "relay_stereo")]
     pub relay_autopilot: Option<String>,
     /// Baud rate of serial devices.
@@ -1010,9 +1032,15 @@ pub struct HilArgs {
     /// Seed of the world (textures, sensor noise).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Camera frames per second of world time (the link must carry them; see the docs).
-    #[arg(long, default_value_t = 25.0)]
+    /// Camera frames per second of world time (each frame takes 0.27 s of a 921,600 Bd link;
+    /// the world waits for the link; see the docs).
+    #[arg(long, default_value_t = 4.0)]
     pub fps: f64,
+    /// World time of the arm command, s: once the camera board's estimates are valid (its flow
+    /// history fills with the 10th frame, at 2.35 s at 4 fps; armed earlier, the autopilot's
+    /// failsafe lands before it sees one).
+    #[arg(long, default_value_t = 2.5)]
+    pub arm_at: f64,
     /// Longest wait for a reply from a board, s (wall time).
     #[arg(long, default_value_t = 5.0)]
     pub reply_timeout: f64,
@@ -1039,6 +1067,7 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         },
         duration_s: args.duration,
         fps: args.fps,
+        arm_at_s: args.arm_at,
         reply_timeout: Duration::from_secs_f64(args.reply_timeout.max(0.01)),
         params: match &args.params {
             Some(path) => Some((
@@ -1106,8 +1135,8 @@ mod tests {
     //! The host side of the lockstep against two software boards on loopback TCP that run the
     //! boards' own libraries the way the lockstep firmwares do (world clock from the IMU
     //! timestamps, `autopilot::lockstep::WorldTimers` releasing the periodic tasks, Edge-FS
-    //! at the frames' exposure times). Fast, no QEMU: `tests/tests/hil_hover.rs` runs the
-    //! real firmwares.
+    //! at the frames' exposure times). Fast, no firmware: `virtual-board/tests/hil.rs` flies
+    //! the `hil` images on the virtual boards.
     use super::*;
     use autopilot::app::{Autopilot, AutopilotConfig};
     use autopilot::lockstep::{WorldClock, WorldTimers};

@@ -20,8 +20,9 @@ enum Command {
     /// texture statistics, run Edge-FS on the recorded and the rendered frames, and compare
     /// their errors and statistics.
     Replay(sim_host::eval::replay::ReplayArgs),
-    /// Hardware in the loop: fly the simulated world with the two real boards (serial links)
-    /// or the two firmwares in QEMU (TCP), in lockstep on world time.
+    /// Hardware in the loop: fly the simulated world with the two boards' hil firmwares, on the
+    /// real boards (serial links), the virtual boards or in QEMU (TCP), in lockstep on world
+    /// time.
     Hil(sim_host::hil::HilArgs),
     /// Live view of a board's telemetry link (serial port or TCP), recorded to MCAP.
     Monitor(sim_host::monitor::MonitorArgs),

@@ -136,6 +136,8 @@ pub const AF_TIM3: u8 = 2;
 pub const AF_I2C2: u8 = 4;
 /// Alternate function of UART4 on PA0/PA1.
 pub const AF_UART4: u8 = 8;
+/// Alternate function of USART2 on PA2/PA3.
+pub const AF_USART2: u8 = 7;
 
 const fn dcmi(signal: &'static str, pin: Pin) -> PinAssignment {
     PinAssignment {
@@ -231,22 +233,43 @@ pub const SCCB_SCL: PinAssignment = sccb("SCCB_SCL (I2C2)", pin(Port::B, 10));
 /// SCCB (I2C2) data.
 pub const SCCB_SDA: PinAssignment = sccb("SCCB_SDA (I2C2)", pin(Port::B, 11));
 
-const fn link(signal: &'static str, pin: Pin) -> PinAssignment {
+/// A UART pin as the original sets every UART's (one GPIO set-up for all: push-pull,
+/// pull-up).
+const fn uart(signal: &'static str, pin: Pin, af: u8, source: &'static str) -> PinAssignment {
     PinAssignment {
         signal,
         pin,
-        function: Function::Alternate(AF_UART4),
+        function: Function::Alternate(af),
         drive: Drive::PushPull,
         pull: Pull::Up,
         speed: Speed::Low,
-        source: "[SB-17] edgeFS.h:24-31, [SB] usart.c:376-390",
+        source,
     }
+}
+
+const fn link(signal: &'static str, pin: Pin) -> PinAssignment {
+    uart(
+        signal,
+        pin,
+        AF_UART4,
+        "[SB-17] edgeFS.h:24-31, [SB] usart.c:376-390",
+    )
+}
+
+const fn host(signal: &'static str, pin: Pin) -> PinAssignment {
+    uart(signal, pin, AF_USART2, "[SB] usart.c:303-330")
 }
 
 /// Link to the autopilot: UART4 TX ("top (cpld)" connector).
 pub const LINK_TX: PinAssignment = link("LINK_TX (UART4)", pin(Port::A, 0));
 /// Link to the autopilot: UART4 RX.
 pub const LINK_RX: PinAssignment = link("LINK_RX (UART4)", pin(Port::A, 1));
+
+/// The board's second UART, USART2 TX: unused by the pocket drone, the host link of the `hil`
+/// flavour ([`HOST_UART_USED`]).
+pub const HOST_TX: PinAssignment = host("HOST_TX (USART2)", pin(Port::A, 2));
+/// The board's second UART, USART2 RX (see [`HOST_TX`]).
+pub const HOST_RX: PinAssignment = host("HOST_RX (USART2)", pin(Port::A, 3));
 
 /// Status LED, active high.
 pub const LED: PinAssignment = gpio_out("LED", pin(Port::B, 12), false, "[SB] led.c:15-33");
@@ -279,6 +302,11 @@ pub const PINS: [PinAssignment; 21] = [
     LINK_RX,
     LED,
 ];
+
+/// Every pin the `hil` firmware configures, in order: the cameras held in reset (their frames
+/// come over the host link, so the sensors stay off), the link, the host link (USART2) and the
+/// LED. The camera's clock, DCMI, SCCB and CPLD pins stay at their reset state.
+pub const HIL_PINS: [PinAssignment; 6] = [CAMERA_RESET, LINK_TX, LINK_RX, HOST_TX, HOST_RX, LED];
 
 // ---------------------------------------------------------------------------------------------
 // Clocks. [SB] stm32_flash.ld:6,45-47, Makefile:21,68, system_stm32f4xx.c:149-150.
@@ -376,8 +404,9 @@ pub const LINK_UART: &str = "UART4";
 /// Link baud rate, 8N1: the one setting both boards share ([`board_support::link::LINK_BAUD`],
 /// 115,200 Bd as the original harness runs).
 pub const LINK_BAUD: u32 = board_support::link::LINK_BAUD;
-/// A second UART (USART2, PA2/PA3) exists on the board; the pocket drone leaves it unused, so
-/// the `real` firmware does not touch it ([SB] usart.c:303-330).
+/// A second UART (USART2, PA2/PA3: [`HOST_TX`], [`HOST_RX`]) exists on the board; the pocket
+/// drone leaves it unused, so the `real` firmware does not touch it ([SB] usart.c:303-330). The
+/// `hil` flavour takes its host link there ([`HIL_PINS`]).
 pub const HOST_UART_USED: bool = false;
 
 #[cfg(test)]
@@ -388,9 +417,10 @@ mod tests {
 
     #[test]
     fn no_pin_is_assigned_twice() {
-        for (i, a) in PINS.iter().enumerate() {
+        let all: Vec<&PinAssignment> = PINS.iter().chain([&HOST_TX, &HOST_RX]).collect();
+        for (i, a) in all.iter().enumerate() {
             assert!(a.pin.number < 16, "{} has pin {}", a.signal, a.pin.number);
-            for b in PINS.iter().skip(i + 1) {
+            for b in all.iter().skip(i + 1) {
                 assert_ne!(a.pin, b.pin, "{} and {} share a pin", a.signal, b.signal);
             }
         }
@@ -418,6 +448,11 @@ mod tests {
             (name(&SCCB_SCL), name(&SCCB_SDA)),
             ("PB10".into(), "PB11".into())
         );
+        assert_eq!(
+            (name(&HOST_TX), name(&HOST_RX)),
+            ("PA2".into(), "PA3".into())
+        );
+        assert_eq!(HOST_TX.function, Function::Alternate(7));
         let cpld: Vec<(String, Function)> =
             CPLD_MODE.iter().map(|a| (name(a), a.function)).collect();
         assert_eq!(

@@ -21,12 +21,30 @@ pub struct Firmware {
     allocated: Vec<(String, u64, u64)>,
 }
 
-/// The directory the bench takes the firmwares from: `VBOARD_FIRMWARE_DIR` if set, else the
-/// main workspace's `target/thumbv7em-none-eabihf/release` (what `cargo xtask fw` builds).
+/// The directory the bench takes the `real` firmwares from: `VBOARD_FIRMWARE_DIR` if set, else
+/// the main workspace's `target/thumbv7em-none-eabihf/release` (what `cargo xtask fw` builds).
 #[must_use]
 pub fn firmware_dir() -> PathBuf {
-    std::env::var_os("VBOARD_FIRMWARE_DIR").map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/release"),
+    dir_from_env(
+        "VBOARD_FIRMWARE_DIR",
+        "../target/thumbv7em-none-eabihf/release",
+    )
+}
+
+/// The directory the bench takes the `hil`-flavour firmwares from: `VBOARD_HIL_FIRMWARE_DIR` if
+/// set, else the main workspace's `target/fw-hil/thumbv7em-none-eabihf/release` (what `cargo
+/// xtask fw --flavour hil` builds).
+#[must_use]
+pub fn hil_firmware_dir() -> PathBuf {
+    dir_from_env(
+        "VBOARD_HIL_FIRMWARE_DIR",
+        "../target/fw-hil/thumbv7em-none-eabihf/release",
+    )
+}
+
+fn dir_from_env(variable: &str, beside_the_bench: &str) -> PathBuf {
+    std::env::var_os(variable).map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join(beside_the_bench),
         PathBuf::from,
     )
 }
@@ -38,11 +56,22 @@ impl Firmware {
     /// # Errors
     /// The ELF is missing or unreadable.
     pub fn real(name: &str) -> Result<Self, String> {
-        let path = firmware_dir().join(name);
-        Self::load(&path).map_err(|e| {
-            format!(
-                "{e} (build the firmwares first: `cargo xtask fw`, or run `cargo xtask vboard`)"
-            )
+        Self::built(&firmware_dir(), name, "cargo xtask fw")
+    }
+
+    /// The `hil`-flavour image of package `name` (frames, IMU samples and world time from a
+    /// host on the board's host UART), as built by `cargo xtask fw --flavour hil` (`cargo xtask
+    /// vboard` builds it first).
+    ///
+    /// # Errors
+    /// The ELF is missing or unreadable.
+    pub fn hil(name: &str) -> Result<Self, String> {
+        Self::built(&hil_firmware_dir(), name, "cargo xtask fw --flavour hil")
+    }
+
+    fn built(dir: &Path, name: &str, build: &str) -> Result<Self, String> {
+        Self::load(&dir.join(name)).map_err(|e| {
+            format!("{e} (build the firmwares first: `{build}`, or run `cargo xtask vboard`)")
         })
     }
 

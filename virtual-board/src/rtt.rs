@@ -119,6 +119,34 @@ impl RttLog {
         &self.lines
     }
 
+    /// The value of `key=` in the last status line (`status uptime_ms=... key=value ...`, one
+    /// a second from each board's firmware) drained before `before_ns`; `true` and `false`
+    /// read as 1 and 0.
+    #[must_use]
+    pub fn status_before(&self, key: &str, before_ns: u64) -> Option<u64> {
+        let pattern = format!("{key}=");
+        let line = self
+            .lines
+            .iter()
+            .rev()
+            .filter(|l| l.at_ns < before_ns)
+            .find(|l| l.text.contains("status uptime_ms="))?;
+        line.text
+            .split_whitespace()
+            .find_map(|field| field.strip_prefix(pattern.as_str()))
+            .and_then(|v| match v {
+                "true" => Some(1),
+                "false" => Some(0),
+                v => v.parse().ok(),
+            })
+    }
+
+    /// The value of `key=` in the last status line (see [`RttLog::status_before`]).
+    #[must_use]
+    pub fn status(&self, key: &str) -> Option<u64> {
+        self.status_before(key, u64::MAX)
+    }
+
     /// Every raw byte drained.
     #[must_use]
     pub fn raw(&self) -> &[u8] {

@@ -266,26 +266,6 @@ impl Probe<Autopilot> for HostImuPilot {
     }
 }
 
-/// The value of `key=` in the firmware's last status line logged before `before_ns`.
-fn status_before(log: &virtual_board::rtt::RttLog, key: &str, before_ns: u64) -> Option<u64> {
-    let pattern = format!("{key}=");
-    log.lines()
-        .iter()
-        .rev()
-        .filter(|l| l.at_ns < before_ns)
-        .find(|l| l.text.contains("status uptime_ms="))?
-        .text
-        .split_whitespace()
-        .find_map(|field| field.strip_prefix(pattern.as_str()))?
-        .parse()
-        .ok()
-}
-
-/// The value of `key=` in the firmware's last status line.
-fn last_status(log: &virtual_board::rtt::RttLog, key: &str) -> Option<u64> {
-    status_before(log, key, u64::MAX)
-}
-
 /// Issue 12 item 7: the `real` flavour takes no sensor data from the host link. Armed, it is
 /// sent IMU samples on its telemetry port claiming a roll rate: it counts every one refused,
 /// its loop goes on sampling its own IMU at the loop rate, and the motors do not answer the
@@ -312,7 +292,9 @@ fn the_real_flavour_refuses_imu_samples_from_the_host_link() {
     let report = outcome.report();
     outcome.assert_clean();
     let pilot = &outcome.probe;
-    let rejected = last_status(&outcome.log, "host_sensor_rejected")
+    let rejected = outcome
+        .log
+        .status("host_sensor_rejected")
         .unwrap_or_else(|| panic!("no host_sensor_rejected in the status lines\n{report}"));
     assert!(pilot.sent >= 25, "{} host samples sent", pilot.sent);
     assert_eq!(
@@ -334,8 +316,8 @@ fn the_real_flavour_refuses_imu_samples_from_the_host_link() {
     // No sample of the real IMU rejected from before the host samples to the end (the gyro's
     // start-up after boot is rejected, and counted, before that).
     assert_eq!(
-        last_status(&outcome.log, "imu_invalid"),
-        status_before(&outcome.log, "imu_invalid", HOST_WINDOW),
+        outcome.log.status("imu_invalid"),
+        outcome.log.status_before("imu_invalid", HOST_WINDOW),
         "the real IMU's samples stayed valid\n{report}"
     );
     // The roll pattern of the mixer: how far the duties moved the way a positive roll rate

@@ -15,10 +15,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use protocol::{AutopilotToStereo, Decoder, Message, StereoToAutopilot};
-use virtual_board::bench::BenchBoard;
-use virtual_board::bench::{
-    At, Closure, Flow, OnBarrier, Options, Outcome, Setup, Watching, run_pair,
-};
+use virtual_board::bench::{At, Closure, Flow, OnBarrier, Options, Setup, Watching, run_pair};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::boards::camera::CameraBoard;
 use virtual_board::firmware::Firmware;
@@ -42,25 +39,6 @@ fn decode<M: Message>(bytes: &[u8]) -> (Vec<M>, u32) {
     let mut out = Vec::new();
     decoder.feed(bytes, |m| out.push(m));
     (out, decoder.errors().total())
-}
-
-/// The value of `key=` in the firmware's last status line.
-fn last_status<B: BenchBoard, P>(outcome: &Outcome<B, P>, key: &str) -> Option<u64> {
-    let line = outcome
-        .log
-        .lines()
-        .iter()
-        .rev()
-        .find(|l| l.text.contains("status uptime_ms="))?;
-    let pattern = format!("{key}=");
-    line.text
-        .split_whitespace()
-        .find_map(|field| field.strip_prefix(pattern.as_str()))
-        .and_then(|v| match v {
-            "true" => Some(1),
-            "false" => Some(0),
-            v => v.parse().ok(),
-        })
 }
 
 #[test]
@@ -143,8 +121,8 @@ fn the_joined_link_runs_ten_seconds_without_a_decode_error() {
     let field = |outcome: &dyn Fn(&str) -> Option<u64>, key: &str| {
         outcome(key).unwrap_or_else(|| panic!("no {key} in the status line\n{}", report()))
     };
-    let ap_status = |key: &str| last_status(&ap, key);
-    let cam_status = |key: &str| last_status(&cam, key);
+    let ap_status = |key: &str| ap.log.status(key);
+    let cam_status = |key: &str| cam.log.status(key);
     assert_eq!(
         field(&ap_status, "link_errors"),
         0,
@@ -289,7 +267,7 @@ fn a_stopped_camera_is_reported_over_the_link() {
     );
     assert_eq!(late, 0, "estimates after the camera stopped\n{}", report());
     assert_eq!(
-        last_status(&ap, "link_errors"),
+        ap.log.status("link_errors"),
         Some(0),
         "the autopilot decodes the link cleanly throughout\n{}",
         report()

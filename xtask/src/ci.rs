@@ -2,12 +2,13 @@
 //!
 //! 1. Installs what a fresh machine lacks: the `thumbv7em-none-eabihf` target (rustup),
 //!    `flip-link` (the firmware linker; cargo install), a nightly toolchain and `cargo-fuzz`
-//!    (for the bounded fuzz run), `qemu-system-arm` (and `python3-pip` if there is no pip)
-//!    from Debian's main archive (apt-get), and the `mcap` Python package (pip), the
-//!    independent reader the flight-log test checks MCAP files with.
+//!    (for the bounded fuzz run), `qemu-system-arm` (the instruction-count benchmark, `cargo
+//!    xtask insns`, which a host test runs; and python3-pip if there is no pip) from Debian's
+//!    main archive (apt-get), and the `mcap` Python package (pip), the independent reader the
+//!    flight-log test checks MCAP files with.
 //! 2. Checks formatting and runs clippy with warnings denied on the host (the workspace and the
-//!    virtual-board bench, its own workspace) and on thumbv7em, runs all
-//!    host tests, builds both firmwares in release, runs them on the virtual boards
+//!    virtual-board bench, its own workspace) and on thumbv7em, runs all host tests, builds
+//!    both firmwares in release, runs them (and their `hil` images) on the virtual boards
 //!    (`cargo xtask vboard`), and fuzzes the protocol decoder briefly.
 //! 3. Prints a one-line summary and a closing `N passed, N failed` line.
 //!

@@ -1,11 +1,12 @@
 //! `cargo xtask vboard`: the virtual-board bench (`virtual-board/`).
 //!
-//! Builds both `real` firmwares (`cargo xtask fw`), then runs `cargo test --ignore-rust-version
-//! --release` in `virtual-board/`, its own workspace (rigless declares rust-version 1.98; we
-//! build it on 1.95 with that flag, which stays out of the main workspace), and prints a
-//! one-line summary. It builds `sim-host` first, for the test that serves the virtual autopilot
-//! to `sim-host monitor`. Extra arguments go to that `cargo test` (a test name filter, `--
-//! --nocapture`).
+//! Builds both `real` firmwares (`cargo xtask fw`) and both `hil`-flavour ones (`cargo xtask fw
+//! --flavour hil`, for the test that flies them with `sim-host hil`), then runs `cargo test
+//! --ignore-rust-version --release` in `virtual-board/`, its own workspace (rigless declares
+//! rust-version 1.98; we build it on 1.95 with that flag, which stays out of the main
+//! workspace), and prints a one-line summary. It builds `sim-host` first, for the test that
+//! serves the virtual autopilot to `sim-host monitor`. Extra arguments go to that `cargo test`
+//! (a test name filter, `-- --nocapture`).
 
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -13,6 +14,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use crate::ci::{cargo_test_with, FIRMWARE_TARGET};
+use crate::size::{build_firmwares, Flavour, FIRMWARES};
 
 fn workspace_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -32,9 +34,9 @@ fn target_dir() -> PathBuf {
         .map_or_else(|| workspace_root().join("target"), PathBuf::from)
 }
 
-/// Where `cargo xtask fw` puts the firmwares.
-fn firmware_dir() -> PathBuf {
-    target_dir().join(FIRMWARE_TARGET).join("release")
+/// Where `cargo xtask fw` puts the firmwares of `flavour`.
+fn firmware_dir(flavour: Flavour) -> PathBuf {
+    flavour.target_dir().join(FIRMWARE_TARGET).join("release")
 }
 
 /// Runs `cargo xtask vboard [ARGS]`.
@@ -56,8 +58,9 @@ pub fn run_tests() -> Result<(u64, u64)> {
 
 fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
     let build = Instant::now();
-    crate::size::build_firmwares(crate::size::Flavour::Real, &crate::size::FIRMWARES)
-        .context("firmware build (cargo xtask fw) failed")?;
+    build_firmwares(Flavour::Real, &FIRMWARES).context("firmware build (cargo xtask fw) failed")?;
+    build_firmwares(Flavour::Hil, &FIRMWARES)
+        .context("firmware build (cargo xtask fw --flavour hil) failed")?;
     // The ground tool the bench serves a board to (tests/monitor.rs).
     crate::ci::cargo(&["build", "-p", "sim-host"]).context("building sim-host failed")?;
     let built = build.elapsed().as_secs_f64();
@@ -66,7 +69,8 @@ fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
     cmd.args(["test", "--ignore-rust-version", "--release"])
         .args(args)
         .current_dir(bench_dir())
-        .env("VBOARD_FIRMWARE_DIR", firmware_dir())
+        .env("VBOARD_FIRMWARE_DIR", firmware_dir(Flavour::Real))
+        .env("VBOARD_HIL_FIRMWARE_DIR", firmware_dir(Flavour::Hil))
         .env(
             "VBOARD_SIM_HOST",
             target_dir().join("debug").join("sim-host"),

@@ -8,7 +8,8 @@
 //!
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
-//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]); transmit queued frames ([`board_support::uart_tx`]) |
+//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]) |
+//! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour) | half/full buffer: pends `telemetry_uart` |
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
@@ -71,6 +72,40 @@ static IMU_RECONFIGURED: AtomicU32 = AtomicU32::new(0);
 /// Largest deviation of the control loop's start from its period, µs (real flavour).
 static LOOP_JITTER_MAX_US: AtomicU32 = AtomicU32::new(0);
 
+/// The telemetry port's receiver: its RXNE interrupt, or in the `hil` flavour a circular DMA
+/// (921,600 Bd: a byte lasts less than logging holds the interrupts off, see
+/// [`board_support::uart_dma`]).
+#[cfg(not(all(feature = "hil", not(feature = "qemu"))))]
+type HostRx = stm32f4xx_hal::serial::Rx<hw::TelemetryUart>;
+/// The telemetry port's receiver (see the other flavours').
+#[cfg(all(feature = "hil", not(feature = "qemu")))]
+type HostRx = board_support::uart_dma::DmaRx;
+
+/// Takes over the telemetry port's receive side: its RXNE interrupt on.
+#[cfg(not(all(feature = "hil", not(feature = "qemu"))))]
+fn host_receiver(mut rx: stm32f4xx_hal::serial::Rx<hw::TelemetryUart>) -> HostRx {
+    use stm32f4xx_hal::serial::RxListen as _;
+    rx.listen();
+    rx
+}
+
+/// Takes over the telemetry port's receive side (the HAL's `rx`, consumed): circular DMA into
+/// a buffer in SRAM.
+#[cfg(all(feature = "hil", not(feature = "qemu")))]
+fn host_receiver(_rx: stm32f4xx_hal::serial::Rx<hw::TelemetryUart>) -> HostRx {
+    let buf = cortex_m::singleton!(: [u8; 1024] = [0; 1024])
+        .unwrap_or_else(|| panic!("the telemetry port's DMA buffer is taken once"));
+    // SAFETY: USART1's receive side is handed over here (its HAL `Rx` is consumed); DMA2
+    // stream 2 serves only it; the buffer is a static in SRAM, which DMA2 reaches.
+    unsafe {
+        board_support::uart_dma::DmaRx::start(
+            stm32f4xx_hal::pac::USART1::ptr(),
+            hw::TELEMETRY_RX_DMA,
+            buf,
+        )
+    }
+}
+
 /// Back-pressure of the camera link's receive interrupt.
 static LINK_FLOW: RxFlow = RxFlow::new(hw::LINK_IRQ);
 /// Back-pressure of the telemetry port's receive interrupt.
@@ -109,7 +144,7 @@ const fn ticks(period_us: u32) -> u32 {
 mod app {
     use super::flavour::{self, Releases, Tick};
     use super::sensors::SensorBus;
-    use super::{clock, send, ticks, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
+    use super::{clock, send, ticks, HostRx, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
     use super::{HOST_FLOW, IMU_INVALID, IMU_RECONFIGURED, LINK_FLOW, LOOP_JITTER_MAX_US};
     use super::{RC_FLOW, RX_LOST};
     use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
@@ -128,12 +163,7 @@ mod app {
     };
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
-    use stm32f4xx_hal::{
-        prelude::*,
-        serial::{self, Rx},
-        timer::CounterHz,
-        watchdog::IndependentWatchdog,
-    };
+    use stm32f4xx_hal::{prelude::*, serial::Rx, timer::CounterHz, watchdog::IndependentWatchdog};
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
     const A2S: usize = AutopilotToStereo::MAX_FRAME_BYTES;
@@ -163,7 +193,7 @@ mod app {
         link_out: Consumer<'static, u8>,
         link_wake_tx: Sender<'static, (), 1>,
         link_wake_rx: Receiver<'static, (), 1>,
-        host_rx: Rx<hw::TelemetryUart>,
+        host_rx: HostRx,
         host_pump: TxPump<hw::TelemetryUart>,
         host_in: Producer<'static, u8>,
         host_out: Consumer<'static, u8>,
@@ -209,7 +239,6 @@ mod app {
         link_rx.listen();
         let (link_tx, link_pump) = cx.local.link_txq.split(link_tx, hw::LINK_IRQ);
         let (host_tx, mut host_rx) = b.telemetry.split();
-        host_rx.listen();
         let (host_tx, host_pump) = cx.local.host_txq.split(host_tx, hw::TELEMETRY_IRQ);
         let (link_in, link_out) = cx.local.link_q.split();
         let (host_in, host_out) = cx.local.host_q.split();
@@ -251,6 +280,7 @@ mod app {
             + rc_uart
                 .as_mut()
                 .map_or(0, board_support::uart_rx::discard_pending);
+        let host_rx = super::host_receiver(host_rx);
         log::info!(
             "autopilot up, sysclk {} Hz, reset cause {}, {} bytes received before the UARTs were served",
             sysclk,
@@ -321,15 +351,15 @@ mod app {
         }
     }
 
-    /// Moves the pending bytes of a UART into its queue (pausing the interrupt at a full
+    /// Moves the received bytes of a UART into its queue (pausing the interrupt at a full
     /// queue) and wakes the decoding task.
-    fn drain_uart<U: serial::Instance>(
-        rx: &mut Rx<U>,
+    fn drain_uart(
+        rx: &mut impl board_support::uart_rx::Receiver,
         queue: &mut Producer<'static, u8>,
         flow: &RxFlow,
         wake: &mut Sender<'static, (), 1>,
     ) {
-        board_support::uart_rx::drain(rx, queue, flow, &RX_LOST);
+        rx.receive(queue, flow, &RX_LOST);
         let _ = wake.try_send(());
     }
 
@@ -355,6 +385,15 @@ mod app {
             &HOST_FLOW,
             cx.local.host_wake_tx,
         );
+    }
+
+    /// DMA2 stream 2 (`hil` flavour): the telemetry port's receive buffer is half or wholly
+    /// full; `telemetry_uart` hands the bytes on.
+    #[cfg(all(feature = "hil", not(feature = "qemu")))]
+    #[task(binds = DMA2_STREAM2, priority = 6)]
+    fn telemetry_dma(_: telemetry_dma::Context) {
+        hw::TELEMETRY_RX_DMA.acknowledge();
+        rtic::pend(hw::TELEMETRY_IRQ);
     }
 
     /// UART5, the RC receiver (real flavour with `board::RC_RECEIVER` only; otherwise its

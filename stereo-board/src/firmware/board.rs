@@ -14,3 +14,12 @@ pub use board_support::clocks::{SYSTICK_HZ, WATCHDOG_MS};
 pub fn clocks() -> Config {
     board_support::clocks::config(stereo_board::board::HSE_HZ)
 }
+
+/// The DMA stream that takes the host link's received bytes in the `hil` flavour (921,600 Bd;
+/// see `board_support::uart_dma`): USART2_RX is DMA1 stream 5, channel 4 (RM0090 table 42).
+#[cfg(all(feature = "hil", not(feature = "qemu")))]
+pub const HOST_RX_DMA: board_support::uart_dma::RxStream = board_support::uart_dma::RxStream {
+    controller: board_support::uart_dma::Controller::Dma1,
+    stream: 5,
+    channel: 4,
+};

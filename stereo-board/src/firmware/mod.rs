@@ -8,7 +8,8 @@
 //! |---|---|---|---|
 //! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]) |
 //! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] |
-//! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE, TXE (qemu, hil) | [`StereoBoardApp::on_host_bytes`]; queued frames out |
+//! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu) or IDLE (hil: received by DMA, [`board_support::uart_dma`]), TXE | [`StereoBoardApp::on_host_bytes`]; queued frames out |
+//! | `host_dma` | 4 | DMA1 stream 5 (hil) | half/full buffer: pends `host_irq` |
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
 //! | `dma_irq` | 4 | DMA2 stream 1 transfer / direct-mode error (real) | counts, re-arms |
 //! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` (or `discard_processed_frame` when the buffer was refilled meanwhile) |
@@ -112,6 +113,40 @@ static LINK_FLOW: board_support::uart_rx::RxFlow = board_support::uart_rx::RxFlo
 #[cfg(any(feature = "qemu", feature = "hil"))]
 static HOST_FLOW: board_support::uart_rx::RxFlow =
     board_support::uart_rx::RxFlow::new(stm32f4xx_hal::pac::Interrupt::USART2);
+
+/// The host link's receiver: its RXNE interrupt (qemu; the real board has no host link), or a
+/// circular DMA (hil: 921,600 Bd, a byte lasts less than logging holds the interrupts off, see
+/// [`board_support::uart_dma`]).
+#[cfg(not(all(feature = "hil", not(feature = "qemu"))))]
+type HostRx = stm32f4xx_hal::serial::Rx<stm32f4xx_hal::pac::USART2>;
+/// The host link's receiver (see the qemu flavour's).
+#[cfg(all(feature = "hil", not(feature = "qemu")))]
+type HostRx = board_support::uart_dma::DmaRx;
+
+/// Takes over the host link's receive side: its RXNE interrupt on.
+#[cfg(feature = "qemu")]
+fn host_receiver(mut rx: stm32f4xx_hal::serial::Rx<stm32f4xx_hal::pac::USART2>) -> HostRx {
+    use stm32f4xx_hal::serial::RxListen as _;
+    rx.listen();
+    rx
+}
+
+/// Takes over the host link's receive side (the HAL's `rx`, consumed): circular DMA into a
+/// buffer in SRAM.
+#[cfg(all(feature = "hil", not(feature = "qemu")))]
+fn host_receiver(_rx: stm32f4xx_hal::serial::Rx<stm32f4xx_hal::pac::USART2>) -> HostRx {
+    let buf = cortex_m::singleton!(: [u8; 1024] = [0; 1024])
+        .unwrap_or_else(|| log::fatal("the host link's DMA buffer is taken once"));
+    // SAFETY: USART2's receive side is handed over here (its HAL `Rx` is consumed); DMA1
+    // stream 5 serves only it; the buffer is a static in SRAM, which DMA1 reaches.
+    unsafe {
+        board_support::uart_dma::DmaRx::start(
+            stm32f4xx_hal::pac::USART2::ptr(),
+            board::HOST_RX_DMA,
+            buf,
+        )
+    }
+}
 
 #[cfg(any(feature = "qemu", feature = "hil"))]
 /// A frame handed from the host-link task to the frame task (qemu, hil flavours): the
@@ -276,7 +311,7 @@ mod app {
         link_out: Consumer<'static, u8>,
         link_wake_rx: Receiver<'static, Wake, 1>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
-        host_rx: Rx<pac::USART2>,
+        host_rx: super::HostRx,
         #[cfg(any(feature = "qemu", feature = "hil"))]
         host_pump: TxPump<pac::USART2>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -333,7 +368,7 @@ mod app {
         // The host link: HIL frames in, estimates mirrored out (qemu, hil flavours).
         #[cfg(any(feature = "qemu", feature = "hil"))]
         let (host_tx, host_pump, host_rx, host_in, host_out, host_wake_tx, host_wake_rx) = {
-            let (tx, mut rx) = cx
+            let (tx, rx) = cx
                 .device
                 .USART2
                 .serial::<u8>(
@@ -343,7 +378,7 @@ mod app {
                 )
                 .unwrap_or_else(|_| log::fatal("USART2 configuration"))
                 .split();
-            rx.listen();
+            let rx = super::host_receiver(rx);
             let (tx, pump) = cx.local.host_txq.split(tx, pac::Interrupt::USART2);
             let (q_in, q_out) = cx.local.host_q.split();
             let (wake_tx, wake_rx) = rtic_sync::make_channel!(Wake, 1);
@@ -381,7 +416,11 @@ mod app {
             super::dcmi::start(&mut capture, clock::now_us());
             (super::Camera, capture)
         };
-        #[cfg(any(feature = "qemu", feature = "hil"))]
+        // The hil flavour: the board's link and host UART pins as the table gives them (the
+        // HAL leaves the pull-ups off), the cameras held in reset, the LED.
+        #[cfg(all(feature = "hil", not(feature = "qemu")))]
+        super::pins::configure(&stereo_board::board::HIL_PINS);
+        #[cfg(feature = "qemu")]
         super::pins::configure(&[stereo_board::board::LED]);
 
         let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
@@ -495,14 +534,21 @@ mod app {
     #[cfg(any(feature = "qemu", feature = "hil"))]
     #[task(binds = USART2, priority = 4, local = [host_rx, host_in, host_wake_tx, host_pump])]
     fn host_irq(cx: host_irq::Context) {
+        use board_support::uart_rx::Receiver as _;
         cx.local.host_pump.pump();
-        board_support::uart_rx::drain(
-            cx.local.host_rx,
-            cx.local.host_in,
-            &super::HOST_FLOW,
-            &super::RX_LOST,
-        );
+        cx.local
+            .host_rx
+            .receive(cx.local.host_in, &super::HOST_FLOW, &super::RX_LOST);
         let _ = cx.local.host_wake_tx.try_send(());
+    }
+
+    /// DMA1 stream 5 (hil): the host link's receive buffer is half or wholly full; `host_irq`
+    /// hands the bytes on.
+    #[cfg(all(feature = "hil", not(feature = "qemu")))]
+    #[task(binds = DMA1_STREAM5, priority = 4)]
+    fn host_dma(_: host_dma::Context) {
+        board::HOST_RX_DMA.acknowledge();
+        rtic::pend(pac::Interrupt::USART2);
     }
 
     /// Decodes the host's bytes and assembles frame chunks; a completed frame goes to the

@@ -12,6 +12,7 @@
 //! | CPLD mode | PC10, PC12, PB5, outputs | cpld.c:17-69 |
 //! | SCCB | I2C2: PB10 SCL, PB11 SDA, address 0x3C | tcm8230.c:54-85 |
 //! | link | UART4: PA0 TX, PA1 RX | edgeFS.h:24-31 |
+//! | second UART (unused on the pocket drone; the `hil` flavour's host link) | USART2: PA2 TX, PA3 RX | usart.c:303-330 |
 //!
 //! A data line of the DCMI reaches the camera only through the pin the board wires it to: a
 //! firmware that puts `DCMI_D6` on PE5 (the F407's other choice) reads 0 on that bit.
@@ -44,8 +45,9 @@ pub const NAME: &str = "pocket-drone-camera";
 pub const SUPPLY_MV: u32 = 3300;
 /// I2C2 in rigless's order of I2C interfaces.
 const I2C2: usize = 1;
-/// UART4 in rigless's order of serial ports (USART1, USART2, USART3, USART6, UART7, UART8,
-/// UART4, UART5).
+/// USART2 and UART4 in rigless's order of serial ports (USART1, USART2, USART3, USART6, UART7,
+/// UART8, UART4, UART5).
+const USART2: usize = 1;
 const UART4: usize = 6;
 
 /// The camera board's crystal, Hz ([SB] system_stm32f4xx.c: HSE 12 MHz).
@@ -186,14 +188,18 @@ pub const LINK_PINS: [BoardPin; 2] = [pin("GPIOA", 0), pin("GPIOA", 1)];
 pub const SCCB_PINS: [BoardPin; 2] = [pin("GPIOB", 10), pin("GPIOB", 11)];
 /// UART4's alternate function on PA0/PA1 (DS8626 table 9: AF8).
 pub const AF_UART4: u8 = 8;
+/// The second UART's pins, USART2 TX and RX ([SB] usart.c:303-330).
+pub const HOST_PINS: [BoardPin; 2] = [pin("GPIOA", 2), pin("GPIOA", 3)];
+/// USART2's alternate function on PA2/PA3 (DS8626 table 9: AF7).
+pub const AF_USART2: u8 = 7;
 /// I2C2's alternate function on PB10/PB11 (DS8626 table 9: AF4).
 pub const AF_I2C2: u8 = 4;
 
 /// The board's wiring, pin by pin, from the original firmware's set-up ([SB] dcmi.c:84-199,
-/// tcm8230.c:54-70, cpld.c:17-69, led.c:15-33; [SB-17] edgeFS.h:24-31) and DS8626 table 9
-/// for the alternate functions. Written from the original board, not imported from the
-/// firmware: it is what the firmware is checked against.
-pub const WIRING: [Wired; 21] = {
+/// tcm8230.c:54-70, cpld.c:17-69, led.c:15-33, usart.c:303-330; [SB-17] edgeFS.h:24-31) and
+/// DS8626 table 9 for the alternate functions. Written from the original board, not imported
+/// from the firmware: it is what the firmware is checked against.
+pub const WIRING: [Wired; 23] = {
     const fn row(
         p: BoardPin,
         function: &'static str,
@@ -293,6 +299,23 @@ pub const WIRING: [Wired; 21] = {
             false,
         ),
         out(LED, "LED (active high)", true),
+        // The second UART: a spare on the pocket drone, so it may stay at reset.
+        row(
+            HOST_PINS[0],
+            "USART2 TX (spare; the hil flavour's host link)",
+            PinMode::Alternate(AF_USART2),
+            None,
+            None,
+            true,
+        ),
+        row(
+            HOST_PINS[1],
+            "USART2 RX (spare; the hil flavour's host link)",
+            PinMode::Alternate(AF_USART2),
+            None,
+            None,
+            true,
+        ),
     ]
 };
 
@@ -307,6 +330,9 @@ pub struct CameraBoard {
     pub rail: Supply,
     /// The far end of UART4, the link to the autopilot.
     pub link: WireEnd,
+    /// The far end of USART2, the second UART: the host link of the `hil` flavour (frames in,
+    /// estimates out), open (a test or a [`crate::serve::TcpBridge`] feeds and reads it).
+    pub host: WireEnd,
     /// The sensor pair (its SCCB port is on I2C2, its pixel port on the DCMI).
     pub sensor: SensorHandle,
     /// The clock tree as last read.
@@ -340,11 +366,14 @@ impl CameraBoard {
         soc.mcu.i2c[I2C2].attach(sensor.sccb_port());
         soc.dcmi.attach(Camera::new(sensor.clone(), source), sample);
         soc.mcu.usart[UART4].attach(link.clone());
+        let host = WireEnd::open();
+        soc.mcu.usart[USART2].attach(host.clone());
         let mut board = Self {
             soc,
             hse: Crystal(HSE_HZ),
             rail: Supply(SUPPLY_MV),
             link,
+            host,
             sensor,
             clocks: None,
         };
@@ -402,13 +431,15 @@ impl BenchBoard for CameraBoard {
         &mut self.soc
     }
 
-    /// Tells the link how the firmware drives UART4 now (its baud).
+    /// Tells the lines how the firmware drives UART4 and USART2 now (their bauds).
     fn advance(&mut self, _now: VirtualNanos) {
         let clocks = Clocks::read(&self.soc, HSE_HZ);
         self.clocks = Some(clocks);
         let baud = clocks.usart_baud(&self.soc, "UART4");
         self.link.tx.set_sender_baud(baud);
         self.link.rx.set_receiver_baud(baud);
+        let host = clocks.usart_baud(&self.soc, "USART2");
+        self.host.tx.set_sender_baud(host);
     }
 }
 

@@ -1,6 +1,6 @@
-//! The RTIC apps (the firmwares QEMU runs) mirror their boards' task tables: every task of
-//! `stereo_board::app::TASKS` and `autopilot::app::TASKS` exists in the firmware source with
-//! the same priority, and the byte-moving interrupt handlers preempt all of them.
+//! The RTIC apps (every flavour of both firmwares) mirror their boards' task tables: every
+//! task of `stereo_board::app::TASKS` and `autopilot::app::TASKS` exists in the firmware source
+//! with the same priority, and the byte-moving interrupt handlers preempt all of them.
 
 /// `(name, priority)` of every `#[task(...)]` in a firmware source.
 fn rtic_tasks(src: &str) -> Vec<(String, u8)> {
