@@ -550,7 +550,7 @@ fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
             },
             t,
         );
-        if k >= 40 && t % 40_000 == 0 {
+        if k >= 40 && t.is_multiple_of(40_000) {
             ap.on_estimate(&forward_estimate(1.1), t);
         }
     }
@@ -568,7 +568,7 @@ fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
             },
             t,
         );
-        if t % 40_000 == 0 {
+        if t.is_multiple_of(40_000) {
             ap.on_estimate(&forward_estimate(0.4), t);
         }
     }
