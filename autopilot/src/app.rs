@@ -18,6 +18,7 @@ use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
 use crate::guidance::{
     GuidanceConfig, ObserverConfig, TiltSetpoint, VelocityGuidance, VelocityObserver,
 };
+use crate::gyro_calibration::GyroCalibration;
 use crate::height::{tilt_compensate, HeightConfig, HeightController};
 use crate::indi::{Indi, IndiConfig};
 use crate::median::VelocityMedian;
@@ -346,9 +347,7 @@ pub struct Autopilot {
     last_kf_fused_us: Option<u64>,
     last_fast_yaw_us: Option<u64>,
     yaw_gated_total: u32,
-    gyro_offset: Option<[f32; 3]>,
-    cal_sum: [f32; 3],
-    cal_n: u16,
+    gyro_cal: GyroCalibration,
     fsm: AvoidanceFsm,
     fsm_active: bool,
     failsafe: Failsafe,
@@ -409,9 +408,7 @@ impl Autopilot {
             last_kf_fused_us: None,
             last_fast_yaw_us: None,
             yaw_gated_total: 0,
-            gyro_offset: None,
-            cal_sum: [0.0; 3],
-            cal_n: 0,
+            gyro_cal: GyroCalibration::new(),
             fsm: AvoidanceFsm::new(config.fsm, 0, 0.0),
             fsm_active: false,
             failsafe: Failsafe::new(config.failsafe),
@@ -570,7 +567,7 @@ impl Autopilot {
 
     /// Gyro offset from the last ground calibration, rad/s (`None`: not calibrated yet).
     pub fn gyro_offset(&self) -> Option<[f32; 3]> {
-        self.gyro_offset
+        self.gyro_cal.offset()
     }
 
     /// Valid estimates not used for the velocity because of fast yaw since boot (wrapping).
@@ -680,15 +677,18 @@ impl Autopilot {
             None => 1.0 / self.cfg.indi.rate_hz.max(1.0),
         };
         self.last_imu_us = Some(now_us);
-        if !self.failsafe.mode().motors_enabled() {
-            self.calibrate_gyro(imu);
+        if !self.failsafe.mode().motors_enabled()
+            && self.gyro_cal.update(
+                imu,
+                self.cfg.gyro_calibration_samples,
+                self.cfg.gyro_calibration_still_radps,
+            )
+        {
+            // Start the attitude again from the accelerometer, without the tilt error the
+            // uncorrected gyro built up.
+            self.att = AttitudeEstimator::new(self.cfg.attitude);
         }
-        let off = self.gyro_offset.unwrap_or([0.0; 3]);
-        let gyro = [
-            imu.gyro_radps[0] - off[0],
-            imu.gyro_radps[1] - off[1],
-            imu.gyro_radps[2] - off[2],
-        ];
+        let gyro = self.gyro_cal.correct(imu.gyro_radps);
         self.gyro = gyro;
         self.att.update(gyro, imu.accel_mps2, dt);
 
@@ -722,37 +722,6 @@ impl Autopilot {
         self.indi.actuator_update(m.achieved, gyro);
         self.motors = m.throttle;
         self.motors
-    }
-
-    /// Ground gyro calibration (disarmed): block averages of still samples.
-    fn calibrate_gyro(&mut self, imu: &ImuSample) {
-        let g = imu.gyro_radps;
-        let a = imu.accel_mps2;
-        let an = libm::sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-        let lim = self.cfg.gyro_calibration_still_radps;
-        let still = g.iter().all(|x| x.abs() < lim) && (an - GRAVITY).abs() < 0.05 * GRAVITY;
-        if !still {
-            self.cal_sum = [0.0; 3];
-            self.cal_n = 0;
-            return;
-        }
-        for (s, x) in self.cal_sum.iter_mut().zip(g.iter()) {
-            *s += x;
-        }
-        self.cal_n = self.cal_n.saturating_add(1);
-        let n = self.cfg.gyro_calibration_samples.max(1);
-        if self.cal_n >= n {
-            let k = 1.0 / self.cal_n as f32;
-            let first = self.gyro_offset.is_none();
-            self.gyro_offset = Some(self.cal_sum.map(|s| s * k));
-            self.cal_sum = [0.0; 3];
-            self.cal_n = 0;
-            if first {
-                // Start the attitude again from the accelerometer, without the tilt error the
-                // uncorrected gyro built up.
-                self.att = AttitudeEstimator::new(self.cfg.attitude);
-            }
-        }
     }
 
     /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a

@@ -5,6 +5,7 @@
 //! Modules, bottom up:
 //!
 //! * [`attitude`]: gyro + accelerometer complementary filter, quaternion helpers.
+//! * [`gyro_calibration`]: the gyro offset, averaged while the drone stands still on the ground.
 //! * [`indi`]: adaptive INDI rate/attitude control at 512 Hz.
 //! * [`mixer`]: X-quad mixer for four brushed motors, attitude before thrust.
 //! * [`height`]: vertical loop from the height estimate.
@@ -40,6 +41,7 @@ pub mod failsafe;
 pub mod force_field;
 pub mod fsm;
 pub mod guidance;
+pub mod gyro_calibration;
 pub mod height;
 pub mod host;
 pub mod indi;
