@@ -12,6 +12,7 @@
 //! library never reads a clock.
 
 use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
+use crate::camera_link::{CameraLink, CameraNews};
 use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
 use crate::force_field::{backward_velocity, ForceFieldConfig};
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
@@ -30,7 +31,7 @@ use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
     LinkErrorCounts, Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand,
-    StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
+    StereoStatus, StereoToAutopilot, Telemetry,
 };
 use timebase::WireTime;
 
@@ -366,11 +367,7 @@ pub struct Autopilot {
     valid_run: u8,
     last_outlier: [f32; 2],
     outliers_total: u32,
-    stereo_rx: StereoToAutopilotDecoder,
-    stereo_heartbeat: Option<(u64, Heartbeat)>,
-    stereo_status: Option<StereoStatus>,
-    stereo_config_ack: Option<ConfigResult>,
-    camera_param_reply: Option<ParamResponse>,
+    camera: CameraLink,
     rc_kill_latched: bool,
     arm_refused: u32,
     baro: Option<(u64, BaroReading)>,
@@ -431,11 +428,7 @@ impl Autopilot {
             valid_run: 0,
             last_outlier: [0.0; 2],
             outliers_total: 0,
-            stereo_rx: StereoToAutopilotDecoder::new_mid_stream(),
-            stereo_heartbeat: None,
-            stereo_status: None,
-            stereo_config_ack: None,
-            camera_param_reply: None,
+            camera: CameraLink::new(),
             rc_kill_latched: false,
             arm_refused: 0,
             baro: None,
@@ -498,7 +491,7 @@ impl Autopilot {
     /// The camera board's latest answer to a parameter request passed on to it, for the host
     /// (taken once; a newer answer replaces one not yet taken).
     pub fn take_camera_param_reply(&mut self) -> Option<ParamResponse> {
-        self.camera_param_reply.take()
+        self.camera.take_param_reply()
     }
 
     /// Current flight mode (failsafe state).
@@ -587,7 +580,7 @@ impl Autopilot {
 
     /// Errors decoding camera-board bytes (via [`Autopilot::on_stereo_bytes`]) since boot.
     pub fn link_errors(&self) -> LinkErrorCounts {
-        self.stereo_rx.errors()
+        self.camera.errors()
     }
 
     /// Estimates received since boot (valid or not, wrapping).
@@ -602,17 +595,17 @@ impl Autopilot {
 
     /// The camera board's last heartbeat and when it arrived (µs).
     pub fn stereo_heartbeat(&self) -> Option<(u64, Heartbeat)> {
-        self.stereo_heartbeat
+        self.camera.heartbeat()
     }
 
     /// The camera board's last status report.
     pub fn stereo_status(&self) -> Option<StereoStatus> {
-        self.stereo_status
+        self.camera.status()
     }
 
     /// The camera board's answer to the last configuration request.
     pub fn stereo_config_ack(&self) -> Option<ConfigResult> {
-        self.stereo_config_ack
+        self.camera.config_ack()
     }
 
     /// Bytes from the camera-board UART, as they arrive (any chunking). Complete frames are
@@ -621,7 +614,7 @@ impl Autopilot {
     pub fn on_stereo_bytes(&mut self, bytes: &[u8], now_us: u64) -> usize {
         let mut n = 0;
         for &b in bytes {
-            if let Some(msg) = self.stereo_rx.push(b) {
+            if let Some(msg) = self.camera.push(b) {
                 n += 1;
                 self.on_stereo_message(msg, now_us);
             }
@@ -631,19 +624,12 @@ impl Autopilot {
 
     /// One decoded camera-board message (for callers that run their own decoder).
     pub fn on_stereo_message(&mut self, msg: StereoToAutopilot, now_us: u64) {
-        match msg {
-            StereoToAutopilot::Estimate(e) => self.on_estimate(&e, now_us),
-            StereoToAutopilot::Heartbeat(h) => self.stereo_heartbeat = Some((now_us, h)),
-            StereoToAutopilot::Status(s) => {
-                if s.camera_stopped {
-                    // The camera board sees no frames: fly as blind from now on instead of
-                    // waiting out the estimate timeout (a valid estimate ends it).
-                    self.last_valid_estimate_us = None;
-                }
-                self.stereo_status = Some(s);
-            }
-            StereoToAutopilot::ConfigAck(a) => self.stereo_config_ack = Some(a),
-            StereoToAutopilot::Param(r) => self.camera_param_reply = Some(r),
+        match self.camera.on_message(msg, now_us) {
+            Some(CameraNews::Estimate(e)) => self.on_estimate(&e, now_us),
+            // The camera board sees no frames: fly as blind from now on instead of waiting out
+            // the estimate timeout (a valid estimate ends it).
+            Some(CameraNews::CameraStopped) => self.last_valid_estimate_us = None,
+            None => {}
         }
     }
 
@@ -902,7 +888,7 @@ impl Autopilot {
         if self.rc_kill_latched {
             Some(ArmBlock::RcKill)
         } else {
-            self.stereo_rx
+            self.camera
                 .peer_version_mismatch()
                 .map(ArmBlock::PeerVersion)
         }
@@ -1107,7 +1093,7 @@ impl Autopilot {
             velocity_setpoint_mps: self.sp.velocity_mps,
             obstacle_m: self.obstacle.and_then(|o| o.distance_m),
             height_m: self.height.height_m(),
-            link_errors: self.stereo_rx.errors(),
+            link_errors: self.camera.errors(),
         }
     }
 }

@@ -21,6 +21,7 @@
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
+//! * [`camera_link`]: the camera board's link: decoder, last heartbeat, status and answers.
 //! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
 //!   firmware, the simulator and every HIL board call.
 //! * [`params`]: the parameter table: every [`AutopilotConfig`] field by name, kind, unit
@@ -37,6 +38,7 @@
 pub mod app;
 pub mod attitude;
 pub mod board;
+pub mod camera_link;
 pub mod failsafe;
 pub mod force_field;
 pub mod fsm;
