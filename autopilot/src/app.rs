@@ -13,6 +13,8 @@
 
 use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
 use crate::camera_link::{CameraLink, CameraNews};
+pub use crate::estimation::VelocitySource;
+use crate::estimation::{VelocityEstimation, VisionContext};
 use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
 use crate::force_field::{backward_velocity, ForceFieldConfig};
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
@@ -22,11 +24,10 @@ use crate::guidance::{
 use crate::gyro_calibration::GyroCalibration;
 use crate::height::{tilt_compensate, HeightConfig, HeightController};
 use crate::indi::{Indi, IndiConfig};
-use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
-use crate::velocity_kf::{Fusion, VelocityKf, VelocityKfConfig};
+use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
@@ -270,16 +271,6 @@ impl Default for AutopilotConfig {
     }
 }
 
-/// The velocity estimate guidance flies on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum VelocitySource {
-    /// [`VelocityKf`]: every gated estimate, weighted by its quality, against the predicted
-    /// mean over the time window it describes.
-    Kalman,
-    /// The paper's path: median-5 of the gated estimates into the [`VelocityObserver`].
-    MedianObserver,
-}
-
 /// While landing, the height setpoint ramps down to this height below the floor, m, and stays
 /// there: the drone, lagging the ramp, is pushed onto the floor rather than hovering just above
 /// it.
@@ -341,13 +332,7 @@ pub struct Autopilot {
     height: HeightController,
     vertical: VerticalEstimator,
     guidance: VelocityGuidance,
-    median: VelocityMedian,
-    observer: VelocityObserver,
-    last_fused_us: Option<u64>,
-    kf: VelocityKf,
-    last_kf_fused_us: Option<u64>,
-    last_fast_yaw_us: Option<u64>,
-    yaw_gated_total: u32,
+    estimation: VelocityEstimation,
     gyro_cal: GyroCalibration,
     fsm: AvoidanceFsm,
     fsm_active: bool,
@@ -355,18 +340,10 @@ pub struct Autopilot {
     sp: Setpoints,
     last_imu_us: Option<u64>,
     gyro: [f32; 3],
-    last_valid_estimate_us: Option<u64>,
-    velocity: Option<[f32; 2]>,
     obstacle: Option<ObstacleReading>,
     last_guidance_us: Option<u64>,
     below_landed_since_us: Option<u64>,
     motors: [f32; 4],
-    estimates_received: u32,
-    outliers_in_a_row: u8,
-    /// Valid estimates in a row (saturating), see [`AutopilotConfig::min_valid_run`].
-    valid_run: u8,
-    last_outlier: [f32; 2],
-    outliers_total: u32,
     camera: CameraLink,
     rc_kill_latched: bool,
     arm_refused: u32,
@@ -398,13 +375,7 @@ impl Autopilot {
             height: HeightController::new(config.height),
             vertical: VerticalEstimator::new(config.vertical),
             guidance: VelocityGuidance::new(config.guidance),
-            median: VelocityMedian::default(),
-            observer: VelocityObserver::new(config.observer),
-            last_fused_us: None,
-            kf: VelocityKf::new(config.velocity_kf),
-            last_kf_fused_us: None,
-            last_fast_yaw_us: None,
-            yaw_gated_total: 0,
+            estimation: VelocityEstimation::new(&config),
             gyro_cal: GyroCalibration::new(),
             fsm: AvoidanceFsm::new(config.fsm, 0, 0.0),
             fsm_active: false,
@@ -417,17 +388,10 @@ impl Autopilot {
             },
             last_imu_us: None,
             gyro: [0.0; 3],
-            last_valid_estimate_us: None,
-            velocity: None,
             obstacle: None,
             last_guidance_us: None,
             below_landed_since_us: None,
             motors: MOTORS_OFF,
-            estimates_received: 0,
-            outliers_in_a_row: 0,
-            valid_run: 0,
-            last_outlier: [0.0; 2],
-            outliers_total: 0,
             camera: CameraLink::new(),
             rc_kill_latched: false,
             arm_refused: 0,
@@ -464,7 +428,7 @@ impl Autopilot {
         self.height.set_config(config.height);
         self.vertical.set_config(config.vertical);
         self.guidance.set_config(config.guidance);
-        self.observer.set_config(config.observer);
+        self.estimation.set_config(&config);
         self.fsm.set_config(config.fsm);
         self.failsafe.set_config(config.failsafe);
         self.cfg = config;
@@ -526,36 +490,25 @@ impl Autopilot {
 
     /// Median-filtered `[forward, sideways]` velocity, m/s (`None` before the first valid one).
     pub fn velocity(&self) -> Option<[f32; 2]> {
-        self.velocity
+        self.estimation.median_velocity()
     }
 
     /// The `[forward, sideways]` velocity guidance flies on, m/s, from the configured
     /// [`VelocitySource`] (`None` before the first valid estimate). Between estimates it is
     /// predicted from the attitude.
     pub fn velocity_estimate(&self) -> Option<[f32; 2]> {
-        match self.cfg.velocity_source {
-            VelocitySource::Kalman => self.kf.velocity(),
-            VelocitySource::MedianObserver => self.observer.velocity(),
-        }
-    }
-
-    /// When the velocity source last took an estimate, µs.
-    fn last_velocity_fix_us(&self) -> Option<u64> {
-        match self.cfg.velocity_source {
-            VelocitySource::Kalman => self.last_kf_fused_us,
-            VelocitySource::MedianObserver => self.last_fused_us,
-        }
+        self.estimation.state(self.cfg.velocity_source).velocity_mps
     }
 
     /// The horizontal velocity Kalman filter.
     pub fn velocity_kf(&self) -> &VelocityKf {
-        &self.kf
+        self.estimation.kf()
     }
 
     /// The velocity observer of the paper's path (bias, configuration); it runs only when
     /// [`AutopilotConfig::velocity_source`] is [`VelocitySource::MedianObserver`].
     pub fn observer(&self) -> &VelocityObserver {
-        &self.observer
+        self.estimation.observer()
     }
 
     /// Gyro offset from the last ground calibration, rad/s (`None`: not calibrated yet).
@@ -565,7 +518,7 @@ impl Autopilot {
 
     /// Valid estimates not used for the velocity because of fast yaw since boot (wrapping).
     pub fn yaw_gated_estimates(&self) -> u32 {
-        self.yaw_gated_total
+        self.estimation.yaw_gated()
     }
 
     /// INDI state (G1/G2 estimates etc.).
@@ -585,12 +538,12 @@ impl Autopilot {
 
     /// Estimates received since boot (valid or not, wrapping).
     pub fn estimates_received(&self) -> u32 {
-        self.estimates_received
+        self.estimation.estimates_received()
     }
 
     /// Valid estimates skipped by the plausibility gate since boot (wrapping).
     pub fn velocity_outliers(&self) -> u32 {
-        self.outliers_total
+        self.estimation.outliers()
     }
 
     /// The camera board's last heartbeat and when it arrived (µs).
@@ -628,14 +581,14 @@ impl Autopilot {
             Some(CameraNews::Estimate(e)) => self.on_estimate(&e, now_us),
             // The camera board sees no frames: fly as blind from now on instead of waiting out
             // the estimate timeout (a valid estimate ends it).
-            Some(CameraNews::CameraStopped) => self.last_valid_estimate_us = None,
+            Some(CameraNews::CameraStopped) => self.estimation.camera_stopped(),
             None => {}
         }
     }
 
     fn freshness(&self) -> Freshness {
         Freshness {
-            last_valid_estimate_us: self.last_valid_estimate_us,
+            last_valid_estimate_us: self.estimation.last_valid_estimate_us(),
             last_imu_us: self.last_imu_us,
             last_height_us: self.height.last_measurement_us(),
         }
@@ -682,15 +635,8 @@ impl Autopilot {
         let [roll, pitch, _] = q.to_euler();
         self.vertical
             .predict(vertical_acceleration(imu.accel_mps2, q), dt);
-        match self.cfg.velocity_source {
-            VelocitySource::Kalman => self.kf.predict(roll, pitch, gyro[2], dt, now_us),
-            VelocitySource::MedianObserver => {
-                self.observer.predict(roll, pitch, gyro[2], dt, now_us)
-            }
-        }
-        if gyro[2].abs() > self.cfg.max_yaw_rate_radps {
-            self.last_fast_yaw_us = Some(now_us);
-        }
+        self.estimation
+            .predict(roll, pitch, gyro[2], dt, now_us, &self.cfg);
         let thrust = if self.failsafe.mode().motors_enabled() {
             tilt_compensate(self.sp.thrust, roll, pitch, self.cfg.height.max_tilt_factor)
         } else {
@@ -716,7 +662,6 @@ impl Autopilot {
     /// kept unless the image is unusable; "nothing in range" only from a frame whose stereo
     /// part is usable.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
-        self.estimates_received = self.estimates_received.wrapping_add(1);
         if est.flags.0 & UNSEEN.0 == 0 {
             let d = match est.obstacle_m {
                 Some(d) if d.is_finite() && d >= 0.0 => Some(Some(d)),
@@ -738,96 +683,12 @@ impl Autopilot {
                 });
             }
         }
-        let lim = self.cfg.max_estimate_mps;
-        let v_ok = est.forward_mps.is_finite()
-            && est.sideways_mps.is_finite()
-            && est.forward_mps.abs() <= lim
-            && est.sideways_mps.abs() <= lim;
-        if !(est.is_valid() && est.quality >= self.cfg.min_quality && v_ok) {
-            self.valid_run = 0;
-            return;
-        }
-        self.valid_run = self.valid_run.saturating_add(1);
-        if self.valid_run < self.cfg.min_valid_run {
-            return;
-        }
-        let gap = match self.last_valid_estimate_us {
-            Some(t) => now_us.saturating_sub(t) > self.cfg.median_reset_gap_us,
-            None => true,
+        let ctx = VisionContext {
+            now_us,
+            height_m: self.height.height_m(),
+            climb_mps: self.height.climb_mps(),
         };
-        if gap {
-            self.median.reset();
-            self.outliers_in_a_row = 0;
-        }
-        if self.height.height_m() < self.cfg.min_vision_height_m
-            || self.height.climb_mps().abs() > self.cfg.max_vision_climb_mps
-        {
-            // Valid for the failsafe, not for the velocity (see `min_vision_height_m` and
-            // `max_vision_climb_mps`).
-            self.median.reset();
-            self.outliers_in_a_row = 0;
-            self.last_valid_estimate_us = Some(now_us);
-            return;
-        }
-        let yawing = matches!(self.last_fast_yaw_us,
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.yaw_settle_us);
-        if yawing {
-            // Valid for the failsafe, not for the velocity; the median restarts after the
-            // turn (its samples are in the old heading).
-            self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
-            self.median.reset();
-            self.outliers_in_a_row = 0;
-            self.last_valid_estimate_us = Some(now_us);
-            return;
-        }
-        // The Kalman filter has its own innovation gate; it takes the estimate as the mean
-        // velocity over the window that ended the output filter's lag before the frame's
-        // capture.
-        let end = now_us
-            .saturating_sub(u64::from(est.processing_us))
-            .saturating_sub(u64::from(self.cfg.estimate_link_us))
-            .saturating_sub(u64::from(self.cfg.estimate_filter_lag_us));
-        let start = end.saturating_sub(u64::from(self.cfg.estimate_horizon_us));
-        if self.cfg.velocity_source == VelocitySource::Kalman
-            && matches!(
-                self.kf
-                    .correct([est.forward_mps, est.sideways_mps], est.quality, start, end),
-                Fusion::Fused | Fusion::Initialised
-            )
-        {
-            self.last_kf_fused_us = Some(now_us);
-        }
-        let jump = self.cfg.max_velocity_jump_mps;
-        let outlier = match self.median.output() {
-            Some([f, s]) => {
-                (est.forward_mps - f).abs() > jump || (est.sideways_mps - s).abs() > jump
-            }
-            None => false,
-        };
-        if outlier {
-            let [f, s] = self.last_outlier;
-            let agrees = self.outliers_in_a_row > 0
-                && (est.forward_mps - f).abs() <= jump
-                && (est.sideways_mps - s).abs() <= jump;
-            let run = if agrees { self.outliers_in_a_row } else { 0 };
-            if run < self.cfg.max_consecutive_outliers {
-                self.outliers_in_a_row = run + 1;
-                self.last_outlier = [est.forward_mps, est.sideways_mps];
-                self.outliers_total = self.outliers_total.wrapping_add(1);
-                return;
-            }
-        }
-        if outlier {
-            self.median.reset();
-        }
-        self.outliers_in_a_row = 0;
-        self.velocity = self.median.push(est.forward_mps, est.sideways_mps);
-        if let (Some(v), VelocitySource::MedianObserver) = (self.velocity, self.cfg.velocity_source)
-        {
-            self.observer.correct(v, now_us);
-            self.last_fused_us = Some(now_us);
-        }
-        self.last_valid_estimate_us = Some(now_us);
+        self.estimation.on_estimate(est, &ctx, &self.cfg);
     }
 
     /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
@@ -937,8 +798,7 @@ impl Autopilot {
                 // Standing on the floor: the barometer's reading now is its offset, and the
                 // drone is not moving whatever the camera makes of a blank wall.
                 self.vertical.on_ground();
-                self.kf.hold_still(now_us);
-                self.last_kf_fused_us = Some(now_us);
+                self.estimation.hold_still(now_us);
             }
             self.height.reset_integral();
             self.guidance.reset();
@@ -950,13 +810,8 @@ impl Autopilot {
             return;
         }
         let yaw = self.att.euler()[2];
-        let velocity_fresh = matches!(self.last_velocity_fix_us(),
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.velocity_max_age_us);
-        let velocity = if velocity_fresh {
-            self.velocity_estimate()
-        } else {
-            None
-        };
+        let velocity_state = self.estimation.state(self.cfg.velocity_source);
+        let velocity = velocity_state.fresh(now_us, self.cfg.velocity_max_age_us);
         let obstacle = self.obstacle.filter(|o| {
             now_us.saturating_sub(o.received_us) <= self.cfg.failsafe.estimate_timeout_us
         });
@@ -969,8 +824,8 @@ impl Autopilot {
         let mut sp_rate = 0.0;
         match mode {
             FlightMode::Landing => {
-                let blind = !matches!(self.last_velocity_fix_us(),
-                    Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.estimate_timeout_us);
+                let blind =
+                    !velocity_state.fixed_within(now_us, self.cfg.failsafe.estimate_timeout_us);
                 let rate = if blind {
                     self.cfg.blind_land_rate_mps
                 } else {

@@ -12,6 +12,8 @@
 //! * [`vertical`]: height, climb rate and barometer offset from the accelerometer, the
 //!   barometer and an external height fix (a Kalman filter); the height loop flies on it.
 //! * [`median`]: median-5 over the Edge-FS velocities.
+//! * [`estimation`]: the horizontal velocity stage: the estimate gates, the median-5 and
+//!   observer (paper mode) or the Kalman filter, predicted at 512 Hz.
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
 //! * [`velocity_kf`]: horizontal velocity Kalman filter (IMU-driven model, Edge-FS
 //!   measurements weighted by quality at the time window they describe).
@@ -39,6 +41,7 @@ pub mod app;
 pub mod attitude;
 pub mod board;
 pub mod camera_link;
+pub mod estimation;
 pub mod failsafe;
 pub mod force_field;
 pub mod fsm;
@@ -54,6 +57,8 @@ pub mod mpu6000;
 pub mod ms5611;
 pub mod params;
 pub mod rc;
+#[cfg(test)]
+mod test_support;
 pub mod velocity_kf;
 pub mod velocity_model;
 pub mod vertical;
