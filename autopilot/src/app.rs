@@ -12,12 +12,13 @@
 //! library never reads a clock.
 
 use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
+use crate::avoidance::{Avoidance, AvoidanceInput};
 use crate::camera_link::{CameraLink, CameraNews};
 pub use crate::estimation::VelocitySource;
 use crate::estimation::{VelocityEstimation, VisionContext};
 use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
-use crate::force_field::{backward_velocity, ForceFieldConfig};
-use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
+use crate::force_field::ForceFieldConfig;
+use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState};
 use crate::guidance::{
     GuidanceConfig, ObserverConfig, TiltSetpoint, VelocityGuidance, VelocityObserver,
 };
@@ -30,9 +31,9 @@ use crate::params::{self, Rejected};
 use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
-    ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
-    LinkErrorCounts, Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand,
-    StereoStatus, StereoToAutopilot, Telemetry,
+    ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts,
+    Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
+    StereoToAutopilot, Telemetry,
 };
 use timebase::WireTime;
 
@@ -300,16 +301,6 @@ impl AutopilotConfig {
     }
 }
 
-/// Flags of a frame that says nothing about obstacles (the image itself is unusable).
-const UNSEEN: EstimateFlags =
-    EstimateFlags(EstimateFlags::TOO_DARK.0 | EstimateFlags::TOO_BRIGHT.0);
-
-/// Flags of a frame whose stereo failed: an obstacle it reports stands (a surface nearer than
-/// the stereo range leaves few matches), its "nothing in range" does not (the velocity may
-/// still be invalid for flow reasons while the stereo part is fine).
-const NO_DEPTH: EstimateFlags =
-    EstimateFlags(EstimateFlags::NO_TEXTURE.0 | EstimateFlags::NO_STEREO_MATCH.0);
-
 /// Setpoints the guidance layer hands to the 512 Hz loop (and to telemetry).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Setpoints {
@@ -334,13 +325,11 @@ pub struct Autopilot {
     guidance: VelocityGuidance,
     estimation: VelocityEstimation,
     gyro_cal: GyroCalibration,
-    fsm: AvoidanceFsm,
-    fsm_active: bool,
+    avoidance: Avoidance,
     failsafe: Failsafe,
     sp: Setpoints,
     last_imu_us: Option<u64>,
     gyro: [f32; 3],
-    obstacle: Option<ObstacleReading>,
     last_guidance_us: Option<u64>,
     below_landed_since_us: Option<u64>,
     motors: [f32; 4],
@@ -377,8 +366,7 @@ impl Autopilot {
             guidance: VelocityGuidance::new(config.guidance),
             estimation: VelocityEstimation::new(&config),
             gyro_cal: GyroCalibration::new(),
-            fsm: AvoidanceFsm::new(config.fsm, 0, 0.0),
-            fsm_active: false,
+            avoidance: Avoidance::new(config.fsm),
             failsafe: Failsafe::new(config.failsafe),
             sp: Setpoints {
                 attitude_rad: [0.0; 3],
@@ -388,7 +376,6 @@ impl Autopilot {
             },
             last_imu_us: None,
             gyro: [0.0; 3],
-            obstacle: None,
             last_guidance_us: None,
             below_landed_since_us: None,
             motors: MOTORS_OFF,
@@ -429,7 +416,7 @@ impl Autopilot {
         self.vertical.set_config(config.vertical);
         self.guidance.set_config(config.guidance);
         self.estimation.set_config(&config);
-        self.fsm.set_config(config.fsm);
+        self.avoidance.set_config(config.fsm);
         self.failsafe.set_config(config.failsafe);
         self.cfg = config;
         Ok(())
@@ -465,17 +452,17 @@ impl Autopilot {
 
     /// Current avoidance state (meaningful while [`Autopilot::fsm_active`]).
     pub fn fsm_state(&self) -> FsmState {
-        self.fsm.state()
+        self.avoidance.fsm().state()
     }
 
     /// True while the avoidance FSM drives the setpoints.
     pub fn fsm_active(&self) -> bool {
-        self.fsm_active
+        self.avoidance.active()
     }
 
     /// The avoidance FSM (state, time in state, transition count).
     pub fn fsm(&self) -> &AvoidanceFsm {
-        &self.fsm
+        self.avoidance.fsm()
     }
 
     /// Current setpoints.
@@ -662,27 +649,7 @@ impl Autopilot {
     /// kept unless the image is unusable; "nothing in range" only from a frame whose stereo
     /// part is usable.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
-        if est.flags.0 & UNSEEN.0 == 0 {
-            let d = match est.obstacle_m {
-                Some(d) if d.is_finite() && d >= 0.0 => Some(Some(d)),
-                Some(_) => None, // garbage: no reading
-                // A frame whose stereo failed says nothing of free space.
-                None if est.flags.0 & NO_DEPTH.0 != 0 => None,
-                None => Some(None),
-            };
-            let depth_fraction = if est.flags.0 & NO_DEPTH.0 == 0 {
-                est.depth_fraction()
-            } else {
-                0.0
-            };
-            if let Some(distance_m) = d {
-                self.obstacle = Some(ObstacleReading {
-                    received_us: now_us,
-                    distance_m,
-                    depth_fraction,
-                });
-            }
-        }
+        self.avoidance.on_estimate(est, now_us);
         let ctx = VisionContext {
             now_us,
             height_m: self.height.height_m(),
@@ -724,7 +691,7 @@ impl Autopilot {
             self.sp.height_m = self.height.height_m();
             self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
             self.sp.velocity_mps = [0.0; 2];
-            self.fsm_active = false;
+            self.avoidance.stop();
             self.below_landed_since_us = None;
         }
         if !after.motors_enabled() {
@@ -802,7 +769,7 @@ impl Autopilot {
             }
             self.height.reset_integral();
             self.guidance.reset();
-            self.fsm_active = false;
+            self.avoidance.stop();
             self.sp.thrust = 0.0;
             self.sp.velocity_mps = [0.0; 2];
             self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
@@ -812,9 +779,6 @@ impl Autopilot {
         let yaw = self.att.euler()[2];
         let velocity_state = self.estimation.state(self.cfg.velocity_source);
         let velocity = velocity_state.fresh(now_us, self.cfg.velocity_max_age_us);
-        let obstacle = self.obstacle.filter(|o| {
-            now_us.saturating_sub(o.received_us) <= self.cfg.failsafe.estimate_timeout_us
-        });
         let height_fresh = matches!(self.height.last_measurement_us(),
             Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.height_timeout_us);
         let h = self.height.height_m();
@@ -848,30 +812,24 @@ impl Autopilot {
             }
         }
 
-        // Avoidance FSM (only in normal flight at height).
-        let mut v_sp = [0.0f32; 2];
-        let mut yaw_sp = self.sp.attitude_rad[2];
-        if mode == FlightMode::Flying {
-            if !self.fsm_active
-                && self.sp.height_m == target
-                && (h - target).abs() <= self.cfg.fsm_start_height_tolerance_m
-            {
-                self.fsm.reset(now_us, yaw_sp);
-                self.fsm_active = true;
-            }
-            if self.fsm_active {
-                let out = self.fsm.step(now_us, yaw, obstacle);
-                v_sp[0] = out.forward_mps;
-                yaw_sp = out.yaw_sp_rad;
-                if out.land {
-                    // No way to go found within the FSM's timeouts: land where it is.
-                    self.failsafe.command(PilotCommand::Land, &f, now_us);
-                }
-            }
-        } else {
-            self.fsm_active = false;
+        // Avoidance (the FSM only in normal flight at height, the force field always).
+        let request = self.avoidance.step(
+            &AvoidanceInput {
+                now_us,
+                flying: mode == FlightMode::Flying,
+                at_flight_height: self.sp.height_m == target
+                    && (h - target).abs() <= self.cfg.fsm_start_height_tolerance_m,
+                yaw_rad: yaw,
+                held_yaw_rad: self.sp.attitude_rad[2],
+            },
+            &self.cfg,
+        );
+        if request.land {
+            // No way to go found within the FSM's timeouts: land where it is.
+            self.failsafe.command(PilotCommand::Land, &f, now_us);
         }
-        v_sp[0] += backward_velocity(&self.cfg.force_field, obstacle.and_then(|o| o.distance_m));
+        let v_sp = request.velocity_mps;
+        let yaw_sp = request.yaw_sp_rad;
         self.sp.velocity_mps = v_sp;
 
         // Velocity guidance.
@@ -913,7 +871,7 @@ impl Autopilot {
         self.height.reset_integral();
         self.guidance.reset();
         self.below_landed_since_us = None;
-        self.fsm_active = false;
+        self.avoidance.stop();
     }
 
     /// Motor override for the firmware's lower-priority tasks: `Some(all off)` when the motors
@@ -941,12 +899,12 @@ impl Autopilot {
     pub fn telemetry(&self, now_us: u64) -> Telemetry {
         Telemetry {
             timestamp_us: WireTime(now_us as u32),
-            fsm_state: self.fsm_active.then(|| self.fsm.state()),
+            fsm_state: self.avoidance.state(),
             flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),
             velocity_mps: self.velocity_estimate().unwrap_or([0.0; 2]),
             velocity_setpoint_mps: self.sp.velocity_mps,
-            obstacle_m: self.obstacle.and_then(|o| o.distance_m),
+            obstacle_m: self.avoidance.obstacle().and_then(|o| o.distance_m),
             height_m: self.height.height_m(),
             link_errors: self.camera.errors(),
         }

@@ -11,6 +11,7 @@ use crate::attitude::GRAVITY;
 use crate::indi::IndiConfig;
 use crate::test_support::forward_estimate;
 use proptest::prelude::*;
+use protocol::EstimateFlags;
 use protocol::ParamOp;
 use std::vec::Vec;
 
@@ -449,31 +450,6 @@ fn autopilot_at_height() -> Autopilot {
         0,
     );
     ap
-}
-
-#[test]
-fn a_frame_whose_stereo_failed_reports_obstacles_but_not_free_space() {
-    let mut ap = Autopilot::new(AutopilotConfig::default());
-    let est = |obstacle_m, flags| Estimate {
-        obstacle_m,
-        flags,
-        ..forward_estimate(0.0)
-    };
-    ap.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 40_000);
-    assert_eq!(ap.telemetry(40_000).obstacle_m, Some(2.0));
-    // A plain view: its "nothing in range" does not clear the last reading.
-    ap.on_estimate(&est(None, EstimateFlags::NO_STEREO_MATCH), 80_000);
-    ap.on_estimate(&est(None, EstimateFlags::NO_TEXTURE), 120_000);
-    assert_eq!(ap.telemetry(120_000).obstacle_m, Some(2.0));
-    // A surface nearer than the stereo range, reported from a frame with few matches: kept.
-    ap.on_estimate(&est(Some(0.53), EstimateFlags::NO_STEREO_MATCH), 160_000);
-    assert_eq!(ap.telemetry(160_000).obstacle_m, Some(0.53));
-    // A dark frame says nothing at all.
-    ap.on_estimate(&est(Some(0.2), EstimateFlags::TOO_DARK), 200_000);
-    assert_eq!(ap.telemetry(200_000).obstacle_m, Some(0.53));
-    // A usable view with nothing in range clears it.
-    ap.on_estimate(&est(None, EstimateFlags::NONE), 240_000);
-    assert_eq!(ap.telemetry(240_000).obstacle_m, None);
 }
 
 /// A climb over a floor seen in perspective looks like forward flight to Edge-FS: estimates

@@ -21,6 +21,8 @@
 //!   share.
 //! * [`force_field`]: backward velocity near walls.
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
+//! * [`avoidance`]: the avoidance stage: obstacle readings, the FSM and the force field make
+//!   guidance's velocity and heading request.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
 //! * [`camera_link`]: the camera board's link: decoder, last heartbeat, status and answers.
@@ -39,6 +41,7 @@
 
 pub mod app;
 pub mod attitude;
+pub mod avoidance;
 pub mod board;
 pub mod camera_link;
 pub mod estimation;
