@@ -11,7 +11,7 @@
 //! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
 
-use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
+use crate::attitude::{attitude_error, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
 use crate::avoidance::{Avoidance, AvoidanceInput};
 use crate::camera_link::{CameraLink, CameraNews};
 pub use crate::estimation::VelocitySource;
@@ -19,15 +19,15 @@ use crate::estimation::{VelocityEstimation, VisionContext};
 use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
 use crate::force_field::ForceFieldConfig;
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState};
-use crate::guidance::{
-    GuidanceConfig, ObserverConfig, TiltSetpoint, VelocityGuidance, VelocityObserver,
-};
+use crate::guidance::{GuidanceConfig, ObserverConfig, VelocityObserver};
 use crate::gyro_calibration::GyroCalibration;
 use crate::height::{tilt_compensate, HeightConfig, HeightController};
 use crate::indi::{Indi, IndiConfig};
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
+pub use crate::setpoints::Setpoints;
+use crate::setpoints::{Guidance, LAND_SETPOINT_FLOOR_M};
 use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
@@ -272,11 +272,6 @@ impl Default for AutopilotConfig {
     }
 }
 
-/// While landing, the height setpoint ramps down to this height below the floor, m, and stays
-/// there: the drone, lagging the ramp, is pushed onto the floor rather than hovering just above
-/// it.
-const LAND_SETPOINT_FLOOR_M: f32 = -0.2;
-
 impl AutopilotConfig {
     /// The longest time from the camera board's estimates stopping (a cut link, a dead board)
     /// to every motor at 0, µs, for a drone flying at up to `target_height_m`: the estimate
@@ -301,19 +296,6 @@ impl AutopilotConfig {
     }
 }
 
-/// Setpoints the guidance layer hands to the 512 Hz loop (and to telemetry).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Setpoints {
-    /// Roll, pitch, yaw setpoint, rad.
-    pub attitude_rad: [f32; 3],
-    /// Level-flight collective thrust, 0..=1 (tilt-compensated in the 512 Hz loop).
-    pub thrust: f32,
-    /// Height setpoint, m.
-    pub height_m: f32,
-    /// Forward and sideways velocity setpoint, m/s.
-    pub velocity_mps: [f32; 2],
-}
-
 /// The whole autopilot state (fixed size, no heap).
 #[derive(Debug, Clone)]
 pub struct Autopilot {
@@ -322,16 +304,13 @@ pub struct Autopilot {
     indi: Indi,
     height: HeightController,
     vertical: VerticalEstimator,
-    guidance: VelocityGuidance,
+    guidance: Guidance,
     estimation: VelocityEstimation,
     gyro_cal: GyroCalibration,
     avoidance: Avoidance,
     failsafe: Failsafe,
-    sp: Setpoints,
     last_imu_us: Option<u64>,
     gyro: [f32; 3],
-    last_guidance_us: Option<u64>,
-    below_landed_since_us: Option<u64>,
     motors: [f32; 4],
     camera: CameraLink,
     rc_kill_latched: bool,
@@ -363,21 +342,13 @@ impl Autopilot {
             indi: Indi::new(config.indi),
             height: HeightController::new(config.height),
             vertical: VerticalEstimator::new(config.vertical),
-            guidance: VelocityGuidance::new(config.guidance),
+            guidance: Guidance::new(config.guidance),
             estimation: VelocityEstimation::new(&config),
             gyro_cal: GyroCalibration::new(),
             avoidance: Avoidance::new(config.fsm),
             failsafe: Failsafe::new(config.failsafe),
-            sp: Setpoints {
-                attitude_rad: [0.0; 3],
-                thrust: 0.0,
-                height_m: 0.0,
-                velocity_mps: [0.0; 2],
-            },
             last_imu_us: None,
             gyro: [0.0; 3],
-            last_guidance_us: None,
-            below_landed_since_us: None,
             motors: MOTORS_OFF,
             camera: CameraLink::new(),
             rc_kill_latched: false,
@@ -467,7 +438,7 @@ impl Autopilot {
 
     /// Current setpoints.
     pub fn setpoints(&self) -> Setpoints {
-        self.sp
+        *self.guidance.setpoints()
     }
 
     /// Estimated attitude roll, pitch, yaw, rad.
@@ -625,11 +596,16 @@ impl Autopilot {
         self.estimation
             .predict(roll, pitch, gyro[2], dt, now_us, &self.cfg);
         let thrust = if self.failsafe.mode().motors_enabled() {
-            tilt_compensate(self.sp.thrust, roll, pitch, self.cfg.height.max_tilt_factor)
+            tilt_compensate(
+                self.guidance.setpoints().thrust,
+                roll,
+                pitch,
+                self.cfg.height.max_tilt_factor,
+            )
         } else {
             0.0
         };
-        let [r_sp, p_sp, y_sp] = self.sp.attitude_rad;
+        let [r_sp, p_sp, y_sp] = self.guidance.setpoints().attitude_rad;
         let err = attitude_error(q, Quat::from_euler(r_sp, p_sp, y_sp));
         let u = self.indi.control(err, gyro, thrust);
         if thrust <= 0.0 {
@@ -687,16 +663,13 @@ impl Autopilot {
         if after == FlightMode::Flying && before != FlightMode::Flying {
             // Take-off: climb from where we are, hold the current heading.
             self.height.reset_integral();
-            self.guidance.reset();
-            self.sp.height_m = self.height.height_m();
-            self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
-            self.sp.velocity_mps = [0.0; 2];
+            self.guidance
+                .take_off(self.height.height_m(), self.att.euler()[2]);
             self.avoidance.stop();
-            self.below_landed_since_us = None;
         }
         if !after.motors_enabled() {
             self.motors = MOTORS_OFF;
-            self.sp.thrust = 0.0;
+            self.guidance.motors_off();
         }
     }
 
@@ -752,125 +725,72 @@ impl Autopilot {
     /// Guidance step (e.g. 50 Hz): failsafes, avoidance FSM, force field, velocity guidance and
     /// the height loop update the setpoints the 512 Hz loop flies.
     pub fn guidance_step(&mut self, now_us: u64) {
-        let dt = match self.last_guidance_us {
-            Some(t) if now_us > t => ((now_us - t) as f32 * 1e-6).min(0.1),
-            Some(_) => 0.0,
-            None => GUIDANCE_PERIOD_US as f32 * 1e-6,
-        };
-        self.last_guidance_us = Some(now_us);
+        let dt = self.guidance.tick(now_us);
         let f = self.freshness();
         let mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
-            if mode == FlightMode::Disarmed {
-                // Standing on the floor: the barometer's reading now is its offset, and the
-                // drone is not moving whatever the camera makes of a blank wall.
-                self.vertical.on_ground();
-                self.estimation.hold_still(now_us);
-            }
-            self.height.reset_integral();
-            self.guidance.reset();
-            self.avoidance.stop();
-            self.sp.thrust = 0.0;
-            self.sp.velocity_mps = [0.0; 2];
-            self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
-            self.motors = MOTORS_OFF;
+            self.rest(mode, now_us);
             return;
         }
-        let yaw = self.att.euler()[2];
-        let velocity_state = self.estimation.state(self.cfg.velocity_source);
-        let velocity = velocity_state.fresh(now_us, self.cfg.velocity_max_age_us);
-        let height_fresh = matches!(self.height.last_measurement_us(),
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.height_timeout_us);
+        let cfg = &self.cfg;
+        let velocity = self.estimation.state(cfg.velocity_source);
         let h = self.height.height_m();
-        let target = self.cfg.target_height_m;
-
-        // Height setpoint.
-        let mut sp_rate = 0.0;
-        match mode {
-            FlightMode::Landing => {
-                let blind =
-                    !velocity_state.fixed_within(now_us, self.cfg.failsafe.estimate_timeout_us);
-                let rate = if blind {
-                    self.cfg.blind_land_rate_mps
-                } else {
-                    self.cfg.land_rate_mps
-                };
-                sp_rate = -rate.abs();
-                self.sp.height_m = (self.sp.height_m + sp_rate * dt).max(LAND_SETPOINT_FLOOR_M);
-            }
-            _ => {
-                let step = self.cfg.climb_rate_mps.abs() * dt;
-                if self.sp.height_m < target - step {
-                    self.sp.height_m += step;
-                    sp_rate = self.cfg.climb_rate_mps.abs();
-                } else if self.sp.height_m > target + step {
-                    self.sp.height_m -= step;
-                    sp_rate = -self.cfg.climb_rate_mps.abs();
-                } else {
-                    self.sp.height_m = target;
-                }
-            }
-        }
-
-        // Avoidance (the FSM only in normal flight at height, the force field always).
+        let height_sp = self
+            .guidance
+            .height_setpoint(mode, &velocity, now_us, dt, cfg);
         let request = self.avoidance.step(
             &AvoidanceInput {
                 now_us,
                 flying: mode == FlightMode::Flying,
-                at_flight_height: self.sp.height_m == target
-                    && (h - target).abs() <= self.cfg.fsm_start_height_tolerance_m,
-                yaw_rad: yaw,
-                held_yaw_rad: self.sp.attitude_rad[2],
+                at_flight_height: self.guidance.at_flight_height(h, cfg),
+                yaw_rad: self.att.euler()[2],
+                held_yaw_rad: self.guidance.setpoints().attitude_rad[2],
             },
-            &self.cfg,
+            cfg,
         );
         if request.land {
             // No way to go found within the FSM's timeouts: land where it is.
             self.failsafe.command(PilotCommand::Land, &f, now_us);
         }
-        let v_sp = request.velocity_mps;
-        let yaw_sp = request.yaw_sp_rad;
-        self.sp.velocity_mps = v_sp;
-
-        // Velocity guidance.
-        let tilt: TiltSetpoint = match velocity {
-            Some(v) => self.guidance.step(v_sp, v, dt),
-            _ => self.guidance.hold(),
-        };
-        self.sp.attitude_rad = [tilt.roll_rad, tilt.pitch_rad, wrap_pi(yaw_sp)];
-
-        // Height loop.
-        let airborne = h > self.cfg.landed_height_m;
-        if height_fresh {
-            self.sp.thrust = self.height.step(self.sp.height_m, sp_rate, dt, airborne);
+        let fresh_velocity = velocity.fresh(now_us, cfg.velocity_max_age_us);
+        self.guidance.fly(&request, fresh_velocity, dt);
+        let height_fresh = matches!(self.height.last_measurement_us(),
+            Some(t) if now_us.saturating_sub(t) <= cfg.failsafe.height_timeout_us);
+        let down = if height_fresh {
+            self.guidance
+                .hold_height(&mut self.height, height_sp, h, dt, cfg);
+            self.guidance
+                .touched_down(mode == FlightMode::Landing, h, now_us, cfg)
         } else {
             // Blind landing (the failsafe switched to Landing): reduced thrust, then off.
-            self.sp.thrust = self.cfg.blind_land_thrust.clamp(0.0, 1.0);
-            if now_us.saturating_sub(self.failsafe.since_us()) >= self.cfg.blind_land_time_us {
-                self.failsafe.landed(now_us);
-                self.touchdown();
-            }
-            return;
-        }
-
-        // Touchdown detection while landing.
-        if mode == FlightMode::Landing && h <= self.cfg.landed_height_m {
-            let since = *self.below_landed_since_us.get_or_insert(now_us);
-            if now_us.saturating_sub(since) >= self.cfg.landed_time_us {
-                self.failsafe.landed(now_us);
-                self.touchdown();
-            }
-        } else {
-            self.below_landed_since_us = None;
+            self.guidance
+                .blind_landing(self.failsafe.since_us(), now_us, cfg)
+        };
+        if down {
+            self.touchdown(now_us);
         }
     }
 
-    fn touchdown(&mut self) {
-        self.sp.thrust = 0.0;
+    /// Motors off (disarmed, killed, IMU fault): everything that integrates is held at zero;
+    /// standing disarmed on the floor, the barometer's reading is its offset and the drone is
+    /// not moving whatever the camera makes of a blank wall.
+    fn rest(&mut self, mode: FlightMode, now_us: u64) {
+        if mode == FlightMode::Disarmed {
+            self.vertical.on_ground();
+            self.estimation.hold_still(now_us);
+        }
+        self.height.reset_integral();
+        self.guidance.rest(self.att.euler()[2]);
+        self.avoidance.stop();
+        self.motors = MOTORS_OFF;
+    }
+
+    /// Touchdown confirmed: disarmed, motors off, integrators empty, the FSM stopped.
+    fn touchdown(&mut self, now_us: u64) {
+        self.failsafe.landed(now_us);
+        self.guidance.landed();
         self.motors = MOTORS_OFF;
         self.height.reset_integral();
-        self.guidance.reset();
-        self.below_landed_since_us = None;
         self.avoidance.stop();
     }
 
@@ -903,7 +823,7 @@ impl Autopilot {
             flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),
             velocity_mps: self.velocity_estimate().unwrap_or([0.0; 2]),
-            velocity_setpoint_mps: self.sp.velocity_mps,
+            velocity_setpoint_mps: self.guidance.setpoints().velocity_mps,
             obstacle_m: self.avoidance.obstacle().and_then(|o| o.distance_m),
             height_m: self.height.height_m(),
             link_errors: self.camera.errors(),

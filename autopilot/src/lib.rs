@@ -15,6 +15,8 @@
 //! * [`estimation`]: the horizontal velocity stage: the estimate gates, the median-5 and
 //!   observer (paper mode) or the Kalman filter, predicted at 512 Hz.
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
+//! * [`setpoints`]: the guidance stage: height setpoint (take-off climb, landing descent,
+//!   touchdown), velocity loop and heading make the setpoints the 512 Hz loop flies.
 //! * [`velocity_kf`]: horizontal velocity Kalman filter (IMU-driven model, Edge-FS
 //!   measurements weighted by quality at the time window they describe).
 //! * [`velocity_model`]: the horizontal model and prediction history both velocity estimators
@@ -60,6 +62,7 @@ pub mod mpu6000;
 pub mod ms5611;
 pub mod params;
 pub mod rc;
+pub mod setpoints;
 #[cfg(test)]
 mod test_support;
 pub mod velocity_kf;
