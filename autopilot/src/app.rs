@@ -1,14 +1,25 @@
 //! The autopilot board's task logic: every firmware task body (and the simulator) calls one
 //! method of [`Autopilot`], and the task graph is the data in [`TASKS`].
 //!
-//! Data flow: IMU (512 Hz) -> attitude estimate -> INDI -> mixer -> motors;
-//! Edge-FS estimates -> velocity Kalman filter (IMU-driven model, each estimate weighted by its
-//! quality against the predicted mean over its flow window; or, as in the paper, a plausibility
-//! gate -> median-5 -> velocity observer; estimates taken under fast yaw are skipped) -> velocity
-//! guidance (with the avoidance FSM and the wall force field making the setpoint) -> roll/pitch
-//! setpoints;
-//! barometer, accelerometer and external height -> vertical estimator -> height loop -> thrust;
-//! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
+//! [`Autopilot`] holds one value per stage, each in its own module and tested there; its
+//! methods pass each stage's typed result to the next:
+//!
+//! * 512 Hz ([`Autopilot::on_imu`]): IMU sample -> [`GyroCalibration`] -> attitude estimate ->
+//!   INDI -> mixer -> motors, flying the [`Setpoints`]; the same sample predicts the vertical
+//!   estimator and [`VelocityEstimation`].
+//! * Camera board ([`Autopilot::on_stereo_bytes`]): [`CameraLink`] decodes; each Edge-FS
+//!   estimate goes to [`VelocityEstimation`] (with a [`VisionContext`]: gates, then the
+//!   velocity Kalman filter, or the paper's median-5 and observer) and to [`Avoidance`]
+//!   (obstacle readings).
+//! * Height: barometer, accelerometer and external height fixes -> vertical estimator ->
+//!   height loop.
+//! * 50 Hz ([`Autopilot::guidance_step`]): failsafe -> [`Guidance`]'s height setpoint ->
+//!   [`Avoidance`] ([`AvoidanceInput`] -> avoidance FSM and wall force field ->
+//!   [`AvoidanceOutput`](crate::avoidance::AvoidanceOutput)) -> [`Guidance`]'s velocity loop on
+//!   the [`VelocityState`](crate::estimation::VelocityState) and the height loop ->
+//!   [`Setpoints`].
+//!
+//! Failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
 
 use crate::attitude::{attitude_error, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
@@ -296,26 +307,35 @@ impl AutopilotConfig {
     }
 }
 
-/// The whole autopilot state (fixed size, no heap).
+/// The whole autopilot state (fixed size, no heap): the stages in data-flow order.
 #[derive(Debug, Clone)]
 pub struct Autopilot {
     cfg: AutopilotConfig,
+    /// The 512 Hz loop: gyro offset, attitude, INDI; the last corrected gyro, the time of the
+    /// last usable sample and the motor throttles.
+    gyro_cal: GyroCalibration,
     att: AttitudeEstimator,
     indi: Indi,
-    height: HeightController,
-    vertical: VerticalEstimator,
-    guidance: Guidance,
-    estimation: VelocityEstimation,
-    gyro_cal: GyroCalibration,
-    avoidance: Avoidance,
-    failsafe: Failsafe,
-    last_imu_us: Option<u64>,
     gyro: [f32; 3],
+    last_imu_us: Option<u64>,
     motors: [f32; 4],
+    /// The camera board's link.
     camera: CameraLink,
+    /// Height: vertical estimator, the last barometer reading, the height loop (which holds
+    /// the height measurement it flies on).
+    vertical: VerticalEstimator,
+    baro: Option<(u64, BaroReading)>,
+    height: HeightController,
+    /// Horizontal velocity from the Edge-FS estimates.
+    estimation: VelocityEstimation,
+    /// Obstacle readings, avoidance FSM and force field.
+    avoidance: Avoidance,
+    /// The setpoints of the 512 Hz loop.
+    guidance: Guidance,
+    /// Flight mode and timeouts; the RC kill and the refused `Arm` count.
+    failsafe: Failsafe,
     rc_kill_latched: bool,
     arm_refused: u32,
-    baro: Option<(u64, BaroReading)>,
 }
 
 /// Why an `Arm` command is refused before the flight-mode checks (see
@@ -338,22 +358,22 @@ impl Autopilot {
     /// A disarmed autopilot.
     pub fn new(config: AutopilotConfig) -> Self {
         Self {
+            gyro_cal: GyroCalibration::new(),
             att: AttitudeEstimator::new(config.attitude),
             indi: Indi::new(config.indi),
-            height: HeightController::new(config.height),
-            vertical: VerticalEstimator::new(config.vertical),
-            guidance: Guidance::new(config.guidance),
-            estimation: VelocityEstimation::new(&config),
-            gyro_cal: GyroCalibration::new(),
-            avoidance: Avoidance::new(config.fsm),
-            failsafe: Failsafe::new(config.failsafe),
-            last_imu_us: None,
             gyro: [0.0; 3],
+            last_imu_us: None,
             motors: MOTORS_OFF,
             camera: CameraLink::new(),
+            vertical: VerticalEstimator::new(config.vertical),
+            baro: None,
+            height: HeightController::new(config.height),
+            estimation: VelocityEstimation::new(&config),
+            avoidance: Avoidance::new(config.fsm),
+            guidance: Guidance::new(config.guidance),
+            failsafe: Failsafe::new(config.failsafe),
             rc_kill_latched: false,
             arm_refused: 0,
-            baro: None,
             cfg: config,
         }
     }
@@ -619,11 +639,9 @@ impl Autopilot {
         self.motors
     }
 
-    /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a
-    /// plausibility gate ([`AutopilotConfig::max_velocity_jump_mps`]) and go through the
-    /// median-5 filter. The obstacle reading (distance and how much of the view has depth) is
-    /// kept unless the image is unusable; "nothing in range" only from a frame whose stereo
-    /// part is usable.
+    /// An Edge-FS estimate from the camera board, received at `now_us`: its obstacle reading
+    /// goes to avoidance ([`Avoidance::on_estimate`]), its velocity through estimation's gates
+    /// ([`VelocityEstimation::on_estimate`]) with the height and climb rate of now.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
         self.avoidance.on_estimate(est, now_us);
         let ctx = VisionContext {
