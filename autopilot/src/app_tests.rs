@@ -9,7 +9,7 @@ extern crate std;
 use super::*;
 use crate::attitude::GRAVITY;
 use crate::indi::IndiConfig;
-use crate::test_support::forward_estimate;
+use crate::test_support::{camera_status, forward_estimate};
 use proptest::prelude::*;
 use protocol::EstimateFlags;
 use protocol::ParamOp;
@@ -329,18 +329,8 @@ fn a_stopped_camera_reported_in_status_hovers_without_waiting_for_the_estimate_t
     // The last estimate is fresh; then the camera board reports its camera stopped.
     r.ap.on_estimate(&r.quad.estimate(r.seq.wrapping_add(1)), r.now);
     r.estimates = false;
-    let status = StereoStatus {
-        uptime_ms: 3_000,
-        frame_rate_hz: 0.0,
-        frames_processed: 50,
-        frames_dropped: 0,
-        link_errors: LinkErrorCounts::default(),
-        max_processing_us: 0,
-        capture: protocol::CaptureCounts::default(),
-        camera_stopped: true,
-    };
     let stopped_at = r.now;
-    r.ap.on_stereo_message(StereoToAutopilot::Status(status), r.now);
+    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
     r.fly(0.1);
     let hover = r
         .modes
@@ -363,18 +353,8 @@ fn a_stopped_camera_lands_and_stops_the_motors_within_its_promise() {
     r.fly(4.0);
     assert!((r.quad.height() - cfg.target_height_m).abs() < 0.1);
     r.estimates = false;
-    let status = StereoStatus {
-        uptime_ms: 5_000,
-        frame_rate_hz: 0.0,
-        frames_processed: 100,
-        frames_dropped: 0,
-        link_errors: LinkErrorCounts::default(),
-        max_processing_us: 0,
-        capture: protocol::CaptureCounts::default(),
-        camera_stopped: true,
-    };
     let stopped_at = r.now;
-    r.ap.on_stereo_message(StereoToAutopilot::Status(status), r.now);
+    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
     let promise = cfg.camera_stopped_motors_off_us();
     let mut off_at = None;
     while r.now < stopped_at + promise + 1_000_000 {

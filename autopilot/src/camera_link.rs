@@ -108,20 +108,8 @@ impl CameraLink {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::{CaptureCounts, EstimateFlags, Node, ParamError, ParamReply, WireTime};
-
-    fn status(camera_stopped: bool) -> StereoStatus {
-        StereoStatus {
-            uptime_ms: 3_000,
-            frame_rate_hz: 0.0,
-            frames_processed: 50,
-            frames_dropped: 0,
-            link_errors: LinkErrorCounts::default(),
-            max_processing_us: 0,
-            capture: CaptureCounts::default(),
-            camera_stopped,
-        }
-    }
+    use crate::test_support::{camera_status as status, forward_estimate};
+    use protocol::{Node, ParamError, ParamReply};
 
     #[test]
     fn reports_are_kept_and_only_estimates_and_a_stopped_camera_are_passed_on() {
@@ -150,15 +138,7 @@ mod tests {
         assert_eq!(link.take_param_reply(), None, "taken once");
         let est = Estimate {
             seq: 3,
-            capture_us: WireTime(0),
-            forward_mps: 0.1,
-            sideways_mps: 0.0,
-            obstacle_m: None,
-            quality: 200,
-            flags: EstimateFlags::NONE,
-            processing_us: 0,
-            depth_coverage: 255,
-            near_columns: 0,
+            ..forward_estimate(0.1)
         };
         assert_eq!(
             link.on_message(StereoToAutopilot::Estimate(est), 11),

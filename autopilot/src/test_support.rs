@@ -1,6 +1,6 @@
 //! Inputs the unit tests of several stages share.
 
-use protocol::{Estimate, EstimateFlags, WireTime};
+use protocol::{CaptureCounts, Estimate, EstimateFlags, LinkErrorCounts, StereoStatus, WireTime};
 
 /// A valid estimate of `forward_mps` straight ahead, nothing in range over a view with depth
 /// everywhere.
@@ -16,5 +16,19 @@ pub fn forward_estimate(forward_mps: f32) -> Estimate {
         processing_us: 0,
         depth_coverage: 255,
         near_columns: 0,
+    }
+}
+
+/// A camera board's status report, its camera running or stopped.
+pub fn camera_status(camera_stopped: bool) -> StereoStatus {
+    StereoStatus {
+        uptime_ms: 3_000,
+        frame_rate_hz: 0.0,
+        frames_processed: 50,
+        frames_dropped: 0,
+        link_errors: LinkErrorCounts::default(),
+        max_processing_us: 0,
+        capture: CaptureCounts::default(),
+        camera_stopped,
     }
 }
