@@ -1,35 +1,50 @@
 //! The autopilot board's task logic: every firmware task body (and the simulator) calls one
 //! method of [`Autopilot`], and the task graph is the data in [`TASKS`].
 //!
-//! Data flow: IMU (512 Hz) -> attitude estimate -> INDI -> mixer -> motors;
-//! Edge-FS estimates -> velocity Kalman filter (IMU-driven model, each estimate weighted by its
-//! quality against the predicted mean over its flow window; or, as in the paper, a plausibility
-//! gate -> median-5 -> velocity observer; estimates taken under fast yaw are skipped) -> velocity
-//! guidance (with the avoidance FSM and the wall force field making the setpoint) -> roll/pitch
-//! setpoints;
-//! barometer, accelerometer and external height -> vertical estimator -> height loop -> thrust;
-//! failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
+//! [`Autopilot`] holds one value per stage, each in its own module and tested there; its
+//! methods pass each stage's typed result to the next:
+//!
+//! * 512 Hz ([`Autopilot::on_imu`]): IMU sample -> [`GyroCalibration`] -> attitude estimate ->
+//!   INDI -> mixer -> motors, flying the [`Setpoints`]; the same sample predicts the vertical
+//!   estimator and [`VelocityEstimation`].
+//! * Camera board ([`Autopilot::on_stereo_bytes`]): [`CameraLink`] decodes; each Edge-FS
+//!   estimate goes to [`VelocityEstimation`] (with a [`VisionContext`]: gates, then the
+//!   velocity Kalman filter, or the paper's median-5 and observer) and to [`Avoidance`]
+//!   (obstacle readings).
+//! * Height: barometer, accelerometer and external height fixes -> vertical estimator ->
+//!   height loop.
+//! * 50 Hz ([`Autopilot::guidance_step`]): failsafe -> [`Guidance`]'s height setpoint ->
+//!   [`Avoidance`] ([`AvoidanceInput`] -> avoidance FSM and wall force field ->
+//!   [`AvoidanceOutput`](crate::avoidance::AvoidanceOutput)) -> [`Guidance`]'s velocity loop on
+//!   the [`VelocityState`](crate::estimation::VelocityState) and the height loop ->
+//!   [`Setpoints`].
+//!
+//! Failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
 
-use crate::attitude::{attitude_error, wrap_pi, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
+use crate::attitude::{attitude_error, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
+use crate::avoidance::{Avoidance, AvoidanceInput};
+use crate::camera_link::{CameraLink, CameraNews};
+pub use crate::estimation::VelocitySource;
+use crate::estimation::{VelocityEstimation, VisionContext};
 use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
-use crate::force_field::{backward_velocity, ForceFieldConfig};
-use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
-use crate::guidance::{
-    GuidanceConfig, ObserverConfig, TiltSetpoint, VelocityGuidance, VelocityObserver,
-};
+use crate::force_field::ForceFieldConfig;
+use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState};
+use crate::guidance::{GuidanceConfig, ObserverConfig, VelocityObserver};
+use crate::gyro_calibration::GyroCalibration;
 use crate::height::{tilt_compensate, HeightConfig, HeightController};
 use crate::indi::{Indi, IndiConfig};
-use crate::median::VelocityMedian;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
-use crate::velocity_kf::{Fusion, VelocityKf, VelocityKfConfig};
+pub use crate::setpoints::Setpoints;
+use crate::setpoints::{Guidance, LAND_SETPOINT_FLOOR_M};
+use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::{
-    ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
-    LinkErrorCounts, Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand,
-    StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
+    ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts,
+    Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
+    StereoToAutopilot, Telemetry,
 };
 use timebase::WireTime;
 
@@ -272,34 +287,6 @@ impl Default for AutopilotConfig {
     }
 }
 
-/// The velocity estimate guidance flies on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum VelocitySource {
-    /// [`VelocityKf`]: every gated estimate (the camera board's filtered output), weighted by
-    /// its quality, against the predicted mean over the time window it describes.
-    Kalman,
-    /// The paper's path: median-5 of the gated estimates into the [`VelocityObserver`].
-    MedianObserver,
-    /// [`VelocityKf`] on each frame's own fit ([`protocol::Estimate::fit`]) instead of the
-    /// board's filtered output, over the flow window [`AutopilotConfig::fit_horizon_us`]: 2x
-    /// less velocity error in most simulated flights (0.02 against 0.045 m/s RMS), but a
-    /// frame's fit can alias to the wrong sign when the flow outruns the search (seen above
-    /// 0.5 m/s), and runs of such fits have thrown the filter off; not the default.
-    KalmanFits,
-}
-
-impl VelocitySource {
-    /// True for the two Kalman-filter sources.
-    pub fn is_kalman(self) -> bool {
-        matches!(self, Self::Kalman | Self::KalmanFits)
-    }
-}
-
-/// While landing, the height setpoint ramps down to this height below the floor, m, and stays
-/// there: the drone, lagging the ramp, is pushed onto the floor rather than hovering just above
-/// it.
-const LAND_SETPOINT_FLOOR_M: f32 = -0.2;
-
 impl AutopilotConfig {
     /// The longest time from the camera board's estimates stopping (a cut link, a dead board)
     /// to every motor at 0, µs, for a drone flying at up to `target_height_m`: the estimate
@@ -324,74 +311,35 @@ impl AutopilotConfig {
     }
 }
 
-/// Flags of a frame that says nothing about obstacles (the image itself is unusable).
-const UNSEEN: EstimateFlags =
-    EstimateFlags(EstimateFlags::TOO_DARK.0 | EstimateFlags::TOO_BRIGHT.0);
-
-/// Flags of a frame whose stereo failed: an obstacle it reports stands (a surface nearer than
-/// the stereo range leaves few matches), its "nothing in range" does not (the velocity may
-/// still be invalid for flow reasons while the stereo part is fine).
-const NO_DEPTH: EstimateFlags =
-    EstimateFlags(EstimateFlags::NO_TEXTURE.0 | EstimateFlags::NO_STEREO_MATCH.0);
-
-/// Setpoints the guidance layer hands to the 512 Hz loop (and to telemetry).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Setpoints {
-    /// Roll, pitch, yaw setpoint, rad.
-    pub attitude_rad: [f32; 3],
-    /// Level-flight collective thrust, 0..=1 (tilt-compensated in the 512 Hz loop).
-    pub thrust: f32,
-    /// Height setpoint, m.
-    pub height_m: f32,
-    /// Forward and sideways velocity setpoint, m/s.
-    pub velocity_mps: [f32; 2],
-}
-
-/// The whole autopilot state (fixed size, no heap).
+/// The whole autopilot state (fixed size, no heap): the stages in data-flow order.
 #[derive(Debug, Clone)]
 pub struct Autopilot {
     cfg: AutopilotConfig,
+    /// The 512 Hz loop: gyro offset, attitude, INDI; the last corrected gyro, the time of the
+    /// last usable sample and the motor throttles.
+    gyro_cal: GyroCalibration,
     att: AttitudeEstimator,
     indi: Indi,
-    height: HeightController,
-    vertical: VerticalEstimator,
-    guidance: VelocityGuidance,
-    median: VelocityMedian,
-    observer: VelocityObserver,
-    last_fused_us: Option<u64>,
-    kf: VelocityKf,
-    last_kf_fused_us: Option<u64>,
-    last_fast_yaw_us: Option<u64>,
-    yaw_gated_total: u32,
-    gyro_offset: Option<[f32; 3]>,
-    cal_sum: [f32; 3],
-    cal_n: u16,
-    fsm: AvoidanceFsm,
-    fsm_active: bool,
-    failsafe: Failsafe,
-    sp: Setpoints,
-    last_imu_us: Option<u64>,
     gyro: [f32; 3],
-    last_valid_estimate_us: Option<u64>,
-    velocity: Option<[f32; 2]>,
-    obstacle: Option<ObstacleReading>,
-    last_guidance_us: Option<u64>,
-    below_landed_since_us: Option<u64>,
+    last_imu_us: Option<u64>,
     motors: [f32; 4],
-    estimates_received: u32,
-    outliers_in_a_row: u8,
-    /// Valid estimates in a row (saturating), see [`AutopilotConfig::min_valid_run`].
-    valid_run: u8,
-    last_outlier: [f32; 2],
-    outliers_total: u32,
-    stereo_rx: StereoToAutopilotDecoder,
-    stereo_heartbeat: Option<(u64, Heartbeat)>,
-    stereo_status: Option<StereoStatus>,
-    stereo_config_ack: Option<ConfigResult>,
-    camera_param_reply: Option<ParamResponse>,
+    /// The camera board's link.
+    camera: CameraLink,
+    /// Height: vertical estimator, the last barometer reading, the height loop (which holds
+    /// the height measurement it flies on).
+    vertical: VerticalEstimator,
+    baro: Option<(u64, BaroReading)>,
+    height: HeightController,
+    /// Horizontal velocity from the Edge-FS estimates.
+    estimation: VelocityEstimation,
+    /// Obstacle readings, avoidance FSM and force field.
+    avoidance: Avoidance,
+    /// The setpoints of the 512 Hz loop.
+    guidance: Guidance,
+    /// Flight mode and timeouts; the RC kill and the refused `Arm` count.
+    failsafe: Failsafe,
     rc_kill_latched: bool,
     arm_refused: u32,
-    baro: Option<(u64, BaroReading)>,
 }
 
 /// Why an `Arm` command is refused before the flight-mode checks (see
@@ -414,51 +362,22 @@ impl Autopilot {
     /// A disarmed autopilot.
     pub fn new(config: AutopilotConfig) -> Self {
         Self {
+            gyro_cal: GyroCalibration::new(),
             att: AttitudeEstimator::new(config.attitude),
             indi: Indi::new(config.indi),
-            height: HeightController::new(config.height),
-            vertical: VerticalEstimator::new(config.vertical),
-            guidance: VelocityGuidance::new(config.guidance),
-            median: VelocityMedian::default(),
-            observer: VelocityObserver::new(config.observer),
-            last_fused_us: None,
-            kf: VelocityKf::new(config.velocity_kf),
-            last_kf_fused_us: None,
-            last_fast_yaw_us: None,
-            yaw_gated_total: 0,
-            gyro_offset: None,
-            cal_sum: [0.0; 3],
-            cal_n: 0,
-            fsm: AvoidanceFsm::new(config.fsm, 0, 0.0),
-            fsm_active: false,
-            failsafe: Failsafe::new(config.failsafe),
-            sp: Setpoints {
-                attitude_rad: [0.0; 3],
-                thrust: 0.0,
-                height_m: 0.0,
-                velocity_mps: [0.0; 2],
-            },
-            last_imu_us: None,
             gyro: [0.0; 3],
-            last_valid_estimate_us: None,
-            velocity: None,
-            obstacle: None,
-            last_guidance_us: None,
-            below_landed_since_us: None,
+            last_imu_us: None,
             motors: MOTORS_OFF,
-            estimates_received: 0,
-            outliers_in_a_row: 0,
-            valid_run: 0,
-            last_outlier: [0.0; 2],
-            outliers_total: 0,
-            stereo_rx: StereoToAutopilotDecoder::new_mid_stream(),
-            stereo_heartbeat: None,
-            stereo_status: None,
-            stereo_config_ack: None,
-            camera_param_reply: None,
+            camera: CameraLink::new(),
+            vertical: VerticalEstimator::new(config.vertical),
+            baro: None,
+            height: HeightController::new(config.height),
+            estimation: VelocityEstimation::new(&config),
+            avoidance: Avoidance::new(config.fsm),
+            guidance: Guidance::new(config.guidance),
+            failsafe: Failsafe::new(config.failsafe),
             rc_kill_latched: false,
             arm_refused: 0,
-            baro: None,
             cfg: config,
         }
     }
@@ -491,8 +410,8 @@ impl Autopilot {
         self.height.set_config(config.height);
         self.vertical.set_config(config.vertical);
         self.guidance.set_config(config.guidance);
-        self.observer.set_config(config.observer);
-        self.fsm.set_config(config.fsm);
+        self.estimation.set_config(&config);
+        self.avoidance.set_config(config.fsm);
         self.failsafe.set_config(config.failsafe);
         self.cfg = config;
         Ok(())
@@ -518,7 +437,7 @@ impl Autopilot {
     /// The camera board's latest answer to a parameter request passed on to it, for the host
     /// (taken once; a newer answer replaces one not yet taken).
     pub fn take_camera_param_reply(&mut self) -> Option<ParamResponse> {
-        self.camera_param_reply.take()
+        self.camera.take_param_reply()
     }
 
     /// Current flight mode (failsafe state).
@@ -528,22 +447,22 @@ impl Autopilot {
 
     /// Current avoidance state (meaningful while [`Autopilot::fsm_active`]).
     pub fn fsm_state(&self) -> FsmState {
-        self.fsm.state()
+        self.avoidance.fsm().state()
     }
 
     /// True while the avoidance FSM drives the setpoints.
     pub fn fsm_active(&self) -> bool {
-        self.fsm_active
+        self.avoidance.active()
     }
 
     /// The avoidance FSM (state, time in state, transition count).
     pub fn fsm(&self) -> &AvoidanceFsm {
-        &self.fsm
+        self.avoidance.fsm()
     }
 
     /// Current setpoints.
     pub fn setpoints(&self) -> Setpoints {
-        self.sp
+        *self.guidance.setpoints()
     }
 
     /// Estimated attitude roll, pitch, yaw, rad.
@@ -553,46 +472,35 @@ impl Autopilot {
 
     /// Median-filtered `[forward, sideways]` velocity, m/s (`None` before the first valid one).
     pub fn velocity(&self) -> Option<[f32; 2]> {
-        self.velocity
+        self.estimation.median_velocity()
     }
 
     /// The `[forward, sideways]` velocity guidance flies on, m/s, from the configured
     /// [`VelocitySource`] (`None` before the first valid estimate). Between estimates it is
     /// predicted from the attitude.
     pub fn velocity_estimate(&self) -> Option<[f32; 2]> {
-        match self.cfg.velocity_source {
-            VelocitySource::Kalman | VelocitySource::KalmanFits => self.kf.velocity(),
-            VelocitySource::MedianObserver => self.observer.velocity(),
-        }
-    }
-
-    /// When the velocity source last took an estimate, µs.
-    fn last_velocity_fix_us(&self) -> Option<u64> {
-        match self.cfg.velocity_source {
-            VelocitySource::Kalman | VelocitySource::KalmanFits => self.last_kf_fused_us,
-            VelocitySource::MedianObserver => self.last_fused_us,
-        }
+        self.estimation.state(self.cfg.velocity_source).velocity_mps
     }
 
     /// The horizontal velocity Kalman filter.
     pub fn velocity_kf(&self) -> &VelocityKf {
-        &self.kf
+        self.estimation.kf()
     }
 
     /// The velocity observer of the paper's path (bias, configuration); it runs only when
     /// [`AutopilotConfig::velocity_source`] is [`VelocitySource::MedianObserver`].
     pub fn observer(&self) -> &VelocityObserver {
-        &self.observer
+        self.estimation.observer()
     }
 
     /// Gyro offset from the last ground calibration, rad/s (`None`: not calibrated yet).
     pub fn gyro_offset(&self) -> Option<[f32; 3]> {
-        self.gyro_offset
+        self.gyro_cal.offset()
     }
 
     /// Valid estimates not used for the velocity because of fast yaw since boot (wrapping).
     pub fn yaw_gated_estimates(&self) -> u32 {
-        self.yaw_gated_total
+        self.estimation.yaw_gated()
     }
 
     /// INDI state (G1/G2 estimates etc.).
@@ -607,32 +515,32 @@ impl Autopilot {
 
     /// Errors decoding camera-board bytes (via [`Autopilot::on_stereo_bytes`]) since boot.
     pub fn link_errors(&self) -> LinkErrorCounts {
-        self.stereo_rx.errors()
+        self.camera.errors()
     }
 
     /// Estimates received since boot (valid or not, wrapping).
     pub fn estimates_received(&self) -> u32 {
-        self.estimates_received
+        self.estimation.estimates_received()
     }
 
     /// Valid estimates skipped by the plausibility gate since boot (wrapping).
     pub fn velocity_outliers(&self) -> u32 {
-        self.outliers_total
+        self.estimation.outliers()
     }
 
     /// The camera board's last heartbeat and when it arrived (µs).
     pub fn stereo_heartbeat(&self) -> Option<(u64, Heartbeat)> {
-        self.stereo_heartbeat
+        self.camera.heartbeat()
     }
 
     /// The camera board's last status report.
     pub fn stereo_status(&self) -> Option<StereoStatus> {
-        self.stereo_status
+        self.camera.status()
     }
 
     /// The camera board's answer to the last configuration request.
     pub fn stereo_config_ack(&self) -> Option<ConfigResult> {
-        self.stereo_config_ack
+        self.camera.config_ack()
     }
 
     /// Bytes from the camera-board UART, as they arrive (any chunking). Complete frames are
@@ -641,7 +549,7 @@ impl Autopilot {
     pub fn on_stereo_bytes(&mut self, bytes: &[u8], now_us: u64) -> usize {
         let mut n = 0;
         for &b in bytes {
-            if let Some(msg) = self.stereo_rx.push(b) {
+            if let Some(msg) = self.camera.push(b) {
                 n += 1;
                 self.on_stereo_message(msg, now_us);
             }
@@ -651,25 +559,18 @@ impl Autopilot {
 
     /// One decoded camera-board message (for callers that run their own decoder).
     pub fn on_stereo_message(&mut self, msg: StereoToAutopilot, now_us: u64) {
-        match msg {
-            StereoToAutopilot::Estimate(e) => self.on_estimate(&e, now_us),
-            StereoToAutopilot::Heartbeat(h) => self.stereo_heartbeat = Some((now_us, h)),
-            StereoToAutopilot::Status(s) => {
-                if s.camera_stopped {
-                    // The camera board sees no frames: fly as blind from now on instead of
-                    // waiting out the estimate timeout (a valid estimate ends it).
-                    self.last_valid_estimate_us = None;
-                }
-                self.stereo_status = Some(s);
-            }
-            StereoToAutopilot::ConfigAck(a) => self.stereo_config_ack = Some(a),
-            StereoToAutopilot::Param(r) => self.camera_param_reply = Some(r),
+        match self.camera.on_message(msg, now_us) {
+            Some(CameraNews::Estimate(e)) => self.on_estimate(&e, now_us),
+            // The camera board sees no frames: fly as blind from now on instead of waiting out
+            // the estimate timeout (a valid estimate ends it).
+            Some(CameraNews::CameraStopped) => self.estimation.camera_stopped(),
+            None => {}
         }
     }
 
     fn freshness(&self) -> Freshness {
         Freshness {
-            last_valid_estimate_us: self.last_valid_estimate_us,
+            last_valid_estimate_us: self.estimation.last_valid_estimate_us(),
             last_imu_us: self.last_imu_us,
             last_height_us: self.height.last_measurement_us(),
         }
@@ -697,15 +598,18 @@ impl Autopilot {
             None => 1.0 / self.cfg.indi.rate_hz.max(1.0),
         };
         self.last_imu_us = Some(now_us);
-        if !self.failsafe.mode().motors_enabled() {
-            self.calibrate_gyro(imu);
+        if !self.failsafe.mode().motors_enabled()
+            && self.gyro_cal.update(
+                imu,
+                self.cfg.gyro_calibration_samples,
+                self.cfg.gyro_calibration_still_radps,
+            )
+        {
+            // Start the attitude again from the accelerometer, without the tilt error the
+            // uncorrected gyro built up.
+            self.att = AttitudeEstimator::new(self.cfg.attitude);
         }
-        let off = self.gyro_offset.unwrap_or([0.0; 3]);
-        let gyro = [
-            imu.gyro_radps[0] - off[0],
-            imu.gyro_radps[1] - off[1],
-            imu.gyro_radps[2] - off[2],
-        ];
+        let gyro = self.gyro_cal.correct(imu.gyro_radps);
         self.gyro = gyro;
         self.att.update(gyro, imu.accel_mps2, dt);
 
@@ -713,23 +617,19 @@ impl Autopilot {
         let [roll, pitch, _] = q.to_euler();
         self.vertical
             .predict(vertical_acceleration(imu.accel_mps2, q), dt);
-        match self.cfg.velocity_source {
-            VelocitySource::Kalman | VelocitySource::KalmanFits => {
-                self.kf.predict(roll, pitch, gyro[2], dt, now_us)
-            }
-            VelocitySource::MedianObserver => {
-                self.observer.predict(roll, pitch, gyro[2], dt, now_us)
-            }
-        }
-        if gyro[2].abs() > self.cfg.max_yaw_rate_radps {
-            self.last_fast_yaw_us = Some(now_us);
-        }
+        self.estimation
+            .predict(roll, pitch, gyro[2], dt, now_us, &self.cfg);
         let thrust = if self.failsafe.mode().motors_enabled() {
-            tilt_compensate(self.sp.thrust, roll, pitch, self.cfg.height.max_tilt_factor)
+            tilt_compensate(
+                self.guidance.setpoints().thrust,
+                roll,
+                pitch,
+                self.cfg.height.max_tilt_factor,
+            )
         } else {
             0.0
         };
-        let [r_sp, p_sp, y_sp] = self.sp.attitude_rad;
+        let [r_sp, p_sp, y_sp] = self.guidance.setpoints().attitude_rad;
         let err = attitude_error(q, Quat::from_euler(r_sp, p_sp, y_sp));
         let u = self.indi.control(err, gyro, thrust);
         if thrust <= 0.0 {
@@ -743,169 +643,17 @@ impl Autopilot {
         self.motors
     }
 
-    /// Ground gyro calibration (disarmed): block averages of still samples.
-    fn calibrate_gyro(&mut self, imu: &ImuSample) {
-        let g = imu.gyro_radps;
-        let a = imu.accel_mps2;
-        let an = libm::sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-        let lim = self.cfg.gyro_calibration_still_radps;
-        let still = g.iter().all(|x| x.abs() < lim) && (an - GRAVITY).abs() < 0.05 * GRAVITY;
-        if !still {
-            self.cal_sum = [0.0; 3];
-            self.cal_n = 0;
-            return;
-        }
-        for (s, x) in self.cal_sum.iter_mut().zip(g.iter()) {
-            *s += x;
-        }
-        self.cal_n = self.cal_n.saturating_add(1);
-        let n = self.cfg.gyro_calibration_samples.max(1);
-        if self.cal_n >= n {
-            let k = 1.0 / self.cal_n as f32;
-            let first = self.gyro_offset.is_none();
-            self.gyro_offset = Some(self.cal_sum.map(|s| s * k));
-            self.cal_sum = [0.0; 3];
-            self.cal_n = 0;
-            if first {
-                // Start the attitude again from the accelerometer, without the tilt error the
-                // uncorrected gyro built up.
-                self.att = AttitudeEstimator::new(self.cfg.attitude);
-            }
-        }
-    }
-
-    /// An Edge-FS estimate from the camera board, received at `now_us`. Valid velocities pass a
-    /// plausibility gate ([`AutopilotConfig::max_velocity_jump_mps`]) and go through the
-    /// median-5 filter. The obstacle reading (distance and how much of the view has depth) is
-    /// kept unless the image is unusable; "nothing in range" only from a frame whose stereo
-    /// part is usable.
+    /// An Edge-FS estimate from the camera board, received at `now_us`: its obstacle reading
+    /// goes to avoidance ([`Avoidance::on_estimate`]), its velocity through estimation's gates
+    /// ([`VelocityEstimation::on_estimate`]) with the height and climb rate of now.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
-        self.estimates_received = self.estimates_received.wrapping_add(1);
-        if est.flags.0 & UNSEEN.0 == 0 {
-            let d = match est.obstacle_m {
-                Some(d) if d.is_finite() && d >= 0.0 => Some(Some(d)),
-                Some(_) => None, // garbage: no reading
-                // A frame whose stereo failed says nothing of free space.
-                None if est.flags.0 & NO_DEPTH.0 != 0 => None,
-                None => Some(None),
-            };
-            let depth_fraction = if est.flags.0 & NO_DEPTH.0 == 0 {
-                est.depth_fraction()
-            } else {
-                0.0
-            };
-            if let Some(distance_m) = d {
-                self.obstacle = Some(ObstacleReading {
-                    received_us: now_us,
-                    distance_m,
-                    depth_fraction,
-                });
-            }
-        }
-        // What the frame says of the velocity: the board's output, or with
-        // `VelocitySource::KalmanFits` the frame's own fit.
-        let fits = self.cfg.velocity_source == VelocitySource::KalmanFits;
-        let measured = match (fits, est.fit) {
-            (true, Some(fit)) => Some(([fit.forward_mps, fit.sideways_mps], fit.quality)),
-            (true, None) => None,
-            (false, _) => est
-                .is_valid()
-                .then_some(([est.forward_mps, est.sideways_mps], est.quality)),
+        self.avoidance.on_estimate(est, now_us);
+        let ctx = VisionContext {
+            now_us,
+            height_m: self.height.height_m(),
+            climb_mps: self.height.climb_mps(),
         };
-        let lim = self.cfg.max_estimate_mps;
-        let usable = |(v, q): &([f32; 2], u8)| {
-            *q >= self.cfg.min_quality && v.iter().all(|x| x.is_finite() && x.abs() <= lim)
-        };
-        let Some((v, quality)) = measured.filter(usable) else {
-            self.valid_run = 0;
-            return;
-        };
-        self.valid_run = self.valid_run.saturating_add(1);
-        if self.valid_run < self.cfg.min_valid_run {
-            return;
-        }
-        let gap = match self.last_valid_estimate_us {
-            Some(t) => now_us.saturating_sub(t) > self.cfg.median_reset_gap_us,
-            None => true,
-        };
-        if gap {
-            self.median.reset();
-            self.outliers_in_a_row = 0;
-        }
-        if self.height.height_m() < self.cfg.min_vision_height_m
-            || self.height.climb_mps().abs() > self.cfg.max_vision_climb_mps
-        {
-            // Valid for the failsafe, not for the velocity (see `min_vision_height_m` and
-            // `max_vision_climb_mps`).
-            self.median.reset();
-            self.outliers_in_a_row = 0;
-            self.last_valid_estimate_us = Some(now_us);
-            return;
-        }
-        let yawing = matches!(self.last_fast_yaw_us,
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.yaw_settle_us);
-        if yawing {
-            // Valid for the failsafe, not for the velocity; the median restarts after the
-            // turn (its samples are in the old heading).
-            self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
-            self.median.reset();
-            self.outliers_in_a_row = 0;
-            self.last_valid_estimate_us = Some(now_us);
-            return;
-        }
-        // The Kalman filter has its own innovation gate; it takes the estimate as the mean
-        // velocity over the window it describes: for the board's output the flow window
-        // widened by the board's filter and ending its lag before the frame's capture, for a
-        // frame's own fit the flow window ending at the capture.
-        let (lag_us, horizon_us) = if fits {
-            (0, self.cfg.fit_horizon_us)
-        } else {
-            (
-                self.cfg.estimate_filter_lag_us,
-                self.cfg.estimate_horizon_us,
-            )
-        };
-        let end = now_us
-            .saturating_sub(u64::from(est.processing_us))
-            .saturating_sub(u64::from(self.cfg.estimate_link_us))
-            .saturating_sub(u64::from(lag_us));
-        let start = end.saturating_sub(u64::from(horizon_us));
-        if self.cfg.velocity_source.is_kalman()
-            && matches!(
-                self.kf.correct(v, quality, start, end),
-                Fusion::Fused | Fusion::Initialised
-            )
-        {
-            self.last_kf_fused_us = Some(now_us);
-        }
-        let jump = self.cfg.max_velocity_jump_mps;
-        let outlier = match self.median.output() {
-            Some([f, s]) => (v[0] - f).abs() > jump || (v[1] - s).abs() > jump,
-            None => false,
-        };
-        if outlier {
-            let [f, s] = self.last_outlier;
-            let agrees =
-                self.outliers_in_a_row > 0 && (v[0] - f).abs() <= jump && (v[1] - s).abs() <= jump;
-            let run = if agrees { self.outliers_in_a_row } else { 0 };
-            if run < self.cfg.max_consecutive_outliers {
-                self.outliers_in_a_row = run + 1;
-                self.last_outlier = [v[0], v[1]];
-                self.outliers_total = self.outliers_total.wrapping_add(1);
-                return;
-            }
-        }
-        if outlier {
-            self.median.reset();
-        }
-        self.outliers_in_a_row = 0;
-        self.velocity = self.median.push(v[0], v[1]);
-        if let (Some(v), VelocitySource::MedianObserver) = (self.velocity, self.cfg.velocity_source)
-        {
-            self.observer.correct(v, now_us);
-            self.last_fused_us = Some(now_us);
-        }
-        self.last_valid_estimate_us = Some(now_us);
+        self.estimation.on_estimate(est, &ctx, &self.cfg);
     }
 
     /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
@@ -937,16 +685,13 @@ impl Autopilot {
         if after == FlightMode::Flying && before != FlightMode::Flying {
             // Take-off: climb from where we are, hold the current heading.
             self.height.reset_integral();
-            self.guidance.reset();
-            self.sp.height_m = self.height.height_m();
-            self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
-            self.sp.velocity_mps = [0.0; 2];
-            self.fsm_active = false;
-            self.below_landed_since_us = None;
+            self.guidance
+                .take_off(self.height.height_m(), self.att.euler()[2]);
+            self.avoidance.stop();
         }
         if !after.motors_enabled() {
             self.motors = MOTORS_OFF;
-            self.sp.thrust = 0.0;
+            self.guidance.motors_off();
         }
     }
 
@@ -966,7 +711,7 @@ impl Autopilot {
         if self.rc_kill_latched {
             Some(ArmBlock::RcKill)
         } else {
-            self.stereo_rx
+            self.camera
                 .peer_version_mismatch()
                 .map(ArmBlock::PeerVersion)
         }
@@ -1002,141 +747,73 @@ impl Autopilot {
     /// Guidance step (e.g. 50 Hz): failsafes, avoidance FSM, force field, velocity guidance and
     /// the height loop update the setpoints the 512 Hz loop flies.
     pub fn guidance_step(&mut self, now_us: u64) {
-        let dt = match self.last_guidance_us {
-            Some(t) if now_us > t => ((now_us - t) as f32 * 1e-6).min(0.1),
-            Some(_) => 0.0,
-            None => GUIDANCE_PERIOD_US as f32 * 1e-6,
-        };
-        self.last_guidance_us = Some(now_us);
+        let dt = self.guidance.tick(now_us);
         let f = self.freshness();
         let mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
-            if mode == FlightMode::Disarmed {
-                // Standing on the floor: the barometer's reading now is its offset, and the
-                // drone is not moving whatever the camera makes of a blank wall.
-                self.vertical.on_ground();
-                self.kf.hold_still(now_us);
-                self.last_kf_fused_us = Some(now_us);
-            }
-            self.height.reset_integral();
-            self.guidance.reset();
-            self.fsm_active = false;
-            self.sp.thrust = 0.0;
-            self.sp.velocity_mps = [0.0; 2];
-            self.sp.attitude_rad = [0.0, 0.0, self.att.euler()[2]];
-            self.motors = MOTORS_OFF;
+            self.rest(mode, now_us);
             return;
         }
-        let yaw = self.att.euler()[2];
-        let velocity_fresh = matches!(self.last_velocity_fix_us(),
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.velocity_max_age_us);
-        let velocity = if velocity_fresh {
-            self.velocity_estimate()
-        } else {
-            None
-        };
-        let obstacle = self.obstacle.filter(|o| {
-            now_us.saturating_sub(o.received_us) <= self.cfg.failsafe.estimate_timeout_us
-        });
-        let height_fresh = matches!(self.height.last_measurement_us(),
-            Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.height_timeout_us);
+        let cfg = &self.cfg;
+        let velocity = self.estimation.state(cfg.velocity_source);
         let h = self.height.height_m();
-        let target = self.cfg.target_height_m;
-
-        // Height setpoint.
-        let mut sp_rate = 0.0;
-        match mode {
-            FlightMode::Landing => {
-                let blind = !matches!(self.last_velocity_fix_us(),
-                    Some(t) if now_us.saturating_sub(t) <= self.cfg.failsafe.estimate_timeout_us);
-                let rate = if blind {
-                    self.cfg.blind_land_rate_mps
-                } else {
-                    self.cfg.land_rate_mps
-                };
-                sp_rate = -rate.abs();
-                self.sp.height_m = (self.sp.height_m + sp_rate * dt).max(LAND_SETPOINT_FLOOR_M);
-            }
-            _ => {
-                let step = self.cfg.climb_rate_mps.abs() * dt;
-                if self.sp.height_m < target - step {
-                    self.sp.height_m += step;
-                    sp_rate = self.cfg.climb_rate_mps.abs();
-                } else if self.sp.height_m > target + step {
-                    self.sp.height_m -= step;
-                    sp_rate = -self.cfg.climb_rate_mps.abs();
-                } else {
-                    self.sp.height_m = target;
-                }
-            }
+        let height_sp = self
+            .guidance
+            .height_setpoint(mode, &velocity, now_us, dt, cfg);
+        let request = self.avoidance.step(
+            &AvoidanceInput {
+                now_us,
+                flying: mode == FlightMode::Flying,
+                at_flight_height: self.guidance.at_flight_height(h, cfg),
+                yaw_rad: self.att.euler()[2],
+                held_yaw_rad: self.guidance.setpoints().attitude_rad[2],
+            },
+            cfg,
+        );
+        if request.land {
+            // No way to go found within the FSM's timeouts: land where it is.
+            self.failsafe.command(PilotCommand::Land, &f, now_us);
         }
-
-        // Avoidance FSM (only in normal flight at height).
-        let mut v_sp = [0.0f32; 2];
-        let mut yaw_sp = self.sp.attitude_rad[2];
-        if mode == FlightMode::Flying {
-            if !self.fsm_active
-                && self.sp.height_m == target
-                && (h - target).abs() <= self.cfg.fsm_start_height_tolerance_m
-            {
-                self.fsm.reset(now_us, yaw_sp);
-                self.fsm_active = true;
-            }
-            if self.fsm_active {
-                let out = self.fsm.step(now_us, yaw, obstacle);
-                v_sp[0] = out.forward_mps;
-                yaw_sp = out.yaw_sp_rad;
-                if out.land {
-                    // No way to go found within the FSM's timeouts: land where it is.
-                    self.failsafe.command(PilotCommand::Land, &f, now_us);
-                }
-            }
-        } else {
-            self.fsm_active = false;
-        }
-        v_sp[0] += backward_velocity(&self.cfg.force_field, obstacle.and_then(|o| o.distance_m));
-        self.sp.velocity_mps = v_sp;
-
-        // Velocity guidance.
-        let tilt: TiltSetpoint = match velocity {
-            Some(v) => self.guidance.step(v_sp, v, dt),
-            _ => self.guidance.hold(),
-        };
-        self.sp.attitude_rad = [tilt.roll_rad, tilt.pitch_rad, wrap_pi(yaw_sp)];
-
-        // Height loop.
-        let airborne = h > self.cfg.landed_height_m;
-        if height_fresh {
-            self.sp.thrust = self.height.step(self.sp.height_m, sp_rate, dt, airborne);
+        let fresh_velocity = velocity.fresh(now_us, cfg.velocity_max_age_us);
+        self.guidance.fly(&request, fresh_velocity, dt);
+        let height_fresh = matches!(self.height.last_measurement_us(),
+            Some(t) if now_us.saturating_sub(t) <= cfg.failsafe.height_timeout_us);
+        let down = if height_fresh {
+            self.guidance
+                .hold_height(&mut self.height, height_sp, h, dt, cfg);
+            self.guidance
+                .touched_down(mode == FlightMode::Landing, h, now_us, cfg)
         } else {
             // Blind landing (the failsafe switched to Landing): reduced thrust, then off.
-            self.sp.thrust = self.cfg.blind_land_thrust.clamp(0.0, 1.0);
-            if now_us.saturating_sub(self.failsafe.since_us()) >= self.cfg.blind_land_time_us {
-                self.failsafe.landed(now_us);
-                self.touchdown();
-            }
-            return;
-        }
-
-        // Touchdown detection while landing.
-        if mode == FlightMode::Landing && h <= self.cfg.landed_height_m {
-            let since = *self.below_landed_since_us.get_or_insert(now_us);
-            if now_us.saturating_sub(since) >= self.cfg.landed_time_us {
-                self.failsafe.landed(now_us);
-                self.touchdown();
-            }
-        } else {
-            self.below_landed_since_us = None;
+            self.guidance
+                .blind_landing(self.failsafe.since_us(), now_us, cfg)
+        };
+        if down {
+            self.touchdown(now_us);
         }
     }
 
-    fn touchdown(&mut self) {
-        self.sp.thrust = 0.0;
+    /// Motors off (disarmed, killed, IMU fault): everything that integrates is held at zero;
+    /// standing disarmed on the floor, the barometer's reading is its offset and the drone is
+    /// not moving whatever the camera makes of a blank wall.
+    fn rest(&mut self, mode: FlightMode, now_us: u64) {
+        if mode == FlightMode::Disarmed {
+            self.vertical.on_ground();
+            self.estimation.hold_still(now_us);
+        }
+        self.height.reset_integral();
+        self.guidance.rest(self.att.euler()[2]);
+        self.avoidance.stop();
+        self.motors = MOTORS_OFF;
+    }
+
+    /// Touchdown confirmed: disarmed, motors off, integrators empty, the FSM stopped.
+    fn touchdown(&mut self, now_us: u64) {
+        self.failsafe.landed(now_us);
+        self.guidance.landed();
         self.motors = MOTORS_OFF;
         self.height.reset_integral();
-        self.guidance.reset();
-        self.below_landed_since_us = None;
-        self.fsm_active = false;
+        self.avoidance.stop();
     }
 
     /// Motor override for the firmware's lower-priority tasks: `Some(all off)` when the motors
@@ -1164,14 +841,14 @@ impl Autopilot {
     pub fn telemetry(&self, now_us: u64) -> Telemetry {
         Telemetry {
             timestamp_us: WireTime(now_us as u32),
-            fsm_state: self.fsm_active.then(|| self.fsm.state()),
+            fsm_state: self.avoidance.state(),
             flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),
             velocity_mps: self.velocity_estimate().unwrap_or([0.0; 2]),
-            velocity_setpoint_mps: self.sp.velocity_mps,
-            obstacle_m: self.obstacle.and_then(|o| o.distance_m),
+            velocity_setpoint_mps: self.guidance.setpoints().velocity_mps,
+            obstacle_m: self.avoidance.obstacle().and_then(|o| o.distance_m),
             height_m: self.height.height_m(),
-            link_errors: self.stereo_rx.errors(),
+            link_errors: self.camera.errors(),
         }
     }
 }

@@ -9,8 +9,9 @@ extern crate std;
 use super::*;
 use crate::attitude::GRAVITY;
 use crate::indi::IndiConfig;
+use crate::test_support::{camera_status, forward_estimate};
 use proptest::prelude::*;
-use protocol::{FrameFit, ParamOp};
+use protocol::{EstimateFlags, FrameFit, ParamOp};
 use std::vec::Vec;
 
 const IMU_US: u64 = 1_953;
@@ -332,18 +333,8 @@ fn a_stopped_camera_reported_in_status_hovers_without_waiting_for_the_estimate_t
     // The last estimate is fresh; then the camera board reports its camera stopped.
     r.ap.on_estimate(&r.quad.estimate(r.seq.wrapping_add(1)), r.now);
     r.estimates = false;
-    let status = StereoStatus {
-        uptime_ms: 3_000,
-        frame_rate_hz: 0.0,
-        frames_processed: 50,
-        frames_dropped: 0,
-        link_errors: LinkErrorCounts::default(),
-        max_processing_us: 0,
-        capture: protocol::CaptureCounts::default(),
-        camera_stopped: true,
-    };
     let stopped_at = r.now;
-    r.ap.on_stereo_message(StereoToAutopilot::Status(status), r.now);
+    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
     r.fly(0.1);
     let hover = r
         .modes
@@ -366,18 +357,8 @@ fn a_stopped_camera_lands_and_stops_the_motors_within_its_promise() {
     r.fly(4.0);
     assert!((r.quad.height() - cfg.target_height_m).abs() < 0.1);
     r.estimates = false;
-    let status = StereoStatus {
-        uptime_ms: 5_000,
-        frame_rate_hz: 0.0,
-        frames_processed: 100,
-        frames_dropped: 0,
-        link_errors: LinkErrorCounts::default(),
-        max_processing_us: 0,
-        capture: protocol::CaptureCounts::default(),
-        camera_stopped: true,
-    };
     let stopped_at = r.now;
-    r.ap.on_stereo_message(StereoToAutopilot::Status(status), r.now);
+    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
     let promise = cfg.camera_stopped_motors_off_us();
     let mut off_at = None;
     while r.now < stopped_at + promise + 1_000_000 {
@@ -455,82 +436,6 @@ fn autopilot_at_height() -> Autopilot {
     ap
 }
 
-/// A valid estimate of `forward_mps` straight ahead, nothing in range.
-fn forward_estimate(forward_mps: f32) -> Estimate {
-    Estimate {
-        seq: 0,
-        capture_us: WireTime(0),
-        forward_mps,
-        sideways_mps: 0.0,
-        obstacle_m: None,
-        quality: 200,
-        flags: EstimateFlags::NONE,
-        processing_us: 0,
-        depth_coverage: 255,
-        near_columns: 0,
-        fit: Some(FrameFit {
-            forward_mps,
-            sideways_mps: 0.0,
-            quality: 200,
-        }),
-    }
-}
-
-#[test]
-fn a_frame_whose_stereo_failed_reports_obstacles_but_not_free_space() {
-    let mut ap = Autopilot::new(AutopilotConfig::default());
-    let est = |obstacle_m, flags: EstimateFlags| Estimate {
-        obstacle_m,
-        flags,
-        fit: forward_estimate(0.0).fit.filter(|_| flags.is_valid()),
-        ..forward_estimate(0.0)
-    };
-    ap.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 40_000);
-    assert_eq!(ap.telemetry(40_000).obstacle_m, Some(2.0));
-    // A plain view: its "nothing in range" does not clear the last reading.
-    ap.on_estimate(&est(None, EstimateFlags::NO_STEREO_MATCH), 80_000);
-    ap.on_estimate(&est(None, EstimateFlags::NO_TEXTURE), 120_000);
-    assert_eq!(ap.telemetry(120_000).obstacle_m, Some(2.0));
-    // A surface nearer than the stereo range, reported from a frame with few matches: kept.
-    ap.on_estimate(&est(Some(0.53), EstimateFlags::NO_STEREO_MATCH), 160_000);
-    assert_eq!(ap.telemetry(160_000).obstacle_m, Some(0.53));
-    // A dark frame says nothing at all.
-    ap.on_estimate(&est(Some(0.2), EstimateFlags::TOO_DARK), 200_000);
-    assert_eq!(ap.telemetry(200_000).obstacle_m, Some(0.53));
-    // A usable view with nothing in range clears it.
-    ap.on_estimate(&est(None, EstimateFlags::NONE), 240_000);
-    assert_eq!(ap.telemetry(240_000).obstacle_m, None);
-}
-
-#[test]
-fn estimates_below_the_min_vision_height_keep_the_failsafe_quiet_but_are_not_fused() {
-    let mut ap = Autopilot::new(AutopilotConfig::default());
-    let fix = |ap: &mut Autopilot, h: f32, t: u64| {
-        ap.on_external_position(
-            &ExternalPosition {
-                timestamp_us: WireTime(t as u32),
-                position_m: [0.0, 0.0, -h],
-            },
-            t,
-        )
-    };
-    fix(&mut ap, 0.3, 0);
-    for k in 1..=10u64 {
-        ap.on_estimate(&forward_estimate(0.4), k * 40_000);
-    }
-    assert_eq!(ap.freshness().last_valid_estimate_us, Some(400_000));
-    assert_eq!(ap.velocity(), None);
-    assert_eq!(ap.velocity_estimate(), None);
-    // Above it, level, the same estimates are fused.
-    for k in 42..=140u64 {
-        fix(&mut ap, 0.7, k * 10_000);
-    }
-    for k in 36..=45u64 {
-        ap.on_estimate(&forward_estimate(0.4), k * 40_000);
-    }
-    assert_eq!(ap.velocity(), Some([0.4, 0.0]));
-}
-
 /// A climb over a floor seen in perspective looks like forward flight to Edge-FS: estimates
 /// taken while the height changes fast keep the failsafe quiet but do not reach the velocity.
 #[test]
@@ -573,105 +478,6 @@ fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
         }
     }
     assert_eq!(ap.velocity(), Some([0.4, 0.0]));
-}
-
-/// Lone valid estimates among invalid ones (a scrap of texture on a plain view) count for
-/// nothing, neither for the velocity nor for the failsafe; a run of them does.
-#[test]
-fn a_valid_estimate_counts_only_within_a_run_of_valid_ones() {
-    let mut ap = autopilot_at_height();
-    let run = AutopilotConfig::default().min_valid_run;
-    assert!(run >= 2);
-    let mut invalid = forward_estimate(1.1);
-    invalid.flags = EstimateFlags::NO_FLOW_MATCH;
-    invalid.fit = None;
-    let mut t = 0;
-    for k in 0..40 {
-        t += 40_000;
-        if k % u32::from(run) == 0 {
-            ap.on_estimate(&invalid, t);
-        } else {
-            ap.on_estimate(&forward_estimate(1.1), t);
-        }
-    }
-    assert_eq!(ap.velocity(), None);
-    assert_eq!(ap.velocity_estimate(), None);
-    assert_eq!(ap.freshness().last_valid_estimate_us, None);
-    for _ in 0..run {
-        t += 40_000;
-        ap.on_estimate(&forward_estimate(0.3), t);
-    }
-    assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
-    assert_eq!(ap.velocity(), Some([0.3, 0.0]));
-}
-
-/// `VelocitySource::KalmanFits` flies on each frame's own fit, also when the board's filter
-/// flagged the frame (its track disagreed), and ignores frames without a fit; the default
-/// source takes the board's output.
-#[test]
-fn the_fit_source_takes_each_frames_own_fit() {
-    let frame = |t: u64| {
-        let mut e = forward_estimate(0.1);
-        e.flags = EstimateFlags::POOR_FIT;
-        e.fit = Some(FrameFit {
-            forward_mps: 0.3,
-            sideways_mps: 0.0,
-            quality: 200,
-        });
-        (e, t)
-    };
-    let mut fits = autopilot_at_height();
-    let mut cfg = *fits.config();
-    cfg.velocity_source = VelocitySource::KalmanFits;
-    fits.set_config(cfg).unwrap();
-    let mut output = autopilot_at_height();
-    for k in 1..=10u64 {
-        let (e, t) = frame(k * 40_000);
-        fits.on_estimate(&e, t);
-        output.on_estimate(&e, t);
-    }
-    assert_eq!(fits.freshness().last_valid_estimate_us, Some(400_000));
-    assert_eq!(fits.velocity(), Some([0.3, 0.0]));
-    assert_eq!(output.freshness().last_valid_estimate_us, None);
-    // Without a fit, the fit source has nothing.
-    let mut e = forward_estimate(0.3);
-    e.fit = None;
-    let mut fits = autopilot_at_height();
-    fits.set_config(cfg).unwrap();
-    for k in 1..=10u64 {
-        fits.on_estimate(&e, k * 40_000);
-    }
-    assert_eq!(fits.freshness().last_valid_estimate_us, None);
-}
-
-#[test]
-fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
-    let mut ap = autopilot_at_height();
-    let est = forward_estimate;
-    let mut t = 0;
-    let mut feed = |ap: &mut Autopilot, f: f32| {
-        t += 40_000;
-        ap.on_estimate(&est(f), t);
-        ap.velocity().map_or(f32::NAN, |v| v[0])
-    };
-    for _ in 0..5 {
-        feed(&mut ap, 0.3);
-    }
-    // Two spikes in a row (the median-5 alone would follow the second one to -1.8).
-    assert_eq!(feed(&mut ap, -1.7), 0.3);
-    assert_eq!(feed(&mut ap, -1.9), 0.3);
-    assert_eq!(ap.velocity_outliers(), 2);
-    assert_eq!(feed(&mut ap, 0.32), 0.3);
-    // Outliers that disagree with each other never restart the filter.
-    for f in [1.5, -1.5, 1.5, -1.5, 1.5] {
-        assert_eq!(feed(&mut ap, f), 0.3);
-    }
-    // A sustained change: after three agreeing outliers the filter restarts from the new value.
-    for _ in 0..2 {
-        assert_eq!(feed(&mut ap, 1.5), 0.3);
-    }
-    assert_eq!(feed(&mut ap, 1.45), 1.45);
-    assert_eq!(ap.velocity_outliers(), 9);
 }
 
 #[test]
@@ -718,47 +524,25 @@ fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
     assert!(ap.attitude()[..2].iter().all(|a| a.abs() < 1e-3));
 }
 
+/// The yaw gate sees the gyro of the 512 Hz loop (the gates themselves are tested in
+/// [`crate::estimation`]).
 #[test]
-fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
+fn an_estimate_under_fast_yaw_is_gated() {
     let mut ap = autopilot_at_height();
-    let est = forward_estimate;
-    let imu = |t: u64, yaw_rate: f32| ImuSample {
-        timestamp_us: WireTime(t as u32),
+    let imu = |yaw_rate: f32| ImuSample {
+        timestamp_us: WireTime(0),
         gyro_radps: [0.0, 0.0, yaw_rate],
         accel_mps2: [0.0, 0.0, -GRAVITY],
     };
     let mut t = 0;
-    // Long enough for the estimates' windows (about 0.5 s old) to lie after the filter's start.
-    for _ in 0..60 {
-        t += 20_000;
-        ap.on_imu(&imu(t, 0.0), t);
-        ap.on_estimate(&est(0.2), t);
-    }
-    let v0 = ap.velocity_estimate().unwrap()[0];
-    assert!((v0 - 0.2).abs() < 0.01);
-    // Turning at 1.5 rad/s: the (garbage) estimates are counted valid but not fused.
-    for _ in 0..20 {
-        t += 20_000;
-        ap.on_imu(&imu(t, 1.5), t);
-        ap.on_estimate(&est(2.5), t);
-    }
-    assert_eq!(ap.yaw_gated_estimates(), 20);
-    assert_eq!(ap.velocity_outliers(), 0);
-    let v = ap.velocity_estimate().unwrap();
-    assert!(v.iter().all(|x| x.abs() < 0.25), "{v:?}");
-    // Still turning right after it: the velocity the observer rotated stays, the estimates are
-    // still skipped for the settle time, then fused again.
-    t += 20_000;
-    ap.on_imu(&imu(t, 0.0), t);
-    ap.on_estimate(&est(0.0), t);
-    assert_eq!(ap.yaw_gated_estimates(), 21);
-    for _ in 0..20 {
+    for yaw_rate in [0.0, 0.0, 1.5] {
         t += 40_000;
-        ap.on_imu(&imu(t, 0.0), t);
-        ap.on_estimate(&est(0.0), t);
+        ap.on_imu(&imu(yaw_rate), t);
+        ap.on_estimate(&forward_estimate(0.1), t);
     }
-    assert_eq!(ap.yaw_gated_estimates(), 24);
-    assert!(ap.velocity_estimate().unwrap()[0].abs() < 0.05);
+    assert_eq!(ap.yaw_gated_estimates(), 1);
+    assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
+    assert_eq!(ap.velocity(), None);
 }
 
 #[test]
@@ -1292,4 +1076,43 @@ fn parameter_requests_that_cannot_be_answered_say_why() {
         ("height_max_thrust", ParamError::OutOfBounds)
     );
     assert!(Autopilot::try_new(bad).is_err());
+}
+
+/// `VelocitySource::KalmanFits` flies on each frame's own fit, also when the board's filter
+/// flagged the frame (its track disagreed), and ignores frames without a fit; the default
+/// source takes the board's output.
+#[test]
+fn the_fit_source_takes_each_frames_own_fit() {
+    let frame = |t: u64| {
+        let mut e = forward_estimate(0.1);
+        e.flags = EstimateFlags::POOR_FIT;
+        e.fit = Some(FrameFit {
+            forward_mps: 0.3,
+            sideways_mps: 0.0,
+            quality: 200,
+        });
+        (e, t)
+    };
+    let mut fits = autopilot_at_height();
+    let mut cfg = *fits.config();
+    cfg.velocity_source = VelocitySource::KalmanFits;
+    fits.set_config(cfg).unwrap();
+    let mut output = autopilot_at_height();
+    for k in 1..=10u64 {
+        let (e, t) = frame(k * 40_000);
+        fits.on_estimate(&e, t);
+        output.on_estimate(&e, t);
+    }
+    assert_eq!(fits.freshness().last_valid_estimate_us, Some(400_000));
+    assert_eq!(fits.velocity(), Some([0.3, 0.0]));
+    assert_eq!(output.freshness().last_valid_estimate_us, None);
+    // Without a fit, the fit source has nothing.
+    let mut e = forward_estimate(0.3);
+    e.fit = None;
+    let mut fits = autopilot_at_height();
+    fits.set_config(cfg).unwrap();
+    for k in 1..=10u64 {
+        fits.on_estimate(&e, k * 40_000);
+    }
+    assert_eq!(fits.freshness().last_valid_estimate_us, None);
 }

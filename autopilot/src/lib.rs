@@ -5,21 +5,29 @@
 //! Modules, bottom up:
 //!
 //! * [`attitude`]: gyro + accelerometer complementary filter, quaternion helpers.
+//! * [`gyro_calibration`]: the gyro offset, averaged while the drone stands still on the ground.
 //! * [`indi`]: adaptive INDI rate/attitude control at 512 Hz.
 //! * [`mixer`]: X-quad mixer for four brushed motors, attitude before thrust.
 //! * [`height`]: vertical loop from the height estimate.
 //! * [`vertical`]: height, climb rate and barometer offset from the accelerometer, the
 //!   barometer and an external height fix (a Kalman filter); the height loop flies on it.
 //! * [`median`]: median-5 over the Edge-FS velocities.
+//! * [`estimation`]: the horizontal velocity stage: the estimate gates, the median-5 and
+//!   observer (paper mode) or the Kalman filter, predicted at 512 Hz.
 //! * [`guidance`]: velocity PI to roll/pitch setpoints.
+//! * [`setpoints`]: the guidance stage: height setpoint (take-off climb, landing descent,
+//!   touchdown), velocity loop and heading make the setpoints the 512 Hz loop flies.
 //! * [`velocity_kf`]: horizontal velocity Kalman filter (IMU-driven model, Edge-FS
 //!   measurements weighted by quality at the time window they describe).
 //! * [`velocity_model`]: the horizontal model and prediction history both velocity estimators
 //!   share.
 //! * [`force_field`]: backward velocity near walls.
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
+//! * [`avoidance`]: the avoidance stage: obstacle readings, the FSM and the force field make
+//!   guidance's velocity and heading request.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
+//! * [`camera_link`]: the camera board's link: decoder, last heartbeat, status and answers.
 //! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
 //!   firmware, the simulator and every HIL board call.
 //! * [`params`]: the parameter table: every [`AutopilotConfig`] field by name, kind, unit
@@ -35,11 +43,15 @@
 
 pub mod app;
 pub mod attitude;
+pub mod avoidance;
 pub mod board;
+pub mod camera_link;
+pub mod estimation;
 pub mod failsafe;
 pub mod force_field;
 pub mod fsm;
 pub mod guidance;
+pub mod gyro_calibration;
 pub mod height;
 pub mod host;
 pub mod indi;
@@ -50,6 +62,9 @@ pub mod mpu6000;
 pub mod ms5611;
 pub mod params;
 pub mod rc;
+pub mod setpoints;
+#[cfg(test)]
+mod test_support;
 pub mod velocity_kf;
 pub mod velocity_model;
 pub mod vertical;

@@ -125,6 +125,11 @@ impl VelocityKf {
         }
     }
 
+    /// Takes a new configuration, keeping the state (used from the next step on).
+    pub fn set_config(&mut self, cfg: VelocityKfConfig) {
+        self.cfg = cfg;
+    }
+
     /// The configuration.
     pub fn config(&self) -> &VelocityKfConfig {
         &self.cfg

@@ -1,0 +1,289 @@
+//! Avoidance: the stage that turns what the camera board sees ahead into guidance's velocity
+//! and heading request.
+//!
+//! Takes: each Edge-FS [`Estimate`]'s obstacle reading ([`Avoidance::on_estimate`]), and at
+//! each guidance step an [`AvoidanceInput`] (time, whether the drone flies normally and has
+//! reached its flight height, its heading and the heading held so far). Gives: an
+//! [`AvoidanceOutput`]: the forward velocity the avoidance FSM ([`crate::fsm`]) asks for plus
+//! the wall force field's push back ([`crate::force_field`]), the heading setpoint, and whether
+//! the FSM, finding no way to go, asks to land.
+//!
+//! * Readings: an estimate's obstacle distance and depth coverage are kept unless its image is
+//!   unusable (too dark or too bright); its "nothing in range" only if its stereo part is usable
+//!   (a frame without texture or stereo matches says nothing of free space, but an obstacle it
+//!   reports stands). A reading older than the failsafe's estimate timeout is not used.
+//! * The FSM runs only in normal flight ([`FlightMode::Flying`](crate::FlightMode)): it starts
+//!   in `Check` on the held heading once the drone is at its flight height and stops in any
+//!   other mode; while it is stopped the request is zero velocity on the held heading.
+//! * The force field acts whenever the motors run.
+
+use crate::app::AutopilotConfig;
+use crate::force_field::backward_velocity;
+use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
+use protocol::{Estimate, EstimateFlags};
+
+/// Flags of a frame that says nothing about obstacles (the image itself is unusable).
+const UNSEEN: EstimateFlags =
+    EstimateFlags(EstimateFlags::TOO_DARK.0 | EstimateFlags::TOO_BRIGHT.0);
+
+/// Flags of a frame whose stereo failed: an obstacle it reports stands (a surface nearer than
+/// the stereo range leaves few matches), its "nothing in range" does not (the velocity may
+/// still be invalid for flow reasons while the stereo part is fine).
+const NO_DEPTH: EstimateFlags =
+    EstimateFlags(EstimateFlags::NO_TEXTURE.0 | EstimateFlags::NO_STEREO_MATCH.0);
+
+/// What avoidance needs to know at a guidance step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AvoidanceInput {
+    /// Time, µs.
+    pub now_us: u64,
+    /// Normal flight: the FSM may run (in any other mode it stops).
+    pub flying: bool,
+    /// The drone is at its flight height: a stopped FSM starts.
+    pub at_flight_height: bool,
+    /// Heading, rad.
+    pub yaw_rad: f32,
+    /// Heading setpoint held so far, rad: where a starting FSM looks first, and the request
+    /// while it is stopped.
+    pub held_yaw_rad: f32,
+}
+
+/// What avoidance asks of guidance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AvoidanceOutput {
+    /// `[forward, sideways]` body velocity setpoint, m/s (the FSM's forward speed plus the
+    /// force field's, which is negative near a wall).
+    pub velocity_mps: [f32; 2],
+    /// Heading setpoint, rad (not wrapped while the FSM is stopped).
+    pub yaw_sp_rad: f32,
+    /// The FSM found no way to go within its timeouts: land where it is.
+    pub land: bool,
+}
+
+/// The avoidance FSM, whether it runs, and the latest obstacle reading.
+#[derive(Debug, Clone)]
+pub struct Avoidance {
+    fsm: AvoidanceFsm,
+    /// True while the FSM drives the request.
+    active: bool,
+    obstacle: Option<ObstacleReading>,
+}
+
+impl Avoidance {
+    /// FSM stopped, no reading yet.
+    pub fn new(cfg: FsmConfig) -> Self {
+        Self {
+            fsm: AvoidanceFsm::new(cfg, 0, 0.0),
+            active: false,
+            obstacle: None,
+        }
+    }
+
+    /// Takes a new FSM configuration, keeping the state.
+    pub fn set_config(&mut self, cfg: FsmConfig) {
+        self.fsm.set_config(cfg);
+    }
+
+    /// The obstacle reading of an estimate received at `now_us`, if it has one (see the module
+    /// documentation).
+    pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
+        if est.flags.0 & UNSEEN.0 != 0 {
+            return;
+        }
+        let d = match est.obstacle_m {
+            Some(d) if d.is_finite() && d >= 0.0 => Some(Some(d)),
+            Some(_) => None, // garbage: no reading
+            // A frame whose stereo failed says nothing of free space.
+            None if est.flags.0 & NO_DEPTH.0 != 0 => None,
+            None => Some(None),
+        };
+        let depth_fraction = if est.flags.0 & NO_DEPTH.0 == 0 {
+            est.depth_fraction()
+        } else {
+            0.0
+        };
+        if let Some(distance_m) = d {
+            self.obstacle = Some(ObstacleReading {
+                received_us: now_us,
+                distance_m,
+                depth_fraction,
+            });
+        }
+    }
+
+    /// One guidance step: starts, steps or stops the FSM and adds the force field.
+    pub fn step(&mut self, input: &AvoidanceInput, cfg: &AutopilotConfig) -> AvoidanceOutput {
+        let now_us = input.now_us;
+        let obstacle = self
+            .obstacle
+            .filter(|o| now_us.saturating_sub(o.received_us) <= cfg.failsafe.estimate_timeout_us);
+        let mut v_sp = [0.0f32; 2];
+        let mut yaw_sp = input.held_yaw_rad;
+        let mut land = false;
+        if input.flying {
+            if !self.active && input.at_flight_height {
+                self.fsm.reset(now_us, yaw_sp);
+                self.active = true;
+            }
+            if self.active {
+                let out = self.fsm.step(now_us, input.yaw_rad, obstacle);
+                v_sp[0] = out.forward_mps;
+                yaw_sp = out.yaw_sp_rad;
+                land = out.land;
+            }
+        } else {
+            self.active = false;
+        }
+        v_sp[0] += backward_velocity(&cfg.force_field, obstacle.and_then(|o| o.distance_m));
+        AvoidanceOutput {
+            velocity_mps: v_sp,
+            yaw_sp_rad: yaw_sp,
+            land,
+        }
+    }
+
+    /// Stops the FSM (on the ground, at touchdown); it starts again in `Check`.
+    pub fn stop(&mut self) {
+        self.active = false;
+    }
+
+    /// True while the FSM drives the request.
+    pub fn active(&self) -> bool {
+        self.active
+    }
+
+    /// The FSM's state while it runs.
+    pub fn state(&self) -> Option<FsmState> {
+        self.active.then(|| self.fsm.state())
+    }
+
+    /// The avoidance FSM.
+    pub fn fsm(&self) -> &AvoidanceFsm {
+        &self.fsm
+    }
+
+    /// The latest obstacle reading, however old.
+    pub fn obstacle(&self) -> Option<ObstacleReading> {
+        self.obstacle
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_support::forward_estimate;
+
+    fn input(now_us: u64, flying: bool, at_flight_height: bool) -> AvoidanceInput {
+        AvoidanceInput {
+            now_us,
+            flying,
+            at_flight_height,
+            yaw_rad: 0.2,
+            held_yaw_rad: 0.2,
+        }
+    }
+
+    fn sees(obstacle_m: Option<f32>) -> Estimate {
+        Estimate {
+            obstacle_m,
+            ..forward_estimate(0.0)
+        }
+    }
+
+    #[test]
+    fn a_frame_whose_stereo_failed_reports_obstacles_but_not_free_space() {
+        let mut a = Avoidance::new(FsmConfig::default());
+        let distance = |a: &Avoidance| a.obstacle().and_then(|o| o.distance_m);
+        let est = |obstacle_m, flags| Estimate {
+            flags,
+            ..sees(obstacle_m)
+        };
+        a.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 40_000);
+        assert_eq!(distance(&a), Some(2.0));
+        // A plain view: its "nothing in range" does not clear the last reading.
+        a.on_estimate(&est(None, EstimateFlags::NO_STEREO_MATCH), 80_000);
+        a.on_estimate(&est(None, EstimateFlags::NO_TEXTURE), 120_000);
+        assert_eq!(distance(&a), Some(2.0));
+        // A surface nearer than the stereo range, reported from a frame with few matches: kept,
+        // with no depth to speak of.
+        a.on_estimate(&est(Some(0.53), EstimateFlags::NO_STEREO_MATCH), 160_000);
+        assert_eq!(distance(&a), Some(0.53));
+        assert_eq!(a.obstacle().unwrap().depth_fraction, 0.0);
+        // A dark frame says nothing at all, nor does a garbage distance.
+        a.on_estimate(&est(Some(0.2), EstimateFlags::TOO_DARK), 200_000);
+        a.on_estimate(&est(Some(f32::NAN), EstimateFlags::NONE), 210_000);
+        assert_eq!(distance(&a), Some(0.53));
+        // A usable view with nothing in range clears it.
+        a.on_estimate(&est(None, EstimateFlags::NONE), 240_000);
+        assert_eq!(distance(&a), None);
+        assert_eq!(a.obstacle().unwrap().received_us, 240_000);
+    }
+
+    #[test]
+    fn the_fsm_starts_at_flight_height_and_stops_outside_normal_flight() {
+        let cfg = AutopilotConfig::default();
+        let mut a = Avoidance::new(cfg.fsm);
+        // Climbing: held heading, no FSM.
+        let out = a.step(&input(0, true, false), &cfg);
+        assert_eq!(
+            out,
+            AvoidanceOutput {
+                velocity_mps: [0.0; 2],
+                yaw_sp_rad: 0.2,
+                land: false
+            }
+        );
+        assert_eq!(a.state(), None);
+        // At height: Check on the held heading; a clear view then sends it forward.
+        a.step(&input(20_000, true, true), &cfg);
+        assert_eq!(a.state(), Some(FsmState::Check));
+        a.on_estimate(&sees(None), 30_000);
+        let out = a.step(&input(40_000, true, true), &cfg);
+        assert_eq!(a.state(), Some(FsmState::Forward));
+        a.step(&input(60_000, true, true), &cfg);
+        let out2 = a.step(&input(80_000, true, true), &cfg);
+        assert_eq!(out.yaw_sp_rad, 0.2);
+        assert_eq!(out2.velocity_mps, [cfg.fsm.forward_speed_mps, 0.0]);
+        // Any other mode stops it; back in normal flight it starts again in Check.
+        let out = a.step(&input(100_000, false, true), &cfg);
+        assert_eq!(out.velocity_mps, [0.0; 2]);
+        assert!(!a.active());
+        a.step(&input(120_000, true, true), &cfg);
+        assert_eq!(a.state(), Some(FsmState::Check));
+        a.stop();
+        assert_eq!(a.state(), None);
+    }
+
+    #[test]
+    fn the_force_field_pushes_back_in_any_mode_until_the_reading_is_stale() {
+        let cfg = AutopilotConfig::default();
+        let mut a = Avoidance::new(cfg.fsm);
+        a.on_estimate(&sees(Some(0.4)), 1_000_000);
+        let push = backward_velocity(&cfg.force_field, Some(0.4));
+        assert!(push < 0.0);
+        for flying in [true, false] {
+            let out = a.step(&input(1_000_000, flying, false), &cfg);
+            assert_eq!(out.velocity_mps, [push, 0.0]);
+        }
+        let stale = 1_000_000 + cfg.failsafe.estimate_timeout_us + 1;
+        assert_eq!(
+            a.step(&input(stale, false, false), &cfg).velocity_mps,
+            [0.0; 2]
+        );
+    }
+
+    #[test]
+    fn an_fsm_without_a_way_to_go_asks_to_land() {
+        let cfg = AutopilotConfig::default();
+        let mut a = Avoidance::new(cfg.fsm);
+        let mut t = 0;
+        let mut land = false;
+        // Never a reading: every Check times out into a turn until the searches run out.
+        while !land && t < 120_000_000 {
+            t += 20_000;
+            land = a.step(&input(t, true, true), &cfg).land;
+        }
+        assert!(land, "asked to land within {t} us");
+        assert!(a.fsm().wants_to_land());
+    }
+}

@@ -1,0 +1,603 @@
+//! Horizontal velocity estimation: the stage between the camera board's Edge-FS estimates and
+//! guidance.
+//!
+//! Takes: every [`Estimate`] with the [`VisionContext`] it arrived in (arrival time, height and
+//! climb rate), and at 512 Hz the attitude and the yaw rate ([`VelocityEstimation::predict`]).
+//! Gives: the [`VelocityState`] guidance flies on (the velocity of the configured
+//! [`VelocitySource`] and when that source last took an estimate), the time of the last valid
+//! estimate for the failsafe ([`VelocityEstimation::last_valid_estimate_us`]), and for each
+//! estimate the [`Gate`] it stopped at.
+//!
+//! The gates, in order (tunables are [`AutopilotConfig`] fields, the parameter table's):
+//!
+//! 1. Valid: the estimate's flags, `min_quality`, a finite velocity within `max_estimate_mps`
+//!    (with [`VelocitySource::KalmanFits`]: the frame's own fit, present only when valid, and
+//!    its quality). An invalid one ends the run of valid ones.
+//! 2. Run: only the `min_valid_run`-th valid estimate in a row and later ones count, for the
+//!    velocity and for the failsafe. A gap of more than `median_reset_gap_us` since the last
+//!    valid one empties the median.
+//! 3. Height: below `min_vision_height_m`, or climbing or descending faster than
+//!    `max_vision_climb_mps`, an estimate counts for the failsafe only.
+//! 4. Yaw: within `yaw_settle_us` of a yaw rate above `max_yaw_rate_radps`, likewise (counted
+//!    in [`VelocityEstimation::yaw_gated`]).
+//! 5. The Kalman filter ([`VelocitySource::Kalman`]) takes what passed 4, as the mean velocity
+//!    over the window the estimate describes, behind its own innovation gate.
+//! 6. Plausibility (the paper's path): further than `max_velocity_jump_mps` from the median
+//!    output is an outlier and skipped, unless it is the `max_consecutive_outliers`-th in a row
+//!    that agrees with the one before, which restarts the median from it.
+//! 7. The median-5, whose output corrects the velocity observer
+//!    ([`VelocitySource::MedianObserver`]).
+//!
+//! [`AutopilotConfig`]: crate::app::AutopilotConfig
+
+use crate::app::AutopilotConfig;
+use crate::guidance::VelocityObserver;
+use crate::median::VelocityMedian;
+use crate::velocity_kf::{Fusion, VelocityKf};
+use protocol::Estimate;
+
+/// The velocity estimate guidance flies on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VelocitySource {
+    /// [`VelocityKf`]: every gated estimate (the camera board's filtered output), weighted by
+    /// its quality, against the predicted mean over the time window it describes.
+    Kalman,
+    /// The paper's path: median-5 of the gated estimates into the [`VelocityObserver`].
+    MedianObserver,
+    /// [`VelocityKf`] on each frame's own fit ([`protocol::Estimate::fit`]) instead of the
+    /// board's filtered output, over the flow window [`AutopilotConfig::fit_horizon_us`]: 2x
+    /// less velocity error in most simulated flights (0.02 against 0.045 m/s RMS), but a
+    /// frame's fit can alias to the wrong sign when the flow outruns the search (seen above
+    /// 0.5 m/s), and runs of such fits have thrown the filter off; not the default.
+    KalmanFits,
+}
+
+impl VelocitySource {
+    /// True for the two Kalman-filter sources.
+    pub fn is_kalman(self) -> bool {
+        matches!(self, Self::Kalman | Self::KalmanFits)
+    }
+}
+
+/// What the autopilot knew when an estimate arrived.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisionContext {
+    /// Arrival time, µs.
+    pub now_us: u64,
+    /// Height above the floor, m.
+    pub height_m: f32,
+    /// Climb rate, m/s (up positive).
+    pub climb_mps: f32,
+}
+
+/// The gate an estimate stopped at (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Gate {
+    /// Invalid: flags, quality, or a velocity not finite or too large. It counts for nothing
+    /// and ends the run of valid ones.
+    Invalid,
+    /// Valid, but too early in a run of valid ones: it counts for nothing.
+    ShortRun,
+    /// Valid for the failsafe; too low, or climbing or descending too fast, for the velocity.
+    Height,
+    /// Valid for the failsafe; taken under or just after fast yaw, not for the velocity.
+    Yaw,
+    /// Skipped by the plausibility gate before the median; it does not count for the
+    /// failsafe (the Kalman filter, behind its own gate, may have taken it).
+    Outlier,
+    /// Through every gate: into the median (and the observer in paper mode).
+    Passed,
+}
+
+/// The velocity guidance flies on, at one instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VelocityState {
+    /// `[forward, sideways]` body velocity, m/s (`None` before the first estimate taken).
+    pub velocity_mps: Option<[f32; 2]>,
+    /// When the velocity source last took an estimate, µs.
+    pub last_fix_us: Option<u64>,
+}
+
+impl VelocityState {
+    /// True if the source took an estimate at most `max_age_us` before `now_us`.
+    pub fn fixed_within(&self, now_us: u64, max_age_us: u64) -> bool {
+        matches!(self.last_fix_us, Some(t) if now_us.saturating_sub(t) <= max_age_us)
+    }
+
+    /// The velocity, if the source took an estimate at most `max_age_us` before `now_us`.
+    pub fn fresh(&self, now_us: u64, max_age_us: u64) -> Option<[f32; 2]> {
+        if self.fixed_within(now_us, max_age_us) {
+            self.velocity_mps
+        } else {
+            None
+        }
+    }
+}
+
+/// Gates, median-5, observer and Kalman filter over the Edge-FS velocities.
+#[derive(Debug, Clone)]
+pub struct VelocityEstimation {
+    median: VelocityMedian,
+    observer: VelocityObserver,
+    /// When the observer last took a median output, µs.
+    last_fused_us: Option<u64>,
+    kf: VelocityKf,
+    /// When the Kalman filter last took an estimate (or was held still on the ground), µs.
+    last_kf_fused_us: Option<u64>,
+    last_fast_yaw_us: Option<u64>,
+    yaw_gated_total: u32,
+    /// When the last estimate valid for the failsafe arrived, µs.
+    last_valid_estimate_us: Option<u64>,
+    /// The median's output.
+    velocity: Option<[f32; 2]>,
+    estimates_received: u32,
+    outliers_in_a_row: u8,
+    /// Valid estimates in a row (saturating), see [`AutopilotConfig::min_valid_run`].
+    valid_run: u8,
+    last_outlier: [f32; 2],
+    outliers_total: u32,
+}
+
+impl VelocityEstimation {
+    /// Nothing estimated yet; the observer and the Kalman filter from `cfg`.
+    pub fn new(cfg: &AutopilotConfig) -> Self {
+        Self {
+            median: VelocityMedian::default(),
+            observer: VelocityObserver::new(cfg.observer),
+            last_fused_us: None,
+            kf: VelocityKf::new(cfg.velocity_kf),
+            last_kf_fused_us: None,
+            last_fast_yaw_us: None,
+            yaw_gated_total: 0,
+            last_valid_estimate_us: None,
+            velocity: None,
+            estimates_received: 0,
+            outliers_in_a_row: 0,
+            valid_run: 0,
+            last_outlier: [0.0; 2],
+            outliers_total: 0,
+        }
+    }
+
+    /// Takes the observer's and the Kalman filter's parts of a new configuration, keeping the
+    /// state (the gates read theirs at every call).
+    pub fn set_config(&mut self, cfg: &AutopilotConfig) {
+        self.observer.set_config(cfg.observer);
+        self.kf.set_config(cfg.velocity_kf);
+    }
+
+    /// 512 Hz: the configured source predicts over `dt` s from the attitude (`roll`, `pitch`,
+    /// rad) and the gyro's `yaw_rate` (rad/s); a yaw rate above
+    /// [`AutopilotConfig::max_yaw_rate_radps`] starts the yaw gate's settle time.
+    #[inline]
+    pub fn predict(
+        &mut self,
+        roll: f32,
+        pitch: f32,
+        yaw_rate: f32,
+        dt: f32,
+        now_us: u64,
+        cfg: &AutopilotConfig,
+    ) {
+        match cfg.velocity_source {
+            VelocitySource::Kalman | VelocitySource::KalmanFits => {
+                self.kf.predict(roll, pitch, yaw_rate, dt, now_us)
+            }
+            VelocitySource::MedianObserver => {
+                self.observer.predict(roll, pitch, yaw_rate, dt, now_us)
+            }
+        }
+        if yaw_rate.abs() > cfg.max_yaw_rate_radps {
+            self.last_fast_yaw_us = Some(now_us);
+        }
+    }
+
+    /// One Edge-FS estimate through the gates (see the module documentation).
+    pub fn on_estimate(
+        &mut self,
+        est: &Estimate,
+        ctx: &VisionContext,
+        cfg: &AutopilotConfig,
+    ) -> Gate {
+        let now_us = ctx.now_us;
+        self.estimates_received = self.estimates_received.wrapping_add(1);
+        // What the frame says of the velocity: the board's output, or with
+        // `VelocitySource::KalmanFits` the frame's own fit.
+        let fits = cfg.velocity_source == VelocitySource::KalmanFits;
+        let measured = match (fits, est.fit) {
+            (true, Some(fit)) => Some(([fit.forward_mps, fit.sideways_mps], fit.quality)),
+            (true, None) => None,
+            (false, _) => est
+                .is_valid()
+                .then_some(([est.forward_mps, est.sideways_mps], est.quality)),
+        };
+        let lim = cfg.max_estimate_mps;
+        let usable = |(v, q): &([f32; 2], u8)| {
+            *q >= cfg.min_quality && v.iter().all(|x| x.is_finite() && x.abs() <= lim)
+        };
+        let Some((v, quality)) = measured.filter(usable) else {
+            self.valid_run = 0;
+            return Gate::Invalid;
+        };
+        self.valid_run = self.valid_run.saturating_add(1);
+        if self.valid_run < cfg.min_valid_run {
+            return Gate::ShortRun;
+        }
+        let gap = match self.last_valid_estimate_us {
+            Some(t) => now_us.saturating_sub(t) > cfg.median_reset_gap_us,
+            None => true,
+        };
+        if gap {
+            self.median.reset();
+            self.outliers_in_a_row = 0;
+        }
+        if ctx.height_m < cfg.min_vision_height_m || ctx.climb_mps.abs() > cfg.max_vision_climb_mps
+        {
+            // Valid for the failsafe, not for the velocity (see `min_vision_height_m` and
+            // `max_vision_climb_mps`).
+            self.median.reset();
+            self.outliers_in_a_row = 0;
+            self.last_valid_estimate_us = Some(now_us);
+            return Gate::Height;
+        }
+        let yawing = matches!(self.last_fast_yaw_us,
+            Some(t) if now_us.saturating_sub(t) <= cfg.yaw_settle_us);
+        if yawing {
+            // Valid for the failsafe, not for the velocity; the median restarts after the
+            // turn (its samples are in the old heading).
+            self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
+            self.median.reset();
+            self.outliers_in_a_row = 0;
+            self.last_valid_estimate_us = Some(now_us);
+            return Gate::Yaw;
+        }
+        // The Kalman filter has its own innovation gate; it takes the estimate as the mean
+        // velocity over the window it describes: for the board's output the flow window
+        // widened by the board's filter and ending its lag before the frame's capture, for a
+        // frame's own fit the flow window ending at the capture.
+        let (lag_us, horizon_us) = if fits {
+            (0, cfg.fit_horizon_us)
+        } else {
+            (cfg.estimate_filter_lag_us, cfg.estimate_horizon_us)
+        };
+        let end = now_us
+            .saturating_sub(u64::from(est.processing_us))
+            .saturating_sub(u64::from(cfg.estimate_link_us))
+            .saturating_sub(u64::from(lag_us));
+        let start = end.saturating_sub(u64::from(horizon_us));
+        if cfg.velocity_source.is_kalman()
+            && matches!(
+                self.kf.correct(v, quality, start, end),
+                Fusion::Fused | Fusion::Initialised
+            )
+        {
+            self.last_kf_fused_us = Some(now_us);
+        }
+        let jump = cfg.max_velocity_jump_mps;
+        let outlier = match self.median.output() {
+            Some([f, s]) => (v[0] - f).abs() > jump || (v[1] - s).abs() > jump,
+            None => false,
+        };
+        if outlier {
+            let [f, s] = self.last_outlier;
+            let agrees =
+                self.outliers_in_a_row > 0 && (v[0] - f).abs() <= jump && (v[1] - s).abs() <= jump;
+            let run = if agrees { self.outliers_in_a_row } else { 0 };
+            if run < cfg.max_consecutive_outliers {
+                self.outliers_in_a_row = run + 1;
+                self.last_outlier = [v[0], v[1]];
+                self.outliers_total = self.outliers_total.wrapping_add(1);
+                return Gate::Outlier;
+            }
+        }
+        if outlier {
+            self.median.reset();
+        }
+        self.outliers_in_a_row = 0;
+        self.velocity = self.median.push(v[0], v[1]);
+        if let (Some(v), VelocitySource::MedianObserver) = (self.velocity, cfg.velocity_source) {
+            self.observer.correct(v, now_us);
+            self.last_fused_us = Some(now_us);
+        }
+        self.last_valid_estimate_us = Some(now_us);
+        Gate::Passed
+    }
+
+    /// On the ground and still (disarmed): the Kalman filter holds zero velocity, whatever the
+    /// camera makes of the view, and counts as fixed at `now_us`.
+    pub fn hold_still(&mut self, now_us: u64) {
+        self.kf.hold_still(now_us);
+        self.last_kf_fused_us = Some(now_us);
+    }
+
+    /// The camera board reports its camera stopped: no valid estimate since (until the next).
+    pub fn camera_stopped(&mut self) {
+        self.last_valid_estimate_us = None;
+    }
+
+    /// The velocity of `source` and when it last took an estimate.
+    pub fn state(&self, source: VelocitySource) -> VelocityState {
+        match source {
+            VelocitySource::Kalman | VelocitySource::KalmanFits => VelocityState {
+                velocity_mps: self.kf.velocity(),
+                last_fix_us: self.last_kf_fused_us,
+            },
+            VelocitySource::MedianObserver => VelocityState {
+                velocity_mps: self.observer.velocity(),
+                last_fix_us: self.last_fused_us,
+            },
+        }
+    }
+
+    /// When the last estimate valid for the failsafe arrived, µs.
+    pub fn last_valid_estimate_us(&self) -> Option<u64> {
+        self.last_valid_estimate_us
+    }
+
+    /// The median-5's `[forward, sideways]` output, m/s (`None` before the first estimate
+    /// through every gate).
+    pub fn median_velocity(&self) -> Option<[f32; 2]> {
+        self.velocity
+    }
+
+    /// The horizontal velocity Kalman filter.
+    pub fn kf(&self) -> &VelocityKf {
+        &self.kf
+    }
+
+    /// The velocity observer of the paper's path.
+    pub fn observer(&self) -> &VelocityObserver {
+        &self.observer
+    }
+
+    /// Estimates received since boot (valid or not, wrapping).
+    pub fn estimates_received(&self) -> u32 {
+        self.estimates_received
+    }
+
+    /// Valid estimates skipped by the plausibility gate since boot (wrapping).
+    pub fn outliers(&self) -> u32 {
+        self.outliers_total
+    }
+
+    /// Valid estimates not used for the velocity because of fast yaw since boot (wrapping).
+    pub fn yaw_gated(&self) -> u32 {
+        self.yaw_gated_total
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_support::forward_estimate;
+    use protocol::EstimateFlags;
+
+    /// Level at 1 m at `now_us`: nothing but the estimate itself gates it.
+    fn level(now_us: u64) -> VisionContext {
+        VisionContext {
+            now_us,
+            height_m: 1.0,
+            climb_mps: 0.0,
+        }
+    }
+
+    /// A stage and the configuration it runs on, fed one estimate per 25 Hz frame.
+    struct Feed {
+        cfg: AutopilotConfig,
+        est: VelocityEstimation,
+        t: u64,
+    }
+
+    impl Feed {
+        fn new(source: VelocitySource) -> Self {
+            let cfg = AutopilotConfig {
+                velocity_source: source,
+                ..AutopilotConfig::default()
+            };
+            Self {
+                est: VelocityEstimation::new(&cfg),
+                cfg,
+                t: 0,
+            }
+        }
+
+        /// The next frame's estimate in `ctx` (its time set to the frame's).
+        fn frame(&mut self, e: &Estimate, ctx: VisionContext) -> Gate {
+            self.t += 40_000;
+            let ctx = VisionContext {
+                now_us: self.t,
+                ..ctx
+            };
+            self.est.on_estimate(e, &ctx, &self.cfg)
+        }
+
+        fn level(&mut self, forward_mps: f32) -> Gate {
+            self.frame(&forward_estimate(forward_mps), level(0))
+        }
+    }
+
+    /// Lone valid estimates among invalid ones (a scrap of texture on a plain view) count for
+    /// nothing, neither for the velocity nor for the failsafe; a run of them does.
+    #[test]
+    fn a_valid_estimate_counts_only_within_a_run_of_valid_ones() {
+        let mut f = Feed::new(VelocitySource::MedianObserver);
+        let run = f.cfg.min_valid_run;
+        assert!(run >= 2);
+        let mut invalid = forward_estimate(1.1);
+        invalid.flags = EstimateFlags::NO_FLOW_MATCH;
+        for k in 0..40 {
+            if k % u32::from(run) == 0 {
+                assert_eq!(f.frame(&invalid, level(0)), Gate::Invalid);
+            } else {
+                assert_eq!(f.level(1.1), Gate::ShortRun);
+            }
+        }
+        assert_eq!(f.est.median_velocity(), None);
+        assert_eq!(f.est.last_valid_estimate_us(), None);
+        for _ in 1..run {
+            assert_eq!(f.level(0.3), Gate::ShortRun);
+        }
+        assert_eq!(f.level(0.3), Gate::Passed);
+        assert_eq!(f.est.last_valid_estimate_us(), Some(f.t));
+        assert_eq!(f.est.median_velocity(), Some([0.3, 0.0]));
+        assert_eq!(f.est.estimates_received(), 40 + u32::from(run));
+    }
+
+    #[test]
+    fn garbage_and_low_quality_are_invalid() {
+        let mut f = Feed::new(VelocitySource::Kalman);
+        f.cfg.min_quality = 100;
+        let poor = Estimate {
+            quality: 99,
+            ..forward_estimate(0.1)
+        };
+        assert_eq!(f.frame(&poor, level(0)), Gate::Invalid);
+        assert_eq!(f.level(f32::NAN), Gate::Invalid);
+        assert_eq!(f.level(f.cfg.max_estimate_mps + 0.1), Gate::Invalid);
+        assert_eq!(f.est.last_valid_estimate_us(), None);
+    }
+
+    /// Near the floor, and while the height changes fast, estimates keep the failsafe quiet but
+    /// do not reach the velocity.
+    #[test]
+    fn too_low_or_climbing_counts_for_the_failsafe_only() {
+        for source in [VelocitySource::Kalman, VelocitySource::MedianObserver] {
+            let mut f = Feed::new(source);
+            let low = VisionContext {
+                height_m: f.cfg.min_vision_height_m - 0.01,
+                ..level(0)
+            };
+            let climbing = VisionContext {
+                climb_mps: f.cfg.max_vision_climb_mps + 0.01,
+                ..level(0)
+            };
+            let descending = VisionContext {
+                climb_mps: -climbing.climb_mps,
+                ..level(0)
+            };
+            for ctx in [low, climbing, descending] {
+                for _ in 0..10 {
+                    f.frame(&forward_estimate(0.4), ctx);
+                }
+                assert_eq!(f.frame(&forward_estimate(0.4), ctx), Gate::Height);
+                assert_eq!(f.est.last_valid_estimate_us(), Some(f.t));
+                assert_eq!(f.est.median_velocity(), None);
+                assert_eq!(f.est.state(source).velocity_mps, None);
+                assert_eq!(f.est.state(source).last_fix_us, None);
+            }
+            // Level at height, the same estimates are taken.
+            assert_eq!(f.level(0.4), Gate::Passed);
+            assert_eq!(f.est.median_velocity(), Some([0.4, 0.0]));
+            assert_eq!(f.est.state(source).last_fix_us, Some(f.t));
+        }
+    }
+
+    #[test]
+    fn velocity_outliers_are_gated_and_a_real_change_is_followed() {
+        let mut f = Feed::new(VelocitySource::MedianObserver);
+        let mut feed = |v: f32| {
+            let gate = f.level(v);
+            (gate, f.est.median_velocity().map_or(f32::NAN, |v| v[0]))
+        };
+        for _ in 0..5 {
+            feed(0.3);
+        }
+        // Two spikes in a row (the median-5 alone would follow the second one to -1.8).
+        assert_eq!(feed(-1.7), (Gate::Outlier, 0.3));
+        assert_eq!(feed(-1.9), (Gate::Outlier, 0.3));
+        assert_eq!(feed(0.32), (Gate::Passed, 0.3));
+        // Outliers that disagree with each other never restart the filter.
+        for v in [1.5, -1.5, 1.5, -1.5, 1.5] {
+            assert_eq!(feed(v), (Gate::Outlier, 0.3));
+        }
+        // A sustained change: after three agreeing outliers the filter restarts from the new
+        // value.
+        for _ in 0..2 {
+            assert_eq!(feed(1.5), (Gate::Outlier, 0.3));
+        }
+        assert_eq!(feed(1.45), (Gate::Passed, 1.45));
+        assert_eq!(f.est.outliers(), 9);
+    }
+
+    #[test]
+    fn a_gap_in_the_valid_estimates_restarts_the_median() {
+        let mut f = Feed::new(VelocitySource::MedianObserver);
+        for _ in 0..5 {
+            f.level(0.3);
+        }
+        f.t += f.cfg.median_reset_gap_us;
+        // Far from the old output, but the old output is gone.
+        assert_eq!(f.level(1.5), Gate::Passed);
+        assert_eq!(f.est.median_velocity(), Some([1.5, 0.0]));
+        assert_eq!(f.est.outliers(), 0);
+    }
+
+    #[test]
+    fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
+        let cfg = AutopilotConfig::default();
+        let mut est = VelocityEstimation::new(&cfg);
+        let mut t = 0;
+        // `dt_us` of prediction at `yaw_rate`, then an estimate of `v` forward.
+        let mut step = |est: &mut VelocityEstimation, yaw_rate: f32, v: f32, dt_us: u64| {
+            t += dt_us;
+            est.predict(0.0, 0.0, yaw_rate, dt_us as f32 * 1e-6, t, &cfg);
+            (est.on_estimate(&forward_estimate(v), &level(t), &cfg), t)
+        };
+        let velocity = |est: &VelocityEstimation| est.state(VelocitySource::Kalman).velocity_mps;
+        // Long enough for the estimates' windows (about 0.5 s old) to lie after the filter's
+        // start.
+        for _ in 0..60 {
+            step(&mut est, 0.0, 0.2, 20_000);
+        }
+        let v0 = velocity(&est).unwrap()[0];
+        assert!((v0 - 0.2).abs() < 0.01, "{v0}");
+        // Turning at 1.5 rad/s: the (garbage) estimates are counted valid but not fused.
+        for _ in 0..20 {
+            let (gate, now) = step(&mut est, 1.5, 2.5, 20_000);
+            assert_eq!(gate, Gate::Yaw);
+            assert_eq!(est.last_valid_estimate_us(), Some(now));
+        }
+        assert_eq!(est.yaw_gated(), 20);
+        assert_eq!(est.outliers(), 0);
+        let v = velocity(&est).unwrap();
+        assert!(v.iter().all(|x| x.abs() < 0.25), "{v:?}");
+        // Right after the turn the estimates are still skipped for the settle time, then
+        // fused again.
+        assert_eq!(step(&mut est, 0.0, 0.0, 20_000).0, Gate::Yaw);
+        for _ in 0..20 {
+            step(&mut est, 0.0, 0.0, 40_000);
+        }
+        assert_eq!(est.yaw_gated(), 24);
+        let v = velocity(&est).unwrap();
+        assert!(v[0].abs() < 0.05, "{v:?}");
+    }
+
+    #[test]
+    fn the_state_is_the_configured_source_and_its_last_fix() {
+        let mut f = Feed::new(VelocitySource::Kalman);
+        for _ in 0..3 {
+            f.level(0.3);
+        }
+        let kf = f.est.state(VelocitySource::Kalman);
+        assert_eq!(kf.last_fix_us, Some(f.t));
+        assert!(kf.velocity_mps.is_some());
+        assert!(kf.fixed_within(f.t + 100, 100));
+        assert!(!kf.fixed_within(f.t + 101, 100));
+        assert_eq!(kf.fresh(f.t + 101, 100), None);
+        assert_eq!(kf.fresh(f.t, 0), kf.velocity_mps);
+        // The observer runs only in paper mode.
+        assert_eq!(
+            f.est.state(VelocitySource::MedianObserver).last_fix_us,
+            None
+        );
+        // Held still on the ground: zero, fixed now.
+        f.est.hold_still(5_000_000);
+        let held = f.est.state(VelocitySource::Kalman);
+        assert_eq!(held.velocity_mps, Some([0.0, 0.0]));
+        assert_eq!(held.last_fix_us, Some(5_000_000));
+        // A stopped camera ends the failsafe's valid estimates at once.
+        assert!(f.est.last_valid_estimate_us().is_some());
+        f.est.camera_stopped();
+        assert_eq!(f.est.last_valid_estimate_us(), None);
+    }
+}

@@ -1,0 +1,41 @@
+//! Inputs the unit tests of several stages share.
+
+use protocol::{
+    CaptureCounts, Estimate, EstimateFlags, FrameFit, LinkErrorCounts, StereoStatus, WireTime,
+};
+
+/// A valid estimate of `forward_mps` straight ahead, nothing in range over a view with depth
+/// everywhere.
+pub fn forward_estimate(forward_mps: f32) -> Estimate {
+    Estimate {
+        seq: 0,
+        capture_us: WireTime(0),
+        forward_mps,
+        sideways_mps: 0.0,
+        obstacle_m: None,
+        quality: 200,
+        flags: EstimateFlags::NONE,
+        processing_us: 0,
+        depth_coverage: 255,
+        near_columns: 0,
+        fit: Some(FrameFit {
+            forward_mps,
+            sideways_mps: 0.0,
+            quality: 200,
+        }),
+    }
+}
+
+/// A camera board's status report, its camera running or stopped.
+pub fn camera_status(camera_stopped: bool) -> StereoStatus {
+    StereoStatus {
+        uptime_ms: 3_000,
+        frame_rate_hz: 0.0,
+        frames_processed: 50,
+        frames_dropped: 0,
+        link_errors: LinkErrorCounts::default(),
+        max_processing_us: 0,
+        capture: CaptureCounts::default(),
+        camera_stopped,
+    }
+}
