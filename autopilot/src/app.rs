@@ -69,13 +69,13 @@ pub const TASKS: &[TaskSpec] = &[
     TaskSpec {
         name: "stereo_rx",
         priority: 4,
-        trigger: Trigger::Event("camera-board UART RX idle line (DMA)"),
+        trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
         deadline_us: 1_000,
     },
     TaskSpec {
         name: "host_rx",
         priority: 4,
-        trigger: Trigger::Event("host UART RX idle line (DMA)"),
+        trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
         deadline_us: 1_000,
     },
     TaskSpec {

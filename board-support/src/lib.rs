@@ -4,7 +4,6 @@
 //! * [`link`]: the board-to-board link's baud rate, one constant both boards use (host too).
 //! * [`clocks`]: clock tree and link constants per flavour (MCU only).
 //! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
-//! * [`uart_dma`]: USART1 receive by circular DMA with the IDLE-line interrupt (MCU only).
 //! * [`uart_rx`]: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
 //! * [`uart_tx`]: UART transmit from an interrupt-driven queue; never blocks, never panics, a
 //!   full queue drops the frame and counts it (MCU only).
@@ -32,8 +31,6 @@ pub mod link;
 pub mod log;
 #[cfg(target_os = "none")]
 pub mod stack;
-#[cfg(target_os = "none")]
-pub mod uart_dma;
 #[cfg(target_os = "none")]
 pub mod uart_rx;
 #[cfg(target_os = "none")]

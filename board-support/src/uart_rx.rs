@@ -24,11 +24,6 @@ use stm32f4xx_hal::{nb, pac, serial};
 /// bound keeps the interrupt short however fast bytes come).
 const MAX_BYTES_PER_INTERRUPT: usize = 64;
 
-/// Back-pressure of the board-to-board link, USART1 on both boards. Its RXNE interrupt feeds
-/// the queue only in the `qemu` flavour; elsewhere the DMA path ([`crate::uart_dma`]) does, and
-/// never pauses, so [`RxFlow::take`] on it is a plain [`take`] there.
-pub static LINK_FLOW: RxFlow = RxFlow::new(pac::Interrupt::USART1);
-
 /// Back-pressure state of one receive interrupt.
 pub struct RxFlow {
     irq: pac::Interrupt,

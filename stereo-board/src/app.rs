@@ -7,8 +7,8 @@
 //!
 //! | task | trigger | priority | body |
 //! |---|---|---|---|
-//! | `uart_rx` | autopilot UART IDLE / DMA half | 3 | [`StereoBoardApp::on_rx_bytes`] |
-//! | `host_rx` | host UART IDLE (HIL and QEMU flavours) | 3 | [`StereoBoardApp::on_host_bytes`] |
+//! | `uart_rx` | bytes from the autopilot link UART (RXNE interrupt, queued) | 3 | [`StereoBoardApp::on_rx_bytes`] |
+//! | `host_rx` | bytes from the host UART (RXNE interrupt, queued; HIL and QEMU flavours) | 3 | [`StereoBoardApp::on_host_bytes`] |
 //! | `frame` | camera frame complete (DCMI + DMA2) or a HIL frame assembled | 2 | [`StereoBoardApp::on_frame`] |
 //! | `status` | every [`STATUS_PERIOD_US`] | 1 | [`StereoBoardApp::status_tick`] |
 //!
@@ -48,13 +48,13 @@ pub const TASKS: &[TaskSpec] = &[
     TaskSpec {
         name: TASK_UART_RX,
         priority: 3,
-        trigger: Trigger::Event("autopilot UART (USART1) IDLE line"),
+        trigger: Trigger::Event("bytes from the autopilot link (UART4; USART1 in QEMU), RXNE"),
         deadline_us: 2_000,
     },
     TaskSpec {
         name: TASK_HOST_RX,
         priority: 3,
-        trigger: Trigger::Event("host UART (USART2) IDLE line, HIL/QEMU flavours"),
+        trigger: Trigger::Event("bytes from the host link (USART2), RXNE; HIL/QEMU flavours"),
         deadline_us: 2_000,
     },
     TaskSpec {

@@ -562,7 +562,7 @@ fn host_link_frames_reach_the_frame_task() {
         wire.extend(enc(&HostToBoard::FrameChunk(c)));
     }
     let mut got: Vec<(Box<[u8; STEREO_FRAME_BYTES]>, u64)> = Vec::new();
-    // Arbitrary split points, as DMA/IDLE delivers them.
+    // Arbitrary split points, as the receive queue delivers them.
     for piece in wire.chunks(333) {
         board.on_host_bytes(piece, &mut asm, |fr, t| {
             got.push((Box::new(*fr), t.as_micros()))
