@@ -26,10 +26,11 @@ use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
 use crate::velocity_kf::{Fusion, VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
+use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
     ConfigResult, Estimate, EstimateFlags, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
-    LinkErrorCounts, Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand,
-    StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
+    LinkErrorCounts, Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse,
+    PilotCommand, StereoStatus, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry,
 };
 use timebase::WireTime;
 
@@ -359,6 +360,8 @@ pub struct Autopilot {
     rc_kill_latched: bool,
     arm_refused: u32,
     baro: Option<(u64, BaroReading)>,
+    /// The parameter storage's state (`None`: a build without storage).
+    storage: Option<StorageStatus>,
 }
 
 /// Why an `Arm` command is refused before the flight-mode checks (see
@@ -425,6 +428,7 @@ impl Autopilot {
             rc_kill_latched: false,
             arm_refused: 0,
             baro: None,
+            storage: None,
             cfg: config,
         }
     }
@@ -464,16 +468,67 @@ impl Autopilot {
         Ok(())
     }
 
-    /// Answers a host's parameter request for this board's table ([`params::TABLE`]); a
-    /// request for another board's table is refused (`NoSuchBoard`; [`Autopilot::on_host_message`]
-    /// passes the camera board's on). `Save` is answered `NoStorage` here: the firmware, which
-    /// owns the flash, answers it before this is called.
+    /// A disarmed autopilot on the configuration saved in `store` ([`params::decode_record`]):
+    /// the saved values when the record is good, otherwise the defaults; why is kept for
+    /// [`ParamOp::Storage`] and returned (`Err`: the defaults are in use).
+    pub fn from_store(store: &impl RecordStore) -> (Self, Result<(), RecordError>) {
+        let (config, status) = params::AUTOPILOT.load(store);
+        let mut ap = Self::new(config);
+        ap.storage = Some(status);
+        (ap, status.loaded)
+    }
+
+    /// The parameter storage's state (`None`: built without storage, [`Autopilot::new`]).
+    pub fn storage(&self) -> Option<StorageStatus> {
+        self.storage
+    }
+
+    /// Answers a host's parameter request for this board's table ([`params::TABLE`]) on a
+    /// build without parameter storage: `Save` and `Storage` are answered `NoStorage` (see
+    /// [`Autopilot::on_param_request_stored`]). A request for another board's table is refused
+    /// (`NoSuchBoard`; [`Autopilot::on_host_message`] passes the camera board's on).
     pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
+        self.answer_param(req, None)
+    }
+
+    /// Answers a host's parameter request, saving to `store` on `Save`: refused while the
+    /// motors may run (`Armed`); otherwise the record of the configuration in use
+    /// ([`params::encode_record`]) is written and read back, and a failure of either is
+    /// `SaveFailed`. The write takes as long as the flash's erase (a second or two for a
+    /// 128 KiB sector), which is why it waits for the ground.
+    pub fn on_param_request_stored(
+        &mut self,
+        req: &ParamRequest,
+        store: &mut impl RecordStore,
+    ) -> ParamResponse {
+        self.answer_param(req, Some(store))
+    }
+
+    pub(crate) fn answer_param(
+        &mut self,
+        req: &ParamRequest,
+        store: Option<&mut dyn RecordStore>,
+    ) -> ParamResponse {
         let reply = if req.board != Node::Autopilot {
             ParamReply::Error(ParamError::NoSuchBoard)
         } else {
             let cfg = self.cfg;
-            params::AUTOPILOT.answer(&cfg, &req.op, |next| self.set_config(next))
+            // The status is counted on a copy, so that `set_config` can borrow the autopilot.
+            let mut status = self.storage;
+            let storage = match (store, status.as_mut()) {
+                (Some(store), Some(status)) => Some(ParamStorage { store, status }),
+                _ => None,
+            };
+            let reply = if req.op == ParamOp::Save
+                && storage.is_some()
+                && self.failsafe.mode().motors_enabled()
+            {
+                ParamReply::Error(ParamError::Armed)
+            } else {
+                params::AUTOPILOT.answer(&cfg, &req.op, |next| self.set_config(next), storage)
+            };
+            self.storage = status;
+            reply
         };
         ParamResponse {
             board: req.board,

@@ -32,6 +32,7 @@ use crate::clock_timer::ClockTimer;
 use crate::clocks::Clocks;
 use crate::cpld::Mode;
 use crate::dcmi::{Camera, DcmiInputs, DcmiStats};
+use crate::flash::FlashContents;
 use crate::frames::FrameSource;
 use crate::link::WireEnd;
 use crate::pins::{Mode as PinMode, Pull, Wired};
@@ -311,6 +312,8 @@ pub struct CameraBoard {
     pub sensor: SensorHandle,
     /// The clock tree as last read.
     pub clocks: Option<Clocks>,
+    /// What the flash holds beside the firmware at power-on (the parameter sector).
+    pub flash: FlashContents,
 }
 
 impl Store for CameraBoard {}
@@ -347,6 +350,7 @@ impl CameraBoard {
             link,
             sensor,
             clocks: None,
+            flash: FlashContents::erased(),
         };
         // The camera's pins are watched from power-up (a fresh part drives none of them).
         board
@@ -355,6 +359,12 @@ impl CameraBoard {
                 dcmi.start(registers, context);
             });
         Ok(board)
+    }
+
+    /// The same board, its flash holding `flash` beside the firmware at power-on.
+    #[must_use]
+    pub fn with_flash(self, flash: FlashContents) -> Self {
+        Self { flash, ..self }
     }
 
     /// What happened on the DCMI.
@@ -400,6 +410,10 @@ impl BenchBoard for CameraBoard {
 
     fn soc_mut(&mut self) -> &mut Soc {
         &mut self.soc
+    }
+
+    fn flash_contents(&self) -> Vec<(u64, Vec<u8>)> {
+        self.flash.ranges().to_vec()
     }
 
     /// Tells the link how the firmware drives UART4 now (its baud).
