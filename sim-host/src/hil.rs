@@ -45,8 +45,9 @@
 //! framed) then takes about 2.3 s, so the QEMU hover test runs the camera at a few frames per
 //! second of world time. On hardware, 25 fps of frames need 25.2 kB x 25 = 630 kB/s, i.e.
 //! about 6.3 Mbit/s with 8N1 framing on the host-to-camera link: a 3 Mbaud USB-serial adapter
-//! carries about 12 fps, so use `--fps 10` there (or a faster link); the autopilot link needs
-//! about 70 B x 512 Hz = 36 kB/s (921,600 Bd is enough).
+//! carries almost 12 fps, so use `--fps 10` there (or a faster link); the autopilot link
+//! carries about 40 B per IMU sample one way and the `Motors` reply the other at 512 Hz, about
+//! 25 kB/s each way (921,600 Bd, 92 kB/s, is enough).
 //!
 //! # The board-to-board UART
 //!
@@ -1448,8 +1449,8 @@ mod tests {
         assert!(e.contains("baud rate 0"), "{e}");
     }
 
-    /// A pseudo-terminal is a real tty: open it at rates the old termios table refused (below
-    /// 115,200 and off the standard list) and pass a message through it both ways.
+    /// A pseudo-terminal is a real tty: open it at rates below 115,200 and off the standard
+    /// list, and pass a message through it both ways.
     #[cfg(unix)]
     #[test]
     fn serial_ports_open_at_any_baud_rate_and_carry_bytes() {

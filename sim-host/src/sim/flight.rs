@@ -132,9 +132,10 @@ pub struct LogRow {
     pub yaw: f32,
     /// True velocity in the body's heading frame: forward, sideways, m/s.
     pub vel_true: [f32; 2],
-    /// Autopilot's velocity estimate (its observer: median-5 of the gated Edge-FS estimates,
-    /// predicted from the attitude in between), what guidance flies on: forward, sideways, m/s
-    /// (NaN: none yet).
+    /// Autopilot's velocity estimate, what guidance flies on (`Autopilot::velocity_estimate`:
+    /// the velocity Kalman filter by default, the observer over the median-5 of the gated
+    /// Edge-FS estimates in paper mode; predicted from the attitude in between): forward,
+    /// sideways, m/s (NaN: none yet).
     pub vel_est: [f32; 2],
     /// Velocity setpoint: forward, sideways, m/s.
     pub vel_sp: [f32; 2],
@@ -165,9 +166,9 @@ pub struct FlightResult {
     pub flight_time_s: f64,
     /// Number of collisions (contacts entered).
     pub collisions: u32,
-    /// RMS error of the autopilot's velocity estimate (its observer over the median-5 of the
-    /// valid Edge-FS estimates: what it flies on) against the true velocity in the heading frame, forward
-    /// and sideways together, sampled at 50 Hz while the avoidance FSM runs, m/s.
+    /// RMS error of the autopilot's velocity estimate (what it flies on, [`LogRow::vel_est`])
+    /// against the true velocity in the heading frame, forward and sideways together, sampled
+    /// at 50 Hz while the avoidance FSM runs, m/s.
     pub vel_rmse_mps: f64,
     /// RMS error of every valid raw Edge-FS estimate (forward and sideways together) against
     /// the true body velocity at its capture time, while airborne, m/s. Rare gross outliers
