@@ -15,6 +15,7 @@ use super::uart::{LinkFaults, SimUart, UartStats};
 use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
+use autopilot::ms5611::BaroReading;
 use protocol::{
     AutopilotToStereo, Decoder, Estimate, FlightMode, FsmState, Heartbeat, HostToBoard, ImuSample,
     Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
@@ -213,6 +214,8 @@ pub trait FlightObserver {
     fn on_estimate(&mut self, _t_us: u64, _estimate: &Estimate) {}
     /// A stereo frame exposed at `t_us` (interleaved `[L0 R0 L1 R1 ...]`).
     fn on_frame(&mut self, _t_us: u64, _frame: &[u8; STEREO_FRAME_BYTES]) {}
+    /// A barometer reading as the autopilot received it.
+    fn on_baro(&mut self, _t_us: u64, _reading: &BaroReading) {}
     /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
     /// duties applied (0..=1).
     fn on_control(
@@ -429,6 +432,7 @@ pub fn run_flight_observed(
             next_baro += baro_period_us;
             let reading = world.baro_reading(t, &motors);
             ap.on_baro(&reading, t);
+            observer.on_baro(t, &reading);
         }
         if !armed && t >= arm_us {
             armed = true;
