@@ -509,31 +509,21 @@ impl Autopilot {
         req: &ParamRequest,
         store: Option<&mut dyn RecordStore>,
     ) -> ParamResponse {
-        let reply = if req.board != Node::Autopilot {
-            ParamReply::Error(ParamError::NoSuchBoard)
-        } else {
-            let cfg = self.cfg;
-            // The status is counted on a copy, so that `set_config` can borrow the autopilot.
-            let mut status = self.storage;
-            let storage = match (store, status.as_mut()) {
-                (Some(store), Some(status)) => Some(ParamStorage { store, status }),
-                _ => None,
+        let saving = req.board == Node::Autopilot && req.op == ParamOp::Save;
+        if saving && store.is_some() && self.storage.is_some() && self.mode().motors_enabled() {
+            return ParamResponse {
+                board: req.board,
+                reply: ParamReply::Error(ParamError::Armed),
             };
-            let reply = if req.op == ParamOp::Save
-                && storage.is_some()
-                && self.failsafe.mode().motors_enabled()
-            {
-                ParamReply::Error(ParamError::Armed)
-            } else {
-                params::AUTOPILOT.answer(&cfg, &req.op, |next| self.set_config(next), storage)
-            };
-            self.storage = status;
-            reply
-        };
-        ParamResponse {
-            board: req.board,
-            reply,
         }
+        let cfg = self.cfg;
+        // The status is counted on a copy, so that `set_config` can borrow the autopilot.
+        let mut status = self.storage;
+        let storage = ParamStorage::of(store, status.as_mut());
+        let apply = |next| self.set_config(next);
+        let response = params::AUTOPILOT.respond(Node::Autopilot, req, &cfg, apply, storage);
+        self.storage = status;
+        response
     }
 
     /// The camera board's latest answer to a parameter request passed on to it, for the host

@@ -514,6 +514,27 @@ impl<C: Copy> ParamTable<C> {
         }
     }
 
+    /// Answers `req` on the board `own`: another board's table is refused (`NoSuchBoard`),
+    /// this one's is answered by [`ParamTable::answer`].
+    pub fn respond(
+        &self,
+        own: Node,
+        req: &ParamRequest,
+        cfg: &C,
+        apply: impl FnOnce(C) -> Result<(), Rejected>,
+        storage: Option<ParamStorage<'_>>,
+    ) -> ParamResponse {
+        let reply = if req.board == own {
+            self.answer(cfg, &req.op, apply, storage)
+        } else {
+            ParamReply::Error(ParamError::NoSuchBoard)
+        };
+        ParamResponse {
+            board: req.board,
+            reply,
+        }
+    }
+
     /// The flash record of `cfg` ([`encode_record`]) written into `out`; returns its length,
     /// [`record_bytes`] of the table's length.
     pub fn encode_record(&self, cfg: &C, out: &mut [u8]) -> Result<usize, RecordError> {
@@ -726,6 +747,20 @@ pub struct ParamStorage<'a> {
     pub store: &'a mut dyn RecordStore,
     /// What the boot loaded, and the saves since.
     pub status: &'a mut StorageStatus,
+}
+
+impl<'a> ParamStorage<'a> {
+    /// The storage of a board that has both a store and a status; `None` (no storage) when
+    /// either is missing.
+    pub fn of<'s: 'a>(
+        store: Option<&'a mut (dyn RecordStore + 's)>,
+        status: Option<&'a mut StorageStatus>,
+    ) -> Option<Self> {
+        Some(Self {
+            store: store?,
+            status: status?,
+        })
+    }
 }
 
 /// A [`RecordStore`] in memory with a flash sector's rules: erased bytes are `0xFF` and

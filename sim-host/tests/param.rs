@@ -4,7 +4,7 @@
 //! on to its library over encoded link bytes; both boards with a parameter store of flash
 //! rules): the client API and the command line, success and refusal, save and storage.
 
-use autopilot::app::{Autopilot, AutopilotConfig};
+use autopilot::app::Autopilot;
 use autopilot::params;
 use autopilot::HostOutcome;
 use protocol::params::MemStore;
@@ -113,6 +113,17 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
             }
         }
     }
+}
+
+/// Runs a `sim-host` command: whether it succeeded, and what it printed (stdout, then stderr).
+fn sim_host(cmd: &mut Command) -> (bool, String) {
+    let out = cmd.output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
 }
 
 /// A byte stream to a host: a TCP connection or a serial port.
@@ -244,17 +255,11 @@ fn the_command_line_works_over_a_serial_port() {
         board(&mut master, &boards, &|| stop.load(Ordering::Relaxed));
     });
     let run = |args: &[&str]| {
-        let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-            .args(["param", "--port", &path, "--baud", "57600"])
-            .args(args)
-            .output()
-            .unwrap();
-        let text = format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        (out.status.success(), text)
+        sim_host(
+            Command::new(env!("CARGO_BIN_EXE_sim-host"))
+                .args(["param", "--port", &path, "--baud", "57600"])
+                .args(args),
+        )
     };
     let (ok, out) = run(&["set", "target_height", "0.8"]);
     assert!(ok && out.contains(" 0.8 "), "{out}");
@@ -292,27 +297,20 @@ fn fly_reads_a_parameter_file_and_refuses_a_bad_one() {
     let fly = |params: &str| {
         let file = dir.join("params.toml");
         std::fs::write(&file, params).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-            .args([
-                "fly",
-                "--duration",
-                "1",
-                "--quiet",
-                "--format",
-                "csv",
-                "--params",
-            ])
-            .arg(&file)
-            .arg("--out")
-            .arg(dir.join("out"))
-            .output()
-            .unwrap();
-        let text = format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        (out.status.success(), text)
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_sim-host"));
+        cmd.args([
+            "fly",
+            "--duration",
+            "1",
+            "--quiet",
+            "--format",
+            "csv",
+            "--params",
+        ])
+        .arg(&file)
+        .arg("--out")
+        .arg(dir.join("out"));
+        sim_host(&mut cmd)
     };
     let (ok, text) = fly("[autopilot]\ntarget_height = 4.0\n");
     assert!(!ok, "{text}");

@@ -19,9 +19,8 @@ use crate::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
 use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
     encode, AutopilotToStereo, BoardToHost, CaptureCounts, ConfigResult, Decoder, Estimate,
-    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamError,
-    ParamReply, ParamRequest, ParamResponse, StereoStatus, StereoToAutopilot, FRAME_CHUNK_BYTES,
-    STEREO_FRAME_BYTES,
+    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamRequest,
+    ParamResponse, StereoStatus, StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
@@ -563,32 +562,18 @@ impl StereoBoardApp {
         req: &ParamRequest,
         store: Option<&mut (dyn RecordStore + '_)>,
     ) -> ParamResponse {
-        let reply = if req.board != Node::StereoBoard {
-            ParamReply::Error(ParamError::NoSuchBoard)
-        } else {
-            let current = self.params;
-            // The status is counted on a copy, so that `set_params` can borrow the board.
-            let mut status = self.storage;
-            let storage = match (store, status.as_mut()) {
-                (Some(store), Some(status)) => Some(ParamStorage { store, status }),
-                _ => None,
-            };
-            let reply = crate::params::CAMERA.answer(
-                &current,
-                &req.op,
-                |next| {
-                    self.set_params(next);
-                    Ok(())
-                },
-                storage,
-            );
-            self.storage = status;
-            reply
+        let current = self.params;
+        // The status is counted on a copy, so that `set_params` can borrow the board.
+        let mut status = self.storage;
+        let storage = ParamStorage::of(store, status.as_mut());
+        let apply = |next| {
+            self.set_params(next);
+            Ok(())
         };
-        ParamResponse {
-            board: req.board,
-            reply,
-        }
+        let response =
+            crate::params::CAMERA.respond(Node::StereoBoard, req, &current, apply, storage);
+        self.storage = status;
+        response
     }
 
     /// Makes `params` Edge-FS's from the next frame on (the flow history restarts). The caller

@@ -20,7 +20,7 @@
 use rigless::mcu::Mcu as _;
 use std::net::TcpListener;
 use std::path::PathBuf;
-use std::process::Command;
+use std::process::{Child, Command};
 
 use autopilot::app::AutopilotConfig;
 use autopilot::params::{self, TABLE};
@@ -43,6 +43,45 @@ fn sim_host() -> PathBuf {
         path.display()
     );
     path
+}
+
+/// Starts `sim-host param --port tcp:... ARGS` on a fresh local port (it waits up to 20 s of
+/// wall time for an answer: the bench may run well below real time on a loaded machine, and a
+/// retry while a board still erases would end the run in the middle of a save).
+fn start_tool(args: &[&str]) -> (TcpListener, Child) {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("a local port");
+    let port = listener.local_addr().unwrap().port();
+    let tool = Command::new(sim_host())
+        .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
+        .args(["--timeout", "20"])
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("sim-host param starts");
+    (listener, tool)
+}
+
+/// Whether the tool succeeded, and what it printed (stdout, then stderr).
+fn tool_output(tool: Child) -> (bool, String) {
+    let out = tool.wait_with_output().expect("the tool ends");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+/// The flash interface's `CR` and `SR` of a part.
+fn flash_registers(soc: &virtual_board::soc::Soc) -> (u64, u64) {
+    use rigless::soc::stm32f427::generated::flash::Register;
+    let registers = soc
+        .mcu
+        .bus()
+        .registers("FLASH")
+        .expect("the flash interface's registers");
+    (registers.get(Register::Cr), registers.get(Register::Sr))
 }
 
 /// What one run of the tool against a freshly booted board left.
@@ -69,16 +108,7 @@ fn param(args: &[&str]) -> (bool, String, Vec<ParamReply>) {
 /// resets, what rigless's models told the session, and the flash interface's `CR` and `SR`.
 fn param_on(flash: FlashContents, args: &[&str]) -> Session {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
-    let listener = TcpListener::bind("127.0.0.1:0").expect("a local port");
-    let port = listener.local_addr().unwrap().port();
-    let tool = Command::new(sim_host())
-        .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
-        .args(["--timeout", "20"])
-        .args(args)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("sim-host param starts");
+    let (listener, tool) = start_tool(args);
     let bridge = TcpBridge::accept(&listener, |b: &mut Autopilot| &mut b.telemetry, Some(1.0))
         .expect("the tool connects");
     let outcome = run(
@@ -99,15 +129,7 @@ fn param_on(flash: FlashContents, args: &[&str]) -> Session {
         .told()
         .map(|t| format!("{t:?}"))
         .collect::<Vec<_>>();
-    let registers = outcome
-        .board()
-        .soc
-        .mcu
-        .bus()
-        .registers("FLASH")
-        .expect("the flash interface's registers");
-    let flash_cr = registers.get(rigless::soc::stm32f427::generated::flash::Register::Cr);
-    let flash_sr = registers.get(rigless::soc::stm32f427::generated::flash::Register::Sr);
+    let (flash_cr, flash_sr) = flash_registers(&outcome.board().soc);
     let sent = outcome.board().telemetry.tx.sent_bytes();
     let (messages, errors) = host::decode_board_to_host(&sent);
     assert_eq!(errors, 0, "the firmware's own frames decode\n{report}");
@@ -117,12 +139,7 @@ fn param_on(flash: FlashContents, args: &[&str]) -> Session {
         "the tool ended the run\n{report}"
     );
     drop(outcome);
-    let out = tool.wait_with_output().expect("the tool ends");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (ok, out) = tool_output(tool);
     let replies = messages
         .into_iter()
         .filter_map(|m| match m {
@@ -131,8 +148,8 @@ fn param_on(flash: FlashContents, args: &[&str]) -> Session {
         })
         .collect();
     Session {
-        ok: out.status.success(),
-        out: text,
+        ok,
+        out,
         replies,
         log,
         resets,
@@ -330,18 +347,8 @@ fn camera_param(flash: FlashContents, args: &[&str]) -> CameraSession {
     let camera_rx: Arc<dyn OnBarrier> = Arc::new(camera_end.rx.clone());
     let autopilot_rx: Arc<dyn OnBarrier> = Arc::new(autopilot_end.rx.clone());
 
-    let listener = TcpListener::bind("127.0.0.1:0").expect("a local port");
-    let port = listener.local_addr().unwrap().port();
-    let tool = Command::new(sim_host())
-        .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
-        // Wall time: the bench may run well below real time on a loaded machine, and a retry
-        // while the board still erases would end the run in the middle of a save.
-        .args(["--timeout", "20", "--board", "camera"])
-        .args(args)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("sim-host param starts");
+    let tool_args: Vec<&str> = ["--board", "camera"].iter().chain(args).copied().collect();
+    let (listener, tool) = start_tool(&tool_args);
     let bridge = TcpBridge::accept(&listener, |b: &mut Autopilot| &mut b.telemetry, Some(1.0))
         .expect("the tool connects");
     let (cam, ap) = run_pair(
@@ -368,15 +375,7 @@ fn camera_param(flash: FlashContents, args: &[&str]) -> CameraSession {
         Some("the client disconnected"),
         "the tool ended the run\n{report}"
     );
-    let registers = cam
-        .board()
-        .soc
-        .mcu
-        .bus()
-        .registers("FLASH")
-        .expect("the flash interface's registers");
-    let flash_cr = registers.get(rigless::soc::stm32f427::generated::flash::Register::Cr);
-    let flash_sr = registers.get(rigless::soc::stm32f427::generated::flash::Register::Sr);
+    let (flash_cr, flash_sr) = flash_registers(&cam.board().soc);
     // The camera-board firmware itself answered on the link.
     let mut decoder: Decoder<StereoToAutopilot, 256> = Decoder::new_mid_stream();
     let mut answers = Vec::new();
@@ -393,28 +392,23 @@ fn camera_param(flash: FlashContents, args: &[&str]) -> CameraSession {
         .iter()
         .filter(|m| matches!(m, BoardToHost::Param(r) if r.board == protocol::Node::StereoBoard))
         .count();
-    let session = CameraSession {
-        ok: false,
-        out: String::new(),
+    let log = cam.log.text();
+    let resets = cam.session.resets().len();
+    let told = cam.session.told().map(|t| format!("{t:?}")).collect();
+    let wall_s = ap.wall_s;
+    drop((cam, ap));
+    let (ok, out) = tool_output(tool);
+    CameraSession {
+        ok,
+        out,
         answers,
         passed_back,
-        log: cam.log.text(),
-        resets: cam.session.resets().len(),
-        told: cam.session.told().map(|t| format!("{t:?}")).collect(),
+        log,
+        resets,
+        told,
         flash_cr,
         flash_sr,
-        wall_s: ap.wall_s,
-    };
-    drop((cam, ap));
-    let out = tool.wait_with_output().expect("the tool ends");
-    CameraSession {
-        ok: out.status.success(),
-        out: format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ),
-        ..session
+        wall_s,
     }
 }
 

@@ -5,8 +5,8 @@ extern crate std;
 use super::*;
 use protocol::params::MemStore;
 use protocol::{
-    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, ParamName, ParamOp,
-    ParamValue, StereoToAutopilotDecoder,
+    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, ParamError, ParamName,
+    ParamOp, ParamReply, ParamValue, StereoToAutopilotDecoder,
 };
 use std::{boxed::Box, vec, vec::Vec};
 
