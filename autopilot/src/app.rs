@@ -41,9 +41,10 @@ pub use crate::setpoints::Setpoints;
 use crate::setpoints::{Guidance, LAND_SETPOINT_FLOOR_M};
 use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
+use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
     ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts,
-    Node, ParamError, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
+    Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
     StereoToAutopilot, Telemetry,
 };
 use timebase::WireTime;
@@ -84,13 +85,13 @@ pub const TASKS: &[TaskSpec] = &[
     TaskSpec {
         name: "stereo_rx",
         priority: 4,
-        trigger: Trigger::Event("camera-board UART RX idle line (DMA)"),
+        trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
         deadline_us: 1_000,
     },
     TaskSpec {
         name: "host_rx",
         priority: 4,
-        trigger: Trigger::Event("host UART RX idle line (DMA)"),
+        trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
         deadline_us: 1_000,
     },
     TaskSpec {
@@ -340,6 +341,8 @@ pub struct Autopilot {
     failsafe: Failsafe,
     rc_kill_latched: bool,
     arm_refused: u32,
+    /// The parameter storage's state (`None`: a build without storage).
+    storage: Option<StorageStatus>,
 }
 
 /// Why an `Arm` command is refused before the flight-mode checks (see
@@ -378,6 +381,7 @@ impl Autopilot {
             failsafe: Failsafe::new(config.failsafe),
             rc_kill_latched: false,
             arm_refused: 0,
+            storage: None,
             cfg: config,
         }
     }
@@ -417,21 +421,62 @@ impl Autopilot {
         Ok(())
     }
 
-    /// Answers a host's parameter request for this board's table ([`params::TABLE`]); a
-    /// request for another board's table is refused (`NoSuchBoard`; [`Autopilot::on_host_message`]
-    /// passes the camera board's on). `Save` is answered `NoStorage` here: the firmware, which
-    /// owns the flash, answers it before this is called.
+    /// A disarmed autopilot on the configuration saved in `store` ([`params::decode_record`]):
+    /// the saved values when the record is good, otherwise the defaults; why is kept for
+    /// [`ParamOp::Storage`] and returned (`Err`: the defaults are in use).
+    pub fn from_store(store: &impl RecordStore) -> (Self, Result<(), RecordError>) {
+        let (config, status) = params::AUTOPILOT.load(store);
+        let mut ap = Self::new(config);
+        ap.storage = Some(status);
+        (ap, status.loaded)
+    }
+
+    /// The parameter storage's state (`None`: built without storage, [`Autopilot::new`]).
+    pub fn storage(&self) -> Option<StorageStatus> {
+        self.storage
+    }
+
+    /// Answers a host's parameter request for this board's table ([`params::TABLE`]) on a
+    /// build without parameter storage: `Save` and `Storage` are answered `NoStorage` (see
+    /// [`Autopilot::on_param_request_stored`]). A request for another board's table is refused
+    /// (`NoSuchBoard`; [`Autopilot::on_host_message`] passes the camera board's on).
     pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
-        let reply = if req.board != Node::Autopilot {
-            ParamReply::Error(ParamError::NoSuchBoard)
-        } else {
-            let cfg = self.cfg;
-            params::AUTOPILOT.answer(&cfg, &req.op, |next| self.set_config(next))
-        };
-        ParamResponse {
-            board: req.board,
-            reply,
+        self.answer_param(req, None)
+    }
+
+    /// Answers a host's parameter request, saving to `store` on `Save`: refused while the
+    /// motors may run (`Armed`); otherwise the record of the configuration in use
+    /// ([`params::encode_record`]) is written and read back, and a failure of either is
+    /// `SaveFailed`. The write takes as long as the flash's erase (a second or two for a
+    /// 128 KiB sector), which is why it waits for the ground.
+    pub fn on_param_request_stored(
+        &mut self,
+        req: &ParamRequest,
+        store: &mut impl RecordStore,
+    ) -> ParamResponse {
+        self.answer_param(req, Some(store))
+    }
+
+    pub(crate) fn answer_param(
+        &mut self,
+        req: &ParamRequest,
+        store: Option<&mut dyn RecordStore>,
+    ) -> ParamResponse {
+        let saving = req.board == Node::Autopilot && req.op == ParamOp::Save;
+        if saving && store.is_some() && self.storage.is_some() && self.mode().motors_enabled() {
+            return ParamResponse {
+                board: req.board,
+                reply: ParamReply::Error(ParamError::Armed),
+            };
         }
+        let cfg = self.cfg;
+        // The status is counted on a copy, so that `set_config` can borrow the autopilot.
+        let mut status = self.storage;
+        let storage = ParamStorage::of(store, status.as_mut());
+        let apply = |next| self.set_config(next);
+        let response = params::AUTOPILOT.respond(Node::Autopilot, req, &cfg, apply, storage);
+        self.storage = status;
+        response
     }
 
     /// The camera board's latest answer to a parameter request passed on to it, for the host

@@ -11,6 +11,7 @@ use crate::attitude::GRAVITY;
 use crate::indi::IndiConfig;
 use crate::test_support::{camera_status, forward_estimate};
 use proptest::prelude::*;
+use protocol::params::MemStore;
 use protocol::{EstimateFlags, FrameFit, ParamOp};
 use std::vec::Vec;
 
@@ -1021,6 +1022,105 @@ fn parameters_set_on_the_ground_take_effect_and_are_refused_in_flight() {
         (land - hover).abs_diff(1_000_000) <= 40_000,
         "landing {} ms after the hover began",
         (land - hover) / 1000
+    );
+}
+
+/// A flash sector in RAM with the flash's rules (`refuse` fails the next writes as a flash
+/// error would).
+type Sector = MemStore<1024>;
+
+fn stored_request(ap: &mut Autopilot, store: &mut Sector, op: ParamOp) -> ParamReply {
+    let req = ParamRequest {
+        board: Node::Autopilot,
+        op,
+    };
+    ap.on_param_request_stored(&req, store).reply
+}
+
+#[test]
+fn parameters_saved_on_the_ground_load_at_the_next_boot() {
+    use protocol::ParamValue;
+    let mut sector = Sector::blank();
+    let (mut ap, loaded) = Autopilot::from_store(&sector);
+    assert_eq!(loaded, Err(RecordError::Blank));
+    assert_eq!(ap.config(), &AutopilotConfig::default());
+    let op = ParamOp::Set(
+        protocol::ParamName::try_from("guid_kp").unwrap(),
+        ParamValue::F32(0.3),
+    );
+    assert!(matches!(
+        stored_request(&mut ap, &mut sector, op),
+        ParamReply::Entry(_)
+    ));
+    assert_eq!(
+        stored_request(&mut ap, &mut sector, ParamOp::Save),
+        ParamReply::Saved
+    );
+    assert_eq!(
+        stored_request(&mut ap, &mut sector, ParamOp::Storage),
+        ParamReply::Storage(StorageStatus {
+            loaded: Err(RecordError::Blank),
+            saves: 1,
+            failed_saves: 0,
+        })
+    );
+
+    // The next boot runs on the saved value and says so.
+    let (mut next, loaded) = Autopilot::from_store(&sector);
+    assert_eq!(loaded, Ok(()));
+    assert_eq!(next.config().guidance.kp, 0.3);
+    assert!(matches!(
+        stored_request(&mut next, &mut sector, ParamOp::Storage),
+        ParamReply::Storage(StorageStatus {
+            loaded: Ok(()),
+            saves: 0,
+            ..
+        })
+    ));
+
+    // A flash that refuses, or reads back other bytes, is a failed save, counted.
+    sector.refuse = true;
+    assert_eq!(
+        stored_request(&mut next, &mut sector, ParamOp::Save),
+        ParamReply::Error(ParamError::SaveFailed)
+    );
+    assert!(matches!(
+        next.storage(),
+        Some(StorageStatus {
+            saves: 0,
+            failed_saves: 1,
+            ..
+        })
+    ));
+
+    // A corrupted record: the defaults, and why.
+    let mut corrupt = sector.clone();
+    corrupt.bytes[40] ^= 0x04;
+    let (ap, loaded) = Autopilot::from_store(&corrupt);
+    assert_eq!(loaded, Err(RecordError::BadCrc));
+    assert_eq!(ap.config(), &AutopilotConfig::default());
+    assert_eq!(
+        ap.storage().map(|s| s.loaded),
+        Some(Err(RecordError::BadCrc))
+    );
+}
+
+#[test]
+fn a_save_is_refused_while_the_motors_may_run() {
+    let mut sector = Sector::blank();
+    let mut r = Run::new(AutopilotConfig::default());
+    r.ap = Autopilot::from_store(&sector).0;
+    r.takeoff();
+    assert_eq!(
+        stored_request(&mut r.ap, &mut sector, ParamOp::Save),
+        ParamReply::Error(ParamError::Armed)
+    );
+    assert_eq!(sector.writes, 0, "the flash is not touched");
+    // Without storage, a save and a storage query say so.
+    let mut plain = Autopilot::new(AutopilotConfig::default());
+    assert_eq!(
+        param_request(&mut plain, Node::Autopilot, ParamOp::Storage),
+        ParamReply::Error(ParamError::NoStorage)
     );
 }
 

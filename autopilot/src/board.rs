@@ -502,6 +502,9 @@ pub mod hw {
         pub led: Led,
         /// The watchdog (not started).
         pub iwdg: pac::IWDG,
+        /// The flash interface (the clock set-up has set its wait states), for the parameter
+        /// sector.
+        pub flash: pac::FLASH,
     }
 
     /// Brings the board up: clocks, then every pin of [`super::PINS`] in its mode, motors at 0.
@@ -581,6 +584,7 @@ pub mod hw {
             loop_timer,
             led,
             iwdg: dp.IWDG,
+            flash: dp.FLASH,
         }
     }
 

@@ -7,6 +7,7 @@
 //! control loop on it. It is therefore handed back as [`HostOutcome::Imu`]; a board with its
 //! own IMU refuses it and counts the refusal (the firmware's real flavour does).
 
+use protocol::params::RecordStore;
 use protocol::{
     AutopilotToStereo, BoardToHost, HostToBoard, ImuSample, Node, ParamError, ParamOp, ParamReply,
     ParamResponse,
@@ -36,6 +37,26 @@ impl Autopilot {
     /// Heartbeats are liveness only, and frame chunks are for the camera board: both are
     /// dropped here.
     pub fn on_host_message(&mut self, msg: HostToBoard, now_us: u64) -> HostOutcome {
+        self.host_message(msg, now_us, None)
+    }
+
+    /// The same on a board with parameter storage: a parameter request is answered by
+    /// [`Autopilot::on_param_request_stored`], so a save writes `store`.
+    pub fn on_host_message_stored(
+        &mut self,
+        msg: HostToBoard,
+        now_us: u64,
+        store: &mut impl RecordStore,
+    ) -> HostOutcome {
+        self.host_message(msg, now_us, Some(store))
+    }
+
+    fn host_message(
+        &mut self,
+        msg: HostToBoard,
+        now_us: u64,
+        store: Option<&mut dyn RecordStore>,
+    ) -> HostOutcome {
         match msg {
             HostToBoard::ExternalPosition(pos) => {
                 self.on_external_position(&pos, now_us);
@@ -57,7 +78,7 @@ impl Autopilot {
                 }
             }
             HostToBoard::Param(req) => {
-                HostOutcome::Reply(BoardToHost::Param(self.on_param_request(&req)))
+                HostOutcome::Reply(BoardToHost::Param(self.answer_param(&req, store)))
             }
             HostToBoard::Imu(sample) => HostOutcome::Imu(sample),
             HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => HostOutcome::Done,

@@ -31,7 +31,7 @@
 //! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
 //!   firmware, the simulator and every HIL board call.
 //! * [`params`]: the parameter table: every [`AutopilotConfig`] field by name, kind, unit
-//!   and bounds, read, written and validated.
+//!   and bounds, read, written and validated, and its flash record (CRC, format version).
 //! * [`rc`]: SBUS receiver decoding and the RC switches mapped to pilot commands.
 //! * [`lockstep`]: the world clock and task releases of the hardware-in-the-loop flavours.
 //! * [`board`]: the Lisa/MX 2.1 board definition (pins, peripherals, clocks, rates, IMU axes,

@@ -287,13 +287,16 @@ pub fn values(cfg: &AutopilotConfig) -> [ParamValue; COUNT] {
 /// Bytes of the autopilot's flash record.
 pub const RECORD_BYTES: usize = protocol::params::record_bytes(COUNT);
 
+// A save encodes into a buffer of `MAX_RECORD_BYTES`.
+const _: () = assert!(COUNT <= protocol::params::MAX_PARAMS);
+
 /// Writes `cfg`'s values as a flash record ([`protocol::params::encode_record`]) into `out`;
 /// returns its length, [`RECORD_BYTES`].
 pub fn encode_record(
     cfg: &AutopilotConfig,
     out: &mut [u8],
 ) -> Result<usize, protocol::params::RecordError> {
-    protocol::params::encode_record(TABLE, &values(cfg), out)
+    AUTOPILOT.encode_record(cfg, out)
 }
 
 /// The configuration a flash record holds: every value from the record when the whole record

@@ -13,6 +13,8 @@
 //!   watchdog; the reset cause at boot (MCU only).
 //! * [`log`]: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
+//! * [`param_flash`]: the parameter sector (flash sector 11), erased and programmed through the
+//!   flash interface; the [`protocol::params::RecordStore`] of both boards (MCU only).
 //! * [`stack`]: stack painting and the low-water headroom of the main stack (MCU only).
 //! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
 //!
@@ -31,6 +33,8 @@ pub mod fault;
 pub mod link;
 #[cfg(target_os = "none")]
 pub mod log;
+#[cfg(target_os = "none")]
+pub mod param_flash;
 #[cfg(target_os = "none")]
 pub mod stack;
 #[cfg(target_os = "none")]

@@ -14,7 +14,12 @@ fuzz_target!(|data: &[u8]| {
     for &b in body.iter().take(FRAME_CHUNK_BYTES) {
         let _ = chunk.push(b);
     }
-    let msg = HostToBoard::FrameChunk(FrameChunk { frame_id: 1, capture_us: protocol::WireTime(2), offset: 3, data: chunk });
+    let msg = HostToBoard::FrameChunk(FrameChunk {
+        frame_id: 1,
+        capture_us: WireTime(2),
+        offset: 3,
+        data: chunk,
+    });
     let mut out = vec![0u8; size];
     if let Ok(n) = encode(&msg, &mut out) {
         assert!(n <= size);

@@ -10,7 +10,10 @@
 //! The flash record ([`encode_record`], [`decode_record`]) holds the values in table order
 //! behind a magic, a format version and the table's [`table_hash`] (names and kinds), closed
 //! by a CRC-32: a blank, corrupt, older-format or other-table record decodes to an error, and
-//! the board keeps its defaults and reports why.
+//! the board keeps its defaults and reports why. A board's storage is a [`RecordStore`] (its
+//! flash sector in the firmware, a [`MemStore`] on the host): [`ParamTable::load`] reads it at
+//! boot, [`ParamTable::save`] writes and reads back the record of the values in use, and
+//! [`ParamOp::Storage`] reports what the boot loaded and the saves since.
 
 use serde::{Deserialize, Serialize};
 
@@ -471,13 +474,16 @@ impl<C: Copy> ParamTable<C> {
 
     /// Answers `op` for the configuration `cfg`: `List` and `Get` with the entry; `Set` by
     /// [`ParamTable::set`] on a copy, which `apply` then puts in use (it may refuse, e.g.
-    /// while armed), answered with the entry now in use. `Save` is answered `NoStorage`: a
-    /// board with storage answers it before this is called.
+    /// while armed), answered with the entry now in use; `Save` by [`ParamTable::save`] into
+    /// `storage` and `Storage` with its status. A board without storage (`None`) answers both
+    /// `NoStorage`. A board that must refuse a save (the motors may run) does so before this
+    /// is called.
     pub fn answer(
         &self,
         cfg: &C,
         op: &ParamOp,
         apply: impl FnOnce(C) -> Result<(), Rejected>,
+        storage: Option<ParamStorage<'_>>,
     ) -> ParamReply {
         let entry_or = |c: &C, i: Option<usize>, e: ParamError| {
             i.and_then(|i| self.entry(c, i))
@@ -499,7 +505,77 @@ impl<C: Copy> ParamTable<C> {
                     Err(r) => ParamReply::Error(r.error),
                 }
             }
-            ParamOp::Save => ParamReply::Error(ParamError::NoStorage),
+            ParamOp::Save => storage.map_or(ParamReply::Error(ParamError::NoStorage), |s| {
+                self.save(cfg, s)
+            }),
+            ParamOp::Storage => storage.map_or(ParamReply::Error(ParamError::NoStorage), |s| {
+                ParamReply::Storage(*s.status)
+            }),
+        }
+    }
+
+    /// Answers `req` on the board `own`: another board's table is refused (`NoSuchBoard`),
+    /// this one's is answered by [`ParamTable::answer`].
+    pub fn respond(
+        &self,
+        own: Node,
+        req: &ParamRequest,
+        cfg: &C,
+        apply: impl FnOnce(C) -> Result<(), Rejected>,
+        storage: Option<ParamStorage<'_>>,
+    ) -> ParamResponse {
+        let reply = if req.board == own {
+            self.answer(cfg, &req.op, apply, storage)
+        } else {
+            ParamReply::Error(ParamError::NoSuchBoard)
+        };
+        ParamResponse {
+            board: req.board,
+            reply,
+        }
+    }
+
+    /// The flash record of `cfg` ([`encode_record`]) written into `out`; returns its length,
+    /// [`record_bytes`] of the table's length.
+    pub fn encode_record(&self, cfg: &C, out: &mut [u8]) -> Result<usize, RecordError> {
+        encode_values(self.specs, self.access.iter().map(|a| (a.get)(cfg)), out)
+    }
+
+    /// The configuration saved in `store` ([`ParamTable::decode_record`]) and the storage's
+    /// status from it: the saved values when the record is good, otherwise the defaults and,
+    /// in [`StorageStatus::loaded`], why.
+    pub fn load(&self, store: &dyn RecordStore) -> (C, StorageStatus) {
+        let (cfg, loaded) = self.decode_record(store.bytes());
+        let status = StorageStatus {
+            loaded,
+            saves: 0,
+            failed_saves: 0,
+        };
+        (cfg, status)
+    }
+
+    /// Saves `cfg`: writes its record ([`ParamTable::encode_record`]) to the store and reads
+    /// it back; `Saved`, or `SaveFailed` when the store refused or holds other bytes. Counted
+    /// in the storage's status. The write takes as long as the store's erase (a second or two
+    /// for a 128 KiB flash sector).
+    pub fn save(&self, cfg: &C, storage: ParamStorage<'_>) -> ParamReply {
+        let ParamStorage { store, status } = storage;
+        let mut record = [0u8; MAX_RECORD_BYTES];
+        let written = match self.encode_record(cfg, &mut record) {
+            Ok(n) => {
+                let record = record.get(..n).unwrap_or(&[]);
+                store.write(record).is_ok() && store.bytes().get(..n) == Some(record)
+            }
+            // A configuration in use passed `validate` and a table fits MAX_PARAMS: it always
+            // encodes.
+            Err(_) => false,
+        };
+        if written {
+            status.saves = status.saves.saturating_add(1);
+            ParamReply::Saved
+        } else {
+            status.failed_saves = status.failed_saves.saturating_add(1);
+            ParamReply::Error(ParamError::SaveFailed)
         }
     }
 
@@ -552,6 +628,8 @@ pub enum ParamOp {
     Set(ParamName, ParamValue),
     /// Saves every value to flash (refused while the motors may run).
     Save,
+    /// What the board's parameter storage holds (answered with [`ParamReply::Storage`]).
+    Storage,
 }
 
 /// A parameter request to one board (host -> autopilot; the autopilot answers for itself and
@@ -644,6 +722,102 @@ pub enum ParamReply {
     Saved,
     /// The request failed; nothing changed.
     Error(ParamError),
+    /// The board's parameter storage: what the boot loaded, and the saves since.
+    Storage(StorageStatus),
+}
+
+/// What a board's parameter storage says (the answer to [`ParamOp::Storage`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StorageStatus {
+    /// What the boot found in flash: `Ok`, the saved values are in use; otherwise why the
+    /// board runs on its defaults (a blank sector, a corrupt, older or other-table record, a
+    /// value out of bounds).
+    pub loaded: Result<(), RecordError>,
+    /// Saves written and read back since boot.
+    pub saves: u32,
+    /// Saves that failed since boot (the flash refused, or read back wrong).
+    pub failed_saves: u32,
+}
+
+/// A board's parameter storage as [`ParamTable::answer`] and [`ParamTable::save`] use it: the
+/// region the record is written to and the status that counts the saves.
+pub struct ParamStorage<'a> {
+    /// The region (the firmware's flash sector, a test's [`MemStore`]).
+    pub store: &'a mut dyn RecordStore,
+    /// What the boot loaded, and the saves since.
+    pub status: &'a mut StorageStatus,
+}
+
+impl<'a> ParamStorage<'a> {
+    /// The storage of a board that has both a store and a status; `None` (no storage) when
+    /// either is missing.
+    pub fn of<'s: 'a>(
+        store: Option<&'a mut (dyn RecordStore + 's)>,
+        status: Option<&'a mut StorageStatus>,
+    ) -> Option<Self> {
+        Some(Self {
+            store: store?,
+            status: status?,
+        })
+    }
+}
+
+/// A [`RecordStore`] in memory with a flash sector's rules: erased bytes are `0xFF` and
+/// programming only clears bits. Host tests and simulated boards use it in place of flash.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MemStore<const N: usize> {
+    /// The region's bytes.
+    pub bytes: [u8; N],
+    /// While set, every write fails as a flash error would (`SaveFailed`), leaving the bytes.
+    pub refuse: bool,
+    /// Writes asked for (refused ones too).
+    pub writes: u32,
+}
+
+impl<const N: usize> MemStore<N> {
+    /// An erased region.
+    pub const fn blank() -> Self {
+        Self {
+            bytes: [0xff; N],
+            refuse: false,
+            writes: 0,
+        }
+    }
+}
+
+impl<const N: usize> Default for MemStore<N> {
+    fn default() -> Self {
+        Self::blank()
+    }
+}
+
+impl<const N: usize> RecordStore for MemStore<N> {
+    fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    fn write(&mut self, record: &[u8]) -> Result<(), ParamError> {
+        self.writes = self.writes.saturating_add(1);
+        if self.refuse || record.len() > N {
+            return Err(ParamError::SaveFailed);
+        }
+        self.bytes.fill(0xff);
+        for (cell, b) in self.bytes.iter_mut().zip(record) {
+            *cell &= *b;
+        }
+        Ok(())
+    }
+}
+
+/// A board's parameter storage: one erasable region (a flash sector, a test's buffer) that
+/// holds one record at its start. The firmware implements it on its flash; the library
+/// decides what is written and checks what reads back.
+pub trait RecordStore {
+    /// The region's bytes from its start (erased bytes read `0xFF`).
+    fn bytes(&self) -> &[u8];
+    /// Erases the region and writes `record` at its start; `SaveFailed` if the flash refused.
+    fn write(&mut self, record: &[u8]) -> Result<(), ParamError>;
 }
 
 /// A parameter answer (board -> host).
@@ -667,6 +841,12 @@ pub const RECORD_HEADER_BYTES: usize = 12;
 pub const fn record_bytes(count: usize) -> usize {
     RECORD_HEADER_BYTES + 4 * count + 4
 }
+
+/// Most entries a table can have to be saved ([`ParamTable::save`] encodes into a buffer of
+/// [`MAX_RECORD_BYTES`] on the stack).
+pub const MAX_PARAMS: usize = 128;
+/// Bytes of the record of a table of [`MAX_PARAMS`] entries.
+pub const MAX_RECORD_BYTES: usize = record_bytes(MAX_PARAMS);
 
 /// Why a flash record was not loaded (the board keeps its defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -697,22 +877,37 @@ pub fn encode_record(
     values: &[ParamValue],
     out: &mut [u8],
 ) -> Result<usize, RecordError> {
-    let n = record_bytes(table.len());
-    if values.len() != table.len() || out.len() < n || table.len() > usize::from(u16::MAX) {
+    if values.len() != table.len() {
         return Err(RecordError::Length);
     }
-    for (i, (spec, v)) in table.iter().zip(values).enumerate() {
-        if spec.check(*v).is_err() {
-            return Err(RecordError::BadValue(i as u16));
-        }
+    encode_values(table, values.iter().copied(), out)
+}
+
+/// [`encode_record`] of values in table order as they come (one per entry of `table`).
+fn encode_values(
+    table: &[ParamSpec],
+    values: impl Iterator<Item = ParamValue>,
+    out: &mut [u8],
+) -> Result<usize, RecordError> {
+    let n = record_bytes(table.len());
+    if out.len() < n || table.len() > usize::from(u16::MAX) {
+        return Err(RecordError::Length);
     }
     let (head, rest) = out.split_at_mut(RECORD_HEADER_BYTES);
     head[0..4].copy_from_slice(&RECORD_MAGIC.to_le_bytes());
     head[4..6].copy_from_slice(&RECORD_FORMAT_VERSION.to_le_bytes());
     head[6..8].copy_from_slice(&(table.len() as u16).to_le_bytes());
     head[8..12].copy_from_slice(&table_hash(table).to_le_bytes());
-    for (chunk, v) in rest.chunks_exact_mut(4).zip(values) {
+    let mut written = 0;
+    for (i, ((chunk, v), spec)) in rest.chunks_exact_mut(4).zip(values).zip(table).enumerate() {
+        if spec.check(v).is_err() {
+            return Err(RecordError::BadValue(i as u16));
+        }
         chunk.copy_from_slice(&v.to_bits().to_le_bytes());
+        written += 1;
+    }
+    if written != table.len() {
+        return Err(RecordError::Length);
     }
     let crc = RECORD_CRC.checksum(&out[..n - 4]);
     out[n - 4..n].copy_from_slice(&crc.to_le_bytes());
@@ -890,10 +1085,11 @@ mod tests {
         // Set answers with the entry in use once `apply` took it; a refusal changes nothing.
         let set = |v| ParamOp::Set(ParamName::try_from("shift").unwrap(), ParamValue::I32(v));
         let mut applied = None;
-        match t.answer(&c, &set(4), |n| {
+        let apply = |n| {
             applied = Some(n);
             Ok(())
-        }) {
+        };
+        match t.answer(&c, &set(4), apply, None) {
             ParamReply::Entry(e) => {
                 assert_eq!(
                     (e.value, e.default),
@@ -904,16 +1100,23 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert_eq!(applied.map(|n| n.shift), Some(4));
-        let refused = t.answer(&c, &set(5), |_| Err(Rejected::refused(ParamError::Armed)));
+        let refused = t.answer(
+            &c,
+            &set(5),
+            |_| Err(Rejected::refused(ParamError::Armed)),
+            None,
+        );
         assert_eq!(refused, ParamReply::Error(ParamError::Armed));
         assert_eq!(
-            t.answer(&c, &ParamOp::List(4), |_| Ok(())),
+            t.answer(&c, &ParamOp::List(4), |_| Ok(()), None),
             ParamReply::Error(ParamError::UnknownIndex)
         );
-        assert_eq!(
-            t.answer(&c, &ParamOp::Save, |_| Ok(())),
-            ParamReply::Error(ParamError::NoStorage)
-        );
+        for op in [ParamOp::Save, ParamOp::Storage] {
+            assert_eq!(
+                t.answer(&c, &op, |_| Ok(()), None),
+                ParamReply::Error(ParamError::NoStorage)
+            );
+        }
 
         // A record with a negative value reads back; an inconsistent one means defaults.
         let mut vals = [ParamValue::U32(0); 4];
@@ -928,6 +1131,74 @@ mod tests {
         assert_eq!(
             t.decode_record(&rec),
             (CFG_DEFAULT, Err(RecordError::BadValue(2)))
+        );
+    }
+
+    #[test]
+    fn a_table_saves_to_its_store_and_loads_back() {
+        let t = CFG_TABLE;
+        let mut store = MemStore::<64>::blank();
+        let (c, mut status) = t.load(&store);
+        assert_eq!((c, status.loaded), (CFG_DEFAULT, Err(RecordError::Blank)));
+        let mut c = CFG_DEFAULT;
+        t.set_by_name(&mut c, "shift", ParamValue::I32(-7)).unwrap();
+        fn answer(
+            c: &Cfg,
+            op: &ParamOp,
+            store: &mut MemStore<64>,
+            status: &mut StorageStatus,
+        ) -> ParamReply {
+            let storage = ParamStorage { store, status };
+            CFG_TABLE.answer(c, op, |_| Ok(()), Some(storage))
+        }
+        assert_eq!(
+            answer(&c, &ParamOp::Save, &mut store, &mut status),
+            ParamReply::Saved
+        );
+        assert_eq!(
+            answer(&c, &ParamOp::Storage, &mut store, &mut status),
+            ParamReply::Storage(StorageStatus {
+                loaded: Err(RecordError::Blank),
+                saves: 1,
+                failed_saves: 0,
+            })
+        );
+        // The next boot loads the saved values and says so.
+        let (loaded, next) = t.load(&store);
+        assert_eq!((loaded, next.loaded, next.saves), (c, Ok(()), 0));
+
+        // A store that refuses is a failed save, counted; the old record stays.
+        store.refuse = true;
+        assert_eq!(
+            answer(&CFG_DEFAULT, &ParamOp::Save, &mut store, &mut status),
+            ParamReply::Error(ParamError::SaveFailed)
+        );
+        assert_eq!((status.saves, status.failed_saves), (1, 1));
+        assert_eq!(t.load(&store).0, c);
+
+        // A corrupt record: the defaults, and why.
+        store.bytes[20] ^= 0x04;
+        assert_eq!(
+            t.load(&store),
+            (
+                CFG_DEFAULT,
+                StorageStatus {
+                    loaded: Err(RecordError::BadCrc),
+                    saves: 0,
+                    failed_saves: 0,
+                }
+            )
+        );
+        // The table's record and the free function's are the same bytes.
+        let mut vals = [ParamValue::U32(0); 4];
+        t.values(&c, &mut vals);
+        let (mut a, mut b) = ([0u8; 40], [0u8; 40]);
+        assert_eq!(t.encode_record(&c, &mut a), Ok(record_bytes(4)));
+        assert_eq!(encode_record(CFG_SPECS, &vals, &mut b), Ok(record_bytes(4)));
+        assert_eq!(a, b);
+        assert_eq!(
+            t.encode_record(&c, &mut a[..record_bytes(4) - 1]),
+            Err(RecordError::Length)
         );
     }
 

@@ -1477,8 +1477,8 @@ mod tests {
         assert!(e.contains("baud rate 0"), "{e}");
     }
 
-    /// A pseudo-terminal is a real tty: open it at rates the old termios table refused (below
-    /// 115,200 and off the standard list) and pass a message through it both ways.
+    /// A pseudo-terminal is a real tty: open it at rates below 115,200 and off the standard
+    /// list, and pass a message through it both ways.
     #[cfg(unix)]
     #[test]
     fn serial_ports_open_at_any_baud_rate_and_carry_bytes() {

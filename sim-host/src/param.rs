@@ -27,7 +27,7 @@ use crate::hil::{open_link, Link};
 use anyhow::{anyhow, bail, Context as _};
 use autopilot::app::AutopilotConfig;
 use autopilot::params as ap_params;
-use protocol::params::ParamTable;
+use protocol::params::{ParamTable, RecordError, StorageStatus};
 use protocol::{
     BoardToHost, BoardToHostDecoder, HostToBoard, Message as _, Node, ParamEntry, ParamError,
     ParamKind, ParamName, ParamOp, ParamReply, ParamRequest, ParamValue,
@@ -95,8 +95,43 @@ pub enum ParamAction {
         #[arg(allow_negative_numbers = true)]
         value: String,
     },
-    /// Saves every value to the board's flash (refused while armed).
+    /// Saves every value to the board's flash (refused while armed). The board stalls for the
+    /// flash's erase, a second or two: the answer is waited for at least 5 s.
     Save,
+    /// What the board's parameter storage holds: whether the boot loaded a saved record (or
+    /// why it runs on the defaults), and the saves since.
+    Storage,
+}
+
+/// The shortest wait for the answer to a save: the erase of a 128 KiB flash sector takes up
+/// to 2 s (x32), during which the board answers nothing.
+pub const SAVE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// A storage status as a user reads it.
+pub fn format_storage(s: &StorageStatus) -> String {
+    let loaded = match s.loaded {
+        Ok(()) => "the saved parameters are in use".to_owned(),
+        Err(e) => format!("defaults in use: {}", describe_record_error(e)),
+    };
+    format!(
+        "{loaded}; saves since boot: {}, failed: {}",
+        s.saves, s.failed_saves
+    )
+}
+
+/// Why a flash record was not loaded, for a user.
+pub fn describe_record_error(e: RecordError) -> String {
+    match e {
+        RecordError::Blank => "nothing saved (erased flash)".to_owned(),
+        RecordError::BadMagic => "the flash holds no parameter record".to_owned(),
+        RecordError::FormatVersion(v) => format!("record of another format (version {v})"),
+        RecordError::TableChanged => {
+            "record of another parameter table (names or types changed)".to_owned()
+        }
+        RecordError::Length => "record cut short".to_owned(),
+        RecordError::BadCrc => "corrupt record (bad CRC)".to_owned(),
+        RecordError::BadValue(i) => format!("stored value {i} out of bounds or inconsistent"),
+    }
 }
 
 /// A value as a user reads it.
@@ -258,15 +293,20 @@ impl<'a> ParamClient<'a> {
     /// Sends `op` and returns the answer that matches it (an entry for the index or name
     /// asked, an error, or `Saved` for a save), retrying twice on silence.
     pub fn request(&mut self, op: &ParamOp) -> anyhow::Result<ParamReply> {
+        let timeout = match op {
+            ParamOp::Save => self.timeout.max(SAVE_TIMEOUT),
+            _ => self.timeout,
+        };
         for _attempt in 0..3 {
             self.send(op)?;
-            let deadline = Instant::now() + self.timeout;
+            let deadline = Instant::now() + timeout;
             while let Some(reply) = self.next_reply(deadline)? {
                 let matches = match (&reply, op) {
                     (ParamReply::Error(_), _) => true,
                     (ParamReply::Entry(e), ParamOp::List(i)) => e.index == *i,
                     (ParamReply::Entry(e), ParamOp::Get(n) | ParamOp::Set(n, _)) => e.name == *n,
                     (ParamReply::Saved, ParamOp::Save) => true,
+                    (ParamReply::Storage(_), ParamOp::Storage) => true,
                     _ => false,
                 };
                 if matches {
@@ -278,7 +318,7 @@ impl<'a> ParamClient<'a> {
             "no answer from the {:?} to {op:?} after 3 tries of {:.1} s (is it running this \
              protocol version, {}?)",
             self.board,
-            self.timeout.as_secs_f64(),
+            timeout.as_secs_f64(),
             protocol::PROTOCOL_VERSION
         )
     }
@@ -287,7 +327,7 @@ impl<'a> ParamClient<'a> {
         match self.request(op)? {
             ParamReply::Entry(e) => Ok(e),
             ParamReply::Error(e) => bail!("{what}: {}", e.describe()),
-            ParamReply::Saved => bail!("{what}: unexpected answer"),
+            ParamReply::Saved | ParamReply::Storage(_) => bail!("{what}: unexpected answer"),
         }
     }
 
@@ -330,7 +370,7 @@ impl<'a> ParamClient<'a> {
                 )
             }
             ParamReply::Error(e) => bail!("{name}: {}", e.describe()),
-            ParamReply::Saved => bail!("{name}: unexpected answer"),
+            ParamReply::Saved | ParamReply::Storage(_) => bail!("{name}: unexpected answer"),
         }
     }
 
@@ -339,7 +379,16 @@ impl<'a> ParamClient<'a> {
         match self.request(&ParamOp::Save)? {
             ParamReply::Saved => Ok(()),
             ParamReply::Error(e) => bail!("save: {}", e.describe()),
-            ParamReply::Entry(_) => bail!("save: unexpected answer"),
+            ParamReply::Entry(_) | ParamReply::Storage(_) => bail!("save: unexpected answer"),
+        }
+    }
+
+    /// The board's parameter storage status.
+    pub fn storage(&mut self) -> anyhow::Result<StorageStatus> {
+        match self.request(&ParamOp::Storage)? {
+            ParamReply::Storage(s) => Ok(s),
+            ParamReply::Error(e) => bail!("storage: {}", e.describe()),
+            ParamReply::Entry(_) | ParamReply::Saved => bail!("storage: unexpected answer"),
         }
     }
 }
@@ -377,6 +426,7 @@ pub fn run(args: &ParamArgs) -> anyhow::Result<()> {
             c.save()?;
             println!("saved");
         }
+        ParamAction::Storage => println!("{}", format_storage(&c.storage()?)),
     }
     Ok(())
 }

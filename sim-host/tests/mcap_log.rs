@@ -108,6 +108,7 @@ fn fly_writes_an_mcap_log_the_python_reader_understands() {
         topics,
         [
             "/attitude",
+            "/baro",
             "/camera/left",
             "/camera/right",
             "/estimate",
@@ -131,9 +132,10 @@ fn fly_writes_an_mcap_log_the_python_reader_understands() {
 
     let counts: BTreeMap<String, u64> = serde_json::from_value(v["counts"].clone()).unwrap();
     let n = |t: &str| counts.get(t).copied().unwrap_or(0);
-    // 6 s of flight: guidance at 50 Hz, control logged at 128 Hz, images at 5 Hz (the first
-    // exposure at 0.1 s), estimates at up to 25 Hz.
+    // 6 s of flight: guidance and the barometer at 50 Hz, control logged at 128 Hz, images at
+    // 5 Hz (the first exposure at 0.1 s), estimates at up to 25 Hz.
     for t in [
+        "/baro",
         "/state",
         "/setpoint",
         "/velocity",

@@ -7,8 +7,8 @@
 //!
 //! | task | trigger | priority | body |
 //! |---|---|---|---|
-//! | `uart_rx` | autopilot UART IDLE / DMA half | 3 | [`StereoBoardApp::on_rx_bytes`] |
-//! | `host_rx` | host UART IDLE (HIL and QEMU flavours) | 3 | [`StereoBoardApp::on_host_bytes`] |
+//! | `uart_rx` | bytes from the autopilot link UART (RXNE interrupt, queued) | 3 | [`StereoBoardApp::on_rx_bytes`] |
+//! | `host_rx` | bytes from the host UART (RXNE interrupt, queued; HIL and QEMU flavours) | 3 | [`StereoBoardApp::on_host_bytes`] |
 //! | `frame` | camera frame complete (DCMI + DMA2) or a HIL frame assembled | 2 | [`StereoBoardApp::on_frame`] |
 //! | `status` | every [`STATUS_PERIOD_US`] | 1 | [`StereoBoardApp::status_tick`] |
 //!
@@ -16,11 +16,11 @@
 //! samples must keep flowing while Edge-FS runs for tens of milliseconds.
 
 use crate::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
+use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
     encode, AutopilotToStereo, BoardToHost, CaptureCounts, ConfigResult, Decoder, Estimate,
-    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamError,
-    ParamReply, ParamRequest, ParamResponse, StereoStatus, StereoToAutopilot, FRAME_CHUNK_BYTES,
-    STEREO_FRAME_BYTES,
+    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamRequest,
+    ParamResponse, StereoStatus, StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
@@ -48,13 +48,13 @@ pub const TASKS: &[TaskSpec] = &[
     TaskSpec {
         name: TASK_UART_RX,
         priority: 3,
-        trigger: Trigger::Event("autopilot UART (USART1) IDLE line"),
+        trigger: Trigger::Event("bytes from the autopilot link (UART4; USART1 in QEMU), RXNE"),
         deadline_us: 2_000,
     },
     TaskSpec {
         name: TASK_HOST_RX,
         priority: 3,
-        trigger: Trigger::Event("host UART (USART2) IDLE line, HIL/QEMU flavours"),
+        trigger: Trigger::Event("bytes from the host link (USART2), RXNE; HIL/QEMU flavours"),
         deadline_us: 2_000,
     },
     TaskSpec {
@@ -267,6 +267,8 @@ pub struct StereoBoardApp {
     max_processing_us: u32,
     capture: CaptureCounts,
     camera_stopped: bool,
+    /// The parameter storage's state (`None`: no storage, [`StereoBoardApp::new`] alone).
+    storage: Option<StorageStatus>,
 }
 
 impl StereoBoardApp {
@@ -301,7 +303,24 @@ impl StereoBoardApp {
                 frames_overwritten: 0,
             },
             camera_stopped: false,
+            storage: None,
         }
+    }
+
+    /// Boot with parameter storage: the Edge-FS parameters saved in `store`
+    /// ([`crate::params::CAMERA`]'s record) when the record is good, otherwise the defaults;
+    /// why is kept for [`protocol::ParamOp::Storage`] and returned (`Err`: the defaults are in
+    /// use). Saves then go to the store given to [`StereoBoardApp::on_rx_bytes_stored`].
+    pub fn load_params(&mut self, store: &dyn RecordStore) -> Result<(), RecordError> {
+        let (params, status) = crate::params::CAMERA.load(store);
+        self.set_params(params);
+        self.storage = Some(status);
+        status.loaded
+    }
+
+    /// The parameter storage's state (`None`: no storage was loaded).
+    pub fn storage(&self) -> Option<StorageStatus> {
+        self.storage
     }
 
     /// The Edge-FS parameters in use.
@@ -440,11 +459,34 @@ impl StereoBoardApp {
     /// for derotation (non-finite ones are rejected and counted); a `Config` is validated,
     /// applied from the next frame on (clearing the flow history) and answered with a
     /// `ConfigAck` through `tx`; a parameter request is answered through `tx`
-    /// ([`StereoBoardApp::on_param_request`]); heartbeats record the peer's uptime.
+    /// ([`StereoBoardApp::on_param_request`]: no storage); heartbeats record the peer's
+    /// uptime.
     pub fn on_rx_bytes(&mut self, bytes: &[u8], now: Instant, tx: &mut impl FnMut(&[u8])) {
+        self.rx_bytes(bytes, now, tx, None);
+    }
+
+    /// The same on a board with parameter storage: a parameter request is answered by
+    /// [`StereoBoardApp::on_param_request_stored`], so a save writes `store`.
+    pub fn on_rx_bytes_stored(
+        &mut self,
+        bytes: &[u8],
+        now: Instant,
+        tx: &mut impl FnMut(&[u8]),
+        store: &mut impl RecordStore,
+    ) {
+        self.rx_bytes(bytes, now, tx, Some(store));
+    }
+
+    fn rx_bytes(
+        &mut self,
+        bytes: &[u8],
+        now: Instant,
+        tx: &mut impl FnMut(&[u8]),
+        mut store: Option<&mut (dyn RecordStore + '_)>,
+    ) {
         for &byte in bytes {
             if let Some(msg) = self.rx.push(byte) {
-                self.handle_autopilot(msg, now, tx);
+                self.handle_autopilot(msg, now, tx, store.as_deref_mut());
             }
         }
     }
@@ -454,6 +496,7 @@ impl StereoBoardApp {
         msg: AutopilotToStereo,
         now: Instant,
         tx: &mut impl FnMut(&[u8]),
+        store: Option<&mut (dyn RecordStore + '_)>,
     ) {
         match msg {
             AutopilotToStereo::Heartbeat(hb) => self.peer_uptime_ms = Some(hb.uptime_ms),
@@ -487,30 +530,51 @@ impl StereoBoardApp {
                 send_to_autopilot(&StereoToAutopilot::ConfigAck(result), tx);
             }
             AutopilotToStereo::Param(req) => {
-                let answer = self.on_param_request(&req);
+                let answer = self.answer_param(&req, store);
                 send_to_autopilot(&StereoToAutopilot::Param(answer), tx);
             }
         }
     }
 
     /// Answers a parameter request for this board's table ([`crate::params::TABLE`]), passed
-    /// on by the autopilot from the host: a set takes effect from the next frame on and clears
-    /// the flow history. A request for another board's table is refused (`NoSuchBoard`);
-    /// `Save` is answered `NoStorage` (this board keeps no parameters in flash).
+    /// on by the autopilot from the host, on a board without parameter storage: a set takes
+    /// effect from the next frame on and clears the flow history; `Save` and `Storage` are
+    /// answered `NoStorage` (see [`StereoBoardApp::on_param_request_stored`]). A request for
+    /// another board's table is refused (`NoSuchBoard`).
     pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
-        let reply = if req.board != Node::StereoBoard {
-            ParamReply::Error(ParamError::NoSuchBoard)
-        } else {
-            let current = self.params;
-            crate::params::CAMERA.answer(&current, &req.op, |next| {
-                self.set_params(next);
-                Ok(())
-            })
+        self.answer_param(req, None)
+    }
+
+    /// Answers a parameter request, saving to `store` on `Save`: the record of the parameters
+    /// in use is written and read back, and a failure of either is `SaveFailed`. The write
+    /// holds the board for the flash's erase (a second or two for a 128 KiB sector: no frame
+    /// is processed meanwhile); the autopilot passes a save on only while its motors are off.
+    /// `Storage` is answered once [`StereoBoardApp::load_params`] ran.
+    pub fn on_param_request_stored(
+        &mut self,
+        req: &ParamRequest,
+        store: &mut impl RecordStore,
+    ) -> ParamResponse {
+        self.answer_param(req, Some(store))
+    }
+
+    fn answer_param(
+        &mut self,
+        req: &ParamRequest,
+        store: Option<&mut (dyn RecordStore + '_)>,
+    ) -> ParamResponse {
+        let current = self.params;
+        // The status is counted on a copy, so that `set_params` can borrow the board.
+        let mut status = self.storage;
+        let storage = ParamStorage::of(store, status.as_mut());
+        let apply = |next| {
+            self.set_params(next);
+            Ok(())
         };
-        ParamResponse {
-            board: req.board,
-            reply,
-        }
+        let response =
+            crate::params::CAMERA.respond(Node::StereoBoard, req, &current, apply, storage);
+        self.storage = status;
+        response
     }
 
     /// Makes `params` Edge-FS's from the next frame on (the flow history restarts). The caller

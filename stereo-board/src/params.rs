@@ -8,7 +8,10 @@
 //! what [`crate::edge_fs::EdgeFs::new`] accepts unchanged, so a value that is set is the value
 //! that runs; within them at least 44 of the 128 columns stay measurable
 //! (`128 - 2·half_window - max(search_range, stereo_range) - |stereo_shift|`). A change takes
-//! effect from the next frame on and clears the flow history.
+//! effect from the next frame on and clears the flow history. The firmware keeps the table in
+//! its flash parameter sector ([`RECORD_BYTES`] of record: magic, format version, table hash,
+//! the values, CRC-32) and boots on it; a blank, corrupt, older or other-table record means the
+//! defaults, reported ([`crate::app::StereoBoardApp::load_params`]).
 
 use crate::edge_fs::EdgeFsParams;
 use protocol::params::ParamTable;
@@ -65,6 +68,21 @@ pub const COUNT: usize = TABLE.len();
 
 /// Version of [`TABLE`] for flash records: see [`protocol::params::table_hash`].
 pub const TABLE_HASH: u32 = CAMERA.hash();
+
+/// Bytes of the camera board's flash record.
+pub const RECORD_BYTES: usize = protocol::params::record_bytes(COUNT);
+
+// A save encodes into a buffer of `MAX_RECORD_BYTES`.
+const _: () = assert!(COUNT <= protocol::params::MAX_PARAMS);
+
+/// Writes `p`'s values as a flash record ([`protocol::params::encode_record`]) into `out`;
+/// returns its length, [`RECORD_BYTES`].
+pub fn encode_record(
+    p: &EdgeFsParams,
+    out: &mut [u8],
+) -> Result<usize, protocol::params::RecordError> {
+    CAMERA.encode_record(p, out)
+}
 
 /// Index of the parameter called `name`.
 pub fn index_of(name: &str) -> Option<usize> {

@@ -12,6 +12,7 @@
 use std::sync::{Arc, Condvar, Mutex};
 
 use rigless::emulator::{self, Driver, Hit, Host, Settled, Start, Stop, Watch};
+use rigless::image::Image;
 use rigless::machine::Board;
 use rigless::mcu::Mcu;
 use rigless::session::Session;
@@ -31,6 +32,12 @@ pub trait BenchBoard: Board + Sized + 'static {
     /// on to `now` (a sensor's new sample, a pin level). Nothing by default.
     fn advance(&mut self, now: VirtualNanos) {
         let _ = now;
+    }
+    /// What the board's flash holds beside the firmware at power-on, `(address, bytes)`: what
+    /// earlier runs left there, such as saved parameters ([`crate::flash`]). The bench places
+    /// it before the first instruction. Nothing by default.
+    fn flash_contents(&self) -> Vec<(u64, Vec<u8>)> {
+        Vec::new()
     }
 }
 
@@ -365,8 +372,9 @@ pub struct Setup<B: BenchBoard, P> {
     pub probe: P,
 }
 
-/// A run ready to start: the session, its driver, the image.
-type Prepared<B, P> = (Session<B>, BenchDriver<B, P>, Firmware);
+/// A run ready to start: the session, its driver, the images (the firmware, then the flash
+/// contents).
+type Prepared<B, P> = (Session<B>, BenchDriver<B, P>, Vec<Image>);
 
 fn prepare<B: BenchBoard, P: Probe<B>>(
     setup: Setup<B, P>,
@@ -381,6 +389,22 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
     } = setup;
     let part = board.soc().part;
     firmware.check_memory(part)?;
+    let flash = part.memory()[0];
+    let mut images = Vec::new();
+    for (address, bytes) in board.flash_contents() {
+        if !flash.holds(address, bytes.len() as u64) {
+            return Err(format!(
+                "flash contents at {address:#x}+{:#x} lie outside the {}'s flash",
+                bytes.len(),
+                part.name()
+            ));
+        }
+        let name = format!("flash@{address:#x}");
+        images.push(
+            Image::new(std::path::Path::new(&name), bytes, Some(address))
+                .map_err(|e| format!("{name}: {e}"))?,
+        );
+    }
     let mut session = Session::new(Box::new(board), 0, VirtualNanos(options.step_ns))
         .map_err(|e| format!("session: {e}"))?;
     let mut handlers = Vec::new();
@@ -417,7 +441,8 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
         on_barrier,
         marker: std::marker::PhantomData,
     };
-    Ok((session, driver, firmware))
+    images.insert(0, firmware.image);
+    Ok((session, driver, images))
 }
 
 fn finish<B: BenchBoard, P: Probe<B>>(
@@ -444,8 +469,7 @@ pub fn run<B: BenchBoard, P: Probe<B>>(
     setup: Setup<B, P>,
     options: Options,
 ) -> Result<Outcome<B, P>, String> {
-    let (session, driver, firmware) = prepare(setup, options, None, Vec::new())?;
-    let images = [firmware.image];
+    let (session, driver, images) = prepare(setup, options, None, Vec::new())?;
     let started = std::time::Instant::now();
     let finished = emulator::run(session, &Start::new(&images), driver)
         .map_err(|e| format!("emulator: {e}"))?;
@@ -476,23 +500,21 @@ where
     let lockstep = Arc::new(Lockstep::default());
     // Each side releases only what it receives, on its own thread after the barrier, so what a
     // board hears does not depend on how the two threads interleave.
-    let (session_a, driver_a, firmware_a) =
+    let (session_a, driver_a, images_a) =
         prepare(a, options, Some(lockstep.clone()), on_barrier_a)?;
-    let (session_b, driver_b, firmware_b) =
+    let (session_b, driver_b, images_b) =
         prepare(b, options, Some(lockstep.clone()), on_barrier_b)?;
     let started = std::time::Instant::now();
     let (done_a, done_b) = std::thread::scope(|scope| {
         let lock_a = lockstep.clone();
         let thread_a = scope.spawn(move || {
-            let images = [firmware_a.image];
-            let done = emulator::run(session_a, &Start::new(&images), driver_a);
+            let done = emulator::run(session_a, &Start::new(&images_a), driver_a);
             lock_a.end();
             done
         });
         let lock_b = lockstep.clone();
         let thread_b = scope.spawn(move || {
-            let images = [firmware_b.image];
-            let done = emulator::run(session_b, &Start::new(&images), driver_b);
+            let done = emulator::run(session_b, &Start::new(&images_b), driver_b);
             lock_b.end();
             done
         });

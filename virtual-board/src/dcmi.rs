@@ -1145,7 +1145,7 @@ mod tests {
         let mut b = Bench::new(
             4,
             0x42,
-            super::tcm8230::OUTPUT_OFF | SIZE_SUBQCIF << 2,
+            tcm8230::OUTPUT_OFF | SIZE_SUBQCIF << 2,
             CR_ORIGINAL,
         );
         b.write(CR, CR_ORIGINAL | CAPTURE);

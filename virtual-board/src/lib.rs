@@ -15,6 +15,8 @@
 //! * [`pilot`]: what a user does to fly the autopilot (height fixes, `Arm`), and schedules on
 //!   the bench's stops.
 //!
+//! * [`flash`]: what the boards' flash holds beside the firmware at power-on (saved
+//!   parameters), and what of the flash interface rigless models.
 //! * [`serve`]: a board's host UART on a TCP socket, for ground tools (`sim-host monitor`).
 //! * [`world`]: sim-host's simulated world (dynamics, barometer, renderer) stepped in lockstep
 //!   with the boards: its state on the IMU, barometer and cameras, the motor duties on its
@@ -31,6 +33,7 @@ pub mod cpld;
 pub mod dcmi;
 pub mod exti;
 pub mod firmware;
+pub mod flash;
 pub mod frames;
 pub mod host;
 pub mod inject;

@@ -543,7 +543,7 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
     (report, took, pilot.hover_seen_at)
 }
 
-/// No valid IMU sample for this long while armed -> motors off (issue 12 item 3).
+/// No valid IMU sample for this long while armed -> motors off.
 /// Measured at the bench's 1 ms stops: one stop of slack.
 fn imu_promise_ns() -> u64 {
     autopilot::board::imu_fault_motors_off_us(&autopilot::failsafe::FailsafeConfig::default())
@@ -561,14 +561,14 @@ fn an_unplugged_imu_stops_the_motors() {
     fault_stops_the_motors(Fault::ImuUnplugged, imu_promise_ns(), 3.0);
 }
 
-/// A sample with an axis at full scale is a bound, not a measurement (issue 12 item 3): counted
+/// A sample with an axis at full scale is a bound, not a measurement: counted
 /// invalid, and the IMU failsafe stops the motors within its promise.
 #[test]
 fn an_imu_at_full_scale_stops_the_motors() {
     fault_stops_the_motors(Fault::ImuFullScale, imu_promise_ns(), 5.0);
 }
 
-/// The MPU-6000 resets in flight (issue 12 item 3): the IMU failsafe stops the motors within
+/// The MPU-6000 resets in flight: the IMU failsafe stops the motors within
 /// its promise, the firmware configures the chip again (it comes back asleep with its
 /// registers at their defaults), and the motors stay off without a new `Arm`.
 #[test]
@@ -576,7 +576,7 @@ fn a_reset_imu_stops_the_motors_and_is_configured_again() {
     fault_stops_the_motors(Fault::ImuReset, imu_promise_ns(), 5.0);
 }
 
-/// A HardFault: its handler sets every motor output to 0 first (issue 12 item 6).
+/// A HardFault: its handler sets every motor output to 0 first.
 #[test]
 fn a_hard_fault_stops_the_motors_at_once() {
     fault_stops_the_motors(
@@ -586,7 +586,7 @@ fn a_hard_fault_stops_the_motors_at_once() {
     );
 }
 
-/// A stack overflow (issue 12 item 6: flip-link): a runaway recursion uses up the stack, the
+/// A stack overflow (flip-link): a runaway recursion uses up the stack, the
 /// push that leaves SRAM faults, and the HardFault path stops the motors first, on a stack
 /// that has no room left.
 #[test]
@@ -598,7 +598,7 @@ fn a_stack_overflow_faults_and_stops_the_motors_at_once() {
     );
 }
 
-/// A panic: its handler sets every motor output to 0 first (issue 12 item 6). The panic comes
+/// A panic: its handler sets every motor output to 0 first. The panic comes
 /// at the firmware's next log line (the 1 Hz status line), so the promise counts from the
 /// handler's arrival, and the run is long enough for a status line.
 #[test]
@@ -623,7 +623,7 @@ fn a_cut_camera_link_lands_and_stops_the_motors() {
     fault_stops_the_motors(Fault::LinkCut, promise, run_s);
 }
 
-/// The camera board reports its camera stopped (issue 12 item 2): the autopilot hovers blind at
+/// The camera board reports its camera stopped: the autopilot hovers blind at
 /// once, without waiting out the estimate timeout, then lands and stops the motors on
 /// touchdown. The stand-in reports at the fault; the real camera board reports within 1.2 s of
 /// its camera's last VSYNC (`tests/link.rs`), which is the camera board's promise, not this one.

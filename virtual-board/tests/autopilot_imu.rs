@@ -103,7 +103,7 @@ fn the_imu_is_sampled_at_the_loop_rate_and_the_motors_oppose_a_body_rate() {
         "IMU reads per second {per_second}, loop rate {LOOP_HZ}\n{report}"
     );
     // The loop's start jitter with telemetry running: how far each IMU read lands from the
-    // period after the one before (issue 12 item 5 asks for this number).
+    // period after the one before.
     let period_ns = 1e9 / LOOP_HZ;
     let worst_ns = reads
         .windows(2)
@@ -164,7 +164,7 @@ fn the_imu_is_sampled_at_the_loop_rate_and_the_motors_oppose_a_body_rate() {
         baseline.iter().all(|&d| d > 0.05),
         "armed, the motors should run: baseline duties {baseline:?}\n{report}"
     );
-    // Each motor output is a PWM at the airframe's 36 kHz (issue 12 item 4), on its pin and
+    // Each motor output is a PWM at the airframe's 36 kHz, on its pin and
     // timer channel (PC6 TIM3 CH1, PC7 TIM3 CH2, PA0 TIM5 CH1, PA1 TIM5 CH2), at every stop.
     let want_ns = 1e9 / MOTOR_PWM_HZ as f64;
     assert!(!pilot.periods.is_empty(), "no baseline stops\n{report}");

@@ -1,7 +1,9 @@
 //! `sim-host monitor` against the virtual autopilot: the real image's telemetry UART served on
 //! TCP ([`virtual_board::serve::TcpBridge`]) at the board's own pace, read by the ground tool
 //! users run against a real board. Everything the firmware sent must reach the monitor, decode
-//! without one rejected frame, and show the board's state by name; the MCAP log must hold it.
+//! without one rejected frame, and show the board's state by name; the MCAP log, read back by
+//! the `mcap` crate's reader, must hold it: one record per message on each channel, in time
+//! order, the flight mode and FSM state by name.
 //!
 //! The monitor binary is `VBOARD_SIM_HOST` (set by `cargo xtask vboard`, which builds it), else
 //! the main workspace's `target/debug/sim-host`.
@@ -106,7 +108,40 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
         stdout.contains(&format!("({logged} messages on")),
         "{logged} records expected in the log:\n{stdout}"
     );
+    // The log read back by the `mcap` crate's reader: every channel with one record per
+    // message received, in time order, the board's state by name.
+    let bytes = std::fs::read(&mcap).expect("the monitor leaves its log");
     let _ = std::fs::remove_file(&mcap);
+    let mut counts = std::collections::BTreeMap::<String, usize>::new();
+    let mut last = 0u64;
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("a readable message");
+        assert!(
+            m.log_time >= last,
+            "time order: {} after {last}",
+            m.log_time
+        );
+        last = m.log_time;
+        assert_eq!(m.channel.message_encoding, "json");
+        let value: serde_json::Value = serde_json::from_slice(&m.data).expect("JSON");
+        if m.channel.topic == "/state" {
+            assert_eq!(value["mode"], "disarmed", "{value}");
+            assert_eq!(value["fsm_state"], "inactive", "{value}");
+        }
+        *counts.entry(m.channel.topic.clone()).or_default() += 1;
+    }
+    for topic in [
+        "/state",
+        "/attitude",
+        "/setpoint",
+        "/velocity",
+        "/height",
+        "/link",
+        "/board_clock",
+    ] {
+        assert_eq!(counts.get(topic), Some(&telemetry), "{topic}: {counts:?}");
+    }
+    assert_eq!(counts.get("/heartbeat"), Some(&heartbeats), "{counts:?}");
     println!(
         "monitor against the virtual autopilot: {telemetry} telemetry, {heartbeats} heartbeats, {} B",
         sent.len()

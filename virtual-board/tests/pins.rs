@@ -38,7 +38,7 @@ fn still_scene() -> virtual_board::frames::Recorded {
     Recorded::new(vec![StereoImage::from_interleaved(&frame); 40])
 }
 
-/// The camera board (issue 12 item 1, camera side): every pin as the stereoboard's wiring
+/// The camera board: every pin as the stereoboard's wiring
 /// table, and what the bench can observe of each job: the sensors' master clock on PA7 from
 /// TIM3 CH2 at 21 MHz, their reset on PD2 released, the CPLD's mode pins at the stereo
 /// interleave, the DCMI's data lines D6/D7 on PB8/PB9, UART4 on PA0/PA1 at 115,200 Bd, the LED

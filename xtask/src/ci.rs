@@ -9,7 +9,8 @@
 //! 2. Checks formatting and runs clippy with warnings denied on the host (the workspace and the
 //!    virtual-board bench, its own workspace) and on thumbv7em, runs all host tests, builds
 //!    both firmwares in release, runs them (and their `hil` images) on the virtual boards
-//!    (`cargo xtask vboard`), and fuzzes the protocol decoder briefly.
+//!    (`cargo xtask vboard`), and fuzzes the protocol decoder and encoder briefly (after fmt
+//!    and clippy in `fuzz/`, its own workspace).
 //! 3. Prints a one-line summary and a closing `N passed, N failed` line.
 //!
 //! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
@@ -117,6 +118,28 @@ pub fn run(args: &[String]) -> Result<()> {
     let (passed, failed) = (passed + vb_passed, failed + vb_failed);
 
     if fuzz_seconds > 0 {
+        // The fuzz targets are a workspace of their own (nightly, sanitizers): formatted and
+        // linted there, with the lints of the main workspace (its `[lints]` table).
+        let fuzz = crate::size::workspace_root().join("fuzz");
+        run_checked(
+            Command::new("cargo")
+                .args(["fmt", "--all", "--", "--check"])
+                .current_dir(&fuzz),
+        )
+        .context("cargo fmt --check failed in fuzz/: run cargo fmt there")?;
+        run_checked(
+            Command::new("cargo")
+                .args([
+                    "+nightly",
+                    "clippy",
+                    "--all-targets",
+                    "--",
+                    "-D",
+                    "warnings",
+                ])
+                .current_dir(&fuzz),
+        )
+        .context("clippy failed in fuzz/ (its own workspace)")?;
         for (target, seconds) in [("decoder", fuzz_seconds), ("encoder", fuzz_seconds / 2)] {
             let max_time = format!("-max_total_time={seconds}");
             run_checked(Command::new("cargo").args([
@@ -131,7 +154,7 @@ pub fn run(args: &[String]) -> Result<()> {
             .with_context(|| format!("fuzz target {target} failed"))?;
         }
         steps.push(format!(
-            "fuzz(decoder {fuzz_seconds} s, encoder {} s)",
+            "fmt, clippy and fuzz(decoder {fuzz_seconds} s, encoder {} s) in fuzz/",
             fuzz_seconds / 2
         ));
     }
@@ -310,6 +333,30 @@ fn count_before(text: &str, word: &str) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::count_before;
+    use crate::size::workspace_root;
+
+    fn table(path: &str, keys: &[&str]) -> toml::Value {
+        let path = workspace_root().join(path);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut value: toml::Value = toml::from_str(&text).unwrap();
+        for key in keys {
+            value = value
+                .get(key)
+                .unwrap_or_else(|| panic!("{}: no [{}]", path.display(), keys.join(".")))
+                .clone();
+        }
+        value
+    }
+
+    /// The virtual-board bench and the fuzz targets are workspaces of their own, which do not
+    /// inherit `[workspace.lints]`: their `[lints]` tables must say the same.
+    #[test]
+    fn the_separate_workspaces_lint_as_the_main_one() {
+        let main = table("Cargo.toml", &["workspace", "lints"]);
+        for manifest in ["virtual-board/Cargo.toml", "fuzz/Cargo.toml"] {
+            assert_eq!(table(manifest, &["lints"]), main, "{manifest}");
+        }
+    }
 
     #[test]
     fn parses_cargo_test_summaries() {

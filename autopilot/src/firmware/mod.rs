@@ -26,6 +26,14 @@
 //! (`tx_dropped` in the status line), and the UART's interrupt sends them. A lock on a transmit
 //! queue is held for the copy of one frame.
 //!
+//! Parameters: at boot the configuration is the record saved in the parameter sector
+//! ([`board_support::param_flash`], `Autopilot::from_store`), or the defaults when there is none
+//! or it is bad (logged, and answered to `ParamOp::Storage`). A save (`ParamOp::Save`, only
+//! with the motors off) erases and programs the sector in `host_rx` with the `ap` lock held:
+//! the core stalls for the erase anyway (a second or two), so the watchdog is given
+//! `board_support::param_flash::SAVE_WATCHDOG_MS` for it. The `qemu` flavour has no parameter
+//! storage.
+//!
 //! Faults: the panic and HardFault handlers force the motor outputs off at the timer and GPIO
 //! registers first ([`autopilot::board::hw::motors_off`]), then log, then wait for the
 //! watchdog. After any reset the library starts disarmed and the PWM at 0.
@@ -153,13 +161,14 @@ mod app {
     use autopilot::ms5611::{self, Calibration, Osr};
     use autopilot::HostOutcome;
     use board_support::log;
+    use board_support::param_flash::{set_watchdog, FlashError, ParamSector, SAVE_WATCHDOG_MS};
     use board_support::uart_rx::RxFlow;
     use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
     use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::{
-        AutopilotToStereo, BoardToHost, Heartbeat, HostToBoardDecoder, ImuSample, Message as _,
-        Node,
+        AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
+        Message as _, Node, ParamOp, ParamReply,
     };
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
@@ -200,6 +209,8 @@ mod app {
         host_wake_tx: Sender<'static, (), 1>,
         host_wake_rx: Receiver<'static, (), 1>,
         host_decoder: HostToBoardDecoder,
+        /// The parameter sector (`None` in the `qemu` flavour).
+        param_sector: Option<ParamSector>,
         /// The RC receiver's UART (`None` without `board::RC_RECEIVER`).
         rc_uart: Option<Rx<hw::RcUart>>,
         rc_in: Producer<'static, u8>,
@@ -229,11 +240,23 @@ mod app {
         let b = hw::take(cx.device);
         Mono::start(cx.core.SYST, board_support::clocks::SYSTICK_HZ);
 
+        // The saved parameters, or the defaults and why (QEMU models no flash interface).
+        let param_sector = (!cfg!(feature = "qemu")).then(|| ParamSector::new(b.flash));
+        let autopilot = match &param_sector {
+            Some(sector) => {
+                let (autopilot, loaded) = Autopilot::from_store(sector);
+                match loaded {
+                    Ok(()) => defmt::info!("parameters: the saved record is in use"),
+                    Err(why) => defmt::warn!("parameters: defaults ({})", why),
+                }
+                autopilot
+            }
+            None => Autopilot::new(AutopilotConfig::default()),
+        };
         // SAFETY: `init` runs once, before any task; this is the only reference ever made to
         // AP, and it is handed to RTIC as a shared resource. The autopilot starts disarmed.
         #[allow(static_mut_refs)]
-        let ap: &'static mut Autopilot =
-            unsafe { AP.write(Autopilot::new(AutopilotConfig::default())) };
+        let ap: &'static mut Autopilot = unsafe { AP.write(autopilot) };
 
         let (link_tx, mut link_rx) = b.link.split();
         link_rx.listen();
@@ -324,6 +347,7 @@ mod app {
                 host_wake_tx,
                 host_wake_rx,
                 host_decoder: HostToBoardDecoder::new_mid_stream(),
+                param_sector,
                 rc_uart,
                 rc_in,
                 rc_out,
@@ -582,7 +606,7 @@ mod app {
     /// Host bytes: external position (motion capture), pilot commands, parameter requests
     /// (answered on the telemetry port), and IMU samples (only the lockstep flavours take them;
     /// the real flavour refuses and counts them).
-    #[task(priority = 4, shared = [ap, host_tx, link_tx], local = [host_out, host_wake_rx, host_decoder, world])]
+    #[task(priority = 4, shared = [ap, host_tx, link_tx, iwdg], local = [host_out, host_wake_rx, host_decoder, world, param_sector])]
     async fn host_rx(mut cx: host_rx::Context) {
         let mut buf = [0u8; 64];
         while cx.local.host_wake_rx.recv().await.is_ok() {
@@ -596,7 +620,26 @@ mod app {
                         continue;
                     };
                     let now = flavour::lib_now_us();
-                    match cx.shared.ap.lock(|ap| ap.on_host_message(msg, now)) {
+                    let sector = cx.local.param_sector.as_mut();
+                    // A save of this board's table (the camera board's is passed on).
+                    let saving = sector.is_some()
+                        && matches!(&msg, HostToBoard::Param(r)
+                            if r.op == ParamOp::Save && r.board == Node::Autopilot);
+                    if saving {
+                        cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
+                    }
+                    let started_us = clock::now_us();
+                    let outcome = cx.shared.ap.lock(|ap| match sector {
+                        Some(sector) => ap.on_host_message_stored(msg, now, sector),
+                        None => ap.on_host_message(msg, now),
+                    });
+                    if saving {
+                        cx.shared.iwdg.lock(|w| set_watchdog(w, board::WATCHDOG_MS));
+                        let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
+                        let error = cx.local.param_sector.as_ref().and_then(|s| s.last_error());
+                        log_save(&outcome, error, ms);
+                    }
+                    match outcome {
                         HostOutcome::Imu(sample) => {
                             if let Some(at) = flavour::host_imu(cx.local.world, &sample) {
                                 // A sample arriving while the previous one is still being
@@ -610,6 +653,26 @@ mod app {
                     }
                 }
             }
+        }
+    }
+
+    /// The log line of a save: done, or why not, and how long the flash held it.
+    fn log_save(outcome: &HostOutcome, flash: Option<FlashError>, ms: u32) {
+        let HostOutcome::Reply(BoardToHost::Param(resp)) = outcome else {
+            return;
+        };
+        match (&resp.reply, flash) {
+            (ParamReply::Saved, _) => defmt::info!("parameters: saved in {=u32} ms", ms),
+            (ParamReply::Error(e), Some(flash)) => defmt::warn!(
+                "parameters: not saved ({}, the flash refused: {}) in {=u32} ms",
+                e,
+                flash,
+                ms
+            ),
+            (ParamReply::Error(e), None) => {
+                defmt::warn!("parameters: not saved ({}) in {=u32} ms", e, ms)
+            }
+            _ => {}
         }
     }
 

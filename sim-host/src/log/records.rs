@@ -228,6 +228,20 @@ impl Record for VelocityRecord {
     const SCHEMA: &'static str = "pocket_drone.Velocity";
 }
 
+/// A barometer reading as the autopilot received it (MS5611, compensated).
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct BaroRecord {
+    /// Pressure, Pa.
+    pub pressure_pa: f32,
+    /// Temperature, deg C.
+    pub temperature_c: f32,
+}
+
+impl Record for BaroRecord {
+    const TOPIC: &'static str = "/baro";
+    const SCHEMA: &'static str = "pocket_drone.Baro";
+}
+
 /// Height above the floor.
 #[derive(Debug, Clone, Serialize, JsonSchema)]
 pub struct HeightRecord {

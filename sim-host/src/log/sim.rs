@@ -4,6 +4,7 @@ use super::records::*;
 use super::{ns, FlightLog, Thinner};
 use crate::sim::flight::{FlightCounters, FlightObserver, LogRow};
 use autopilot::app::Autopilot;
+use autopilot::ms5611::BaroReading;
 use protocol::{Estimate, STEREO_FRAME_BYTES};
 use std::io::{Seek, Write};
 
@@ -74,6 +75,14 @@ fn finite(v: f32) -> Option<f32> {
 impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
     fn on_estimate(&mut self, t_us: u64, estimate: &Estimate) {
         self.with_log(|log| log.write(ns(t_us), &EstimateRecord::from(estimate)));
+    }
+
+    fn on_baro(&mut self, t_us: u64, reading: &BaroReading) {
+        let record = BaroRecord {
+            pressure_pa: reading.pressure_pa,
+            temperature_c: reading.temperature_c,
+        };
+        self.with_log(|log| log.write(ns(t_us), &record));
     }
 
     fn on_frame(&mut self, t_us: u64, frame: &[u8; STEREO_FRAME_BYTES]) {

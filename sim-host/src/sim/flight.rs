@@ -15,6 +15,7 @@ use super::uart::{LinkFaults, SimUart, UartStats};
 use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
+use autopilot::ms5611::BaroReading;
 use protocol::{
     AutopilotToStereo, Decoder, Estimate, FlightMode, FsmState, Heartbeat, HostToBoard, ImuSample,
     Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
@@ -132,9 +133,10 @@ pub struct LogRow {
     pub yaw: f32,
     /// True velocity in the body's heading frame: forward, sideways, m/s.
     pub vel_true: [f32; 2],
-    /// Autopilot's velocity estimate (its observer: median-5 of the gated Edge-FS estimates,
-    /// predicted from the attitude in between), what guidance flies on: forward, sideways, m/s
-    /// (NaN: none yet).
+    /// Autopilot's velocity estimate, what guidance flies on (`Autopilot::velocity_estimate`:
+    /// the velocity Kalman filter by default, the observer over the median-5 of the gated
+    /// Edge-FS estimates in paper mode; predicted from the attitude in between): forward,
+    /// sideways, m/s (NaN: none yet).
     pub vel_est: [f32; 2],
     /// Velocity setpoint: forward, sideways, m/s.
     pub vel_sp: [f32; 2],
@@ -165,9 +167,9 @@ pub struct FlightResult {
     pub flight_time_s: f64,
     /// Number of collisions (contacts entered).
     pub collisions: u32,
-    /// RMS error of the autopilot's velocity estimate (its observer over the median-5 of the
-    /// valid Edge-FS estimates: what it flies on) against the true velocity in the heading frame, forward
-    /// and sideways together, sampled at 50 Hz while the avoidance FSM runs, m/s.
+    /// RMS error of the autopilot's velocity estimate (what it flies on, [`LogRow::vel_est`])
+    /// against the true velocity in the heading frame, forward and sideways together, sampled
+    /// at 50 Hz while the avoidance FSM runs, m/s.
     pub vel_rmse_mps: f64,
     /// RMS error of every valid raw Edge-FS estimate (forward and sideways together) against
     /// the true body velocity at its capture time, while airborne, m/s. Rare gross outliers
@@ -212,6 +214,8 @@ pub trait FlightObserver {
     fn on_estimate(&mut self, _t_us: u64, _estimate: &Estimate) {}
     /// A stereo frame exposed at `t_us` (interleaved `[L0 R0 L1 R1 ...]`).
     fn on_frame(&mut self, _t_us: u64, _frame: &[u8; STEREO_FRAME_BYTES]) {}
+    /// A barometer reading as the autopilot received it.
+    fn on_baro(&mut self, _t_us: u64, _reading: &BaroReading) {}
     /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
     /// duties applied (0..=1).
     fn on_control(
@@ -428,6 +432,7 @@ pub fn run_flight_observed(
             next_baro += baro_period_us;
             let reading = world.baro_reading(t, &motors);
             ap.on_baro(&reading, t);
+            observer.on_baro(t, &reading);
         }
         if !armed && t >= arm_us {
             armed = true;

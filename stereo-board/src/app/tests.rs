@@ -3,9 +3,10 @@
 extern crate std;
 
 use super::*;
+use protocol::params::MemStore;
 use protocol::{
-    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, ParamName, ParamOp,
-    ParamValue, StereoToAutopilotDecoder,
+    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, ParamError, ParamName,
+    ParamOp, ParamReply, ParamValue, StereoToAutopilotDecoder,
 };
 use std::{boxed::Box, vec, vec::Vec};
 
@@ -276,6 +277,90 @@ fn parameters_are_listed_read_and_set_over_the_link() {
         ParamReply::Error(ParamError::NoSuchBoard)
     );
     assert_eq!(*board.params(), before);
+}
+
+/// One parameter request over the link of a board with storage `store`; the one answer.
+fn ask_stored(board: &mut StereoBoardApp, store: &mut MemStore<512>, op: ParamOp) -> ParamReply {
+    let mut wire = Vec::new();
+    let req = AutopilotToStereo::Param(ParamRequest {
+        board: Node::StereoBoard,
+        op,
+    });
+    board.on_rx_bytes_stored(&enc(&req), at(0), &mut |b| wire.extend_from_slice(b), store);
+    match decode_out(&wire).0.as_slice() {
+        [StereoToAutopilot::Param(r)] => r.reply.clone(),
+        other => panic!("one parameter answer expected, got {other:?}"),
+    }
+}
+
+#[test]
+fn parameters_saved_over_the_link_load_at_the_next_boot() {
+    let name = |n: &str| ParamName::try_from(n).unwrap();
+    let mut sector = MemStore::<512>::blank();
+    let mut board = app();
+    assert_eq!(board.load_params(&sector), Err(RecordError::Blank));
+    assert_eq!(*board.params(), EdgeFsParams::default_config());
+    let set = ParamOp::Set(name("stereo_shift"), ParamValue::I32(-4));
+    assert!(matches!(
+        ask_stored(&mut board, &mut sector, set),
+        ParamReply::Entry(_)
+    ));
+    assert_eq!(
+        ask_stored(&mut board, &mut sector, ParamOp::Save),
+        ParamReply::Saved
+    );
+    assert_eq!(
+        ask_stored(&mut board, &mut sector, ParamOp::Storage),
+        ParamReply::Storage(StorageStatus {
+            loaded: Err(RecordError::Blank),
+            saves: 1,
+            failed_saves: 0,
+        })
+    );
+    // The record is the table's, with its CRC and version, where the flash sector starts.
+    let mut record = [0u8; crate::params::RECORD_BYTES];
+    crate::params::encode_record(board.params(), &mut record).unwrap();
+    assert_eq!(&sector.bytes[..record.len()], &record[..]);
+
+    // The next boot runs Edge-FS on the saved value and says so.
+    let mut next = app();
+    assert_eq!(next.load_params(&sector), Ok(()));
+    assert_eq!(next.params().stereo_shift_px, -4);
+    assert_eq!(next.edge_fs().params().stereo_shift_px, -4);
+    assert!(matches!(
+        ask_stored(&mut next, &mut sector, ParamOp::Storage),
+        ParamReply::Storage(StorageStatus {
+            loaded: Ok(()),
+            saves: 0,
+            ..
+        })
+    ));
+
+    // A flash that refuses is a failed save, counted; the saved record stays.
+    sector.refuse = true;
+    assert_eq!(
+        ask_stored(&mut next, &mut sector, ParamOp::Save),
+        ParamReply::Error(ParamError::SaveFailed)
+    );
+    assert_eq!(next.storage().map(|s| s.failed_saves), Some(1));
+
+    // A corrupt or older record means the defaults, and why.
+    let mut corrupt = sector.clone();
+    corrupt.bytes[20] ^= 0x04;
+    let mut third = app();
+    assert_eq!(third.load_params(&corrupt), Err(RecordError::BadCrc));
+    assert_eq!(*third.params(), EdgeFsParams::default_config());
+    let mut older = sector.clone();
+    older.bytes[4] = 0;
+    assert!(matches!(
+        app().load_params(&older),
+        Err(RecordError::FormatVersion(_) | RecordError::BadCrc)
+    ));
+    // A board without storage says so.
+    assert_eq!(
+        ask(&mut app(), Node::StereoBoard, ParamOp::Storage),
+        ParamReply::Error(ParamError::NoStorage)
+    );
 }
 
 #[test]
@@ -562,7 +647,7 @@ fn host_link_frames_reach_the_frame_task() {
         wire.extend(enc(&HostToBoard::FrameChunk(c)));
     }
     let mut got: Vec<(Box<[u8; STEREO_FRAME_BYTES]>, u64)> = Vec::new();
-    // Arbitrary split points, as DMA/IDLE delivers them.
+    // Arbitrary split points, as the receive queue delivers them.
     for piece in wire.chunks(333) {
         board.on_host_bytes(piece, &mut asm, |fr, t| {
             got.push((Box::new(*fr), t.as_micros()))

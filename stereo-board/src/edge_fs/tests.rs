@@ -527,7 +527,7 @@ fn a_textured_wall_nearer_than_the_stereo_range_is_an_obstacle_at_the_minimum_ra
         near.near_columns
     );
     assert_eq!(near.obstacle_m, Some(min_range));
-    // Off: the old silence.
+    // Off (`min_near_run` 0): a run of near columns is not reported as the minimum range.
     let (off, _) = fly(
         EdgeFsParams {
             min_near_run: 0,

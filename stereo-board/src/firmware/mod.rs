@@ -7,7 +7,7 @@
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
 //! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]) |
-//! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] |
+//! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes_stored`] (`on_rx_bytes` in QEMU) |
 //! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu) or IDLE (hil: received by DMA, [`board_support::uart_dma`]), TXE | [`StereoBoardApp::on_host_bytes`]; queued frames out |
 //! | `host_dma` | 4 | DMA1 stream 5 (hil) | half/full buffer: pends `host_irq` |
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
@@ -28,6 +28,16 @@
 //! exposure time in world time and the autopilot, which runs in lockstep with the host, stamps
 //! its gyro samples with world time, so gyro ages and processing times are measured on one
 //! clock however slowly the link lets the world run. `status` stays on the board clock.
+//!
+//! Parameters: at boot the Edge-FS parameters are the record saved in the parameter sector
+//! ([`board_support::param_flash`], [`StereoBoardApp::load_params`]), or the defaults when there
+//! is none or it is bad (logged, and answered to `ParamOp::Storage`). A save, passed on by the
+//! autopilot only while its motors are off, erases and programs the sector in `uart_rx` with
+//! the board lock held: the core stalls for the erase anyway (a second or two; no frame is
+//! processed meanwhile), and the watchdog is given
+//! [`board_support::param_flash::SAVE_WATCHDOG_MS`] for it
+//! ([`board_support::param_flash::WatchedSector`]). The `qemu` flavour has no parameter
+//! storage.
 //!
 //! Memory: the board state (Edge-FS history, decoders) is CPU-only and lives in CCM
 //! ([`APP`]); camera frame buffers are DMA targets in SRAM. `cargo xtask size` prints the
@@ -278,6 +288,7 @@ mod app {
     };
 
     use super::{FrameReady, Frames, LinkUart};
+    use board_support::param_flash::{ParamSector, WatchedSector};
     use protocol::BoardToHost;
     use rtic::mutex::prelude::*;
     use stereo_board::app::send_to_host;
@@ -303,11 +314,14 @@ mod app {
         link_in: Producer<'static, u8>,
         link_wake_tx: Sender<'static, Wake, 1>,
         link_pump: TxPump<LinkUart>,
+        /// The watchdog: fed by `status`, given the save's timeout by `uart_rx` for a save.
+        iwdg: IndependentWatchdog,
     }
 
     #[local]
     struct Local {
-        iwdg: IndependentWatchdog,
+        /// The parameter sector (`None` in the `qemu` flavour).
+        param_sector: Option<ParamSector>,
         link_out: Consumer<'static, u8>,
         link_wake_rx: Receiver<'static, Wake, 1>,
         #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -343,6 +357,14 @@ mod app {
         #[allow(static_mut_refs)]
         let board_state: &'static mut StereoBoardApp =
             unsafe { APP.write(StereoBoardApp::new(EdgeFsParams::default_config())) };
+        // The saved parameters, or the defaults and why (QEMU models no flash interface).
+        let param_sector = (!cfg!(feature = "qemu")).then(|| ParamSector::new(cx.device.FLASH));
+        if let Some(sector) = &param_sector {
+            match board_state.load_params(sector) {
+                Ok(()) => log::info!("parameters: the saved record is in use"),
+                Err(why) => defmt::warn!("parameters: defaults ({})", why),
+            }
+        }
 
         // The HAL's port split resets the port: split before the pin table is applied.
         let gpioa = cx.device.GPIOA.split(&mut rcc);
@@ -443,9 +465,10 @@ mod app {
                 link_in,
                 link_wake_tx,
                 link_pump,
+                iwdg,
             },
             Local {
-                iwdg,
+                param_sector,
                 link_out,
                 link_wake_rx,
                 #[cfg(any(feature = "qemu", feature = "hil"))]
@@ -503,8 +526,9 @@ mod app {
             .lock(super::link_interrupt);
     }
 
-    /// Decodes the autopilot's bytes (gyro/attitude, config, heartbeat).
-    #[task(priority = 3, shared = [board, link_tx], local = [link_out, link_wake_rx])]
+    /// Decodes the autopilot's bytes (gyro/attitude, config, parameter requests, heartbeat);
+    /// a parameter save writes the parameter sector under the save's watchdog timeout.
+    #[task(priority = 3, shared = [board, link_tx, iwdg], local = [link_out, link_wake_rx, param_sector])]
     async fn uart_rx(mut cx: uart_rx::Context) {
         loop {
             if cx.local.link_wake_rx.recv().await.is_err() {
@@ -518,8 +542,27 @@ mod app {
                 }
                 let now = timebase::Instant::from_micros(clock::lib_now_us());
                 let bytes = buf.get(..n).unwrap_or(&[]);
-                (&mut cx.shared.board, &mut cx.shared.link_tx).lock(|board, tx| {
-                    board.on_rx_bytes(bytes, now, &mut |frame| queue_frame(tx, frame));
+                let sector = cx.local.param_sector.as_mut();
+                let mut shared = (
+                    &mut cx.shared.board,
+                    &mut cx.shared.link_tx,
+                    &mut cx.shared.iwdg,
+                );
+                shared.lock(|board, tx, watchdog| {
+                    let mut tx = |frame: &[u8]| queue_frame(tx, frame);
+                    match sector {
+                        Some(sector) => {
+                            let before = board.storage();
+                            let mut store = WatchedSector {
+                                sector: &mut *sector,
+                                watchdog,
+                                timeout_ms: board::WATCHDOG_MS,
+                            };
+                            board.on_rx_bytes_stored(bytes, now, &mut tx, &mut store);
+                            super::log_save(before, board.storage(), sector.last_error());
+                        }
+                        None => board.on_rx_bytes(bytes, now, &mut tx),
+                    }
                     // Lockstep flavours: the autopilot's gyro timestamps are world time.
                     #[cfg(any(feature = "qemu", feature = "hil"))]
                     if let Some(g) = board.latest_gyro() {
@@ -672,7 +715,7 @@ mod app {
 
     /// 1 Hz: capture state, status and heartbeat to the autopilot, LED, watchdog. A stopped
     /// camera is reported and capture re-armed.
-    #[task(priority = 1, shared = [board, link_tx, host_tx, capture], local = [iwdg])]
+    #[task(priority = 1, shared = [board, link_tx, host_tx, capture, iwdg])]
     async fn status(mut cx: status::Context) {
         loop {
             let now = timebase::Instant::from_micros(clock::now_us());
@@ -698,7 +741,7 @@ mod app {
                 }
             });
             super::pins::toggle(&stereo_board::board::LED);
-            cx.local.iwdg.feed();
+            cx.shared.iwdg.lock(|w| w.feed());
             let tx_dropped = cx.shared.link_tx.lock(|tx| tx.dropped_frames());
             let (rx_ok, host_errors, gyro_age) = cx.shared.board.lock(|b| {
                 (
@@ -748,4 +791,25 @@ fn link_interrupt(
     pump.pump();
     board_support::uart_rx::drain(rx, queue, &LINK_FLOW, &RX_LOST);
     let _ = wake.try_send(());
+}
+
+/// The log line of a save, told from the storage's counters before and after a batch of
+/// received bytes: saved, or not and why (the flash's error, if it refused).
+fn log_save(
+    before: Option<protocol::params::StorageStatus>,
+    after: Option<protocol::params::StorageStatus>,
+    flash: Option<board_support::param_flash::FlashError>,
+) {
+    let (Some(before), Some(after)) = (before, after) else {
+        return;
+    };
+    if after.saves != before.saves {
+        log::info!("parameters: saved");
+    }
+    if after.failed_saves != before.failed_saves {
+        match flash {
+            Some(e) => defmt::warn!("parameters: not saved (the flash refused: {})", e),
+            None => defmt::warn!("parameters: not saved (SaveFailed: read back other bytes)"),
+        }
+    }
 }

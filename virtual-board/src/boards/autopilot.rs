@@ -26,6 +26,7 @@ use rigless::time::VirtualNanos;
 
 use crate::bench::BenchBoard;
 use crate::clocks::Clocks;
+use crate::flash::FlashContents;
 use crate::link::WireEnd;
 use crate::motors::{self, MotorPin, Output};
 use crate::mpu6000::{self, Mpu6000};
@@ -221,6 +222,8 @@ pub struct Autopilot {
     pub telemetry: WireEnd,
     /// The clock tree as last read.
     pub clocks: Option<Clocks>,
+    /// What the flash holds beside the firmware at power-on (the parameter sector).
+    pub flash: FlashContents,
 }
 
 impl Store for Autopilot {}
@@ -274,7 +277,14 @@ impl Autopilot {
             link,
             telemetry,
             clocks: None,
+            flash: FlashContents::erased(),
         })
+    }
+
+    /// The same board, its flash holding `flash` beside the firmware at power-on.
+    #[must_use]
+    pub fn with_flash(self, flash: FlashContents) -> Self {
+        Self { flash, ..self }
     }
 
     /// The IMU.
@@ -324,6 +334,10 @@ impl BenchBoard for Autopilot {
 
     fn soc_mut(&mut self) -> &mut Soc {
         &mut self.soc
+    }
+
+    fn flash_contents(&self) -> Vec<(u64, Vec<u8>)> {
+        self.flash.ranges().to_vec()
     }
 
     /// Tells the chips how the firmware drives their buses now (SPI2's mode and clock, the

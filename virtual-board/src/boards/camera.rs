@@ -33,6 +33,7 @@ use crate::clock_timer::ClockTimer;
 use crate::clocks::Clocks;
 use crate::cpld::Mode;
 use crate::dcmi::{Camera, DcmiInputs, DcmiStats};
+use crate::flash::FlashContents;
 use crate::frames::FrameSource;
 use crate::link::WireEnd;
 use crate::pins::{Mode as PinMode, Pull, Wired};
@@ -337,6 +338,8 @@ pub struct CameraBoard {
     pub sensor: SensorHandle,
     /// The clock tree as last read.
     pub clocks: Option<Clocks>,
+    /// What the flash holds beside the firmware at power-on (the parameter sector).
+    pub flash: FlashContents,
 }
 
 impl Store for CameraBoard {}
@@ -376,6 +379,7 @@ impl CameraBoard {
             host,
             sensor,
             clocks: None,
+            flash: FlashContents::erased(),
         };
         // The camera's pins are watched from power-up (a fresh part drives none of them).
         board
@@ -384,6 +388,12 @@ impl CameraBoard {
                 dcmi.start(registers, context);
             });
         Ok(board)
+    }
+
+    /// The same board, its flash holding `flash` beside the firmware at power-on.
+    #[must_use]
+    pub fn with_flash(self, flash: FlashContents) -> Self {
+        Self { flash, ..self }
     }
 
     /// What happened on the DCMI.
@@ -429,6 +439,10 @@ impl BenchBoard for CameraBoard {
 
     fn soc_mut(&mut self) -> &mut Soc {
         &mut self.soc
+    }
+
+    fn flash_contents(&self) -> Vec<(u64, Vec<u8>)> {
+        self.flash.ranges().to_vec()
     }
 
     /// Tells the lines how the firmware drives UART4 and USART2 now (their bauds).
