@@ -3,9 +3,9 @@
 //! This file is the whole board definition: every pin, peripheral instance, clock, rate and
 //! polarity the firmware uses, each with its source. A board wired differently is a change to
 //! this file only. The tables are plain data (also on the host, for the virtual-board bench
-//! and `docs/hardware.md`); the [`hw`] part (MCU only) binds them to the HAL's types.
+//! and `docs/hardware.md`); the `hw` part (MCU only) binds them to the HAL's types.
 //!
-//! Sources (see `../shared/hardware/original-boards.md`, "Autopilot"): [PZ] is
+//! Sources (see `../shared/hardware/original-boards.md`, "Autopilot"): \[PZ\] is
 //! `knmcguire/paparazzi` branch imav2017: `lisa_mx_common.h` (LM), `lisa_mx/chibios/v2.1/board.h`
 //! (BH), the pocket-drone airframe `tudelft_ladybird_lisamxs_wifi_indi_stereoboard.xml` (AF),
 //! `imu_lisa_m_v2.1.xml` (IX), `imu_aspirin_2_spi.c` (IA), `mpu60x0_spi.c` (MS),
@@ -207,7 +207,7 @@ pub const PINS: [PinAssignment; 14] = [
 ];
 
 /// Whether the board carries an RC receiver on the Lisa/MX's receiver port ([`RC_PIN`]). The
-/// pocket drone has none: its pilot commands come over the telemetry link ([PZ] airframe
+/// pocket drone has none: its pilot commands come over the telemetry link (\[PZ\] airframe
 /// xml:242; original-boards.md, "RC"), so by default UART5 and PD2 stay at reset and the RC
 /// task does not run. A drone with an SBUS receiver sets this to `true` (one line).
 pub const RC_RECEIVER: bool = false;
@@ -249,9 +249,9 @@ pub const NOT_DRIVEN: [(Pin, &str); 6] = [
     ),
 ];
 
-/// Crystal, Hz ([PZ] lisa_mx_common.h:29-30).
+/// Crystal, Hz (\[PZ\] lisa_mx_common.h:29-30).
 pub const HSE_HZ: u32 = 12_000_000;
-/// Core clock, Hz (PLL from the HSE; [PZ] lisa_mx_common.h:29-30).
+/// Core clock, Hz (PLL from the HSE; \[PZ\] lisa_mx_common.h:29-30).
 pub const SYSCLK_HZ: u32 = 168_000_000;
 /// APB1 timer clock (TIM2, TIM3, TIM5), Hz: APB1 at SYSCLK / 4 = 42 MHz, timers at twice that.
 pub const APB1_TIMER_HZ: u32 = 84_000_000;
@@ -267,12 +267,12 @@ pub const IMU_OUTPUT_RATE_HZ: u32 = 1_000;
 /// simple (a 15-byte sample read takes 183 us).
 pub const SPI_HZ: u32 = 656_250;
 
-/// PWM frequency of the brushed motors, Hz ([PZ] airframe xml:263-265).
+/// PWM frequency of the brushed motors, Hz (\[PZ\] airframe xml:263-265).
 pub const MOTOR_PWM_HZ: u32 = 36_000;
 
 /// Which output drives each motor of the mixer's order (`protocol::MotorCommand`: 1 FR, 2 RR,
 /// 3 RL, 4 FL; see [`crate::mixer`]). The original's servo numbers: NE = 0 (PC6, TIM3 CH1),
-/// NW = 1 (PC7, TIM3 CH2), SW = 4 (PA0, TIM5 CH1), SE = 5 (PA1, TIM5 CH2) ([PZ] airframe
+/// NW = 1 (PC7, TIM3 CH2), SW = 4 (PA0, TIM5 CH1), SE = 5 (PA1, TIM5 CH2) (\[PZ\] airframe
 /// xml:30-33); NE is front-right, SE rear-right, SW rear-left, NW front-left.
 pub const MOTOR_OUTPUTS: [MotorOutput; 4] = [
     MotorOutput {
@@ -310,7 +310,7 @@ pub struct MotorOutput {
 
 /// Baud rate of the link to the camera board (shared with it: `board_support::link`).
 pub const LINK_BAUD: u32 = board_support::link::LINK_BAUD;
-/// Baud rate of the telemetry port (the WiFi modem of the original, 115,200 Bd: [PZ] airframe
+/// Baud rate of the telemetry port (the WiFi modem of the original, 115,200 Bd: \[PZ\] airframe
 /// xml:268-270); 921,600 Bd in the `hil` flavour, where the HIL bridge sits there.
 pub const TELEMETRY_BAUD: u32 = board_support::link::HOST_BAUD;
 
@@ -344,7 +344,7 @@ pub fn imu_fault_motors_off_us(failsafe: &crate::failsafe::FailsafeConfig) -> u6
 pub const FAULT_MOTORS_OFF_US: u64 = 10;
 
 /// The MPU-6000's axes on the board: board axis i is `sign[i]` times chip axis `axis[i]`.
-/// Paparazzi's Lisa/MX 2.1 mapping is board = (-chip y, chip x, chip z) ([PZ]
+/// Paparazzi's Lisa/MX 2.1 mapping is board = (-chip y, chip x, chip z) (\[PZ\]
 /// imu_aspirin_2_spi.c:191-200); the board frame is x forward, y right, z down when the board
 /// is mounted straight.
 pub const IMU_AXES: AxisMap = AxisMap {
@@ -390,7 +390,7 @@ pub struct Mounting {
 }
 
 impl Mounting {
-    /// The pocket drone: `BODY_TO_IMU_PSI` = 135 deg, `BODY_TO_IMU_PHI` = -2 deg ([PZ] airframe
+    /// The pocket drone: `BODY_TO_IMU_PSI` = 135 deg, `BODY_TO_IMU_PHI` = -2 deg (\[PZ\] airframe
     /// xml:64-66).
     pub const POCKET_DRONE: Mounting = Mounting {
         roll_rad: -2.0 * core::f32::consts::PI / 180.0,

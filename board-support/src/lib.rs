@@ -2,20 +2,20 @@
 //! STM32F415, the same clock tree from a 12 MHz crystal, the same QEMU flavour).
 //!
 //! * [`link`]: the board-to-board link's baud rate, one constant both boards use (host too).
-//! * [`clocks`]: clock tree and link constants per flavour (MCU only).
-//! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
-//! * [`uart_dma`]: UART receive by circular DMA with the IDLE-line interrupt, for the `hil`
+//! * `clocks`: clock tree and link constants per flavour (MCU only).
+//! * `clock`: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
+//! * `uart_dma`: UART receive by circular DMA with the IDLE-line interrupt, for the `hil`
 //!   flavour's 921,600 Bd host links (MCU only).
-//! * [`uart_rx`]: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
-//! * [`uart_tx`]: UART transmit from an interrupt-driven queue; never blocks, never panics, a
+//! * `uart_rx`: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
+//! * `uart_tx`: UART transmit from an interrupt-driven queue; never blocks, never panics, a
 //!   full queue drops the frame and counts it (MCU only).
-//! * [`fault`]: panic and HardFault handlers: actuators off first, then log, then the
+//! * `fault`: panic and HardFault handlers: actuators off first, then log, then the
 //!   watchdog; the reset cause at boot (MCU only).
-//! * [`log`]: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
+//! * `log`: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
-//! * [`param_flash`]: the parameter sector (flash sector 11), erased and programmed through the
-//!   flash interface; the [`protocol::params::RecordStore`] of both boards (MCU only).
-//! * [`stack`]: stack painting and the low-water headroom of the main stack (MCU only).
+//! * `param_flash`: the parameter sector (flash sector 11), erased and programmed through the
+//!   flash interface; the `protocol::params::RecordStore` of both boards (MCU only).
+//! * `stack`: stack painting and the low-water headroom of the main stack (MCU only).
 //! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
 //!
 //! Each board keeps what is its own: pin map, crystal, drivers, the RTIC app.

@@ -4,7 +4,7 @@
 /// Baud rate of the link between the camera board and the autopilot (8N1), and the default of
 /// each board's host link: 115,200 Bd, what the original harness runs (camera board UART4 and
 /// Lisa/MX UART2 in the paper's era: ../shared/hardware/original-boards.md, [SB-17] edgeFS.h,
-/// [PZ] airframe xml). A faster rate is this one line; both firmwares follow it.
+/// \[PZ\] airframe xml). A faster rate is this one line; both firmwares follow it.
 pub const LINK_BAUD: u32 = 115_200;
 
 /// Baud rate of a board's host link: in the `hil` flavour 921,600 Bd (`sim-host hil`'s default:

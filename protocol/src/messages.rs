@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
-/// another version is rejected and counted (see [`crate::ErrorCounters::version_mismatch`]).
+/// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
 pub const PROTOCOL_VERSION: u8 = 7;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels

@@ -1,7 +1,7 @@
 //! The camera board's hardware, in one place: the TU Delft stereoboard the paper flew.
 //!
 //! Every pin, peripheral instance, clock, rate and polarity the firmware uses is here, each with
-//! the row of `shared/hardware/original-boards.md` it comes from ([SB] = the stereoboard
+//! the row of `shared/hardware/original-boards.md` it comes from (\[SB\] = the stereoboard
 //! firmware, `wuyou33/stereoboard_opentemp` at df6441c; [SB-17] = the same at 956375c, the
 //! paper's era). The firmware configures every pin from [`PINS`], the docs and the virtual
 //! board's wiring are written from it. A board wired differently changes this file only.
@@ -347,7 +347,7 @@ const _: () =
 // ---------------------------------------------------------------------------------------------
 // Frame timing, from the camera set-up.
 
-/// Master clock at which the TCM8230's fast mode gives 30 fps, Hz ([SB] dcmi.c's comment).
+/// Master clock at which the TCM8230's fast mode gives 30 fps, Hz (\[SB\] dcmi.c's comment).
 pub const TCM8230_NOMINAL_CLOCK_HZ: u32 = 25_540_000;
 /// Frame rate of the TCM8230's fast mode at its nominal clock, fps.
 pub const TCM8230_NOMINAL_FPS: u32 = 30;
@@ -405,7 +405,7 @@ pub const LINK_UART: &str = "UART4";
 /// 115,200 Bd as the original harness runs).
 pub const LINK_BAUD: u32 = board_support::link::LINK_BAUD;
 /// A second UART (USART2, PA2/PA3: [`HOST_TX`], [`HOST_RX`]) exists on the board; the pocket
-/// drone leaves it unused, so the `real` firmware does not touch it ([SB] usart.c:303-330). The
+/// drone leaves it unused, so the `real` firmware does not touch it (\[SB\] usart.c:303-330). The
 /// `hil` flavour takes its host link there ([`HIL_PINS`]).
 pub const HOST_UART_USED: bool = false;
 

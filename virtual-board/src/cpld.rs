@@ -1,11 +1,11 @@
 //! The camera board's CPLD: it merges the two sensors' byte streams onto the one DCMI bus, in
 //! the mode three MCU pins select.
 //!
-//! Source: the original board's firmware, [SB] `stereoboard/drivers/src/cpld.c` (pins and modes)
+//! Source: the original board's firmware, \[SB\] `stereoboard/drivers/src/cpld.c` (pins and modes)
 //! and `main_parameters.h` (the stereo build selects the pixel interleave). The CPLD's own logic
 //! is not published; what each mode puts on the bus is read from the names and comments there:
 //!
-//! | PC10 | PC12 | PB5 | mode ([SB] cpld.c) | model |
+//! | PC10 | PC12 | PB5 | mode (\[SB\] cpld.c) | model |
 //! |---|---|---|---|---|
 //! | 0 | 0 | 0 | left colour image only | the left sensor's bytes |
 //! | 1 | 0 | 0 | right colour image only | the right sensor's bytes |

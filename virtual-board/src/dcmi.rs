@@ -842,7 +842,7 @@ mod tests {
     const CWSTRT: u64 = 0x20;
     const CWSIZE: u64 = 0x24;
     const DR: u64 = 0x28;
-    /// The original board's set-up ([SB] dcmi.c): continuous, hardware sync, PIXCLK falling,
+    /// The original board's set-up (\[SB\] dcmi.c): continuous, hardware sync, PIXCLK falling,
     /// HSYNC and VSYNC active low, all frames, 8 bits, crop on.
     const CR_ORIGINAL: u64 = 1 << 2 | 1 << 14;
     const CAPTURE: u64 = 1;

@@ -7,7 +7,7 @@
 //! | `SWIER` | writing 1 to a bit at 0 sets the line's pending bit (while `IMR` has it); cleared with the pending bit | 12.3.5 |
 //! | `PR` | set by a selected edge on an unmasked line, cleared by writing 1 (rc_w1) | 12.3.6 |
 //! | interrupts | EXTI0..4 each their own line, EXTI9_5 and EXTI15_10 shared, line 21 (tamper/time stamp): the positions of rigless's table for the instance (IRQ 2, 6-10, 23, 40) | table 61, 12.2.5 |
-//! | inputs | [`Exti::drive_line`]: the level of a GPIO pin the board drives, routed by SYSCFG `EXTICR` ([`crate::soc::Soc::drive_pin`]) | 12.2.5, 9.2.3 |
+//! | inputs | [`Exti::drive_line`]: the level of a GPIO pin the board drives, routed by SYSCFG `EXTICR` ([`crate::soc::Soc::drive_exti`]) | 12.2.5, 9.2.3 |
 //!
 //! Left out: the event outputs (`EMR` is stored, no event reaches the core: WFE wake-ups by
 //! event are not modelled) and the internal lines 16-22 other than their pending bits.

@@ -9,7 +9,7 @@
 //!   [`tcm8230`] sensors behind the [`cpld`] on the [`dcmi`].
 //! * [`boards`]: the two boards, each wired as its original; [`clock_timer`]: a timer that only
 //!   generates a clock, woken only when something can see its events.
-//! * [`link`]: two boards' UARTs joined byte for byte, [`bench`]: the harness that loads the
+//! * [`link`]: two boards' UARTs joined byte for byte, [`bench`](mod@bench): the harness that loads the
 //!   ELFs, runs them in virtual time (two boards in lockstep), reads their defmt logs over RTT
 //!   ([`rtt`]) and watches for panics and faults; [`motors`] reads PWM duties off timer channels.
 //! * [`pilot`]: what a user does to fly the autopilot (height fixes, `Arm`), and schedules on

@@ -4,8 +4,8 @@
 //! board) and an STM32F415 (autopilot), both of which the F427 is a superset of (RM0090 section
 //! 1 and table 1 of each datasheet: DS8626 for the F405/F407, DS8597 for the F415/F417, DS9405
 //! for the F427). [`Soc`] holds rigless's [`Stm32f427`] and, beside it, our models for the slots
-//! it leaves without one: [`Exti`](crate::exti::Exti), [`Syscfg`](crate::syscfg::Syscfg) and the
-//! camera board's [`Dcmi`](crate::dcmi::Dcmi). It implements [`Mcu`] by answering those slots
+//! it leaves without one: [`Exti`], [`Syscfg`] and the
+//! camera board's [`Dcmi`]. It implements [`Mcu`] by answering those slots
 //! itself and handing every other to the F427.
 //!
 //! DMA2 gets the wiring of RM0090 table 44 with the DCMI's request on channel 1 of streams 1 and

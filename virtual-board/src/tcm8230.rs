@@ -4,18 +4,18 @@
 //! Sources: the TCM8230MD (A) datasheet ver. 1.20 (Toshiba, "VGA camera module": 8-bit parallel
 //! YUV 4:2:2 or RGB 5:6:5 output with DCLK, HBLK and VBLK; picture sizes VGA to subQCIF by
 //! sub-sampling; max 30 fps; I2C bus interface), and for each register field the original board's
-//! firmware ([SB] `stereoboard/drivers/src/tcm8230.c` and `dcmi.c`, whose defines name the fields
+//! firmware (\[SB\] `stereoboard/drivers/src/tcm8230.c` and `dcmi.c`, whose defines name the fields
 //! it uses), as `../shared/hardware/original-boards.md` lists them.
 //!
 //! | what | model | source |
 //! |---|---|---|
-//! | SCCB address | 0x3C (7-bit), write `[sub-address, data...]`, read `[sub-address]` then a repeated start and data; the sub-address steps on after each byte | [SB] tcm8230.c `TCM8230_ADDR`, `tcm8230_WriteReg`/`ReadReg` |
-//! | the pair | both sensors answer the one address through the CPLD, so a write sets both: one register file | [SB] tcm8230.c (one set-up for both) |
-//! | 0x02 | bit 7 frame rate (0: 30 fps at the nominal 25.54 MHz clock, 1: half), bit 6 flicker 50/60 Hz, bit 1 DCLK polarity reversed (data launched on the rising edge, to be sampled on the falling one), bit 0 flicker detection | [SB] tcm8230.c `TCM_FPS_*`, `TCM_ACF`, `TCM_CLK_POL`, `TCM_ACF_DET`; camera_type.h (falling-edge DCMI with the bit set) |
-//! | 0x03 | bit 7 `DOUTSW` data output off (resets to off: the sensor streams only once told to), bit 6 `DATAHZ` outputs high-impedance, bits 5:2 picture size (8 = subQCIF 128x96), bit 1 RGB 5:6:5 instead of YUV 4:2:2, bit 0 black and white | datasheet feature list; [SB] tcm8230.c `IMG_SIZE_*`, `IMG_FORMAT_*`, `IMG_COLOR_*` |
-//! | other registers | stored and read back (exposure, luminance control, gains, white balance, gamma, contrast, brightness, hue, saturation, `ES100S`/`ES120S`, `SWC`) with the reset values the original firmware's comments give; they do not change the picture | [SB] tcm8230.c comments ("Default ...") |
-//! | master clock | EXTCLK must run (11.9 to 27 MHz accepted); the byte clock DCLK is EXTCLK, a line period is 1,560 EXTCLK periods, a frame 546 line periods at 30 fps (the 30 fps of the datasheet at its nominal 25.54 MHz: 25.54 MHz / 30 / 1,560 = 546), so 24.65 fps at the board's 21 MHz | datasheet (max 30 fps, nominal clock); [SB] tcm8230.c `ES100S = CLK / (780 * 2 * 100)`; dcmi.c (21 MHz, "nominal 25.54 MHz") |
-//! | reset | RESET low for at least 100 EXTCLK periods with the clock running resets the sensor (registers to their reset values); the sensor answers SCCB and can stream from 100 EXTCLK periods after RESET rises; RESET low again stops it | [SB] dcmi.c `camera_unreset` ("wait for at least 100 clock cycles") |
+//! | SCCB address | 0x3C (7-bit), write `[sub-address, data...]`, read `[sub-address]` then a repeated start and data; the sub-address steps on after each byte | \[SB\] tcm8230.c `TCM8230_ADDR`, `tcm8230_WriteReg`/`ReadReg` |
+//! | the pair | both sensors answer the one address through the CPLD, so a write sets both: one register file | \[SB\] tcm8230.c (one set-up for both) |
+//! | 0x02 | bit 7 frame rate (0: 30 fps at the nominal 25.54 MHz clock, 1: half), bit 6 flicker 50/60 Hz, bit 1 DCLK polarity reversed (data launched on the rising edge, to be sampled on the falling one), bit 0 flicker detection | \[SB\] tcm8230.c `TCM_FPS_*`, `TCM_ACF`, `TCM_CLK_POL`, `TCM_ACF_DET`; camera_type.h (falling-edge DCMI with the bit set) |
+//! | 0x03 | bit 7 `DOUTSW` data output off (resets to off: the sensor streams only once told to), bit 6 `DATAHZ` outputs high-impedance, bits 5:2 picture size (8 = subQCIF 128x96), bit 1 RGB 5:6:5 instead of YUV 4:2:2, bit 0 black and white | datasheet feature list; \[SB\] tcm8230.c `IMG_SIZE_*`, `IMG_FORMAT_*`, `IMG_COLOR_*` |
+//! | other registers | stored and read back (exposure, luminance control, gains, white balance, gamma, contrast, brightness, hue, saturation, `ES100S`/`ES120S`, `SWC`) with the reset values the original firmware's comments give; they do not change the picture | \[SB\] tcm8230.c comments ("Default ...") |
+//! | master clock | EXTCLK must run (11.9 to 27 MHz accepted); the byte clock DCLK is EXTCLK, a line period is 1,560 EXTCLK periods, a frame 546 line periods at 30 fps (the 30 fps of the datasheet at its nominal 25.54 MHz: 25.54 MHz / 30 / 1,560 = 546), so 24.65 fps at the board's 21 MHz | datasheet (max 30 fps, nominal clock); \[SB\] tcm8230.c `ES100S = CLK / (780 * 2 * 100)`; dcmi.c (21 MHz, "nominal 25.54 MHz") |
+//! | reset | RESET low for at least 100 EXTCLK periods with the clock running resets the sensor (registers to their reset values); the sensor answers SCCB and can stream from 100 EXTCLK periods after RESET rises; RESET low again stops it | \[SB\] dcmi.c `camera_unreset` ("wait for at least 100 clock cycles") |
 //! | stream | VBLK (the DCMI's VSYNC) inactive for 480 of the 546 line periods; the `h` output lines of a picture size sit at line periods `j * 480 / h`, HBLK (HSYNC) inactive for the `2 w` bytes at their start; during blanking the data bus carries 0x00 | datasheet (sub-sampling of the 640x480 array); blanking level: our choice |
 //!
 //! What is left out: the image processing (exposure, gains, white balance, gamma, brightness,
@@ -36,13 +36,13 @@ use rigless::chip::i2c::Peer;
 use rigless::snapshot::Store;
 use rigless::time::VirtualNanos;
 
-/// The sensors' 7-bit SCCB address ([SB] tcm8230.c `TCM8230_ADDR` = 0b0011_1100).
+/// The sensors' 7-bit SCCB address (\[SB\] tcm8230.c `TCM8230_ADDR` = 0b0011_1100).
 pub const ADDRESS: u8 = 0x3C;
 
 /// Number of sub-addresses the register file spans.
 pub const REGISTERS: usize = 0x20;
 
-/// Register 0x00 reads 0x70 ([SB] tcm8230.c comment on `TCM_WHO_AM_I`); read-only.
+/// Register 0x00 reads 0x70 (\[SB\] tcm8230.c comment on `TCM_WHO_AM_I`); read-only.
 pub const IDENTITY: u8 = 0x70;
 
 /// Frame-rate and clock-polarity register.

@@ -7,10 +7,11 @@
 //!    main archive (apt-get), and the `mcap` Python package (pip), the independent reader the
 //!    flight-log test checks MCAP files with.
 //! 2. Checks formatting and runs clippy with warnings denied on the host (the workspace and the
-//!    virtual-board bench, its own workspace) and on thumbv7em, runs all host tests, builds
-//!    both firmwares in release, runs them (and their `hil` images) on the virtual boards
-//!    (`cargo xtask vboard`), and fuzzes the protocol decoder and encoder briefly (after fmt
-//!    and clippy in `fuzz/`, its own workspace).
+//!    virtual-board bench, its own workspace) and on thumbv7em, builds the docs of both
+//!    workspaces with rustdoc's warnings denied (a link to a renamed item fails), runs all host
+//!    tests, builds both firmwares in release, runs them (and their `hil` images) on the virtual
+//!    boards (`cargo xtask vboard`), and fuzzes the protocol decoder and encoder briefly (after
+//!    fmt and clippy in `fuzz/`, its own workspace).
 //! 3. Prints a one-line summary and a closing `N passed, N failed` line.
 //!
 //! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
@@ -100,6 +101,21 @@ pub fn run(args: &[String]) -> Result<()> {
         }
     }
     steps.push("clippy(thumbv7em: real, qemu, hil)".into());
+
+    // Docs whose links point nowhere have drifted from the code: rustdoc's lints catch them.
+    for dir in [crate::size::workspace_root(), bench.clone()] {
+        let mut doc = Command::new("cargo");
+        doc.args(["doc", "--no-deps"])
+            .env("RUSTDOCFLAGS", "-D warnings")
+            .current_dir(&dir);
+        if dir == bench {
+            doc.arg("--ignore-rust-version");
+        } else {
+            doc.arg("--workspace");
+        }
+        run_checked(&mut doc).with_context(|| format!("cargo doc failed in {}", dir.display()))?;
+    }
+    steps.push("doc(workspace, virtual-board; rustdoc warnings denied)".into());
 
     let (passed, failed) = cargo_test(&["test", "--workspace"])?;
     steps.push(format!("tests({passed} passed)"));

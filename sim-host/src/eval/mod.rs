@@ -3,7 +3,7 @@
 //!
 //! Per take: discover the images, build the ground truth ([`truth`]), run the board's
 //! [`EdgeFs`] on every image `1..=N-1` (the last image is never used, as in the reference),
-//! and score images `10..=N-11` with NMXM, MSE and VAR ([`metrics`]).
+//! and score images `10..=N-11` with NMXM, MSE and VAR ([`metrics`](mod@metrics)).
 //!
 //! Protocol rules that belong to the evaluation, not to the estimator, live here: the paper
 //! configuration's outputs for images `i <= 2H` are set to 0; the estimator gets the OptiTrack

@@ -576,13 +576,13 @@ const MARGINS_M: [f64; 7] = [0.8, 1.5, 2.5, 3.5, 5.0, 6.5, 8.0];
 /// * obstacles: those of the take's README ([`take_obstacles`]), given as `obstacles`;
 /// * wall albedo: the recorded mean level / 255; light: [`light_for_noise`] of the recorded
 ///   noise level;
-/// * wall texture and contrast: the candidates ([`WALL_KINDS`] x [`CONTRASTS`]) are rendered
-///   at [`FIT_POSES`] poses spread over the take, and the one whose statistics are nearest
+/// * wall texture and contrast: the candidates (`WALL_KINDS` x `CONTRASTS`) are rendered
+///   at `FIT_POSES` poses spread over the take, and the one whose statistics are nearest
 ///   the recorded ones ([`FrameStats::texture_distance`]) is kept;
 /// * room: the bounding box of the trajectory and the obstacles grown on every side by the
-///   margin ([`MARGINS_M`]) whose rendered median stereo depth at those poses is nearest (in
+///   margin (`MARGINS_M`) whose rendered median stereo depth at those poses is nearest (in
 ///   ratio) the recorded frames' at the same images, 3 m high;
-/// * floor: as the walls, from [`FLOOR_KINDS`].
+/// * floor: as the walls, from `FLOOR_KINDS`.
 #[allow(clippy::too_many_arguments)]
 pub fn fit_scene(
     real_frames: &[Frame],

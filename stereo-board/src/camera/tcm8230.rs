@@ -7,7 +7,7 @@
 //! slot of each pixel and the right camera's in the other, so each camera must send YUV 4:2:2
 //! (`Cb Y Cr Y ...`: a luminance byte every second pixel clock); RGB 5:6:5 would put colour bits
 //! where luminance belongs. Values and their meaning follow the original stereoboard firmware's
-//! register defines ([SB] tcm8230.c:32-47, 110-184, 215-232), which the paper flew.
+//! register defines (\[SB\] tcm8230.c:32-47, 110-184, 215-232), which the paper flew.
 
 use crate::board;
 
@@ -59,7 +59,7 @@ const BRIGHTNESS: u8 = 0x1C;
 /// comment calls 0x48 the ITU-656 sync mode). The DCMI uses the HSYNC/VSYNC pins, not codes.
 const SYNC: u8 = 0x48;
 
-/// One sensor line in master-clock cycles: 780 pixel periods of 2 clocks ([SB] tcm8230.c's
+/// One sensor line in master-clock cycles: 780 pixel periods of 2 clocks (\[SB\] tcm8230.c's
 /// `CLK/(780*2*...)`).
 pub const LINE_CLOCKS: u32 = 780 * 2;
 

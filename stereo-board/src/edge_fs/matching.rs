@@ -137,7 +137,7 @@ fn peak_ratio(costs: &[u32], best: usize, c0: u32) -> f32 {
 }
 
 /// One column's match from a whole-row search ([`stereo_row`], [`flow_row`],
-/// [`column_matches`]): the first minimum, with the sub-pixel offset and the peak ratio
+/// `column_matches`): the first minimum, with the sub-pixel offset and the peak ratio
 /// computed only when asked for (the peak ratio scans every candidate again, which a caller
 /// that discards the column, untextured say, need not pay for). The values equal
 /// [`ColumnMatch`]'s of the same costs.
@@ -179,7 +179,7 @@ const MAX_PAIRS: usize = MAX_CANDIDATES.div_ceil(2);
 /// Candidate costs of every column at once, for a search whose target offset is the same for
 /// all columns: for each reference column `c` whose `n` candidate windows all fit, in
 /// increasing `c`, calls `f(c, costs)` with `costs[k] == sad(reference, c, target,
-/// c + delta0 + k, w)` (`n` clamped to [`MAX_CANDIDATES`]). Columns with a window outside the
+/// c + delta0 + k, w)` (`n` clamped to `MAX_CANDIDATES`). Columns with a window outside the
 /// histograms (where [`match_column`] returns `None`) are skipped.
 ///
 /// Running-sum SAD: each column's costs are the previous column's plus the bin entering and

@@ -1,5 +1,5 @@
 //! The autopilot: a Paparazzi Lisa/MX 2.1 (STM32F415) in the pocket drone, wired as
-//! `../shared/hardware/original-boards.md` gives it ([PZ] `lisa_mx_common.h`, `board.h`, the
+//! `../shared/hardware/original-boards.md` gives it (\[PZ\] `lisa_mx_common.h`, `board.h`, the
 //! airframe file).
 //!
 //! | function | wiring |
@@ -35,7 +35,7 @@ use crate::soc::{Part, Soc};
 
 /// The machine's name.
 pub const NAME: &str = "pocket-drone-autopilot";
-/// The crystal, Hz ([PZ] lisa_mx_common.h:29-30).
+/// The crystal, Hz (\[PZ\] lisa_mx_common.h:29-30).
 pub const HSE_HZ: u64 = 12_000_000;
 /// The rail, mV.
 pub const SUPPLY_MV: u32 = 3300;
@@ -80,16 +80,16 @@ pub const MOTORS: [MotorPin; 4] = [
     },
 ];
 
-/// The motors' PWM frequency, Hz ([PZ] airframe xml:263-265: 36 kHz on the brushed-motor
+/// The motors' PWM frequency, Hz (\[PZ\] airframe xml:263-265: 36 kHz on the brushed-motor
 /// FETs).
 pub const MOTOR_PWM_HZ: u64 = 36_000;
 
 /// [`MOTORS`] indices in the flight software's motor order (`protocol::MotorCommand`, the
 /// mixer's: front-right, rear-right, rear-left, front-left): NE is front-right, SE rear-right,
-/// SW rear-left, NW front-left ([PZ] airframe xml:30-33).
+/// SW rear-left, NW front-left (\[PZ\] airframe xml:30-33).
 pub const MIXER_ORDER: [usize; 4] = [0, 3, 2, 1];
 
-/// The board's wiring, pin by pin ([PZ] lisa_mx_common.h, board.h; datasheet DS8597 table 9
+/// The board's wiring, pin by pin (\[PZ\] lisa_mx_common.h, board.h; datasheet DS8597 table 9
 /// for the alternate functions). Written from the original board, not imported from the
 /// firmware: it is what the firmware is checked against.
 pub const WIRING: [Wired; 22] = {
@@ -167,9 +167,9 @@ pub const WIRING: [Wired; 22] = {
     ]
 };
 
-/// Body axes to the MPU-6000's axes. The board's axes are (-y, x, z) of the chip ([PZ]
+/// Body axes to the MPU-6000's axes. The board's axes are (-y, x, z) of the chip (\[PZ\]
 /// imu_aspirin_2_spi.c:191-200), so chip = (board_y, -board_x, board_z); the pocket drone
-/// mounts the board at psi = 135 deg, phi = -2 deg from the body ([PZ] airframe xml:64-66):
+/// mounts the board at psi = 135 deg, phi = -2 deg from the body (\[PZ\] airframe xml:64-66):
 /// board = R_x(phi) R_z(psi) body. The chip sits face down (its z along the board's down axis),
 /// which is what makes (-y, x, z) a right-handed x-forward, z-down board frame.
 pub const BODY_TO_CHIP: [[f64; 3]; 3] = body_to_chip();

@@ -3,7 +3,7 @@
 //! SCCB on I2C2, their master clock from TIM3 CH2 on PA7, their reset on PD2, the CPLD's mode pins
 //! PC10, PC12, PB5, and the link to the autopilot on UART4 (PA0 TX, PA1 RX).
 //!
-//! | function | pins | source ([SB], see original-boards.md) |
+//! | function | pins | source (\[SB\], see original-boards.md) |
 //! |---|---|---|
 //! | DCMI sync | HSYNC PA4, PIXCLK PA6, VSYNC PB7 (AF13) | dcmi.c:187-199 |
 //! | DCMI data | D0 PC6, D1 PC7, D2 PC8, D3 PC9, D4 PC11, D5 PB6, D6 PB8, D7 PB9 (AF13) | dcmi.c:187-199 |
@@ -51,7 +51,7 @@ const I2C2: usize = 1;
 const USART2: usize = 1;
 const UART4: usize = 6;
 
-/// The camera board's crystal, Hz ([SB] system_stm32f4xx.c: HSE 12 MHz).
+/// The camera board's crystal, Hz (\[SB\] system_stm32f4xx.c: HSE 12 MHz).
 pub const HSE_HZ: u64 = 12_000_000;
 
 /// A pin: port index (A = 0) and number.
@@ -173,30 +173,30 @@ pub fn sample(mcu: &Stm32f427, clock_timer: Option<&ClockTimer>) -> DcmiInputs {
     }
 }
 
-/// The sensors' master clock the original sets, Hz: TIM3 at 84 MHz, prescaler 1, period 1 ([SB]
+/// The sensors' master clock the original sets, Hz: TIM3 at 84 MHz, prescaler 1, period 1 (\[SB\]
 /// dcmi.c:116-177, "21MHz").
 pub const SENSOR_CLOCK_HZ: u64 = 21_000_000;
 /// The link's baud in the paper's era ([SB-17] edgeFS.h:24-31).
 pub const LINK_BAUD: u32 = 115_200;
-/// The CPLD mode pins' levels (PC10, PC12, PB5) that select the stereo interleave ([SB]
+/// The CPLD mode pins' levels (PC10, PC12, PB5) that select the stereo interleave (\[SB\]
 /// cpld.c:17-69, main_parameters.h:120).
 pub const CPLD_STEREO_LEVELS: [bool; 3] = [false, true, false];
-/// The status LED, active high ([SB] led.c:15-33).
+/// The status LED, active high (\[SB\] led.c:15-33).
 pub const LED: BoardPin = pin("GPIOB", 12);
 /// The link UART's pins, TX and RX ([SB-17] edgeFS.h:24-31).
 pub const LINK_PINS: [BoardPin; 2] = [pin("GPIOA", 0), pin("GPIOA", 1)];
-/// The SCCB (I2C2) pins, SCL and SDA ([SB] tcm8230.c:54-85).
+/// The SCCB (I2C2) pins, SCL and SDA (\[SB\] tcm8230.c:54-85).
 pub const SCCB_PINS: [BoardPin; 2] = [pin("GPIOB", 10), pin("GPIOB", 11)];
 /// UART4's alternate function on PA0/PA1 (DS8626 table 9: AF8).
 pub const AF_UART4: u8 = 8;
-/// The second UART's pins, USART2 TX and RX ([SB] usart.c:303-330).
+/// The second UART's pins, USART2 TX and RX (\[SB\] usart.c:303-330).
 pub const HOST_PINS: [BoardPin; 2] = [pin("GPIOA", 2), pin("GPIOA", 3)];
 /// USART2's alternate function on PA2/PA3 (DS8626 table 9: AF7).
 pub const AF_USART2: u8 = 7;
 /// I2C2's alternate function on PB10/PB11 (DS8626 table 9: AF4).
 pub const AF_I2C2: u8 = 4;
 
-/// The board's wiring, pin by pin, from the original firmware's set-up ([SB] dcmi.c:84-199,
+/// The board's wiring, pin by pin, from the original firmware's set-up (\[SB\] dcmi.c:84-199,
 /// tcm8230.c:54-70, cpld.c:17-69, led.c:15-33, usart.c:303-330; [SB-17] edgeFS.h:24-31) and
 /// DS8626 table 9 for the alternate functions. Written from the original board, not imported
 /// from the firmware: it is what the firmware is checked against.

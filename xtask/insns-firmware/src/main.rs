@@ -1,10 +1,10 @@
 //! Benchmark firmware for `cargo xtask insns` (thumbv7em-none-eabihf, QEMU `netduinoplus2`).
 //!
 //! Runs the camera board's and the autopilot's per-frame / per-sample work on real embedded
-//! frames, each call bracketed by [`insns_begin`] and [`insns_end`]. The project's QEMU plugin
-//! (xtask/qemu-plugin/insn_markers.c) counts the instructions executed between the two markers;
-//! this firmware prints, over semihosting and in the same order, the name of each measurement
-//! (`measure NAME`). `cargo xtask insns` pairs the two streams.
+//! frames, each call bracketed by the marker functions `insns_begin` and `insns_end`. The
+//! project's QEMU plugin (xtask/qemu-plugin/insn_markers.c) counts the instructions executed
+//! between the two markers; this firmware prints, over semihosting and in the same order, the
+//! name of each measurement (`measure NAME`). `cargo xtask insns` pairs the two streams.
 //!
 //! On the host this is a stub.
 #![cfg_attr(target_os = "none", no_std)]
