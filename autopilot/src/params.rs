@@ -138,6 +138,7 @@ protocol::param_table! {
     "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;
     "fsm_search_timeout_us": U32 ["us"] 500_000, 60_000_000, true => |c| c.fsm.search_timeout_us;
     "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout_us;
+    "fs_first_estimate_us": U32 ["us"] 100_000, 10_000_000, true => |c| c.failsafe.first_estimate_timeout_us;
     "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
     "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;
     "fs_height_timeout_us": U32 ["us"] 20_000, 5_000_000, true => |c| c.failsafe.height_timeout_us;

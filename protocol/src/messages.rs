@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 7;
+pub const PROTOCOL_VERSION: u8 = 8;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -574,8 +574,20 @@ pub struct Telemetry {
     pub obstacle_m: Option<f32>,
     /// Height above the floor, m.
     pub height_m: f32,
+    /// The last barometer reading (`None`: no barometer, or none read yet).
+    pub baro: Option<BaroTelemetry>,
     /// Errors decoding messages from the camera board since boot.
     pub link_errors: LinkErrorCounts,
+}
+
+/// A compensated barometer reading (the autopilot's MS5611), as telemetry reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BaroTelemetry {
+    /// Pressure, Pa.
+    pub pressure_pa: f32,
+    /// Temperature, °C.
+    pub temperature_c: f32,
 }
 
 /// Messages from a board to a host (HIL bridge, ground tool).

@@ -267,6 +267,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
             [finite(), finite()],
             proptest::option::of(finite()),
             finite(),
+            proptest::option::of((finite(), finite())),
             link_errors()
         )
             .prop_map(
@@ -279,6 +280,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                     sp,
                     obstacle_m,
                     height_m,
+                    baro,
                     link_errors,
                 )| {
                     BoardToHost::Telemetry(Telemetry {
@@ -290,6 +292,10 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                         velocity_setpoint_mps: sp,
                         obstacle_m,
                         height_m,
+                        baro: baro.map(|(pressure_pa, temperature_c)| BaroTelemetry {
+                            pressure_pa,
+                            temperature_c,
+                        }),
                         link_errors,
                     })
                 }
@@ -489,6 +495,10 @@ fn declared_maximum_frame_sizes_hold() {
         velocity_setpoint_mps: [f32::MAX; 2],
         obstacle_m: Some(f32::MAX),
         height_m: f32::MAX,
+        baro: Some(BaroTelemetry {
+            pressure_pa: f32::MAX,
+            temperature_c: f32::MAX,
+        }),
         link_errors: all_counters_at_max(),
     });
     assert!(encode(&telemetry, &mut wire).unwrap() <= BoardToHost::MAX_FRAME_BYTES);

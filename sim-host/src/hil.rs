@@ -1416,6 +1416,9 @@ mod tests {
         for t in ["/attitude", "/setpoint", "/velocity", "/height", "/link"] {
             assert_eq!(count(t), count("/state"), "{t}");
         }
+        // The host link carries no barometer (heights come as external fixes), so telemetry has
+        // no reading to log.
+        assert_eq!(count("/baro"), 0, "{counts:?}");
         assert_eq!(
             logged
                 .counts

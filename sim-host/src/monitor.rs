@@ -268,7 +268,14 @@ impl BoardView {
                 let obstacle = t
                     .obstacle_m
                     .map_or("nothing in range".to_string(), |m| format!("{m:.2} m"));
-                let _ = writeln!(s, "height      {:.2} m   obstacle {obstacle}", t.height_m);
+                let baro = t.baro.map_or("no reading".to_string(), |b| {
+                    format!("{:.0} Pa {:.1} °C", b.pressure_pa, b.temperature_c)
+                });
+                let _ = writeln!(
+                    s,
+                    "height      {:.2} m   barometer {baro}   obstacle {obstacle}",
+                    t.height_m
+                );
             }
         }
         if let Some(e) = &self.estimate {
@@ -542,6 +549,10 @@ mod tests {
             velocity_setpoint_mps: [0.3, 0.0],
             obstacle_m: Some(1.5),
             height_m: 1.0,
+            baro: Some(protocol::BaroTelemetry {
+                pressure_pa: 101_200.0,
+                temperature_c: 24.5,
+            }),
             link_errors: LinkErrorCounts::default(),
         }
     }
@@ -559,6 +570,7 @@ mod tests {
         let screen = v.render(0.2, "tcp:test");
         assert!(screen.contains("flying"), "{screen}");
         assert!(screen.contains("forward"), "{screen}");
+        assert!(screen.contains("barometer 101200 Pa 24.5 °C"), "{screen}");
         assert!(screen.contains("host link 1 ("), "{screen}");
         assert_eq!(v.health(0.2), LinkHealth::Up);
     }

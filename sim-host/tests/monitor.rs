@@ -2,8 +2,8 @@
 //! telemetry and heartbeats at the real firmware's rates (10 Hz, 1 Hz), framed as on the wire,
 //! with one corrupted frame and a silence in the middle. The monitor must show the board's
 //! mode and FSM state by name, count the rejected frame, report the silence as a lost link,
-//! and leave an MCAP log that the `mcap` crate's reader reads back with one record per message
-//! received, in time order.
+//! and leave an MCAP log (the barometer's reading included) that the `mcap` crate's reader
+//! reads back with one record per message received, in time order.
 
 use autopilot::app::{Autopilot, AutopilotConfig};
 use protocol::{BoardToHost, Heartbeat, Message, Node};
@@ -32,7 +32,12 @@ struct Sent {
 /// silent from 1.0 s to 2.0 s; drops a byte of the fifth telemetry frame.
 fn board(listener: TcpListener, seconds: f64) -> Sent {
     let (mut s, _) = listener.accept().expect("the monitor connects");
-    let ap = Autopilot::new(AutopilotConfig::default());
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let baro = autopilot::ms5611::BaroReading {
+        pressure_pa: 101_200.0,
+        temperature_c: 24.5,
+    };
+    ap.on_baro(&baro, 0);
     let start = Instant::now();
     let mut sent = Sent::default();
     let mut tick = 0u64;
@@ -119,6 +124,9 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         if m.channel.topic == "/state" {
             assert_eq!(value["mode"], "disarmed");
         }
+        if m.channel.topic == "/baro" {
+            assert_eq!(value["pressure_pa"], 101_200.0);
+        }
         if m.channel.topic == "/link" {
             assert!(value["host_link_errors"]["total"].as_u64().unwrap() <= 1);
         }
@@ -129,6 +137,7 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         "/attitude",
         "/velocity",
         "/height",
+        "/baro",
         "/link",
         "/board_clock",
     ] {

@@ -254,14 +254,16 @@ pub struct TelemetryExtras {
 }
 
 /// Writes an autopilot telemetry message as its records (state, attitude, setpoint, velocity,
-/// height) at `t_ns`, with what else the logger knows.
+/// height, barometer when it has a reading) at `t_ns`, with what else the logger knows.
 pub fn write_telemetry<W: Write + Seek>(
     log: &mut FlightLog<W>,
     t_ns: u64,
     tel: &protocol::Telemetry,
     extras: &TelemetryExtras,
 ) -> anyhow::Result<()> {
-    use records::{AttitudeRecord, HeightRecord, SetpointRecord, StateRecord, VelocityRecord};
+    use records::{
+        AttitudeRecord, BaroRecord, HeightRecord, SetpointRecord, StateRecord, VelocityRecord,
+    };
     log.write(t_ns, &StateRecord::new(tel.fsm_state, tel.flight_mode))?;
     let rate = |axis: usize| extras.gyro_radps.map(|g| g[axis]);
     log.write(
@@ -303,7 +305,17 @@ pub fn write_telemetry<W: Write + Seek>(
             setpoint_m: None,
             true_m: extras.true_height_m,
         },
-    )
+    )?;
+    if let Some(baro) = tel.baro {
+        log.write(
+            t_ns,
+            &BaroRecord {
+                pressure_pa: baro.pressure_pa,
+                temperature_c: baro.temperature_c,
+            },
+        )?;
+    }
+    Ok(())
 }
 
 /// Thins a stream of samples out to one per period: a sample is taken when at least 95 % of
