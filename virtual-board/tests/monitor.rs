@@ -76,6 +76,13 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
     let count = |f: fn(&BoardToHost) -> bool| messages.iter().filter(|m| f(m)).count();
     let telemetry = count(|m| matches!(m, BoardToHost::Telemetry(_)));
     let heartbeats = count(|m| matches!(m, BoardToHost::Heartbeat(_)));
+    // Telemetry carries the MS5611's last reading once the firmware has read one (its first
+    // conversions take about 20 ms after boot).
+    let with_baro = count(|m| matches!(m, BoardToHost::Telemetry(t) if t.baro.is_some()));
+    assert!(
+        with_baro + 1 >= telemetry,
+        "{with_baro} of {telemetry} telemetry messages carry a barometer reading\n{report}"
+    );
     assert!(
         telemetry >= 20,
         "10 Hz telemetry over 3 s: {telemetry}\n{report}"
@@ -102,8 +109,9 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
     assert!(stdout.contains("disarmed fsm inactive"), "{stdout}");
     assert!(!stdout.contains("rejected"), "{stdout}");
     // Five records per telemetry message (state, attitude, setpoint, velocity, height) plus
-    // its link and board-clock records, and one per heartbeat.
-    let logged = 7 * telemetry + heartbeats;
+    // its link and board-clock records, one more where it has a barometer reading, and one per
+    // heartbeat.
+    let logged = 7 * telemetry + with_baro + heartbeats;
     assert!(
         stdout.contains(&format!("({logged} messages on")),
         "{logged} records expected in the log:\n{stdout}"
@@ -124,6 +132,11 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
         last = m.log_time;
         assert_eq!(m.channel.message_encoding, "json");
         let value: serde_json::Value = serde_json::from_slice(&m.data).expect("JSON");
+        if m.channel.topic == "/baro" {
+            // The bench's room: sea-level pressure, 1.5 m ± the model's noise and drift.
+            let p = value["pressure_pa"].as_f64().expect("a pressure");
+            assert!((100_000.0..102_500.0).contains(&p), "{value}");
+        }
         if m.channel.topic == "/state" {
             assert_eq!(value["mode"], "disarmed", "{value}");
             assert_eq!(value["fsm_state"], "inactive", "{value}");
@@ -142,6 +155,7 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
         assert_eq!(counts.get(topic), Some(&telemetry), "{topic}: {counts:?}");
     }
     assert_eq!(counts.get("/heartbeat"), Some(&heartbeats), "{counts:?}");
+    assert_eq!(counts.get("/baro"), Some(&with_baro), "{counts:?}");
     println!(
         "monitor against the virtual autopilot: {telemetry} telemetry, {heartbeats} heartbeats, {} B",
         sent.len()
