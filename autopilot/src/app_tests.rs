@@ -142,20 +142,7 @@ impl Quad {
         };
         Estimate {
             seq,
-            capture_us: WireTime(0),
-            forward_mps: vb[0],
-            sideways_mps: vb[1],
-            obstacle_m: obstacle,
-            quality: 200,
-            flags: EstimateFlags::NONE,
-            processing_us: 0,
-            depth_coverage: 255,
-            near_columns: 0,
-            fit: Some(FrameFit {
-                forward_mps: vb[0],
-                sideways_mps: vb[1],
-                quality: 200,
-            }),
+            ..crate::test_support::estimate([vb[0], vb[1]], obstacle)
         }
     }
 

@@ -7,20 +7,26 @@ use protocol::{
 /// A valid estimate of `forward_mps` straight ahead, nothing in range over a view with depth
 /// everywhere.
 pub fn forward_estimate(forward_mps: f32) -> Estimate {
+    estimate([forward_mps, 0.0], None)
+}
+
+/// A valid estimate of the body velocity `velocity_mps` (forward, sideways) with the nearest
+/// obstacle at `obstacle_m`, over a view with depth everywhere; the frame's own fit agrees.
+pub fn estimate(velocity_mps: [f32; 2], obstacle_m: Option<f32>) -> Estimate {
     Estimate {
         seq: 0,
         capture_us: WireTime(0),
-        forward_mps,
-        sideways_mps: 0.0,
-        obstacle_m: None,
+        forward_mps: velocity_mps[0],
+        sideways_mps: velocity_mps[1],
+        obstacle_m,
         quality: 200,
         flags: EstimateFlags::NONE,
         processing_us: 0,
         depth_coverage: 255,
         near_columns: 0,
         fit: Some(FrameFit {
-            forward_mps,
-            sideways_mps: 0.0,
+            forward_mps: velocity_mps[0],
+            sideways_mps: velocity_mps[1],
             quality: 200,
         }),
     }
