@@ -224,6 +224,10 @@ pub struct AutopilotConfig {
     /// with plain walls a take-off read as 1.1 m/s forward). They still count as valid for the
     /// failsafe.
     pub max_vision_climb_mps: f32,
+    /// ... unless the view has at least this fraction of its columns with a stereo depth
+    /// (0..1): textured walls in range move as the scene does, only a view of little but the
+    /// floor reads a climb as forward flight.
+    pub vision_climb_min_depth: f32,
     /// A valid estimate counts (for the velocity and for the failsafe) only as the
     /// `min_valid_run`-th or later of an unbroken run of valid ones. On a textured view nearly
     /// every frame is valid; a lone valid frame among invalid ones comes from a scrap of
@@ -279,6 +283,7 @@ impl Default for AutopilotConfig {
             estimate_filter_lag_us: 97_000,
             min_vision_height_m: 0.6,
             max_vision_climb_mps: 0.25,
+            vision_climb_min_depth: 0.5,
             min_valid_run: 3,
             max_yaw_rate_radps: 0.6,
             yaw_settle_us: 150_000,

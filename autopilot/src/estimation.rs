@@ -17,7 +17,8 @@
 //!    velocity and for the failsafe. A gap of more than `median_reset_gap_us` since the last
 //!    valid one empties the median.
 //! 3. Height: below `min_vision_height_m`, or climbing or descending faster than
-//!    `max_vision_climb_mps`, an estimate counts for the failsafe only.
+//!    `max_vision_climb_mps` over a view with less than `vision_climb_min_depth` of it in
+//!    stereo depth, an estimate counts for the failsafe only.
 //! 4. Yaw: within `yaw_settle_us` of a yaw rate above `max_yaw_rate_radps`, likewise (counted
 //!    in [`VelocityEstimation::yaw_gated`]).
 //! 5. The Kalman filter ([`VelocitySource::Kalman`]) takes what passed 4, as the mean velocity
@@ -231,8 +232,10 @@ impl VelocityEstimation {
             self.median.reset();
             self.outliers_in_a_row = 0;
         }
-        if ctx.height_m < cfg.min_vision_height_m || ctx.climb_mps.abs() > cfg.max_vision_climb_mps
-        {
+        let depth = f32::from(est.depth_coverage) / f32::from(u8::MAX);
+        let climbing =
+            ctx.climb_mps.abs() > cfg.max_vision_climb_mps && depth < cfg.vision_climb_min_depth;
+        if ctx.height_m < cfg.min_vision_height_m || climbing {
             // Valid for the failsafe, not for the velocity (see `min_vision_height_m` and
             // `max_vision_climb_mps`).
             self.median.reset();

@@ -6,10 +6,9 @@
 //!   blind, quality low) -> [`FlightMode::HoverNoEstimate`]: level hover on the guidance trim at
 //!   the current height setpoint. A valid estimate within
 //!   [`FailsafeConfig::hover_before_land_us`] resumes the flight; otherwise -> `Landing`. A
-//!   drone that has had no valid estimate at all [`FailsafeConfig::first_estimate_timeout_us`]
-//!   after it was armed goes to `Landing` then, hovering or not: waiting is for a camera that
-//!   may come back, and every second of blind hover is drift nobody measures (a trim error of
-//!   0.6 deg is 0.1 m/s² of it).
+//!   drone that has had no valid estimate at all since it was armed goes to `Landing` at once
+//!   instead: waiting is for a camera that may come back, and every second of blind hover is
+//!   drift nobody measures (a trim error of 0.6 deg is 0.1 m/s² of it).
 //! * Height measurement stale for [`FailsafeConfig::height_timeout_us`] in flight -> `Landing`
 //!   (the caller descends open-loop on reduced thrust).
 //! * IMU stale for [`FailsafeConfig::imu_timeout_us`] while armed -> [`FlightMode::ImuFault`]:
@@ -27,10 +26,6 @@ pub use protocol::FlightMode;
 pub struct FailsafeConfig {
     /// No valid estimate for this long -> hover, µs.
     pub estimate_timeout_us: u64,
-    /// No valid estimate at all for this long after arming -> land, µs: the camera's first
-    /// valid estimate needs its history filled (a few frames, more at a low frame rate); a
-    /// drone that has never seen does not hover, it aborts the take-off.
-    pub first_estimate_timeout_us: u64,
     /// Hover without estimate for this long -> land, µs.
     pub hover_before_land_us: u64,
     /// No IMU sample for this long while armed -> motors off, µs.
@@ -43,7 +38,6 @@ impl Default for FailsafeConfig {
     fn default() -> Self {
         Self {
             estimate_timeout_us: 500_000,
-            first_estimate_timeout_us: 1_500_000,
             hover_before_land_us: 1_500_000,
             imu_timeout_us: 20_000,
             height_timeout_us: 500_000,
@@ -179,10 +173,8 @@ impl Failsafe {
         if matches!(f.last_valid_estimate_us, Some(t) if t > self.armed_us) {
             self.seen_estimate = true;
         }
-        let never_seen = !self.seen_estimate
-            && now_us.saturating_sub(self.armed_us) > self.cfg.first_estimate_timeout_us;
         match self.mode {
-            FlightMode::Flying | FlightMode::HoverNoEstimate if never_seen => {
+            FlightMode::Flying if !est_ok && !self.seen_estimate => {
                 self.set(FlightMode::Landing, now_us)
             }
             FlightMode::Flying if !est_ok => self.set(FlightMode::HoverNoEstimate, now_us),
@@ -315,14 +307,11 @@ mod tests {
         assert_eq!(fs.mode(), FlightMode::Disarmed);
     }
 
-    /// Armed without estimates: the estimate timeout's grace, a hover, and a landing once the
-    /// first estimate's grace has passed (nothing was ever seen that could come back); a first
-    /// estimate within that grace resumes the flight.
+    /// Armed without estimates: the estimate timeout's grace, then a landing at once (nothing
+    /// was ever seen that could come back).
     #[test]
     fn armed_without_estimates_gets_the_grace_period_then_lands() {
-        let cfg = FailsafeConfig::default();
-        let first = cfg.first_estimate_timeout_us;
-        let mut fs = Failsafe::new(cfg);
+        let mut fs = Failsafe::new(FailsafeConfig::default());
         let mut f = all_fresh(10 * 1000 * MS);
         f.last_valid_estimate_us = None;
         fs.command(PilotCommand::Arm, &f, 10_000 * MS);
@@ -334,32 +323,19 @@ mod tests {
         assert_eq!(fs.update(&f2(10_400 * MS), 10_400 * MS), FlightMode::Flying);
         assert_eq!(
             fs.update(&f2(10_501 * MS), 10_501 * MS),
-            FlightMode::HoverNoEstimate
+            FlightMode::Landing
         );
-        let t = 10_000 * MS + first;
-        assert_eq!(fs.update(&f2(t), t), FlightMode::HoverNoEstimate);
-        assert_eq!(fs.update(&f2(t + 1), t + 1), FlightMode::Landing);
         // An estimate from before the arming does not count as seen in this flight.
-        let mut fs = Failsafe::new(cfg);
+        let mut fs = Failsafe::new(FailsafeConfig::default());
         fs.command(PilotCommand::Arm, &f, 10_000 * MS);
         let before = |t| Freshness {
             last_valid_estimate_us: Some(9_900 * MS),
             ..f2(t)
         };
-        assert_eq!(fs.update(&before(t + 1), t + 1), FlightMode::Landing);
-        // A first estimate late in the grace: flying again, and the usual timeouts from then on.
-        let mut fs = Failsafe::new(cfg);
-        fs.command(PilotCommand::Arm, &f, 10_000 * MS);
         assert_eq!(
-            fs.update(&f2(10_600 * MS), 10_600 * MS),
-            FlightMode::HoverNoEstimate
+            fs.update(&before(10_501 * MS), 10_501 * MS),
+            FlightMode::Landing
         );
-        let seen = |t| Freshness {
-            last_valid_estimate_us: Some(t - 100 * MS),
-            ..f2(t)
-        };
-        assert_eq!(fs.update(&seen(t), t), FlightMode::Flying);
-        assert_eq!(fs.update(&seen(t + 1), t + 1), FlightMode::Flying);
     }
 
     #[test]

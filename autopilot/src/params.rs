@@ -138,7 +138,6 @@ protocol::param_table! {
     "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;
     "fsm_search_timeout_us": U32 ["us"] 500_000, 60_000_000, true => |c| c.fsm.search_timeout_us;
     "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout_us;
-    "fs_first_estimate_us": U32 ["us"] 100_000, 10_000_000, true => |c| c.failsafe.first_estimate_timeout_us;
     "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
     "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;
     "fs_height_timeout_us": U32 ["us"] 20_000, 5_000_000, true => |c| c.failsafe.height_timeout_us;
@@ -158,6 +157,7 @@ protocol::param_table! {
     "max_outliers": U32 ["-"] 0, 20, true => |c| c.max_consecutive_outliers;
     "min_vision_height": F32 ["m"] 0.0, 2.0, true => |c| c.min_vision_height_m;
     "max_vision_climb": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_vision_climb_mps;
+    "vision_climb_depth": F32 ["-"] 0.0, 1.0, true => |c| c.vision_climb_min_depth;
     "min_valid_run": U32 ["-"] 1, 20, true => |c| c.min_valid_run;
     "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.velocity_max_age_us;
     "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.observer.drag_per_s;

@@ -1365,9 +1365,12 @@ mod tests {
     #[test]
     fn lockstep_flies_software_boards_off_the_floor() {
         let (cam_host, ap_host) = software_boards();
+        // Armed at 1 s, as a user arms on valid estimates: the 10 fps camera's first valid one
+        // comes once its flow history has filled, about 0.9 s in.
         let cfg = HilConfig {
             duration_s: 3.0,
             fps: 10.0,
+            arm_at_s: 1.0,
             ..HilConfig::default()
         };
         let mcap_path =

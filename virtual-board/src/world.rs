@@ -311,12 +311,16 @@ impl FrameSource for Rendered {
     }
 }
 
+/// How far the [`TruthCamera`] sees an obstacle, m (within the reach of Edge-FS's stereo).
+pub const TRUTH_RANGE_M: f32 = 5.0;
+
 /// The host playing the camera board on an autopilot-only bench, from the world's truth: what
 /// the camera board sends over the link (a heartbeat a second, an estimate per frame), each
 /// estimate the world's true body velocity averaged over the autopilot's flow horizon before
-/// the frame's capture, plus white noise, sent its processing time after the capture. No
-/// obstacle is reported. Not Edge-FS: a stand-in, so the autopilot can fly the world without
-/// the camera board.
+/// the frame's capture, plus white noise, sent its processing time after the capture; the
+/// nearest surface straight ahead (the scene's, along the heading at the drone's height) is
+/// the obstacle when it is within [`TRUTH_RANGE_M`], with depth over the whole view. Not
+/// Edge-FS: a stand-in, so the autopilot can fly the world without the camera board.
 pub struct TruthCamera {
     frames: Every,
     heartbeats: Every,
@@ -383,17 +387,22 @@ impl TruthCamera {
             self.seq = self.seq.wrapping_add(1);
             let forward_mps = (mean.x + gauss(&mut self.rng) * self.noise_mps) as f32;
             let sideways_mps = (mean.y + gauss(&mut self.rng) * self.noise_mps) as f32;
+            let world = plant.world();
+            let state = world.drone.state;
+            let (_, _, yaw) = state.att.to_euler();
+            let ahead = [yaw.cos() as f32, yaw.sin() as f32, 0.0];
+            let (distance_m, _) = world.scene.intersect(state.pos.to_f32(), ahead);
             let estimate = Estimate {
                 seq: self.seq,
                 capture_us: protocol::WireTime((now_ns / 1_000) as u32),
                 forward_mps,
                 sideways_mps,
-                obstacle_m: None,
+                obstacle_m: (distance_m <= TRUTH_RANGE_M).then_some(distance_m),
                 quality: 200,
                 flags: EstimateFlags::NONE,
                 processing_us: u16::try_from(self.processing_ns / 1_000).unwrap_or(u16::MAX),
-                // No stereo: the view's depth is unknown, never clear.
-                depth_coverage: 0,
+                // Depth over the whole view: what is not an obstacle is known to be clear.
+                depth_coverage: u8::MAX,
                 near_columns: 0,
                 // The labelled mean over the window is this frame's own "fit".
                 fit: Some(FrameFit {
