@@ -460,10 +460,15 @@ mod tests {
         assert_eq!(f.est.last_valid_estimate_us(), None);
     }
 
-    /// Near the floor, and while the height changes fast, estimates keep the failsafe quiet but
-    /// do not reach the velocity.
+    /// Near the floor, and while the height changes fast over a view mostly without depth,
+    /// estimates keep the failsafe quiet but do not reach the velocity.
     #[test]
     fn too_low_or_climbing_counts_for_the_failsafe_only() {
+        // A quarter of the view with depth: little but the floor.
+        let shallow = Estimate {
+            depth_coverage: 64,
+            ..forward_estimate(0.4)
+        };
         for source in [VelocitySource::Kalman, VelocitySource::MedianObserver] {
             let mut f = Feed::new(source);
             let low = VisionContext {
@@ -480,9 +485,9 @@ mod tests {
             };
             for ctx in [low, climbing, descending] {
                 for _ in 0..10 {
-                    f.frame(&forward_estimate(0.4), ctx);
+                    f.frame(&shallow, ctx);
                 }
-                assert_eq!(f.frame(&forward_estimate(0.4), ctx), Gate::Height);
+                assert_eq!(f.frame(&shallow, ctx), Gate::Height);
                 assert_eq!(f.est.last_valid_estimate_us(), Some(f.t));
                 assert_eq!(f.est.median_velocity(), None);
                 assert_eq!(f.est.state(source).velocity_mps, None);
@@ -491,6 +496,13 @@ mod tests {
             // Level at height, the same estimates are taken.
             assert_eq!(f.level(0.4), Gate::Passed);
             assert_eq!(f.est.median_velocity(), Some([0.4, 0.0]));
+            assert_eq!(f.est.state(source).last_fix_us, Some(f.t));
+            // Climbing over a view with depth at least `vision_climb_min_depth`: taken too.
+            let deep = Estimate {
+                depth_coverage: (f.cfg.vision_climb_min_depth * 255.0).ceil() as u8,
+                ..forward_estimate(0.4)
+            };
+            assert_eq!(f.frame(&deep, climbing), Gate::Passed);
             assert_eq!(f.est.state(source).last_fix_us, Some(f.t));
         }
     }
