@@ -283,7 +283,7 @@ impl Default for AutopilotConfig {
             estimate_filter_lag_us: 97_000,
             min_vision_height_m: 0.6,
             max_vision_climb_mps: 0.25,
-            vision_climb_min_depth: 0.5,
+            vision_climb_min_depth: 0.9,
             min_valid_run: 3,
             max_yaw_rate_radps: 0.6,
             yaw_settle_us: 150_000,
