@@ -1036,10 +1036,11 @@ pub struct HilArgs {
     /// the world waits for the link; see the docs).
     #[arg(long, default_value_t = 4.0)]
     pub fps: f64,
-    /// World time of the arm command, s: once the camera board's estimates are valid (its flow
-    /// history fills with the 10th frame, at 2.35 s at 4 fps; armed earlier, the autopilot's
-    /// failsafe lands before it sees one).
-    #[arg(long, default_value_t = 2.5)]
+    /// World time of the arm command, s: once the autopilot counts the camera board's estimates
+    /// (its flow history fills with the 10th frame, at 2.35 s at 4 fps, and the autopilot
+    /// counts the third valid estimate in a row, at 2.85 s; armed earlier, the failsafe lands
+    /// before it sees one).
+    #[arg(long, default_value_t = 3.0)]
     pub arm_at: f64,
     /// Longest wait for a reply from a board, s (wall time).
     #[arg(long, default_value_t = 5.0)]

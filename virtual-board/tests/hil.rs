@@ -8,9 +8,10 @@
 //! A short closed-loop flight in the paper's 4 x 4 m room, world seed [`SEED`] (the bench's IMU
 //! noise seed is 1; the hil image does not read its IMU): [`SIM_S`] of world time, armed at
 //! [`ARM_AT_S`] (as a user arms: once the camera board's estimates are valid; at [`FPS`] its flow
-//! history of 9 frames fills by 2.35 s, and the autopilot's failsafe gives an armed drone 0.5 s
-//! to see a valid estimate and 1.5 s more of blind hover before it lands), climb at 0.5 m/s to
-//! the autopilot's 1 m target, then its avoidance flight (forward at 0.3 m/s).
+//! history of 9 frames fills by 2.35 s, the autopilot counts estimates from the third valid one
+//! in a row, at 2.85 s, and its failsafe lands an armed drone that has seen none 0.5 s after
+//! arming), climb at 0.5 m/s to the autopilot's 1 m target, then its avoidance flight (forward
+//! at 0.3 m/s).
 //!
 //! The camera rate: a frame is 25.2 kB framed, 0.27 s of the host UART at 921,600 Bd
 //! (`board_support::link::HOST_BAUD`), and the bench times every word at that baud. The
@@ -54,8 +55,8 @@ use virtual_board::world::FlightConfig;
 const SEED: u64 = 3;
 /// World time flown, s.
 const SIM_S: f64 = 8.5;
-/// World time of the arm command, s: after the camera board's flow history has filled.
-const ARM_AT_S: f64 = 2.5;
+/// World time of the arm command, s: once the autopilot counts the camera board's estimates.
+const ARM_AT_S: f64 = 3.0;
 /// Camera frames per second of world time (see the module docs).
 const FPS: f64 = 4.0;
 /// Valid estimates at least: 20 of the 24 frames after the flow history filled (9 frames).
