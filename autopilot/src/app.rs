@@ -43,7 +43,7 @@ use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
-    BaroTelemetry, ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
+    ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
     LinkErrorCounts, Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse,
     PilotCommand, StereoStatus, StereoToAutopilot, Telemetry,
 };
@@ -898,10 +898,7 @@ impl Autopilot {
             velocity_setpoint_mps: self.guidance.setpoints().velocity_mps,
             obstacle_m: self.avoidance.obstacle().and_then(|o| o.distance_m),
             height_m: self.height.height_m(),
-            baro: self.baro.map(|(_, r)| BaroTelemetry {
-                pressure_pa: r.pressure_pa,
-                temperature_c: r.temperature_c,
-            }),
+            baro: self.baro.map(|(_, r)| r),
             link_errors: self.camera.errors(),
         }
     }

@@ -110,14 +110,9 @@ pub struct Calibration {
     pub c: [u16; 6],
 }
 
-/// A compensated reading.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BaroReading {
-    /// Pressure, Pa.
-    pub pressure_pa: f32,
-    /// Temperature, deg C.
-    pub temperature_c: f32,
-}
+/// A compensated reading: pressure, Pa, and temperature, °C. The telemetry's type, so a reading
+/// goes to the host as it is.
+pub type BaroReading = protocol::BaroTelemetry;
 
 impl Calibration {
     /// Checks the PROM's CRC and takes C1..C6 from it.
