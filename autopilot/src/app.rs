@@ -43,9 +43,9 @@ use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
-    ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample,
-    LinkErrorCounts, Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse,
-    PilotCommand, StereoStatus, StereoToAutopilot, Telemetry,
+    ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts,
+    Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
+    StereoToAutopilot, Telemetry,
 };
 use timebase::WireTime;
 

@@ -144,6 +144,7 @@ impl<B> TcpBridge<B> {
             }
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => Ok(()),
             Err(e) if e.kind() == ErrorKind::Interrupted => Ok(()),
+            Err(e) if closed_by_client(&e) => Err("the client disconnected".into()),
             Err(e) => Err(format!("reading from the client: {e}")),
         }
     }
@@ -167,10 +168,20 @@ impl<B> TcpBridge<B> {
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return Ok(()),
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) if closed_by_client(&e) => return Err("the client disconnected".into()),
                 Err(e) => return Err(format!("reading from the client: {e}")),
             }
         }
     }
+}
+
+/// A client that closes its socket while our telemetry is still unread in its buffer resets
+/// the connection instead of closing it: it went away all the same.
+fn closed_by_client(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted
+    )
 }
 
 impl<B: BenchBoard + Send> Probe<B> for TcpBridge<B> {
