@@ -136,7 +136,7 @@ impl<B> TcpBridge<B> {
         let read = self.stream.read(&mut buf);
         set(&self.stream, false)?;
         match read {
-            Ok(0) => Err("the client disconnected".into()),
+            Ok(0) => Err(CLIENT_DISCONNECTED.into()),
             Ok(n) => {
                 end.rx.send_at(now_ns, &buf[..n]);
                 self.bytes_in += n as u64;
@@ -144,7 +144,7 @@ impl<B> TcpBridge<B> {
             }
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => Ok(()),
             Err(e) if e.kind() == ErrorKind::Interrupted => Ok(()),
-            Err(e) if closed_by_client(&e) => Err("the client disconnected".into()),
+            Err(e) if closed_by_client(&e) => Err(CLIENT_DISCONNECTED.into()),
             Err(e) => Err(format!("reading from the client: {e}")),
         }
     }
@@ -161,19 +161,22 @@ impl<B> TcpBridge<B> {
         let mut buf = [0u8; 1024];
         loop {
             match self.stream.read(&mut buf) {
-                Ok(0) => return Err("the client disconnected".into()),
+                Ok(0) => return Err(CLIENT_DISCONNECTED.into()),
                 Ok(n) => {
                     end.rx.send_at(now_ns, &buf[..n]);
                     self.bytes_in += n as u64;
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return Ok(()),
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(e) if closed_by_client(&e) => return Err("the client disconnected".into()),
+                Err(e) if closed_by_client(&e) => return Err(CLIENT_DISCONNECTED.into()),
                 Err(e) => return Err(format!("reading from the client: {e}")),
             }
         }
     }
 }
+
+/// How a run ends when the client goes away (closed or reset).
+const CLIENT_DISCONNECTED: &str = "the client disconnected";
 
 /// A client that closes its socket while our telemetry is still unread in its buffer resets
 /// the connection instead of closing it: it went away all the same.
