@@ -177,6 +177,7 @@ protocol::param_table! {
     "vkf_gate_sigmas": F32 ["-"] 1.0, 100.0, true => |c| c.velocity_kf.gate_sigmas;
     "vkf_reinit_after": U32 ["-"] 1, 50, true => |c| c.velocity_kf.reinit_after;
     "vkf_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.velocity_kf.max_tilt_rad;
+    "vkf_room_bias": Bool ["-"] false, true, true => |c| c.velocity_kf.bias_in_room_frame;
     "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimate_horizon_us;
     "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimate_link_us;
     "est_filter_lag_us": U32 ["us"] 0, 300_000, true => |c| c.estimate_filter_lag_us;

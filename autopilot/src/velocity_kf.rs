@@ -6,6 +6,8 @@
 //! measurements is the one [`crate::guidance::VelocityObserver`] uses: thrust holding the height
 //! tilts into `a_fwd = -g tan(pitch)`, `a_right = g tan(roll) / cos(pitch)`, linear rotor drag
 //! `-k v`, the bias, and the heading frame turning under a room-fixed velocity with the yaw rate.
+//! The bias turns with it ([`VelocityKfConfig::bias_in_room_frame`]): its main part is the
+//! attitude estimate's tilt error, which a yaw leaves fixed in the room.
 //!
 //! What a measurement is: Edge-FS fits the flow over its horizon (a quarter of a second by
 //! default), so each velocity is the *mean* velocity over `[capture - horizon, capture]`, and it
@@ -54,6 +56,11 @@ pub struct VelocityKfConfig {
     pub reinit_after: u8,
     /// Tilt used in the model is limited to this, rad.
     pub max_tilt_rad: f32,
+    /// The bias is held in the room frame: it turns in the heading frame with the yaw rate, as
+    /// the velocity does. An attitude estimate's tilt error, the bias's main part, stays fixed
+    /// in the room while the drone yaws (the gyro turns the estimate and the truth alike); held
+    /// in the heading frame instead, the bias learnt before a turn is wrong after it.
+    pub bias_in_room_frame: bool,
 }
 
 impl Default for VelocityKfConfig {
@@ -69,6 +76,7 @@ impl Default for VelocityKfConfig {
             gate_sigmas: 4.0,
             reinit_after: 4,
             max_tilt_rad: 0.5,
+            bias_in_room_frame: true,
         }
     }
 }
@@ -189,6 +197,14 @@ impl VelocityKf {
             let k = self.cfg.drag_per_s.max(0.0);
             if let Some(v) = heading_frame_step(self.v, a, k, yaw_rate, dt) {
                 self.v = v;
+            }
+            if self.cfg.bias_in_room_frame {
+                // The same frame turn, without drag or forcing: the bias keeps its room
+                // direction (an isotropic covariance is unchanged by it).
+                if let Some(b) = heading_frame_step(self.bias, [0.0; 2], 0.0, yaw_rate, dt) {
+                    let lim = self.cfg.max_bias_mps2.abs();
+                    self.bias = b.map(|x| x.clamp(-lim, lim));
+                }
             }
             // P <- F P F' + Q with F = [[1 - k dt, dt], [0, 1]].
             let f00 = 1.0 - k * dt;
@@ -413,6 +429,63 @@ mod tests {
         }
         let v = run.kf.velocity().unwrap()[0];
         assert!((v - run.v_true).abs() < 0.06, "{v} vs {}", run.v_true);
+    }
+
+    /// The attitude estimate is off by a tilt fixed in the room (an error the gyro carries
+    /// through a turn unchanged): the offset learnt while facing north must still hold after a
+    /// 90 deg turn made without measurements, as it does for a bias held in the room frame.
+    #[test]
+    fn a_room_fixed_tilt_offset_survives_a_turn() {
+        let dt = DT_US as f32 * 1e-6;
+        // The model's acceleration error, m/s², north and east; the drone truly hovers still.
+        let err_room = [0.2f32, 0.0];
+        let drift_after_turn = |cfg: VelocityKfConfig| {
+            let mut kf = VelocityKf::new(cfg);
+            kf.hold_still(0);
+            let (mut t, mut yaw) = (0u64, 0.0f32);
+            let mut step = |kf: &mut VelocityKf, rate: f32| {
+                yaw += rate * dt;
+                t += DT_US;
+                let (s, c) = (libm::sinf(yaw), libm::cosf(yaw));
+                let a = [
+                    c * err_room[0] + s * err_room[1],
+                    -s * err_room[0] + c * err_room[1],
+                ];
+                let pitch = libm::atanf(-a[0] / GRAVITY);
+                let roll = libm::atanf(a[1] * libm::cosf(pitch) / GRAVITY);
+                kf.predict(roll, pitch, rate, dt, t);
+                t
+            };
+            // 20 s facing north with a still drone's zero velocity measured at 25 Hz.
+            for k in 0..(20 * 512) {
+                let now = step(&mut kf, 0.0);
+                if k % 20 == 19 {
+                    kf.correct(
+                        [0.0; 2],
+                        200,
+                        now.saturating_sub(280_000),
+                        now.saturating_sub(30_000),
+                    );
+                }
+            }
+            // A quarter turn at 1 rad/s and 1 s after it, blind.
+            for _ in 0..((core::f32::consts::FRAC_PI_2 / dt) as usize) {
+                step(&mut kf, 1.0);
+            }
+            for _ in 0..512 {
+                step(&mut kf, 0.0);
+            }
+            let v = kf.velocity().unwrap();
+            libm::sqrtf(v[0] * v[0] + v[1] * v[1])
+        };
+        let room = drift_after_turn(VelocityKfConfig::default());
+        let heading = drift_after_turn(VelocityKfConfig {
+            bias_in_room_frame: false,
+            ..VelocityKfConfig::default()
+        });
+        assert!(room < 0.03, "room-frame bias: {room} m/s after the turn");
+        // Held in the heading frame, the learnt offset points the wrong way after the turn.
+        assert!(heading > 0.2, "heading-frame bias: {heading} m/s");
     }
 
     #[test]
