@@ -20,7 +20,10 @@
 //!    `max_vision_climb_mps` over a view with less than `vision_climb_min_depth` of it in
 //!    stereo depth, an estimate counts for the failsafe only.
 //! 4. Yaw: within `yaw_settle_us` of a yaw rate above `max_yaw_rate_radps`, likewise (counted
-//!    in [`VelocityEstimation::yaw_gated`]).
+//!    in [`VelocityEstimation::yaw_gated`]). An estimate invalid only for its flow (a poor fit
+//!    or no flow match) whose flow window reaches back into a fast yaw counts for the failsafe
+//!    too: the camera sees texture and depth, the turn spoiled the fit (the camera board
+//!    derotates with a few-ms-old attitude, and flags the fits around a change of yaw rate).
 //! 5. The Kalman filter ([`VelocitySource::Kalman`]) takes what passed 4, as the mean velocity
 //!    over the window the estimate describes, behind its own innovation gate.
 //! 6. Plausibility (the paper's path): further than `max_velocity_jump_mps` from the median
@@ -35,7 +38,7 @@ use crate::app::AutopilotConfig;
 use crate::guidance::VelocityObserver;
 use crate::median::VelocityMedian;
 use crate::velocity_kf::{Fusion, VelocityKf};
-use protocol::Estimate;
+use protocol::{Estimate, EstimateFlags};
 
 /// The velocity estimate guidance flies on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -60,6 +63,13 @@ impl VelocitySource {
     }
 }
 
+/// True for an invalid estimate whose only faults are the flow's (a poor fit, no flow match):
+/// its image has texture and stereo depth.
+fn spoiled_by_rotation(est: &Estimate) -> bool {
+    let flow = EstimateFlags::POOR_FIT.0 | EstimateFlags::NO_FLOW_MATCH.0;
+    est.flags.0 != 0 && est.flags.0 & !flow == 0
+}
+
 /// What the autopilot knew when an estimate arrived.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VisionContext {
@@ -81,7 +91,8 @@ pub enum Gate {
     ShortRun,
     /// Valid for the failsafe; too low, or climbing or descending too fast, for the velocity.
     Height,
-    /// Valid for the failsafe; taken under or just after fast yaw, not for the velocity.
+    /// Valid for the failsafe; taken under or just after fast yaw, not for the velocity (an
+    /// estimate invalid only because a turn spoiled its flow fit stops here too).
     Yaw,
     /// Skipped by the plausibility gate before the median; it does not count for the
     /// failsafe (the Kalman filter, behind its own gate, may have taken it).
@@ -218,6 +229,20 @@ impl VelocityEstimation {
         };
         let Some((v, quality)) = measured.filter(usable) else {
             self.valid_run = 0;
+            // The flow window of the estimate (and the settle time) reaches back into a turn.
+            let horizon = if fits {
+                cfg.fit_horizon_us
+            } else {
+                cfg.estimate_horizon_us
+            };
+            let turned = matches!(self.last_fast_yaw_us,
+                Some(t) if now_us.saturating_sub(t) <= cfg.yaw_settle_us + u64::from(horizon));
+            if turned && spoiled_by_rotation(est) {
+                // Not blindness: it keeps the failsafe quiet, as a valid estimate under yaw.
+                self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
+                self.last_valid_estimate_us = Some(now_us);
+                return Gate::Yaw;
+            }
             return Gate::Invalid;
         };
         self.valid_run = self.valid_run.saturating_add(1);
@@ -585,6 +610,45 @@ mod tests {
         assert_eq!(est.yaw_gated(), 24);
         let v = velocity(&est).unwrap();
         assert!(v[0].abs() < 0.05, "{v:?}");
+    }
+
+    /// After a turn the camera board flags the fits whose flow window spans it (`POOR_FIT`,
+    /// no flow match): they keep the failsafe quiet until the window has passed the turn; a
+    /// blind frame does not, and neither do spoiled fits when the drone has not turned.
+    #[test]
+    fn fits_spoiled_by_a_turn_keep_the_failsafe_quiet() {
+        let cfg = AutopilotConfig::default();
+        let mut est = VelocityEstimation::new(&cfg);
+        let with_flags = |flags: u8| Estimate {
+            flags: EstimateFlags(flags),
+            ..forward_estimate(0.0)
+        };
+        let spoiled = with_flags(EstimateFlags::POOR_FIT.0 | EstimateFlags::NO_FLOW_MATCH.0);
+        let blind = with_flags(EstimateFlags::POOR_FIT.0 | EstimateFlags::NO_TEXTURE.0);
+        let mut t = 1_000_000;
+        // Not turning: a spoiled fit is invalid and leaves the failsafe's clock alone.
+        est.predict(0.0, 0.0, 0.0, 0.02, t, &cfg);
+        assert_eq!(est.on_estimate(&spoiled, &level(t), &cfg), Gate::Invalid);
+        assert_eq!(est.last_valid_estimate_us(), None);
+        // Turning: it counts for the failsafe (not for the velocity); a blind frame does not.
+        t += 20_000;
+        est.predict(0.0, 0.0, 1.5, 0.02, t, &cfg);
+        assert_eq!(est.on_estimate(&spoiled, &level(t), &cfg), Gate::Yaw);
+        assert_eq!(est.last_valid_estimate_us(), Some(t));
+        assert_eq!(est.yaw_gated(), 1);
+        assert_eq!(est.on_estimate(&blind, &level(t + 1), &cfg), Gate::Invalid);
+        assert_eq!(est.last_valid_estimate_us(), Some(t));
+        // Until the flow window has left the turn behind, and no longer.
+        let window = cfg.yaw_settle_us + u64::from(cfg.estimate_horizon_us);
+        let (inside, after) = (t + window, t + window + 1);
+        est.predict(0.0, 0.0, 0.0, 0.02, inside, &cfg);
+        assert_eq!(est.on_estimate(&spoiled, &level(inside), &cfg), Gate::Yaw);
+        assert_eq!(
+            est.on_estimate(&spoiled, &level(after), &cfg),
+            Gate::Invalid
+        );
+        assert_eq!(est.last_valid_estimate_us(), Some(inside));
+        assert_eq!(est.state(VelocitySource::Kalman).last_fix_us, None);
     }
 
     #[test]
