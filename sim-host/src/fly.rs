@@ -225,12 +225,12 @@ impl FlyArgs {
 
 /// CSV header of the summary (`--format csv`).
 pub const CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
-min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m";
+min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg";
 
 /// One CSV summary row.
 pub fn csv_row(r: &FlightResult) -> String {
     format!(
-        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4}",
+        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3}",
         r.seed,
         r.duration_s,
         r.flight_time_s,
@@ -240,7 +240,8 @@ pub fn csv_row(r: &FlightResult) -> String {
         r.distance_m,
         r.tracking.track_rmse_mps,
         r.tracking.hover_speed_mps,
-        r.tracking.height_rmse_m
+        r.tracking.height_rmse_m,
+        r.tracking.tilt_rmse_deg
     )
 }
 
@@ -337,6 +338,10 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         r.tracking.height_rmse_m
                     );
                     println!(
+                        "attitude        {:.2} deg RMS tilt error of the estimate (level flight)",
+                        r.tracking.tilt_rmse_deg
+                    );
+                    println!(
                         "estimates       {} received, {} valid; {} frames dropped",
                         r.estimates[0], r.estimates[1], r.frames_dropped
                     );
@@ -425,7 +430,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
 
 /// CSV header of the suite (`--suite N --format csv`): the summary columns, then the room's.
 pub const SUITE_CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
-min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,\
+min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,\
 hovering_s,landed_s";
 
 /// Runs `sim-host fly --suite N`.

@@ -33,6 +33,7 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
         "track_rmse_mps",
         "hover_speed_mps",
         "height_rmse_m",
+        "tilt_rmse_deg",
         "vel_rmse_mps",
     ] {
         assert!(row[column].is_finite(), "{column}: {text}");
@@ -42,5 +43,8 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
     assert!((0.01..0.6).contains(&row["track_rmse_mps"]), "{text}");
     assert!((0.0..0.6).contains(&row["hover_speed_mps"]), "{text}");
     assert!((0.005..0.3).contains(&row["height_rmse_m"]), "{text}");
+    // The attitude estimate is never exact (sensor noise, biases), and a degree and more is
+    // what the velocity filter cannot live with.
+    assert!((0.01..1.0).contains(&row["tilt_rmse_deg"]), "{text}");
     let _ = std::fs::remove_dir_all(&out_dir);
 }

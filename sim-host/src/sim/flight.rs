@@ -154,6 +154,9 @@ pub struct LogRow {
     pub mode: FlightMode,
     /// Motor throttles.
     pub motors: [f32; 4],
+    /// Error of the autopilot's attitude estimate against the truth: roll, pitch, deg (each
+    /// 0.6 deg is 0.1 m/s² of error in the velocity filter's model).
+    pub tilt_err_deg: [f32; 2],
 }
 
 /// Outcome of a flight.
@@ -564,5 +567,13 @@ fn log_row(
         fsm_state: tel.fsm_state,
         mode: tel.flight_mode,
         motors: motors.map(|m| m as f32),
+        tilt_err_deg: {
+            let (roll, pitch, _) = s.att.to_euler();
+            let [r_est, p_est, _] = ap.attitude();
+            [
+                (r_est - roll as f32).to_degrees(),
+                (p_est - pitch as f32).to_degrees(),
+            ]
+        },
     }
 }

@@ -1,7 +1,8 @@
 //! How well a flight followed its setpoints, from its 50 Hz log: the figures `fly` prints and
-//! writes as `track_rmse_mps`, `hover_speed_mps` and `height_rmse_m`.
+//! writes as `track_rmse_mps`, `hover_speed_mps` and `height_rmse_m`, and the attitude
+//! estimate's error the velocity filter predicts with, `tilt_rmse_deg`.
 //!
-//! All three use the true state (the simulator's, not the autopilot's estimate) and only rows in
+//! All four use the true state (the simulator's, not the autopilot's estimate) and only rows in
 //! level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
 //! ramp has reached the target height, and stops for landing and every failsafe).
 
@@ -20,6 +21,9 @@ pub struct TrackingFigures {
     pub hover_speed_mps: f64,
     /// RMS of true height minus the height setpoint in level flight, m.
     pub height_rmse_m: f64,
+    /// RMS of the attitude estimate's roll and pitch error (as one 2-D vector) in level
+    /// flight, deg.
+    pub tilt_rmse_deg: f64,
 }
 
 impl TrackingFigures {
@@ -28,11 +32,14 @@ impl TrackingFigures {
         let mut track = Mean::default();
         let mut hover = Mean::default();
         let mut height = Mean::default();
+        let mut tilt = Mean::default();
         for row in log.iter().filter(|r| r.mode == FlightMode::Flying) {
             let Some(state) = row.fsm_state else {
                 continue;
             };
             height.add(f64::from(row.pos[2] - row.height_sp_m).powi(2));
+            let [er, ep] = row.tilt_err_deg.map(f64::from);
+            tilt.add(er * er + ep * ep);
             match state {
                 FsmState::Forward => {
                     let ef = f64::from(row.vel_true[0] - row.vel_sp[0]);
@@ -49,6 +56,7 @@ impl TrackingFigures {
             track_rmse_mps: track.value().sqrt(),
             hover_speed_mps: hover.value(),
             height_rmse_m: height.value().sqrt(),
+            tilt_rmse_deg: tilt.value().sqrt(),
         }
     }
 }
@@ -94,6 +102,7 @@ mod tests {
             fsm_state: fsm,
             mode,
             motors: [0.5; 4],
+            tilt_err_deg: [0.0; 2],
         }
     }
 
