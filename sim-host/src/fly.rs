@@ -80,6 +80,10 @@ pub struct FlyArgs {
     /// splitting a large suite over machines.
     #[arg(long, value_parser = parse_shard, requires = "suite")]
     pub shard: Option<(u64, u64)>,
+    /// With `--suite`: also write each flight's 50 Hz log as `--out`/ROOM/log.csv (the room's
+    /// name: suite-SEED-INDEX), to study the flights the table counts.
+    #[arg(long, requires = "suite")]
+    pub room_logs: bool,
     /// Avoidance FSM (default: the parameter file's `fsm_variant`, else paper).
     #[arg(long, value_enum)]
     pub fsm: Option<FsmArg>,
@@ -452,11 +456,16 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
         .map(|room| {
             let r = run_flight(&args.config(&room.spec, room.seed, params), &mut |_| {});
             pb.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
-            r.map(|mut r| {
-                let f = suite::figures(&r);
-                r.log = Vec::new();
-                (r, f)
-            })
+            let mut r = r?;
+            if args.room_logs {
+                let dir = args.out.join(&room.spec.name);
+                std::fs::create_dir_all(&dir)
+                    .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+                output::write_log_csv(&r, &dir.join("log.csv"))?;
+            }
+            let f = suite::figures(&r);
+            r.log = Vec::new();
+            Ok((r, f))
         })
         .collect::<anyhow::Result<_>>()?;
     pb.finish_and_clear();

@@ -48,3 +48,40 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
     assert!((0.01..1.0).contains(&row["tilt_rmse_deg"]), "{text}");
     let _ = std::fs::remove_dir_all(&out_dir);
 }
+
+/// `--suite N --room-logs` keeps each flight's log beside the table, named by its room, so
+/// that a flight the table counts as a contact can be studied.
+#[test]
+fn suite_room_logs_are_written_by_room_name() {
+    let out_dir = std::env::temp_dir().join(format!("fly-suite-logs-{}", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["fly", "--suite", "2", "--seed", "5", "--duration", "3"])
+        .args(["--room-logs", "--format", "csv", "--quiet", "--out"])
+        .arg(&out_dir)
+        .output()
+        .expect("sim-host runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).expect("utf-8");
+    assert_eq!(text.lines().count(), 3, "header and two rows: {text}");
+    assert!(
+        text.lines().next().unwrap().contains("tilt_rmse_deg"),
+        "{text}"
+    );
+    for room in ["suite-5-0", "suite-5-1"] {
+        let path = out_dir.join(room).join("log.csv");
+        let log = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
+        let header = log.lines().next().expect("header");
+        assert!(header.ends_with("roll_err_deg,pitch_err_deg"), "{header}");
+        // 3 s at 50 Hz.
+        assert!(
+            log.lines().count() > 140,
+            "{path:?}: {} lines",
+            log.lines().count()
+        );
+    }
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
