@@ -3,15 +3,16 @@
 //! speed in `Hover`, height in level flight), measured from the true state.
 
 use std::collections::HashMap;
+use std::path::Path;
 use std::process::Command;
 
-#[test]
-fn csv_summary_has_the_tracking_columns_with_measured_values() {
-    let out_dir = std::env::temp_dir().join(format!("fly-csv-{}", std::process::id()));
+/// Runs `sim-host fly ARGS --format csv --quiet --out OUT_DIR` and returns what it printed.
+fn fly_csv(args: &[&str], out_dir: &Path) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["fly", "--duration", "30", "--seed", "7", "--seeds", "1"])
+        .arg("fly")
+        .args(args)
         .args(["--format", "csv", "--quiet", "--out"])
-        .arg(&out_dir)
+        .arg(out_dir)
         .output()
         .expect("sim-host runs");
     assert!(
@@ -19,7 +20,16 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let text = String::from_utf8(out.stdout).expect("utf-8");
+    String::from_utf8(out.stdout).expect("utf-8")
+}
+
+#[test]
+fn csv_summary_has_the_tracking_columns_with_measured_values() {
+    let out_dir = std::env::temp_dir().join(format!("fly-csv-{}", std::process::id()));
+    let text = fly_csv(
+        &["--duration", "30", "--seed", "7", "--seeds", "1"],
+        &out_dir,
+    );
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let values: Vec<&str> = lines.next().expect("one row").split(',').collect();
@@ -54,18 +64,18 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
 #[test]
 fn suite_room_logs_are_written_by_room_name() {
     let out_dir = std::env::temp_dir().join(format!("fly-suite-logs-{}", std::process::id()));
-    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["fly", "--suite", "2", "--seed", "5", "--duration", "3"])
-        .args(["--room-logs", "--format", "csv", "--quiet", "--out"])
-        .arg(&out_dir)
-        .output()
-        .expect("sim-host runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let text = fly_csv(
+        &[
+            "--suite",
+            "2",
+            "--seed",
+            "5",
+            "--duration",
+            "3",
+            "--room-logs",
+        ],
+        &out_dir,
     );
-    let text = String::from_utf8(out.stdout).expect("utf-8");
     assert_eq!(text.lines().count(), 3, "header and two rows: {text}");
     assert!(
         text.lines().next().unwrap().contains("tilt_rmse_deg"),
