@@ -3,9 +3,9 @@
 //!
 //! A Mahony-type complementary filter: the gyro is integrated, and the direction of the measured
 //! specific force pulls the estimate towards "gravity down" with a small proportional gain (an
-//! integral gyro-bias gain is available, off by default: see [`AttitudeConfig::ki`]). On a quadcopter the accelerometer mostly sees thrust along body -z,
-//! so the gain is low (seconds) and the correction is skipped while the specific force is far
-//! from 1 g. Yaw has no absolute reference and is the gyro integral (the avoidance logic only
+//! integral gyro-bias gain is available, off by default: see [`AttitudeConfig::ki`]). On a
+//! quadcopter the accelerometer mostly sees thrust along body -z, so the gain is low (seconds)
+//! and the correction is skipped while the specific force is far from 1 g. Yaw has no absolute reference and is the gyro integral (the avoidance logic only
 //! uses heading changes).
 //!
 //! Frames: body x forward, y right, z down; world x north, y east, z down. Angles are ZYX Euler

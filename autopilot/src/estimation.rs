@@ -235,8 +235,7 @@ impl VelocityEstimation {
             } else {
                 cfg.estimate_horizon_us
             };
-            let turned = matches!(self.last_fast_yaw_us,
-                Some(t) if now_us.saturating_sub(t) <= cfg.yaw_settle_us + u64::from(horizon));
+            let turned = self.fast_yaw_within(now_us, cfg.yaw_settle_us + u64::from(horizon));
             if turned && spoiled_by_rotation(est) {
                 // Not blindness: it keeps the failsafe quiet, as a valid estimate under yaw.
                 self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
@@ -268,9 +267,7 @@ impl VelocityEstimation {
             self.last_valid_estimate_us = Some(now_us);
             return Gate::Height;
         }
-        let yawing = matches!(self.last_fast_yaw_us,
-            Some(t) if now_us.saturating_sub(t) <= cfg.yaw_settle_us);
-        if yawing {
+        if self.fast_yaw_within(now_us, cfg.yaw_settle_us) {
             // Valid for the failsafe, not for the velocity; the median restarts after the
             // turn (its samples are in the old heading).
             self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
@@ -329,6 +326,11 @@ impl VelocityEstimation {
         }
         self.last_valid_estimate_us = Some(now_us);
         Gate::Passed
+    }
+
+    /// True when the yaw rate was above the limit within `window_us` before `now_us`.
+    fn fast_yaw_within(&self, now_us: u64, window_us: u64) -> bool {
+        matches!(self.last_fast_yaw_us, Some(t) if now_us.saturating_sub(t) <= window_us)
     }
 
     /// On the ground and still (disarmed): the Kalman filter holds zero velocity, whatever the

@@ -14,6 +14,7 @@ use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
 use crate::sim::suite::{self, FlightFigures, RoomClass, SuiteRoom};
 use crate::sim::uart::LinkFaults;
+use anyhow::Context;
 use autopilot::app::{AutopilotConfig, VelocitySource};
 use autopilot::fsm::FsmVariant;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -227,9 +228,16 @@ impl FlyArgs {
     }
 }
 
+/// The summary's columns, one literal for both headers.
+macro_rules! summary_columns {
+    () => {
+        "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m,\
+         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg"
+    };
+}
+
 /// CSV header of the summary (`--format csv`).
-pub const CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
-min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg";
+pub const CSV_HEADER: &str = summary_columns!();
 
 /// One CSV summary row.
 pub fn csv_row(r: &FlightResult) -> String {
@@ -433,9 +441,10 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
 }
 
 /// CSV header of the suite (`--suite N --format csv`): the summary columns, then the room's.
-pub const SUITE_CSV_HEADER: &str = "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,\
-min_clearance_m,distance_m,track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,\
-hovering_s,landed_s";
+pub const SUITE_CSV_HEADER: &str = concat!(
+    summary_columns!(),
+    ",room,class,size_x_m,size_y_m,obstacles,light,mean_speed_mps,hovering_s,landed_s"
+);
 
 /// Runs `sim-host fly --suite N`.
 fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Result<()> {
@@ -460,7 +469,7 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
             if args.room_logs {
                 let dir = args.out.join(&room.spec.name);
                 std::fs::create_dir_all(&dir)
-                    .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+                    .with_context(|| format!("creating {}", dir.display()))?;
                 output::write_log_csv(&r, &dir.join("log.csv"))?;
             }
             let f = suite::figures(&r);

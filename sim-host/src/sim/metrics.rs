@@ -2,8 +2,8 @@
 //! writes as `track_rmse_mps`, `hover_speed_mps` and `height_rmse_m`, and the attitude
 //! estimate's error the velocity filter predicts with, `tilt_rmse_deg`.
 //!
-//! All four use the true state (the simulator's, not the autopilot's estimate) and only rows in
-//! level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
+//! All four use the true state (the simulator's; the tilt error is the autopilot's estimate
+//! against it) and only rows in level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
 //! ramp has reached the target height, and stops for landing and every failsafe).
 
 use super::flight::LogRow;
