@@ -111,8 +111,136 @@ pub fn weighted_line_fit(points: &[(f32, f32, f32)]) -> Option<LineFit> {
     })
 }
 
-/// Robust line fit: weighted least squares, then `iterations` rounds of Huber reweighting with
-/// the residual scale from the median absolute deviation (`k = huber_k` scale units). Points are
+/// Groups of the resistant start: the x range is cut into this many equal bins.
+const START_GROUPS: usize = 5;
+
+/// A start for the reweighting that clustered outliers cannot drag: least median of squares
+/// over a few candidate lines, the least-squares line `ls` and the lines through each pair of
+/// group medians (the weighted points cut into [`START_GROUPS`] equal ranges of x, each
+/// summarised by its median x and median v). A block of adjacent columns whose flow aliased to
+/// a wrong stripe then spoils at most its groups, while a least-squares start would be pulled
+/// by all of it and Huber weights only bound each point's pull. `scratch` holds at least
+/// `points.len()` values. `None`: fewer than 2 groups with points (the caller keeps `ls`).
+fn resistant_start(
+    points: &[(f32, f32, f32)],
+    scratch: &mut [f32],
+    ls: LineFit,
+) -> Option<(f32, f32)> {
+    let (lo, hi) = points
+        .iter()
+        .filter(|p| p.2 > 0.0)
+        .fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+            (lo.min(p.0), hi.max(p.0))
+        });
+    if hi <= lo {
+        return None;
+    }
+    let width = (hi - lo) / START_GROUPS as f32;
+    let group_of = |x: f32| (((x - lo) / width) as usize).min(START_GROUPS - 1);
+    let mut centres = [(0.0f32, 0.0f32); START_GROUPS];
+    let mut n_centres = 0;
+    for g in 0..START_GROUPS {
+        let in_group = |p: &&(f32, f32, f32)| p.2 > 0.0 && group_of(p.0) == g;
+        let (Some(x), Some(v)) = (
+            select_median(
+                points.iter().filter(in_group).map(|p| p.0),
+                scratch,
+                order_key,
+            ),
+            select_median(
+                points.iter().filter(in_group).map(|p| p.1),
+                scratch,
+                order_key,
+            ),
+        ) else {
+            continue;
+        };
+        if let Some(c) = centres.get_mut(n_centres) {
+            *c = (x, v);
+            n_centres += 1;
+        }
+    }
+    if n_centres < 2 {
+        return None;
+    }
+    let mut best = (ls.slope as f32, ls.intercept as f32);
+    // The least-median-of-squares cost of a line: its median absolute residual (absolute
+    // values order as their bit patterns do).
+    let lmeds = |scratch: &mut [f32], (a, b): (f32, f32)| {
+        let residuals = points.iter().filter(|p| p.2 > 0.0);
+        select_median(
+            residuals.map(|p| (p.1 - (a * p.0 + b)).abs()),
+            scratch,
+            f32::to_bits,
+        )
+        .unwrap_or(f32::MAX)
+    };
+    let mut best_cost = lmeds(scratch, best);
+    for i in 0..n_centres {
+        for j in i + 1..n_centres {
+            let ((x0, v0), (x1, v1)) = (centres[i], centres[j]);
+            if x1 - x0 <= 0.0 || x1.is_nan() || x0.is_nan() {
+                continue;
+            }
+            let a = (v1 - v0) / (x1 - x0);
+            let line = (a, v0 - a * x0);
+            let cost = lmeds(scratch, line);
+            if cost < best_cost {
+                (best, best_cost) = (line, cost);
+            }
+        }
+    }
+    best.0.is_finite().then_some(best)
+}
+
+/// Residuals beyond this many robust scales get no weight: Huber weights alone bound each
+/// point's pull but not the sum of a block's, and a quarter of the points a stripe period off
+/// drags a Huber fit most of the way to least squares.
+const REJECT_SCALES: f32 = 6.0;
+
+/// The weight of a point of residual `r` and prior weight `w0`: Huber's (`w0` within `cut`,
+/// `w0 · cut / r` beyond), none beyond `reject`.
+#[inline]
+fn reweight(r: f32, w0: f32, cut: f32, reject: f32) -> f32 {
+    if r <= cut {
+        w0
+    } else if r <= reject {
+        w0 * cut / r
+    } else {
+        0.0
+    }
+}
+
+/// The median (the upper one of an even count) of `values` in the order of `key`, by selection
+/// in `scratch` (values beyond its length are ignored); `None` for none.
+fn select_median(
+    values: impl Iterator<Item = f32>,
+    scratch: &mut [f32],
+    key: impl Fn(f32) -> u32,
+) -> Option<f32> {
+    let mut m = 0;
+    for (s, v) in scratch.iter_mut().zip(values) {
+        *s = v;
+        m += 1;
+    }
+    let s = scratch.get_mut(..m).filter(|s| !s.is_empty())?;
+    Some(*s.select_nth_unstable_by_key(m / 2, |&v| key(v)).1)
+}
+
+/// An integer key that orders floats as `total_cmp` does (cheaper to compare on the M4).
+#[inline]
+fn order_key(v: f32) -> u32 {
+    let bits = v.to_bits();
+    if bits >> 31 == 1 {
+        !bits
+    } else {
+        bits | 0x8000_0000
+    }
+}
+
+/// Robust line fit: a resistant start (least median of squares over lines through group
+/// medians), then `iterations` rounds of Huber reweighting with the residual scale from the
+/// median absolute deviation (`k = huber_k` scale units; beyond 6 scales no weight). Points are
 /// `(x, v, prior_weight)`; `scratch` must be at least as long as `points` (residual buffer, no
 /// heap). Returns `None` with fewer than 2 weighted points or no spread in x.
 pub fn robust_line_fit(
@@ -130,6 +258,10 @@ pub fn robust_line_fit(
         *w = p.2;
     }
     let mut fit = weighted_line_fit(points)?;
+    if let Some((slope, intercept)) = resistant_start(points, scratch, fit) {
+        fit.slope = f64::from(slope);
+        fit.intercept = f64::from(intercept);
+    }
     for _ in 0..iterations {
         let (a, b) = (fit.slope as f32, fit.intercept as f32);
         // Residuals of this round: those of the weighted points into `scratch` for the MAD,
@@ -158,9 +290,9 @@ pub fn robust_line_fit(
         };
         let scale = (1.4826 * mad).max(1e-6);
         let cut = huber_k * scale;
+        let reject = REJECT_SCALES * scale;
         for (p, &w0) in points.iter_mut().zip(prior.iter()) {
-            let r = p.2;
-            p.2 = if r <= cut { w0 } else { w0 * cut / r };
+            p.2 = reweight(p.2, w0, cut, reject);
         }
         fit = weighted_line_fit(points)?;
     }
@@ -176,7 +308,8 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    /// The robust fit as first written: the MAD from a full sort of the residuals.
+    /// The robust fit as first written: the MAD from a full sort of the residuals (from the
+    /// same resistant start).
     fn robust_line_fit_sorting(
         points: &mut [(f32, f32, f32)],
         iterations: usize,
@@ -184,6 +317,11 @@ mod tests {
     ) -> Option<LineFit> {
         let prior: [f32; 128] = core::array::from_fn(|i| points.get(i).map_or(0.0, |p| p.2));
         let mut fit = weighted_line_fit(points)?;
+        let mut scratch = [0.0f32; 128];
+        if let Some((slope, intercept)) = resistant_start(points, &mut scratch, fit) {
+            fit.slope = f64::from(slope);
+            fit.intercept = f64::from(intercept);
+        }
         for _ in 0..iterations {
             let (a, b) = (fit.slope as f32, fit.intercept as f32);
             let mut res = [0.0f32; 128];
@@ -194,10 +332,11 @@ mod tests {
             }
             res[..m].sort_unstable_by(|x, y| x.total_cmp(y));
             let mad = res[..m].get(m / 2).copied().unwrap_or(0.0);
-            let cut = huber_k * (1.4826 * mad).max(1e-6);
+            let scale = (1.4826 * mad).max(1e-6);
+            let cut = huber_k * scale;
             for (p, &w0) in points.iter_mut().zip(prior.iter()) {
                 let r = (p.1 - (a * p.0 + b)).abs();
-                p.2 = if r <= cut { w0 } else { w0 * cut / r };
+                p.2 = reweight(r, w0, cut, REJECT_SCALES * scale);
             }
             fit = weighted_line_fit(points)?;
         }
@@ -271,6 +410,26 @@ mod tests {
         assert_eq!((f.slope, f.intercept), (0.0, 0.0));
         let f = line_fit([(40.0, 8.0)].into_iter());
         assert_eq!((f.slope, f.intercept), (0.2, 0.0));
+    }
+
+    /// A block of adjacent columns aliased to a wrong stripe (a quarter of the points, all on
+    /// one side) pulls a least-squares start far enough that Huber weights keep it; the
+    /// resistant start does not let it.
+    #[test]
+    fn robust_fit_ignores_a_clustered_block_of_outliers() {
+        let mut pts = [(0.0f32, 0.0f32, 1.0f32); 48];
+        for (i, p) in pts.iter_mut().enumerate() {
+            let x = -47.0 + 2.0 * i as f32;
+            let mut v = 0.4 * x - 3.0 + if i % 2 == 0 { 0.5 } else { -0.5 };
+            if (34..46).contains(&i) {
+                v -= 30.0; // one stripe period off
+            }
+            *p = (x, v, 1.0);
+        }
+        let (mut prior, mut scratch) = ([0.0; 48], [0.0; 48]);
+        let f = robust_line_fit(&mut pts, &mut prior, &mut scratch, 4, 1.0).unwrap();
+        assert!((f.slope - 0.4).abs() < 0.02, "slope {}", f.slope);
+        assert!((f.intercept + 3.0).abs() < 1.0, "intercept {}", f.intercept);
     }
 
     #[test]

@@ -150,7 +150,7 @@ pub struct RowMatch<'a> {
     costs: &'a [u32],
 }
 
-impl RowMatch<'_> {
+impl<'a> RowMatch<'a> {
     /// [`ColumnMatch::subpixel`].
     #[inline]
     pub fn subpixel(&self) -> f32 {
@@ -161,6 +161,25 @@ impl RowMatch<'_> {
     #[inline]
     pub fn confidence(&self) -> f32 {
         peak_ratio(self.costs, self.best, self.cost)
+    }
+
+    /// The match among the candidates `lo..=hi` only (clamped to the search), as a search of
+    /// that window alone would find it: its first minimum, with indices, sub-pixel offset and
+    /// peak ratio relative to the window (add `lo` for the search's index). `None` when the
+    /// window holds no candidate.
+    #[inline]
+    pub fn within(&self, lo: usize, hi: usize) -> Option<RowMatch<'a>> {
+        let costs = self
+            .costs
+            .get(lo..=hi.min(self.costs.len().checked_sub(1)?))?;
+        let (best, cost) = first_min(costs)?;
+        Some(RowMatch { best, cost, costs })
+    }
+
+    /// Number of candidates of the search.
+    #[inline]
+    pub fn candidates(&self) -> usize {
+        self.costs.len()
     }
 
     /// Everything, as [`best_match`] of the same costs returns it.

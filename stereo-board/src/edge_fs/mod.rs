@@ -187,6 +187,11 @@ pub struct EdgeFsParams {
     /// 12 (not 5): floor tiles seen at a slant give short false runs, and a false obstacle at
     /// the minimum range pushes the drone backwards through the force field.
     pub min_near_run: u8,
+    /// Flow search guided by the temporal filter: a column with stereo depth takes the best
+    /// match within this many px (plus the prediction's own uncertainty) of the motion the
+    /// filter's velocity predicts for it, so a periodic texture (stripes, a bar code) whose
+    /// period is near the motion cannot alias to a wrong stripe. 0: off (the whole search).
+    pub prior_window_px: f32,
 }
 
 impl EdgeFsParams {
@@ -224,6 +229,7 @@ impl EdgeFsParams {
             min_depth_coverage: 0.0,
             min_fit_spread_px: 0.0,
             min_near_run: 0,
+            prior_window_px: 0.0,
         }
     }
 
@@ -292,6 +298,7 @@ impl EdgeFsParams {
             min_depth_coverage: 0.1,
             min_fit_spread_px: 16.0,
             min_near_run: 12,
+            prior_window_px: 2.0,
         }
     }
 
@@ -356,6 +363,7 @@ impl EdgeFsParams {
             self.min_depth_coverage = 1.0;
         }
         self.min_fit_spread_px = finite_or_zero(self.min_fit_spread_px);
+        self.prior_window_px = finite_or_zero(self.prior_window_px);
         self
     }
 
@@ -446,6 +454,10 @@ pub struct Diagnostics {
     pub horizon: u8,
     /// Columns used in the fit.
     pub fit_columns: u8,
+    /// The flow search was guided by the temporal filter ([`EdgeFsParams::prior_window_px`]).
+    pub guided: bool,
+    /// Guided columns whose best match lay outside the predicted window (not used).
+    pub prior_misses: u8,
 }
 
 impl Diagnostics {
@@ -457,6 +469,8 @@ impl Diagnostics {
         used: [false; IMG_W],
         horizon: 0,
         fit_columns: 0,
+        guided: false,
+        prior_misses: 0,
     };
 }
 
@@ -497,6 +511,8 @@ pub struct EdgeFs {
     recent_len: usize,
     /// Temporal filters of the forward and sideways velocity.
     filter: [AxisFilter; 2],
+    /// The previous frame's guided search missed most columns: search the whole range once.
+    prior_doubted: bool,
 }
 
 impl EdgeFs {
@@ -514,6 +530,7 @@ impl EdgeFs {
             recent: [(0.0, 0.0); MEDIAN_MAX],
             recent_len: 0,
             filter: [AxisFilter::new(), AxisFilter::new()],
+            prior_doubted: false,
         }
     }
 
@@ -921,6 +938,8 @@ impl EdgeFs {
         let mut np = 0;
         let mut edge_hits = 0;
         let mut textured = 0;
+        let mut prior_misses = 0;
+        let prior = self.flow_prior();
         {
             let (cur_h, old_h) = (&cur.hist, &older.hist);
             let diag = &mut self.diag;
@@ -932,11 +951,39 @@ impl EdgeFs {
                     return;
                 }
                 textured += 1;
-                if m.best == 0 || m.best == 2 * d {
+                let mut base = 0;
+                let mut m = m;
+                if let (Some(pr), true) = (prior, stereo_ok[c]) {
+                    // The motion the filter's velocity predicts here, as a candidate index.
+                    let (x, z) = (c as f32 - 63.5, diag.depth_m[c]);
+                    let u = (pr.forward_mps * x - f * pr.sideways_mps) / z;
+                    let k = rot_px + u * dt_s - offset as f32 + d as f32;
+                    let spread = (x.abs() * pr.forward_sigma + f * pr.sideways_sigma) / z;
+                    let r = (p.prior_window_px + spread * dt_s).min(2.0 * p.prior_window_px);
+                    let (lo, hi) = (libm::floorf(k - r), libm::ceilf(k + r));
+                    if lo > 0.0 || hi < (2 * d) as f32 {
+                        let lo = lo.clamp(0.0, (2 * d) as f32) as usize;
+                        let hi = hi.clamp(0.0, (2 * d) as f32) as usize;
+                        let Some(w) = m.within(lo, hi) else {
+                            prior_misses += 1;
+                            return;
+                        };
+                        let at_edge = |i: usize, end: usize| i == end && end != 0 && end != 2 * d;
+                        if at_edge(lo + w.best, lo) || at_edge(lo + w.best, hi) {
+                            // The best match in the window lies beyond it: not what was
+                            // predicted.
+                            prior_misses += 1;
+                            return;
+                        }
+                        (base, m) = (lo, w);
+                    }
+                }
+                let best = base + m.best;
+                if best == 0 || best == 2 * d {
                     edge_hits += 1;
                     return;
                 }
-                let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel();
+                let motion = offset as f32 + best as f32 - d as f32 + m.subpixel();
                 let u = (motion - rot_px) / dt_s;
                 diag.flow_pxps[c] = u;
                 if stereo_ok[c] && m.confidence() >= p.min_flow_confidence {
@@ -953,6 +1000,11 @@ impl EdgeFs {
                 }
             });
         }
+        // Most columns disagreeing with the filter: it may have lost the motion, so the next
+        // frame searches the whole range (a real change then restarts the filter).
+        self.prior_doubted = prior.is_some() && prior_misses * 4 > textured;
+        self.diag.guided = prior.is_some();
+        self.diag.prior_misses = prior_misses.min(255) as u8;
         // Adaptive horizon: shorten when many searches hit the range end, lengthen when none.
         if edge_hits * 8 > textured && self.horizon > 1 {
             self.horizon -= 1;
@@ -1051,6 +1103,29 @@ impl EdgeFs {
         (out, Some(sigma))
     }
 
+    /// The temporal filter's velocity to guide this frame's flow search, if it has a track
+    /// that reaches this frame (the previous frame within a second) and the guide is on.
+    fn flow_prior(&self) -> Option<FlowPrior> {
+        let now = self.ring[self.idx(0)].capture_us;
+        let before = self.ring[self.idx(1)].capture_us;
+        let gap_s = now.wrapping_sub(before) as f32 * 1e-6;
+        let [fw, sw] = &self.filter;
+        let usable = self.params.prior_window_px > 0.0
+            && self.params.filter_accel_mps2 > 0.0
+            && !self.prior_doubted
+            && self.frames >= 2
+            && gap_s > 1e-4
+            && gap_s < 1.0
+            && fw.is_initialised()
+            && sw.is_initialised();
+        usable.then(|| FlowPrior {
+            forward_mps: fw.velocity(),
+            sideways_mps: sw.velocity(),
+            forward_sigma: fw.velocity_sigma(),
+            sideways_sigma: sw.velocity_sigma(),
+        })
+    }
+
     /// Nearest obstacle: the smallest mean depth over runs of at least 5 adjacent columns with
     /// a valid depth whose neighbours differ by less than 30 %.
     fn nearest_obstacle(&self) -> Option<f32> {
@@ -1082,6 +1157,15 @@ impl EdgeFs {
         end_run(run, sum, &mut best);
         best.filter(|&z| z <= self.params.max_obstacle_m)
     }
+}
+
+/// The velocity that guides the flow search ([`EdgeFsParams::prior_window_px`]), m/s.
+#[derive(Debug, Clone, Copy)]
+struct FlowPrior {
+    forward_mps: f32,
+    sideways_mps: f32,
+    forward_sigma: f32,
+    sideways_sigma: f32,
 }
 
 /// `n` of `of` as a fraction 0..=255 (0 when `of` is 0).
