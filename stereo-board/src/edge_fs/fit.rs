@@ -164,16 +164,11 @@ fn resistant_start(
         return None;
     }
     let mut best = (ls.slope as f32, ls.intercept as f32);
-    // The least-median-of-squares cost of a line: its median absolute residual (absolute
-    // values order as their bit patterns do).
+    // The least-median-of-squares cost of a line: its median absolute residual.
     let lmeds = |scratch: &mut [f32], (a, b): (f32, f32)| {
         let residuals = points.iter().filter(|p| p.2 > 0.0);
-        select_median(
-            residuals.map(|p| (p.1 - (a * p.0 + b)).abs()),
-            scratch,
-            f32::to_bits,
-        )
-        .unwrap_or(f32::MAX)
+        let residuals = residuals.map(|p| (p.1 - (a * p.0 + b)).abs());
+        select_median(residuals, scratch, magnitude_key).unwrap_or(f32::MAX)
     };
     let mut best_cost = lmeds(scratch, best);
     for i in 0..n_centres {
@@ -211,12 +206,13 @@ fn reweight(r: f32, w0: f32, cut: f32, reject: f32) -> f32 {
     }
 }
 
-/// The median (the upper one of an even count) of `values` in the order of `key`, by selection
-/// in `scratch` (values beyond its length are ignored); `None` for none.
+/// The median (the upper one of an even count) of `values` in the order of `key`
+/// ([`order_key`], or [`magnitude_key`] for values without a sign), by selection in `scratch`
+/// (values beyond its length are ignored); `None` for none.
 fn select_median(
     values: impl Iterator<Item = f32>,
     scratch: &mut [f32],
-    key: impl Fn(f32) -> u32,
+    key: impl FnMut(&f32) -> u32,
 ) -> Option<f32> {
     let mut m = 0;
     for (s, v) in scratch.iter_mut().zip(values) {
@@ -224,18 +220,26 @@ fn select_median(
         m += 1;
     }
     let s = scratch.get_mut(..m).filter(|s| !s.is_empty())?;
-    Some(*s.select_nth_unstable_by_key(m / 2, |&v| key(v)).1)
+    Some(*s.select_nth_unstable_by_key(m / 2, key).1)
 }
 
 /// An integer key that orders floats as `total_cmp` does (cheaper to compare on the M4).
 #[inline]
-fn order_key(v: f32) -> u32 {
+pub(super) fn order_key(v: &f32) -> u32 {
     let bits = v.to_bits();
     if bits >> 31 == 1 {
         !bits
     } else {
         bits | 0x8000_0000
     }
+}
+
+/// [`order_key`] for floats with the sign bit clear (absolute values, NaN included): their bit
+/// patterns order as `total_cmp` does, at no cost. Edge-FS's selections order by these two
+/// functions only, so the firmware carries two copies of the selection code.
+#[inline]
+fn magnitude_key(v: &f32) -> u32 {
+    v.to_bits()
 }
 
 /// Robust line fit: a resistant start (least median of squares over lines through group
@@ -280,13 +284,11 @@ pub fn robust_line_fit(
         }
         let res = scratch.get_mut(..m)?;
         // The element a full sort would put at `m / 2`, found by selection: O(m), not a sort.
-        // The residuals have their sign bit clear (`abs`, NaN included), so ordering their
-        // bit patterns as integers is `total_cmp`'s order (cheaper to compare); under that
-        // total order the element is unique, so the result is the sort's bit for bit.
+        // Under the total order the element is unique, so the result is the sort's bit for bit.
         let mad = if m == 0 {
             0.0
         } else {
-            *res.select_nth_unstable_by_key(m / 2, |x| x.to_bits()).1
+            *res.select_nth_unstable_by_key(m / 2, magnitude_key).1
         };
         let scale = (1.4826 * mad).max(1e-6);
         let cut = huber_k * scale;

@@ -283,42 +283,61 @@ const NOISE_BLOCKS: usize = (IMG_W / NOISE_BLOCK_W) * (IMG_H / NOISE_BLOCK_H);
 /// The right camera's pixel noise, DN (1σ), estimated where the image is flat.
 ///
 /// The image is cut into 8 x 6 blocks of 16 x 16 pixels; in one row of each block the mean
-/// absolute horizontal difference of pixels two apart (the edge histograms' gradient) and the
-/// mean absolute vertical difference of pixels two rows apart are taken, and the block's value
-/// is the smaller (vertical stripes leave the vertical one to noise, horizontal edges the
-/// horizontal one). The estimate is the fifth-smallest block (a tenth) over 1.128 (the mean
-/// absolute difference of two pixels of white noise σ is 2σ/√π): a frame needs only a tenth
-/// of its blocks flat somewhere (a poster's field, the floor, the ceiling), where a median over
-/// all pixels reads a dense texture as noise. It errs low by about a fifth (the low end of
-/// noisy block means). 0 for a flat, noiseless image.
+/// absolute horizontal difference of pixels two apart (the edge histograms' gradient, of the
+/// block's columns shifted one right: 1..=16, 17..=32, ..., the last block stopping at the last
+/// inner column) and the mean absolute vertical difference of pixels two rows apart are taken,
+/// and the block's value is the smaller (vertical stripes leave the vertical one to noise,
+/// horizontal edges the horizontal one). The estimate is the fifth-smallest block (a tenth)
+/// over 1.128 (the mean absolute difference of two pixels of white noise σ is 2σ/√π): a frame
+/// needs only a tenth of its blocks flat somewhere (a poster's field, the floor, the ceiling),
+/// where a median over all pixels reads a dense texture as noise. It errs low by about a fifth
+/// (the low end of noisy block means). 0 for a flat, noiseless image.
+///
+/// Word-packed as the histogram pass: a word holds two columns of both images, and one
+/// per-byte absolute difference of two words gives two right-image differences (bytes 1 and
+/// 3), summed in two 16-bit lanes (at most 8 · 255 per lane).
 pub fn pixel_noise_dn(frame: &[u8; protocol::STEREO_FRAME_BYTES]) -> f32 {
     const ROW: usize = 2 * IMG_W;
-    let row = |r: usize| -> &[u8; ROW] {
+    const WORDS: usize = ROW / 4;
+    const BLOCK_WORDS: usize = NOISE_BLOCK_W / 2;
+    let words = |r: usize| -> Option<&[[u8; 4]; WORDS]> {
         frame
-            .get(r * ROW..(r + 1) * ROW)
-            .and_then(|s| s.try_into().ok())
-            .unwrap_or(&[0; ROW])
+            .get(r * ROW..(r + 1) * ROW)?
+            .as_chunks::<4>()
+            .0
+            .try_into()
+            .ok()
     };
+    let lanes = |acc: u32| (acc & 0xFFFF) + (acc >> 16);
     let mut blocks = [0u32; NOISE_BLOCKS];
     for (by, out) in blocks.chunks_exact_mut(IMG_W / NOISE_BLOCK_W).enumerate() {
-        // The block's middle row and its neighbours (right pixels: odd bytes).
+        // The block's middle row and its neighbours.
         let r = by * NOISE_BLOCK_H + NOISE_BLOCK_H / 2;
-        let (up, mid, down) = (row(r - 1), row(r), row(r + 1));
+        let (Some(up), Some(mid), Some(down)) = (words(r - 1), words(r), words(r + 1)) else {
+            continue;
+        };
+        let word = |w: &[u8; 4]| u32::from_le_bytes(*w);
         for (bx, o) in out.iter_mut().enumerate() {
-            let (mut dx, mut dy) = (0u32, 0u32);
-            // Columns of the block but the image's border ones: pixel c is byte 2c + 1, its
-            // row neighbours two apart bytes 2c - 1 and 2c + 3.
-            let lo = (bx * NOISE_BLOCK_W).max(1);
-            let hi = ((bx + 1) * NOISE_BLOCK_W).min(IMG_W - 1);
-            for c in lo..hi {
-                dx += u32::from(mid[2 * c - 1].abs_diff(mid[2 * c + 3]));
-                dy += u32::from(up[2 * c + 1].abs_diff(down[2 * c + 1]));
-            }
-            *o = dx.min(dy) * 16 / (hi - lo).max(1) as u32;
+            let j0 = bx * BLOCK_WORDS;
+            // Words j and j + 1 give the gradients of columns 2j + 1 and 2j + 2.
+            let jx = (j0 + BLOCK_WORDS).min(WORDS - 1);
+            let across = mid.get(j0..=jx).unwrap_or(&[]);
+            let dx = across.windows(2).fold(0, |acc, p| {
+                add_bytes13(acc, absdiff_u8x4(word(&p[1]), word(&p[0])))
+            });
+            let (ups, downs) = (
+                up.get(j0..j0 + BLOCK_WORDS).unwrap_or(&[]),
+                down.get(j0..j0 + BLOCK_WORDS).unwrap_or(&[]),
+            );
+            let dy = ups.iter().zip(downs).fold(0, |acc, (u, d)| {
+                add_bytes13(acc, absdiff_u8x4(word(u), word(d)))
+            });
+            let columns = (2 * (jx - j0)).max(1) as u32;
+            *o = (lanes(dx) * NOISE_BLOCK_W as u32 / columns).min(lanes(dy));
         }
     }
     let k = NOISE_BLOCKS / 10;
-    *blocks.select_nth_unstable(k).1 as f32 / (16.0 * 1.128)
+    *blocks.select_nth_unstable(k).1 as f32 / (NOISE_BLOCK_W as f32 * 1.128)
 }
 
 /// Mean intensity of the left image (0..=255), for the too-dark / too-bright flags.

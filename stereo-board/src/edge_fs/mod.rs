@@ -194,15 +194,23 @@ pub struct EdgeFsParams {
     /// filter's velocity predicts for it, so a periodic texture (stripes, a bar code) whose
     /// period is near the motion cannot alias to a wrong stripe. 0: off (the whole search).
     pub prior_window_px: f32,
-    /// Default mode: [`EstimateFlags::NO_TEXTURE`] unless at least 3 disjoint column windows
-    /// have an edge sum this many times what the frame's pixel noise alone gives
-    /// ([`pixel_noise_dn`]). Sensor noise on a plain wall passes any fixed `min_texture` (a
-    /// plain room at light 0.44 sums 3000 to 3500 per window, `min_texture` is 2000) and then
-    /// yields matches of noise: velocities near zero, depths anywhere. 1.85 leaves 3 valid
-    /// estimates of 100 in such a room (65 without) and costs the recorded takes 1.7 % of
-    /// their valid estimates (2.0: 0 and 7 %). Applied per column, the ratio would drop weak
-    /// columns the recorded data's estimates rely on. 0: off.
+    /// Default mode: a column window is noise unless its edge sum is this many times what the
+    /// frame's pixel noise alone gives ([`pixel_noise_dn`]) or its histogram has the shape
+    /// [`Self::noise_structure_ratio`] asks. A column of noise gets no depth and no flow, and
+    /// a frame is [`EstimateFlags::NO_TEXTURE`] unless at least 3 disjoint windows are not
+    /// noise. Sensor noise on a plain wall passes any fixed `min_texture` (a plain room at light
+    /// 0.44 sums 3000 to 3500 per window, `min_texture` is 2000) and then yields matches of
+    /// noise: velocities near zero, depths anywhere (a fifth of the columns "see" a plain
+    /// wall). With the gate such a room gives 3 valid estimates of 100 (63 without), and the
+    /// recorded takes keep 98 % of their valid estimates. 0: off.
     pub noise_texture_ratio: f32,
+    /// Default mode, with [`Self::noise_texture_ratio`]: a column window is also not noise
+    /// when the mean step between its neighbouring histogram bins is this many times the step
+    /// noise alone gives. The matcher compares histograms by their shape, not their level: a
+    /// faint, fine texture (wood grain at 1.5 times the noise's edge sum) matches well, and
+    /// most of its windows have 3.5 to 7 times noise's shape; windows of noise alone reach 2.4.
+    /// 0: off.
+    pub noise_structure_ratio: f32,
 }
 
 impl EdgeFsParams {
@@ -242,6 +250,7 @@ impl EdgeFsParams {
             min_near_run: 0,
             prior_window_px: 0.0,
             noise_texture_ratio: 0.0,
+            noise_structure_ratio: 0.0,
         }
     }
 
@@ -312,6 +321,7 @@ impl EdgeFsParams {
             min_near_run: 12,
             prior_window_px: 2.0,
             noise_texture_ratio: 1.85,
+            noise_structure_ratio: 3.0,
         }
     }
 
@@ -378,6 +388,7 @@ impl EdgeFsParams {
         self.min_fit_spread_px = finite_or_zero(self.min_fit_spread_px);
         self.prior_window_px = finite_or_zero(self.prior_window_px);
         self.noise_texture_ratio = finite_or_zero(self.noise_texture_ratio);
+        self.noise_structure_ratio = finite_or_zero(self.noise_structure_ratio);
         self
     }
 
@@ -852,15 +863,32 @@ impl EdgeFs {
         let mut texture = [0u32; IMG_W];
         // A window's edge sum from noise alone: (2w+1) bins of IMG_H absolute differences of
         // two pixels, each 2σ/√π = 1.128σ on average.
-        let noise_window = if p.noise_texture_ratio > 0.0 {
-            pixel_noise_dn(frame) * 1.128 * (IMG_H * (2 * w + 1)) as f32
+        let (noise_window, noise_step) = if p.noise_texture_ratio > 0.0 {
+            let sigma = pixel_noise_dn(frame);
+            (
+                sigma * 1.128 * (IMG_H * (2 * w + 1)) as f32,
+                sigma * NOISE_STEP_PER_SIGMA,
+            )
         } else {
-            0.0
+            (0.0, 0.0)
         };
         self.diag.noise_window = noise_window;
+        let cur = &self.ring[self.idx(0)].hist;
+        window_sums(cur, w, &mut texture);
+        // A column window is not noise when its edge sum stands out of the noise's, or when
+        // its histogram has more shape than noise gives it: a fine, faint texture (wood grain)
+        // sums little more than noise, but the matcher compares shapes, and its shape matches.
+        // Noise's depths are not depth, nor its flow motion.
+        let clear_of_noise = (p.noise_texture_ratio * noise_window) as u32;
+        let mut shape = [0u32; IMG_W];
+        let shaped = if p.noise_texture_ratio > 0.0 && p.noise_structure_ratio > 0.0 {
+            window_sums(&histogram_steps(cur), w, &mut shape);
+            (p.noise_structure_ratio * noise_step * (2 * w + 1) as f32) as u32
+        } else {
+            u32::MAX
+        };
+        let not_noise = |c: usize| texture[c] >= clear_of_noise || shape[c] >= shaped;
         {
-            let cur = &self.ring[self.idx(0)].hist;
-            window_sums(cur, w, &mut texture);
             let ds = usize::from(p.stereo_range);
             let diag = &mut self.diag;
             stereo_row(&self.other, cur, ds, s, w, |c, m| {
@@ -876,7 +904,8 @@ impl EdgeFs {
                 let usable = m.best > 0
                     && m.best < ds
                     && disp >= p.min_disparity_px
-                    && texture[c] >= p.min_texture;
+                    && texture[c] >= p.min_texture
+                    && not_noise(c);
                 if !usable {
                     return;
                 }
@@ -899,13 +928,12 @@ impl EdgeFs {
         out.near_columns = n_near.min(usize::from(u8::MAX)) as u8;
         let searchable = IMG_W.saturating_sub(2 * w);
         out.depth_coverage = coverage_u8(n_stereo, searchable);
-        // Over disjoint windows: the texture, and the windows whose edges stand out of the
-        // noise (a plain room's lone corner is not a view to measure velocity on).
-        let clear_of_noise = (p.noise_texture_ratio * noise_window) as u32;
+        // Over disjoint windows: the texture, and the windows that are not noise (a plain
+        // room's lone corner is not a view to measure velocity on).
         let (mut total_texture, mut textured_windows) = (0u32, 0usize);
-        for &t in texture.iter().step_by(2 * w + 1) {
+        for (c, &t) in texture.iter().enumerate().step_by(2 * w + 1) {
             total_texture = total_texture.saturating_add(t);
-            textured_windows += usize::from(t >= clear_of_noise);
+            textured_windows += usize::from(not_noise(c));
         }
         if total_texture < p.min_texture.saturating_mul(4)
             || textured_windows < MIN_TEXTURED_WINDOWS
@@ -1139,7 +1167,9 @@ impl EdgeFs {
     }
 
     /// The temporal filter's velocity to guide this frame's flow search, if it has a track
-    /// that reaches this frame (the previous frame within a second) and the guide is on.
+    /// that reaches this frame (the previous frame within a second), confirmed by a second
+    /// measurement, and the guide is on. A track started by one wild fit would otherwise
+    /// guide the search to the matches it predicts and confirm itself.
     fn flow_prior(&self) -> Option<FlowPrior> {
         let now = self.ring[self.idx(0)].capture_us;
         let before = self.ring[self.idx(1)].capture_us;
@@ -1151,8 +1181,8 @@ impl EdgeFs {
             && self.frames >= 2
             && gap_s > 1e-4
             && gap_s < 1.0
-            && fw.is_initialised()
-            && sw.is_initialised();
+            && fw.is_confirmed()
+            && sw.is_confirmed();
         usable.then(|| FlowPrior {
             forward_mps: fw.velocity(),
             sideways_mps: sw.velocity(),
@@ -1194,9 +1224,15 @@ impl EdgeFs {
     }
 }
 
-/// Disjoint windows of a frame whose edges must stand out of the pixel noise
-/// ([`EdgeFsParams::noise_texture_ratio`]) for a velocity.
+/// Disjoint windows of a frame that must not be noise ([`EdgeFsParams::noise_texture_ratio`],
+/// [`EdgeFsParams::noise_structure_ratio`]) for a velocity.
 const MIN_TEXTURED_WINDOWS: usize = 3;
+
+/// The mean step between neighbouring histogram bins that pixel noise of 1 DN gives alone.
+/// Each bin sums `IMG_H` absolute differences of two pixels, each of variance 2σ²(1 - 2/π);
+/// neighbouring bins share no pixel, so their difference has variance 4·IMG_H·σ²(1 - 2/π),
+/// and its absolute value averages √(2/π) of its spread: 0.798 · √(4 · 96 · 0.3634) = 9.43.
+const NOISE_STEP_PER_SIGMA: f32 = 9.43;
 
 /// The velocity that guides the flow search ([`EdgeFsParams::prior_window_px`]), m/s.
 #[derive(Debug, Clone, Copy)]
@@ -1236,7 +1272,7 @@ fn median(v: &mut [f32]) -> f32 {
     if n == 0 {
         return 0.0;
     }
-    let (lower, &mut upper, _) = v.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b));
+    let (lower, &mut upper, _) = v.select_nth_unstable_by_key(n / 2, fit::order_key);
     if n % 2 == 1 {
         upper
     } else {
@@ -1247,6 +1283,18 @@ fn median(v: &mut [f32]) -> f32 {
             .unwrap_or(upper);
         0.5 * (below + upper)
     }
+}
+
+/// The steps between neighbouring inner bins of a histogram: bin `c` holds `|h[c] - h[c-1]|`
+/// (0 where either is a border bin, which holds a plain column sum). Neighbouring bins share no
+/// pixel, so noise alone gives independent steps.
+fn histogram_steps(h: &EdgeHistogram) -> EdgeHistogram {
+    let mut steps = [0u16; IMG_W];
+    let inner = h.get(1..IMG_W - 1).unwrap_or(&[]);
+    for (s, pair) in steps.iter_mut().skip(2).zip(inner.windows(2)) {
+        *s = pair[1].abs_diff(pair[0]);
+    }
+    steps
 }
 
 /// Edge energy per column: `out[c]` is the sum of the histogram bins of the `2w+1` window

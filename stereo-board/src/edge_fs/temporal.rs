@@ -31,6 +31,8 @@ pub struct AxisFilter {
     p01: f32,
     p11: f32,
     init: bool,
+    /// A measurement was fused since the filter (re)started: the track is not one measurement's.
+    confirmed: bool,
     /// Last rejected measurement and its noise variance, if the previous update rejected one.
     rejected: Option<(f32, f32)>,
 }
@@ -51,6 +53,7 @@ impl AxisFilter {
             p01: 0.0,
             p11: 0.0,
             init: false,
+            confirmed: false,
             rejected: None,
         }
     }
@@ -58,6 +61,12 @@ impl AxisFilter {
     /// True once a measurement has initialised the state.
     pub fn is_initialised(&self) -> bool {
         self.init
+    }
+
+    /// True once a measurement has been fused since the filter (re)started: the track rests on
+    /// at least two measurements that agree.
+    pub fn is_confirmed(&self) -> bool {
+        self.confirmed
     }
 
     /// Current velocity estimate, m/s (0 before the first measurement).
@@ -128,6 +137,7 @@ impl AxisFilter {
             return Update::Rejected;
         }
         self.rejected = None;
+        self.confirmed = true;
         let (k0, k1) = (self.p00 / s, self.p01 / s);
         self.v += k0 * nu;
         self.a += k1 * nu;
@@ -147,6 +157,7 @@ impl AxisFilter {
             p01: 0.0,
             p11: accel * accel,
             init: true,
+            confirmed: false,
             rejected: None,
         };
     }
@@ -156,6 +167,23 @@ impl AxisFilter {
 mod tests {
     extern crate std;
     use super::*;
+
+    #[test]
+    fn a_track_is_confirmed_by_its_second_agreeing_measurement() {
+        let mut f = AxisFilter::new();
+        assert_eq!(f.update(-60.0, 1.0, 1.5, 0.3), Update::Restarted);
+        assert!(f.is_initialised() && !f.is_confirmed());
+        // The next measurements disagree: rejected, then a restart at them, still unconfirmed.
+        f.predict(0.04, 0.3, 0.0);
+        assert_eq!(f.update(0.0, 0.01, 1.5, 0.3), Update::Rejected);
+        assert!(!f.is_confirmed());
+        f.predict(0.04, 0.3, 0.0);
+        assert_eq!(f.update(0.01, 0.01, 1.5, 0.3), Update::Restarted);
+        assert!(!f.is_confirmed());
+        f.predict(0.04, 0.3, 0.0);
+        assert_eq!(f.update(0.0, 0.01, 1.5, 0.3), Update::Accepted);
+        assert!(f.is_confirmed());
+    }
 
     /// Frames after a `0 -> step` m/s velocity step at `fps` until the output first exceeds
     /// half the step (0 = on the step's own frame), through the filter exactly as
