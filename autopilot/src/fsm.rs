@@ -19,7 +19,11 @@
 //!   [`FsmConfig::max_searches`] such searches in a row the FSM asks to land
 //!   ([`FsmOutput::land`]).
 //! * [`FsmState::Forward`]: fly forward at [`FsmConfig::forward_speed_mps`] (0.3 m/s), guided by
-//!   the Edge-FS velocity. Blocked within 1 m -> `Hover`; also `Hover` when no clear reading has
+//!   the Edge-FS velocity. Blocked within 1 m in [`FsmConfig::block_confirm`] fresh readings in a
+//!   row (one frame's stereo outlier does not stop the drone) -> `Hover`. Within
+//!   [`FsmConfig::approach_distance_m`] of an obstacle the speed falls linearly towards
+//!   [`FsmConfig::approach_speed_mps`] at the obstacle distance, so the drone arrives slowly
+//!   and stops short; also `Hover` when no clear reading has
 //!   arrived for [`FsmConfig::reading_timeout_us`] (flying blind is not clear), and after
 //!   [`FsmConfig::forward_timeout_us`] in the state.
 //! * [`FsmState::Hover`]: hold zero velocity for [`FsmConfig::hover_time_us`] (1 s) -> `Turn`.
@@ -87,6 +91,13 @@ pub struct FsmConfig {
     pub max_searches: u8,
     /// Longest time in `Forward` before a `Hover` (and a new look), µs.
     pub forward_timeout_us: u64,
+    /// Consecutive blocked readings that stop `Forward` (1: the first, as in the paper).
+    pub block_confirm: u8,
+    /// `Forward` slows down when an obstacle is nearer than this, m (at most the obstacle
+    /// distance: no slowing, as in the paper).
+    pub approach_distance_m: f32,
+    /// Forward speed with an obstacle at the obstacle distance, m/s (the approach's end).
+    pub approach_speed_mps: f32,
     /// Turn-until-clear: longest time turning without a confirmed clear direction before the
     /// FSM asks to land, µs.
     pub search_timeout_us: u64,
@@ -110,6 +121,9 @@ impl Default for FsmConfig {
             check_timeout_us: 2_000_000,
             max_searches: 6,
             forward_timeout_us: 60_000_000,
+            block_confirm: 2,
+            approach_distance_m: 2.0,
+            approach_speed_mps: 0.1,
             search_timeout_us: 6_000_000,
         }
     }
@@ -174,8 +188,12 @@ pub struct AvoidanceFsm {
     /// When the newest clear reading (against the obstacle distance) arrived, µs.
     last_clear_us: Option<u64>,
     clear_count: u8,
+    /// Blocked readings in a row in `Forward`.
+    blocked_count: u8,
     /// `Check` timeouts in a row.
     searches: u8,
+    /// Nearest obstacle of the latest reading, m (`None`: nothing in range or no reading).
+    nearest_m: Option<f32>,
     land: bool,
     last_step_us: u64,
     transitions: u32,
@@ -200,7 +218,9 @@ impl AvoidanceFsm {
             last_reading_us: None,
             last_clear_us: None,
             clear_count: 0,
+            blocked_count: 0,
             searches: 0,
+            nearest_m: None,
             land: false,
             last_step_us: now_us,
             transitions: 0,
@@ -243,7 +263,7 @@ impl AvoidanceFsm {
     pub fn output(&self) -> FsmOutput {
         FsmOutput {
             forward_mps: if self.state == FsmState::Forward && !self.land {
-                self.cfg.forward_speed_mps
+                self.forward_speed()
             } else {
                 0.0
             },
@@ -252,10 +272,25 @@ impl AvoidanceFsm {
         }
     }
 
+    /// The forward speed, slowed within the approach distance of the nearest obstacle.
+    fn forward_speed(&self) -> f32 {
+        let full = self.cfg.forward_speed_mps;
+        let (near, far) = (self.cfg.obstacle_distance_m, self.cfg.approach_distance_m);
+        match self.nearest_m {
+            Some(d) if far > near && d < far => {
+                let slow = self.cfg.approach_speed_mps.min(full);
+                let x = ((d - near) / (far - near)).clamp(0.0, 1.0);
+                slow + (full - slow) * x
+            }
+            _ => full,
+        }
+    }
+
     fn enter(&mut self, s: FsmState, now_us: u64) {
         self.state = s;
         self.entered_us = now_us;
         self.clear_count = 0;
+        self.blocked_count = 0;
         self.ramp_done_us = None;
         self.transitions = self.transitions.wrapping_add(1);
     }
@@ -296,6 +331,7 @@ impl AvoidanceFsm {
             }
             _ => None,
         };
+        self.nearest_m = reading.and_then(|r| r.distance_m).filter(|d| d.is_finite());
         if self.land {
             return self.output();
         }
@@ -335,7 +371,14 @@ impl AvoidanceFsm {
                     .map_or(self.entered_us, |t| t.max(self.entered_us));
                 let stale = reading.is_none()
                     || now_us.saturating_sub(clear_since) > self.cfg.reading_timeout_us;
-                let blocked = fresh_evidence == Some(Evidence::Blocked);
+                match fresh_evidence {
+                    Some(Evidence::Blocked) => {
+                        self.blocked_count = self.blocked_count.saturating_add(1)
+                    }
+                    Some(_) => self.blocked_count = 0,
+                    None => {}
+                }
+                let blocked = self.blocked_count >= self.cfg.block_confirm.max(1);
                 if blocked || stale || in_state >= self.cfg.forward_timeout_us {
                     self.enter(FsmState::Hover, now_us);
                 }
@@ -423,8 +466,40 @@ mod tests {
         })
     }
 
+    /// The paper's FSM: the first blocked reading stops it, no slowing on approach.
     fn paper() -> AvoidanceFsm {
-        AvoidanceFsm::new(FsmConfig::default(), 0, 0.0)
+        let cfg = FsmConfig {
+            block_confirm: 1,
+            approach_distance_m: 0.0,
+            ..FsmConfig::default()
+        };
+        AvoidanceFsm::new(cfg, 0, 0.0)
+    }
+
+    #[test]
+    fn forward_slows_on_approach_and_stops_on_a_confirmed_obstacle() {
+        let cfg = FsmConfig::default();
+        let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
+        let out = f.step(STEP, 0.0, reading(STEP, None));
+        assert_eq!((f.state(), out.forward_mps), (FsmState::Forward, 0.3));
+        // Beyond the approach distance: full speed; half way in: half way down.
+        let out = f.step(2 * STEP, 0.0, reading(2 * STEP, Some(2.5)));
+        assert_eq!(out.forward_mps, 0.3);
+        let mid = 0.5 * (cfg.obstacle_distance_m + cfg.approach_distance_m);
+        let out = f.step(3 * STEP, 0.0, reading(3 * STEP, Some(mid)));
+        let half = 0.5 * (cfg.forward_speed_mps + cfg.approach_speed_mps);
+        assert!((out.forward_mps - half).abs() < 1e-5, "{out:?}");
+        // One blocked reading is an outlier; the speed is the approach's end meanwhile.
+        let out = f.step(4 * STEP, 0.0, reading(4 * STEP, Some(0.6)));
+        assert_eq!((f.state(), out.forward_mps), (FsmState::Forward, 0.1));
+        let out = f.step(5 * STEP, 0.0, reading(5 * STEP, Some(1.2)));
+        assert_eq!(f.state(), FsmState::Forward);
+        assert!(out.forward_mps > 0.1 && out.forward_mps < 0.3, "{out:?}");
+        // Two in a row stop it.
+        f.step(6 * STEP, 0.0, reading(6 * STEP, Some(0.9)));
+        assert_eq!(f.state(), FsmState::Forward);
+        let out = f.step(7 * STEP, 0.0, reading(7 * STEP, Some(0.9)));
+        assert_eq!((f.state(), out.forward_mps), (FsmState::Hover, 0.0));
     }
 
     #[test]

@@ -10,10 +10,21 @@
 //!   nose **down** (negative pitch), which tilts the thrust forward;
 //! * a sideways velocity error to the right rolls right (positive roll).
 //!
+//! The PI does not chase a step: a reference model moves towards the requested setpoint at
+//! most [`GuidanceConfig::max_accel_mps2`], and the tilt that gives the reference's
+//! acceleration is fed forward (`atan(a / g)`), so a start or a stop is flown at once instead
+//! of waiting for the velocity error to build up through the estimate's lag. The drone's
+//! acceleration follows a tilt command only after the attitude loop has turned it
+//! ([`GuidanceConfig::response_lag_s`], modelled as a first-order lag), so the velocity the PI
+//! holds the drone to is the reference passed through that lag: the PI corrects what the
+//! feedforward did not achieve and does not fight the lag it expects (which made every start
+//! and stop overshoot by about 0.06 m/s).
+//!
 //! Anti-windup: conditional integration (the integrator stops while the output is at the bank
 //! limit and the error would push it further) plus a clamp on the integral's contribution.
 //! [`VelocityGuidance::hold`] gives the trim attitude (integral only) when no velocity estimate
-//! is available, and [`VelocityGuidance::reset`] clears everything (on the ground).
+//! is available (the reference then restarts from the next estimate), and
+//! [`VelocityGuidance::reset`] clears everything (on the ground).
 //!
 //! [`VelocityObserver`] is the velocity guidance flies on: it predicts the velocity from the
 //! attitude and the yaw rate between vision measurements and corrects it with them, so the
@@ -34,6 +45,12 @@ pub struct GuidanceConfig {
     pub max_bank_rad: f32,
     /// Largest tilt the integral alone may hold, rad.
     pub max_integral_rad: f32,
+    /// Acceleration of the reference model, m/s² per axis (0: the requested setpoint is
+    /// flown as a step, without feedforward, as in the paper).
+    pub max_accel_mps2: f32,
+    /// Time constant of the drone's acceleration following a tilt command (the attitude
+    /// loop's response), s.
+    pub response_lag_s: f32,
 }
 
 impl Default for GuidanceConfig {
@@ -43,7 +60,39 @@ impl Default for GuidanceConfig {
             ki: 0.1,
             max_bank_rad: 15.0_f32.to_radians(),
             max_integral_rad: 5.0_f32.to_radians(),
+            max_accel_mps2: 1.5,
+            response_lag_s: 0.15,
         }
+    }
+}
+
+/// Farthest the reference model's velocity may be from the estimate before a step, m/s.
+pub const REFERENCE_MAX_LEAD_MPS: f32 = 0.5;
+
+/// The reference model of one step: its velocity (rate-limited towards the request), the
+/// acceleration that took it there (fed forward), and the velocity the drone is expected to
+/// have (the reference behind the response lag), per axis `[forward, sideways]`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Reference {
+    velocity: [f32; 2],
+    /// The commanded acceleration through the response lag, m/s².
+    lagged_accel: [f32; 2],
+}
+
+impl Reference {
+    /// At rest at `velocity`.
+    fn at(velocity: [f32; 2]) -> Self {
+        Self {
+            velocity,
+            lagged_accel: [0.0; 2],
+        }
+    }
+
+    /// The velocity expected of the drone: behind the reference by the lag times the lagged
+    /// acceleration (for a first-order lag this is exactly the integral of the lagged
+    /// acceleration).
+    fn expected(&self, lag_s: f32) -> [f32; 2] {
+        [0, 1].map(|i| self.velocity[i] - lag_s * self.lagged_accel[i])
     }
 }
 
@@ -62,6 +111,9 @@ pub struct VelocityGuidance {
     cfg: GuidanceConfig,
     /// Integral part, rad, as "tilt towards +axis": forward (nose down) and right (roll right).
     integral: [f32; 2],
+    /// The reference model; `None` until the first step after a [`VelocityGuidance::hold`]
+    /// (it starts from the estimate then).
+    reference: Option<Reference>,
 }
 
 impl VelocityGuidance {
@@ -75,6 +127,7 @@ impl VelocityGuidance {
         Self {
             cfg,
             integral: [0.0; 2],
+            reference: Some(Reference::default()),
         }
     }
 
@@ -88,9 +141,70 @@ impl VelocityGuidance {
         self.integral
     }
 
-    /// Clears the integrators.
+    /// The velocity setpoint flown `[forward, sideways]`, m/s: the velocity the reference
+    /// model expects of the drone, `None` while it waits for an estimate to start from.
+    pub fn reference(&self) -> Option<[f32; 2]> {
+        self.reference.map(|r| r.expected(self.lag_s()))
+    }
+
+    /// Clears the integrators; the reference is at rest.
     pub fn reset(&mut self) {
         self.integral = [0.0; 2];
+        self.reference = Some(Reference::default());
+    }
+
+    fn lag_s(&self) -> f32 {
+        let lag = self.cfg.response_lag_s;
+        if lag.is_finite() {
+            lag.max(0.0)
+        } else {
+            0.0
+        }
+    }
+
+    /// Moves the reference towards `setpoint` over `dt` s (from `measured` if it has to
+    /// restart); returns the velocity expected of the drone and the acceleration to feed
+    /// forward, per axis.
+    fn advance_reference(
+        &mut self,
+        setpoint: [f32; 2],
+        measured: [f32; 2],
+        dt: f32,
+    ) -> ([f32; 2], [f32; 2]) {
+        let a_max = self.cfg.max_accel_mps2;
+        let lag = self.lag_s();
+        let mut r = self.reference.unwrap_or(Reference::at(measured));
+        let mut accel = [0.0f32; 2];
+        for i in 0..2 {
+            let target = if setpoint[i].is_finite() {
+                setpoint[i]
+            } else {
+                0.0
+            };
+            if !(a_max > 0.0 && a_max.is_finite() && r.velocity[i].is_finite()) {
+                r.velocity[i] = target;
+                r.lagged_accel[i] = 0.0;
+                continue;
+            }
+            // A reference that runs away from a drone that cannot follow (at the bank limit)
+            // would wind up like an integrator: it stays within reach of the estimate.
+            let reachable = r.velocity[i].clamp(
+                measured[i] - REFERENCE_MAX_LEAD_MPS,
+                measured[i] + REFERENCE_MAX_LEAD_MPS,
+            );
+            let held_back = reachable != r.velocity[i];
+            let step = (target - reachable).clamp(-a_max * dt, a_max * dt);
+            r.velocity[i] = reachable + step;
+            // Held at the reach, the reference does not accelerate the drone: nothing to feed
+            // forward.
+            if dt > 0.0 && !held_back {
+                accel[i] = step / dt;
+            }
+            let k = if lag > dt { dt / lag } else { 1.0 };
+            r.lagged_accel[i] += (accel[i] - r.lagged_accel[i]) * k;
+        }
+        self.reference = Some(r);
+        (r.expected(lag), accel)
     }
 
     /// One step of `dt` s: `setpoint` and `measured` are `[forward, sideways]` body velocities,
@@ -103,15 +217,18 @@ impl VelocityGuidance {
         } else {
             0.0
         };
+        let finite = |v: [f32; 2]| v.map(|x| if x.is_finite() { x } else { 0.0 });
+        let (reference, accel) = self.advance_reference(setpoint, finite(measured), dt);
         let mut tilt = [0.0f32; 2];
         for i in 0..2 {
-            let e = setpoint[i] - measured[i];
+            let feedforward = libm::atanf(accel[i] / crate::attitude::GRAVITY);
+            let e = reference[i] - measured[i];
             let e = if e.is_finite() {
                 e.clamp(-5.0, 5.0)
             } else {
                 0.0
             };
-            let p = self.cfg.kp * e;
+            let p = self.cfg.kp * e + feedforward;
             let unsat = p + self.integral[i];
             let pushing_out = (unsat >= lim && e > 0.0) || (unsat <= -lim && e < 0.0);
             if !pushing_out {
@@ -131,9 +248,16 @@ impl VelocityGuidance {
         }
     }
 
-    /// Trim attitude without a velocity measurement: the integral part only (it holds the
-    /// learned trim, e.g. a centre-of-gravity offset), integrators frozen.
-    pub fn hold(&self) -> TiltSetpoint {
+    /// Flying without a velocity measurement: the [`VelocityGuidance::trim`], integrators
+    /// frozen; the reference restarts from the next estimate.
+    pub fn hold(&mut self) -> TiltSetpoint {
+        self.reference = None;
+        self.trim()
+    }
+
+    /// The trim attitude: the integral part only (it holds the learned trim, e.g. a
+    /// centre-of-gravity offset).
+    pub fn trim(&self) -> TiltSetpoint {
         let lim = self.cfg.max_bank_rad.abs();
         TiltSetpoint {
             pitch_rad: -self.integral[0].clamp(-lim, lim),
@@ -319,7 +443,11 @@ mod tests {
 
     #[test]
     fn bank_limit_holds_and_integrator_does_not_wind_up() {
-        let cfg = GuidanceConfig::default();
+        // The PI alone: the setpoint flown as a step.
+        let cfg = GuidanceConfig {
+            max_accel_mps2: 0.0,
+            ..GuidanceConfig::default()
+        };
         let mut g = VelocityGuidance::new(cfg);
         for _ in 0..50 * 60 {
             let t = g.step([3.0, -3.0], [0.0, 0.0], 0.02);
@@ -331,6 +459,107 @@ mod tests {
         assert!(g.integral()[0].abs() <= cfg.max_integral_rad + 1e-6);
         let t = g.step([0.0, 0.0], [0.3, 0.0], 0.02);
         assert!(t.pitch_rad > 0.0, "must brake at once, got {}", t.pitch_rad);
+    }
+
+    /// A drone whose tilt follows the command with a first-order lag (the attitude loop) and
+    /// whose velocity follows `g tan(tilt)`, along one axis.
+    struct LaggedDrone {
+        v: f32,
+        tilt: f32,
+        lag_s: f32,
+    }
+
+    impl LaggedDrone {
+        /// Flies 2 s on `g` towards `setpoint`; the velocity at each 20 ms step.
+        fn fly(&mut self, g: &mut VelocityGuidance, setpoint: f32) -> [f32; 100] {
+            let (dt, sub) = (0.02f32, 20);
+            let mut out = [0.0f32; 100];
+            for o in out.iter_mut() {
+                let cmd = -g.step([setpoint, 0.0], [self.v, 0.0], dt).pitch_rad;
+                for _ in 0..sub {
+                    let h = dt / sub as f32;
+                    self.tilt += (cmd - self.tilt) * h / self.lag_s;
+                    self.v += crate::attitude::GRAVITY * libm::tanf(self.tilt) * h;
+                }
+                *o = self.v;
+            }
+            out
+        }
+    }
+
+    #[test]
+    fn a_start_and_a_stop_follow_the_reference_with_its_tilt_fed_forward() {
+        let cfg = GuidanceConfig::default();
+        let a = cfg.max_accel_mps2;
+        let mut g = VelocityGuidance::new(cfg);
+        // First step of a start: the tilt for the reference's acceleration is flown at once.
+        let t = g.step([0.3, 0.0], [0.0, 0.0], 0.02);
+        assert!(
+            -t.pitch_rad >= libm::atanf(a / crate::attitude::GRAVITY),
+            "{t:?}"
+        );
+        // On a drone with the modelled response lag a start reaches the request in the
+        // reference's time plus a few lags, without overshoot: the PI does not fight the lag
+        // it expects.
+        let at_rest = || LaggedDrone {
+            v: 0.0,
+            tilt: 0.0,
+            lag_s: cfg.response_lag_s,
+        };
+        let mut g = VelocityGuidance::new(cfg);
+        let mut drone = at_rest();
+        let v = drone.fly(&mut g, 0.3);
+        let reached = v.iter().position(|&x| x >= 0.29).unwrap() as f32 * 0.02;
+        assert!(
+            reached <= 0.3 / a + 3.0 * cfg.response_lag_s,
+            "{reached} s: {v:?}"
+        );
+        let peak = v.iter().cloned().fold(f32::MIN, f32::max);
+        assert!(peak < 0.32, "overshoot to {peak}: {v:?}");
+        // The stop that follows comes to rest as fast and does not reverse.
+        let v = drone.fly(&mut g, 0.0);
+        let stopped = v.iter().position(|&x| x <= 0.01).unwrap() as f32 * 0.02;
+        assert!(
+            stopped <= 0.3 / a + 3.0 * cfg.response_lag_s,
+            "{stopped} s: {v:?}"
+        );
+        assert!(v.iter().all(|&x| x > -0.02), "{v:?}");
+        // The PI alone (a step, no feedforward) is slower to get there.
+        let mut g = VelocityGuidance::new(GuidanceConfig {
+            max_accel_mps2: 0.0,
+            ..cfg
+        });
+        let v = at_rest().fly(&mut g, 0.3);
+        let pi_reached = v.iter().position(|&x| x >= 0.29).unwrap_or(v.len()) as f32 * 0.02;
+        assert!(
+            pi_reached >= reached + 0.2,
+            "{pi_reached} s against {reached} s"
+        );
+    }
+
+    #[test]
+    fn the_reference_stays_within_reach_and_restarts_from_the_estimate() {
+        let cfg = GuidanceConfig::default();
+        let mut g = VelocityGuidance::new(cfg);
+        // A drone that cannot follow (pinned at 0): the reference does not run away, and
+        // held at its reach it feeds nothing forward.
+        let mut t = TiltSetpoint::default();
+        for _ in 0..50 * 10 {
+            t = g.step([3.0, -3.0], [0.0, 0.0], 0.02);
+        }
+        let r = g.reference().unwrap();
+        let reach = REFERENCE_MAX_LEAD_MPS + cfg.max_accel_mps2 * 0.02;
+        assert!(r.iter().all(|x| x.abs() <= reach + 1e-6), "{r:?}");
+        let pi_only = cfg.kp * reach + cfg.max_integral_rad;
+        assert!(t.pitch_rad.abs() <= pi_only + 1e-3, "{t:?}");
+        // So when the request reverses the drone brakes within a lead's worth of ramp.
+        let t = g.step([0.0, 0.0], [0.3, 0.0], 0.02);
+        assert!(t.pitch_rad > -cfg.kp * REFERENCE_MAX_LEAD_MPS, "{t:?}");
+        // Without an estimate the reference is dropped; it restarts from the next one.
+        g.hold();
+        assert_eq!(g.reference(), None);
+        g.step([0.2, -0.1], [0.2, -0.1], 0.02);
+        assert_eq!(g.reference(), Some([0.2, -0.1]));
     }
 
     #[test]

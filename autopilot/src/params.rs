@@ -118,6 +118,8 @@ protocol::param_table! {
     "guid_ki": F32 ["rad/m"] 0.0, 2.0, true => |c| c.guidance.ki;
     "guid_max_bank": F32 ["rad"] 0.0, 0.6, true => |c| c.guidance.max_bank_rad;
     "guid_max_integral": F32 ["rad"] 0.0, 0.3, true => |c| c.guidance.max_integral_rad;
+    "guid_max_accel": F32 ["m/s2"] 0.0, 5.0, true => |c| c.guidance.max_accel_mps2;
+    "guid_response_lag": F32 ["s"] 0.0, 1.0, true => |c| c.guidance.response_lag_s;
     "ff_threshold": F32 ["m"] 0.0, 5.0, true => |c| c.force_field.threshold_m;
     "ff_gain": F32 ["1/s"] 0.0, 10.0, true => |c| c.force_field.gain;
     "ff_max_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.force_field.max_speed_mps;
@@ -133,6 +135,9 @@ protocol::param_table! {
     "fsm_clear_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.clear_confirm;
     "fsm_reading_timeout_us": U32 ["us"] 10_000, 5_000_000, true => |c| c.fsm.reading_timeout_us;
     "fsm_min_clear_depth": F32 ["-"] 0.0, 1.0, true => |c| c.fsm.min_clear_depth;
+    "fsm_block_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.block_confirm;
+    "fsm_approach_dist": F32 ["m"] 0.0, 10.0, true => |c| c.fsm.approach_distance_m;
+    "fsm_approach_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.fsm.approach_speed_mps;
     "fsm_check_timeout_us": U32 ["us"] 100_000, 30_000_000, true => |c| c.fsm.check_timeout_us;
     "fsm_max_searches": U32 ["-"] 1, 60, true => |c| c.fsm.max_searches;
     "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;
@@ -180,7 +185,7 @@ protocol::param_table! {
     "vkf_room_bias": Bool ["-"] false, true, true => |c| c.velocity_kf.bias_in_room_frame;
     "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimate_horizon_us;
     "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimate_link_us;
-    "est_filter_lag_us": U32 ["us"] 0, 300_000, true => |c| c.estimate_filter_lag_us;
+    "est_filter_lag_us": U32 ["us"] 0, 500_000, true => |c| c.estimate_filter_lag_us;
     "fit_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.fit_horizon_us;
     "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.max_yaw_rate_radps;
     "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
@@ -437,9 +442,9 @@ mod tests {
         let mut c = AutopilotConfig::default();
         // Each within its bounds, together reaching past the velocity filter's history (where
         // every estimate would be ignored and the drone would dead-reckon into a wall).
-        set_by_name(&mut c, "est_horizon_us", ParamValue::U32(300_000)).unwrap();
+        set_by_name(&mut c, "est_horizon_us", ParamValue::U32(900_000)).unwrap();
         set_by_name(&mut c, "est_filter_lag_us", ParamValue::U32(150_000)).unwrap();
-        let r = set_by_name(&mut c, "est_horizon_us", ParamValue::U32(400_000)).unwrap_err();
+        let r = set_by_name(&mut c, "est_horizon_us", ParamValue::U32(1_000_000)).unwrap_err();
         assert_eq!(
             (r.name(), r.error),
             ("est_horizon_us", ParamError::Inconsistent)

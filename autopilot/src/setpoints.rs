@@ -224,14 +224,15 @@ impl Guidance {
     }
 
     /// Step 3: avoidance's request flown on `velocity` (`None`: no fresh estimate, the trim
-    /// attitude) over `dt` s.
+    /// attitude) over `dt` s. The velocity setpoint is the velocity loop's reference on its
+    /// way to the request.
     pub fn fly(&mut self, request: &AvoidanceOutput, velocity: Option<[f32; 2]>, dt: f32) {
         let v_sp = request.velocity_mps;
-        self.sp.velocity_mps = v_sp;
         let tilt: TiltSetpoint = match velocity {
             Some(v) => self.velocity.step(v_sp, v, dt),
             _ => self.velocity.hold(),
         };
+        self.sp.velocity_mps = self.velocity.reference().unwrap_or(v_sp);
         self.sp.attitude_rad = [tilt.roll_rad, tilt.pitch_rad, wrap_pi(request.yaw_sp_rad)];
     }
 
@@ -344,14 +345,21 @@ mod tests {
             yaw_sp_rad: 7.0,
             land: false,
         };
+        // The velocity setpoint is the reference on its way to the request.
+        g.fly(&request, Some([0.0, 0.0]), 0.02);
+        let first = g.setpoints().velocity_mps;
         g.fly(&request, Some([0.0, 0.0]), 0.02);
         let sp = *g.setpoints();
-        assert_eq!(sp.velocity_mps, [0.3, 0.0]);
+        assert!(
+            first[0] < sp.velocity_mps[0] && sp.velocity_mps[0] < 0.3,
+            "{sp:?}"
+        );
+        assert_eq!(sp.velocity_mps[1], 0.0);
         assert!(sp.attitude_rad[1] < 0.0, "nose down to speed up: {sp:?}");
         assert_eq!(sp.attitude_rad[0], 0.0);
         assert!(close(sp.attitude_rad[2], wrap_pi(7.0)));
         // No fresh estimate: the integral part only.
-        let trim = g.velocity_loop().hold();
+        let trim = g.velocity_loop().trim();
         g.fly(&request, None, 0.02);
         assert_eq!(g.setpoints().attitude_rad[1], trim.pitch_rad);
         // On the ground everything is zeroed but the heading.

@@ -95,10 +95,10 @@ pub enum Fusion {
 }
 
 /// History slots (one at least every 6 ms).
-const HISTORY_LEN: usize = 96;
+const HISTORY_LEN: usize = 200;
 
 /// The oldest window start the filter can always place, µs before the newest prediction
-/// (95 spacings: 570 ms). [`crate::params::validate`] keeps the estimate's window within it.
+/// (199 spacings: 1.194 s). [`crate::params::validate`] keeps the estimate's window within it.
 pub const MAX_WINDOW_AGE_US: u64 = (HISTORY_LEN as u64 - 1) * HISTORY_SPACING_US;
 
 /// The filter. Fixed size, no heap.
@@ -547,7 +547,10 @@ mod tests {
         let v = kf.velocity().unwrap();
         assert!(v[0].abs() < 0.02 && (v[1] + 1.0).abs() < 0.02, "{v:?}");
         assert_eq!(kf.correct([f32::NAN, 0.0], 255, 0, 10), Fusion::Ignored);
-        kf.predict(f32::NAN, 0.0, 0.0, 0.002, 2_000_000);
+        for k in 513..=1024 {
+            kf.predict(0.0, 0.0, 0.0, 1.0 / 512.0, k * DT_US);
+        }
+        kf.predict(f32::NAN, 0.0, 0.0, 0.002, 2_002_000);
         assert!(kf.velocity().unwrap().iter().all(|x| x.is_finite()));
         // A window older than the history cannot be placed.
         assert_eq!(kf.correct([0.0, 0.0], 255, 0, 1_000), Fusion::Ignored);

@@ -844,7 +844,7 @@ pub const fn record_bytes(count: usize) -> usize {
 
 /// Most entries a table can have to be saved ([`ParamTable::save`] encodes into a buffer of
 /// [`MAX_RECORD_BYTES`] on the stack).
-pub const MAX_PARAMS: usize = 128;
+pub const MAX_PARAMS: usize = 160;
 /// Bytes of the record of a table of [`MAX_PARAMS`] entries.
 pub const MAX_RECORD_BYTES: usize = record_bytes(MAX_PARAMS);
 
