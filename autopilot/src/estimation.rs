@@ -586,9 +586,9 @@ mod tests {
             (est.on_estimate(&forward_estimate(v), &level(t), &cfg), t)
         };
         let velocity = |est: &VelocityEstimation| est.state(VelocitySource::Kalman).velocity_mps;
-        // Long enough for the estimates' windows (about 1 s old) to lie after the filter's
+        // Long enough for the estimates' windows (about 0.5 s old) to lie after the filter's
         // start.
-        for _ in 0..120 {
+        for _ in 0..60 {
             step(&mut est, 0.0, 0.2, 20_000);
         }
         let v0 = velocity(&est).unwrap()[0];
