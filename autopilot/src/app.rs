@@ -810,6 +810,7 @@ impl Autopilot {
         let height_sp = self
             .guidance
             .height_setpoint(mode, &velocity, now_us, dt, cfg);
+        let fresh_velocity = velocity.fresh(now_us, cfg.velocity_max_age_us);
         let request = self.avoidance.step(
             &AvoidanceInput {
                 now_us,
@@ -817,6 +818,7 @@ impl Autopilot {
                 at_flight_height: self.guidance.at_flight_height(h, cfg),
                 yaw_rad: self.att.euler()[2],
                 held_yaw_rad: self.guidance.setpoints().attitude_rad[2],
+                speed_mps: fresh_velocity.map(|[f, s]| libm::sqrtf(f * f + s * s)),
             },
             cfg,
         );
@@ -824,7 +826,6 @@ impl Autopilot {
             // No way to go found within the FSM's timeouts: land where it is.
             self.failsafe.command(PilotCommand::Land, &f, now_us);
         }
-        let fresh_velocity = velocity.fresh(now_us, cfg.velocity_max_age_us);
         self.guidance.fly(&request, fresh_velocity, dt);
         let height_fresh = matches!(self.height.last_measurement_us(),
             Some(t) if now_us.saturating_sub(t) <= cfg.failsafe.height_timeout_us);

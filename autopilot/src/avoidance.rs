@@ -46,6 +46,8 @@ pub struct AvoidanceInput {
     /// Heading setpoint held so far, rad: where a starting FSM looks first, and the request
     /// while it is stopped.
     pub held_yaw_rad: f32,
+    /// Estimated horizontal speed, m/s (`None`: no fresh velocity estimate).
+    pub speed_mps: Option<f32>,
 }
 
 /// What avoidance asks of guidance.
@@ -126,7 +128,9 @@ impl Avoidance {
                 self.active = true;
             }
             if self.active {
-                let out = self.fsm.step(now_us, input.yaw_rad, obstacle);
+                let out = self
+                    .fsm
+                    .step(now_us, input.yaw_rad, obstacle, input.speed_mps);
                 v_sp[0] = out.forward_mps;
                 yaw_sp = out.yaw_sp_rad;
                 land = out.land;
@@ -180,6 +184,7 @@ mod tests {
             at_flight_height,
             yaw_rad: 0.2,
             held_yaw_rad: 0.2,
+            speed_mps: Some(0.0),
         }
     }
 

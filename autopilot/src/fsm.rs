@@ -10,7 +10,7 @@
 //! * unknown: nothing nearer, but too little of the view has depth to say so (a plain wall, a
 //!   dark room). Unknown is never taken for clear.
 //!
-//! Four states, each with a timeout that ends in a safe action:
+//! Five states, each with a timeout that ends in a safe action:
 //!
 //! * [`FsmState::Check`]: wait for a fresh reading (one received after entering the state),
 //!   holding zero velocity. Blocked within [`FsmConfig::obstacle_distance_m`] (1 m) ->
@@ -20,12 +20,16 @@
 //!   ([`FsmOutput::land`]).
 //! * [`FsmState::Forward`]: fly forward at [`FsmConfig::forward_speed_mps`] (0.3 m/s), guided by
 //!   the Edge-FS velocity. Blocked within 1 m in [`FsmConfig::block_confirm`] fresh readings in a
-//!   row (one frame's stereo outlier does not stop the drone) -> `Hover`. Within
+//!   row (one frame's stereo outlier does not stop the drone) -> `Brake`. Within
 //!   [`FsmConfig::approach_distance_m`] of an obstacle the speed falls linearly towards
 //!   [`FsmConfig::approach_speed_mps`] at the obstacle distance, so the drone arrives slowly
-//!   and stops short; also `Hover` when no clear reading has
+//!   and stops short; also `Brake` when no clear reading has
 //!   arrived for [`FsmConfig::reading_timeout_us`] (flying blind is not clear), and after
 //!   [`FsmConfig::forward_timeout_us`] in the state.
+//! * [`FsmState::Brake`]: hold zero velocity until the estimated speed is at most
+//!   [`FsmConfig::brake_speed_mps`] (or for [`FsmConfig::brake_timeout_us`]) -> `Hover`: the
+//!   hover time is spent still, and the turn starts from a stop. With `brake_speed_mps = 0`
+//!   `Forward` goes straight to `Hover`, as in the paper.
 //! * [`FsmState::Hover`]: hold zero velocity for [`FsmConfig::hover_time_us`] (1 s) -> `Turn`.
 //! * [`FsmState::Turn`]: depends on the [`FsmVariant`]:
 //!   * [`FsmVariant::Paper`]: the yaw setpoint ramps by [`FsmConfig::turn_angle_rad`] (60 deg)
@@ -98,6 +102,11 @@ pub struct FsmConfig {
     pub approach_distance_m: f32,
     /// Forward speed with an obstacle at the obstacle distance, m/s (the approach's end).
     pub approach_speed_mps: f32,
+    /// `Brake` ends once the estimated horizontal speed is at most this, m/s (0: no `Brake`,
+    /// `Forward` ends in `Hover` as in the paper).
+    pub brake_speed_mps: f32,
+    /// Longest time in `Brake` (then `Hover`, however fast the estimate says), µs.
+    pub brake_timeout_us: u64,
     /// Turn-until-clear: longest time turning without a confirmed clear direction before the
     /// FSM asks to land, µs.
     pub search_timeout_us: u64,
@@ -124,6 +133,8 @@ impl Default for FsmConfig {
             block_confirm: 2,
             approach_distance_m: 2.0,
             approach_speed_mps: 0.1,
+            brake_speed_mps: 0.05,
+            brake_timeout_us: 1_500_000,
             search_timeout_us: 6_000_000,
         }
     }
@@ -304,12 +315,15 @@ impl AvoidanceFsm {
         self.enter(FsmState::Turn, now_us);
     }
 
-    /// One step at `now_us` with the current heading `yaw_rad` and the latest obstacle reading.
+    /// One step at `now_us` with the current heading `yaw_rad`, the latest obstacle reading and
+    /// the estimated horizontal speed (m/s; `None`: no fresh estimate, and `Brake` lasts its
+    /// timeout).
     pub fn step(
         &mut self,
         now_us: u64,
         yaw_rad: f32,
         reading: Option<ObstacleReading>,
+        speed_mps: Option<f32>,
     ) -> FsmOutput {
         let dt = now_us.saturating_sub(self.last_step_us) as f32 * 1e-6;
         let dt = dt.min(0.5);
@@ -380,6 +394,17 @@ impl AvoidanceFsm {
                 }
                 let blocked = self.blocked_count >= self.cfg.block_confirm.max(1);
                 if blocked || stale || in_state >= self.cfg.forward_timeout_us {
+                    let stop = if self.cfg.brake_speed_mps > 0.0 {
+                        FsmState::Brake
+                    } else {
+                        FsmState::Hover
+                    };
+                    self.enter(stop, now_us);
+                }
+            }
+            FsmState::Brake => {
+                let still = speed_mps.is_some_and(|v| v.abs() <= self.cfg.brake_speed_mps);
+                if still || in_state >= self.cfg.brake_timeout_us {
                     self.enter(FsmState::Hover, now_us);
                 }
             }
@@ -471,6 +496,7 @@ mod tests {
         let cfg = FsmConfig {
             block_confirm: 1,
             approach_distance_m: 0.0,
+            brake_speed_mps: 0.0,
             ..FsmConfig::default()
         };
         AvoidanceFsm::new(cfg, 0, 0.0)
@@ -480,26 +506,65 @@ mod tests {
     fn forward_slows_on_approach_and_stops_on_a_confirmed_obstacle() {
         let cfg = FsmConfig::default();
         let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
-        let out = f.step(STEP, 0.0, reading(STEP, None));
+        let out = f.step(STEP, 0.0, reading(STEP, None), None);
         assert_eq!((f.state(), out.forward_mps), (FsmState::Forward, 0.3));
         // Beyond the approach distance: full speed; half way in: half way down.
-        let out = f.step(2 * STEP, 0.0, reading(2 * STEP, Some(2.5)));
+        let out = f.step(2 * STEP, 0.0, reading(2 * STEP, Some(2.5)), None);
         assert_eq!(out.forward_mps, 0.3);
         let mid = 0.5 * (cfg.obstacle_distance_m + cfg.approach_distance_m);
-        let out = f.step(3 * STEP, 0.0, reading(3 * STEP, Some(mid)));
+        let out = f.step(3 * STEP, 0.0, reading(3 * STEP, Some(mid)), None);
         let half = 0.5 * (cfg.forward_speed_mps + cfg.approach_speed_mps);
         assert!((out.forward_mps - half).abs() < 1e-5, "{out:?}");
         // One blocked reading is an outlier; the speed is the approach's end meanwhile.
-        let out = f.step(4 * STEP, 0.0, reading(4 * STEP, Some(0.6)));
+        let out = f.step(4 * STEP, 0.0, reading(4 * STEP, Some(0.6)), None);
         assert_eq!((f.state(), out.forward_mps), (FsmState::Forward, 0.1));
-        let out = f.step(5 * STEP, 0.0, reading(5 * STEP, Some(1.2)));
+        let out = f.step(5 * STEP, 0.0, reading(5 * STEP, Some(1.2)), None);
         assert_eq!(f.state(), FsmState::Forward);
         assert!(out.forward_mps > 0.1 && out.forward_mps < 0.3, "{out:?}");
         // Two in a row stop it.
-        f.step(6 * STEP, 0.0, reading(6 * STEP, Some(0.9)));
+        f.step(6 * STEP, 0.0, reading(6 * STEP, Some(0.9)), None);
         assert_eq!(f.state(), FsmState::Forward);
-        let out = f.step(7 * STEP, 0.0, reading(7 * STEP, Some(0.9)));
-        assert_eq!((f.state(), out.forward_mps), (FsmState::Hover, 0.0));
+        let out = f.step(7 * STEP, 0.0, reading(7 * STEP, Some(0.9)), None);
+        assert_eq!((f.state(), out.forward_mps), (FsmState::Brake, 0.0));
+    }
+
+    #[test]
+    fn brake_ends_when_the_drone_is_still_or_at_its_timeout() {
+        let cfg = FsmConfig {
+            block_confirm: 1,
+            ..FsmConfig::default()
+        };
+        let blocked = |t: u64| reading(t, Some(0.8));
+        let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, None), Some(0.0));
+        f.step(2 * STEP, 0.0, blocked(2 * STEP), Some(0.3));
+        assert_eq!(f.state(), FsmState::Brake);
+        // Still moving (or a NaN or missing speed): braking, zero velocity asked.
+        for (k, v) in [
+            (3, Some(0.2)),
+            (4, Some(f32::NAN)),
+            (5, None),
+            (6, Some(-0.06)),
+        ] {
+            let out = f.step(k * STEP, 0.0, blocked(k * STEP), v);
+            assert_eq!((f.state(), out.forward_mps), (FsmState::Brake, 0.0), "{k}");
+        }
+        // Still -> Hover, which then lasts its full time.
+        f.step(7 * STEP, 0.0, blocked(7 * STEP), Some(-0.04));
+        assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, 7 * STEP));
+        f.step(7 * STEP + cfg.hover_time_us - 1, 0.0, None, Some(0.0));
+        assert_eq!(f.state(), FsmState::Hover);
+        f.step(7 * STEP + cfg.hover_time_us, 0.0, None, Some(0.0));
+        assert_eq!(f.state(), FsmState::Turn);
+
+        // A speed that never falls: Hover at the timeout.
+        let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, None), Some(0.0));
+        f.step(2 * STEP, 0.0, blocked(2 * STEP), Some(0.3));
+        f.step(2 * STEP + cfg.brake_timeout_us - 1, 0.0, None, Some(0.3));
+        assert_eq!(f.state(), FsmState::Brake);
+        f.step(2 * STEP + cfg.brake_timeout_us, 0.0, None, Some(0.3));
+        assert_eq!(f.state(), FsmState::Hover);
     }
 
     #[test]
@@ -507,26 +572,26 @@ mod tests {
         let mut f = paper();
         // A reading from before the state began does not count.
         let mut f2 = AvoidanceFsm::new(FsmConfig::default(), 5 * S, 0.0);
-        f2.step(5 * S + STEP, 0.0, reading(4 * S, None));
+        f2.step(5 * S + STEP, 0.0, reading(4 * S, None), None);
         assert_eq!(f2.state(), FsmState::Check);
         // No reading: stays, zero speed.
-        let out = f.step(STEP, 0.0, None);
+        let out = f.step(STEP, 0.0, None, None);
         assert_eq!((f.state(), out.forward_mps), (FsmState::Check, 0.0));
         // Clear (nothing in range) at t = 40 ms -> Forward at 40 ms, 0.3 m/s.
-        let out = f.step(2 * STEP, 0.0, reading(2 * STEP, None));
+        let out = f.step(2 * STEP, 0.0, reading(2 * STEP, None), None);
         assert_eq!(f.state(), FsmState::Forward);
         assert_eq!(f.entered_us(), 2 * STEP);
         assert_eq!(out.forward_mps, 0.3);
         // Also clear: an obstacle beyond 1 m.
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, Some(1.2)));
+        f.step(STEP, 0.0, reading(STEP, Some(1.2)), None);
         assert_eq!(f.state(), FsmState::Forward);
     }
 
     #[test]
     fn check_goes_to_hover_when_blocked() {
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, Some(0.8)));
+        f.step(STEP, 0.0, reading(STEP, Some(0.8)), None);
         assert_eq!(f.state(), FsmState::Hover);
         assert_eq!(f.output().forward_mps, 0.0);
     }
@@ -534,44 +599,49 @@ mod tests {
     #[test]
     fn forward_to_hover_to_turn_to_check_with_times() {
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, None));
+        f.step(STEP, 0.0, reading(STEP, None), None);
         assert_eq!(f.state(), FsmState::Forward);
         // The same reading again is not fresh; a far obstacle keeps going.
-        f.step(2 * STEP, 0.0, reading(STEP, Some(0.5)));
-        f.step(3 * STEP, 0.0, reading(3 * STEP, Some(1.5)));
+        f.step(2 * STEP, 0.0, reading(STEP, Some(0.5)), None);
+        f.step(3 * STEP, 0.0, reading(3 * STEP, Some(1.5)), None);
         assert_eq!(f.state(), FsmState::Forward);
         // Readings keep coming while clear.
         let mut t = 3 * STEP;
         while t < 2 * S - 100_000 {
             t += 100_000;
-            f.step(t, 0.0, reading(t, None));
+            f.step(t, 0.0, reading(t, None), None);
             assert_eq!(f.state(), FsmState::Forward);
         }
         // Obstacle at 0.95 m at t = 2 s -> Hover at 2 s.
-        f.step(2 * S, 0.0, reading(2 * S, Some(0.95)));
+        f.step(2 * S, 0.0, reading(2 * S, Some(0.95)), None);
         assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, 2 * S));
         // Hover lasts exactly 1 s.
-        f.step(3 * S - 1, 0.0, None);
+        f.step(3 * S - 1, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Hover);
-        f.step(3 * S, 0.0, None);
+        f.step(3 * S, 0.0, None, None);
         assert_eq!((f.state(), f.entered_us()), (FsmState::Turn, 3 * S));
         // The yaw setpoint ramps at 1.5 rad/s towards +60 deg.
-        let out = f.step(3 * S + 200_000, 0.0, None);
+        let out = f.step(3 * S + 200_000, 0.0, None, None);
         assert!((out.yaw_sp_rad - 0.3).abs() < 1e-4, "{}", out.yaw_sp_rad);
         assert_eq!(out.forward_mps, 0.0);
         // Ramp done at 3.698 s; the heading follows -> Check.
         let target = 60.0_f32.to_radians();
         let t_ramp = 3 * S + (target / 1.5 * 1e6) as u64 + 1;
-        f.step(t_ramp, target - 0.5, None);
+        f.step(t_ramp, target - 0.5, None, None);
         assert_eq!(f.state(), FsmState::Turn, "heading not there yet");
-        f.step(t_ramp + STEP, target - 0.05, None);
+        f.step(t_ramp + STEP, target - 0.05, None, None);
         assert_eq!(
             (f.state(), f.entered_us()),
             (FsmState::Check, t_ramp + STEP)
         );
         assert!((f.output().yaw_sp_rad - target).abs() < 1e-5);
         // And the cycle goes on from Check.
-        f.step(t_ramp + 2 * STEP, target, reading(t_ramp + 2 * STEP, None));
+        f.step(
+            t_ramp + 2 * STEP,
+            target,
+            reading(t_ramp + 2 * STEP, None),
+            None,
+        );
         assert_eq!(f.state(), FsmState::Forward);
         assert_eq!(f.transitions(), 5);
     }
@@ -579,47 +649,47 @@ mod tests {
     #[test]
     fn forward_stops_when_readings_stop() {
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, None));
+        f.step(STEP, 0.0, reading(STEP, None), None);
         assert_eq!(f.state(), FsmState::Forward);
         // The last reading is 300 ms old: still going; 1 µs later: stop.
-        f.step(STEP + 300_000, 0.0, reading(STEP, None));
+        f.step(STEP + 300_000, 0.0, reading(STEP, None), None);
         assert_eq!(f.state(), FsmState::Forward);
-        f.step(STEP + 300_001, 0.0, reading(STEP, None));
+        f.step(STEP + 300_001, 0.0, reading(STEP, None), None);
         assert_eq!(
             (f.state(), f.entered_us()),
             (FsmState::Hover, STEP + 300_001)
         );
         // No reading at all is stale too.
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, None));
-        f.step(2 * STEP, 0.0, None);
+        f.step(STEP, 0.0, reading(STEP, None), None);
+        f.step(2 * STEP, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Hover);
     }
 
     #[test]
     fn turn_times_out_when_the_heading_lags() {
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, Some(0.3)));
-        f.step(STEP + S, 0.0, None);
+        f.step(STEP, 0.0, reading(STEP, Some(0.3)), None);
+        f.step(STEP + S, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Turn);
         let ramp_end = STEP + S + 700_000; // 60 deg at 1.5 rad/s = 0.698 s
-        f.step(ramp_end, 0.0, None);
+        f.step(ramp_end, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Turn);
-        f.step(ramp_end + 2 * S - 1, 0.0, None);
+        f.step(ramp_end + 2 * S - 1, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Turn);
-        f.step(ramp_end + 2 * S, 0.0, None);
+        f.step(ramp_end + 2 * S, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Check);
     }
 
     #[test]
     fn heading_wraps_through_pi() {
         let mut f = AvoidanceFsm::new(FsmConfig::default(), 0, 3.0);
-        f.step(STEP, 3.0, reading(STEP, Some(0.3)));
-        f.step(STEP + S, 3.0, None);
-        let out = f.step(STEP + S + 800_000, 3.0, None);
+        f.step(STEP, 3.0, reading(STEP, Some(0.3)), None);
+        f.step(STEP + S, 3.0, None, None);
+        let out = f.step(STEP + S + 800_000, 3.0, None, None);
         let expect = wrap_pi(3.0 + 60.0_f32.to_radians());
         assert!((out.yaw_sp_rad - expect).abs() < 1e-4);
-        f.step(STEP + S + 820_000, expect, None);
+        f.step(STEP + S + 820_000, expect, None, None);
         assert_eq!(f.state(), FsmState::Check);
     }
 
@@ -630,8 +700,8 @@ mod tests {
             ..FsmConfig::default()
         };
         let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
-        f.step(STEP, 0.0, reading(STEP, Some(0.6)));
-        f.step(STEP + S, 0.0, None);
+        f.step(STEP, 0.0, reading(STEP, Some(0.6)), None);
+        f.step(STEP + S, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Turn);
         // The drone follows the setpoint; readings are blocked (1.2 m < 1.5 m clear distance),
         // far beyond a 60 deg turn.
@@ -639,7 +709,7 @@ mod tests {
         let mut yaw = 0.0;
         for _ in 0..50 {
             t += STEP;
-            let out = f.step(t, yaw, reading(t, Some(1.2)));
+            let out = f.step(t, yaw, reading(t, Some(1.2)), None);
             yaw = out.yaw_sp_rad;
         }
         assert_eq!(f.state(), FsmState::Turn);
@@ -647,16 +717,16 @@ mod tests {
         // Two clear readings, then a blocked one: the count restarts.
         for d in [None, Some(2.0), Some(0.9)] {
             t += STEP;
-            f.step(t, yaw, reading(t, d));
+            f.step(t, yaw, reading(t, d), None);
         }
         assert_eq!(f.state(), FsmState::Turn);
         for _ in 0..2 {
             t += STEP;
-            f.step(t, yaw, reading(t, None));
+            f.step(t, yaw, reading(t, None), None);
             assert_eq!(f.state(), FsmState::Turn);
         }
         t += STEP;
-        let out = f.step(t, 1.55, reading(t, Some(3.0)));
+        let out = f.step(t, 1.55, reading(t, Some(3.0)), None);
         assert_eq!((f.state(), f.entered_us()), (FsmState::Forward, t));
         // Heading held where the drone is.
         assert_eq!(out.yaw_sp_rad, 1.55);
@@ -670,12 +740,12 @@ mod tests {
             ..FsmConfig::default()
         };
         let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
-        f.step(STEP, 0.0, reading(STEP, Some(0.6)));
-        f.step(STEP + S, 0.0, None);
+        f.step(STEP, 0.0, reading(STEP, Some(0.6)), None);
+        f.step(STEP + S, 0.0, None, None);
         let mut t = STEP + S;
         for _ in 0..200 {
             t += STEP;
-            f.step(t, 0.0, None);
+            f.step(t, 0.0, None, None);
         }
         assert!(f.output().yaw_sp_rad <= 0.5 + 1e-4);
     }
@@ -703,7 +773,7 @@ mod tests {
         let mut t = 0;
         while t + 40_000 < cfg.check_timeout_us {
             t += 40_000;
-            let out = f.step(t, f.output().yaw_sp_rad, unknown(t));
+            let out = f.step(t, f.output().yaw_sp_rad, unknown(t), None);
             assert_eq!(
                 (f.state(), out.forward_mps, out.land),
                 (FsmState::Check, 0.0, false)
@@ -715,7 +785,7 @@ mod tests {
         for _ in 0..20_000 {
             t += 40_000;
             let before = f.state();
-            let out = f.step(t, f.output().yaw_sp_rad, unknown(t));
+            let out = f.step(t, f.output().yaw_sp_rad, unknown(t), None);
             assert_eq!(out.forward_mps, 0.0, "never forward on unknown readings");
             if before == FsmState::Check && f.state() == FsmState::Turn {
                 turns += 1;
@@ -734,7 +804,7 @@ mod tests {
         let turn_us = (cfg.turn_angle_rad / cfg.turn_rate_radps * 1e6) as u64 + 40_000;
         assert!(t <= u64::from(cfg.max_searches) * (cfg.check_timeout_us + turn_us) + 80_000);
         // Landing is kept (zero speed) whatever comes, until a reset.
-        let out = f.step(t + 40_000, 0.0, reading(t + 40_000, None));
+        let out = f.step(t + 40_000, 0.0, reading(t + 40_000, None), None);
         assert!(out.land && out.forward_mps == 0.0);
         f.reset(t + 80_000, 0.0);
         assert!(!f.wants_to_land());
@@ -745,15 +815,20 @@ mod tests {
     fn a_clear_reading_during_the_search_goes_forward_and_restarts_the_count() {
         let cfg = FsmConfig::default();
         let mut f = paper();
-        f.step(cfg.check_timeout_us, 0.0, unknown(cfg.check_timeout_us));
+        f.step(
+            cfg.check_timeout_us,
+            0.0,
+            unknown(cfg.check_timeout_us),
+            None,
+        );
         assert_eq!(f.state(), FsmState::Turn);
         let mut t = cfg.check_timeout_us;
         while f.state() != FsmState::Check {
             t += STEP;
-            f.step(t, f.output().yaw_sp_rad, None);
+            f.step(t, f.output().yaw_sp_rad, None, None);
         }
         t += STEP;
-        f.step(t, f.output().yaw_sp_rad, reading(t, None));
+        f.step(t, f.output().yaw_sp_rad, reading(t, None), None);
         assert_eq!(f.state(), FsmState::Forward);
         assert_eq!(f.searches, 0);
     }
@@ -761,17 +836,17 @@ mod tests {
     #[test]
     fn forward_stops_when_clear_evidence_stops() {
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, None));
+        f.step(STEP, 0.0, reading(STEP, None), None);
         assert_eq!(f.state(), FsmState::Forward);
         // Readings keep coming, but over a plain view: 300 ms after the last clear one, stop.
         let mut t = STEP;
         while t < STEP + 300_000 {
             t += STEP;
-            f.step(t, 0.0, unknown(t));
+            f.step(t, 0.0, unknown(t), None);
             assert_eq!(f.state(), FsmState::Forward, "at {t}");
         }
         t += STEP;
-        f.step(t, 0.0, unknown(t));
+        f.step(t, 0.0, unknown(t), None);
         assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, t));
     }
 
@@ -779,15 +854,15 @@ mod tests {
     fn forward_times_out_into_hover() {
         let cfg = FsmConfig::default();
         let mut f = paper();
-        f.step(STEP, 0.0, reading(STEP, None));
+        f.step(STEP, 0.0, reading(STEP, None), None);
         let end = STEP + cfg.forward_timeout_us;
         let mut t = STEP;
         while t + 100_000 < end {
             t += 100_000;
-            f.step(t, 0.0, reading(t, None));
+            f.step(t, 0.0, reading(t, None), None);
             assert_eq!(f.state(), FsmState::Forward);
         }
-        f.step(end, 0.0, reading(end, None));
+        f.step(end, 0.0, reading(end, None), None);
         assert_eq!((f.state(), f.entered_us()), (FsmState::Hover, end));
     }
 
@@ -798,15 +873,15 @@ mod tests {
             ..FsmConfig::default()
         };
         let mut f = AvoidanceFsm::new(cfg, 0, 0.0);
-        f.step(STEP, 0.0, reading(STEP, Some(0.6)));
-        f.step(STEP + S, 0.0, None);
+        f.step(STEP, 0.0, reading(STEP, Some(0.6)), None);
+        f.step(STEP + S, 0.0, None, None);
         assert_eq!(f.state(), FsmState::Turn);
         let start = STEP + S;
         let mut t = start;
         // Unknown readings all the way round: no Forward, and a landing at the timeout.
         while t < start + cfg.search_timeout_us - STEP {
             t += STEP;
-            let out = f.step(t, f.output().yaw_sp_rad, unknown(t));
+            let out = f.step(t, f.output().yaw_sp_rad, unknown(t), None);
             assert_eq!(
                 (f.state(), out.forward_mps, out.land),
                 (FsmState::Turn, 0.0, false)
@@ -814,7 +889,7 @@ mod tests {
         }
         t += STEP;
         let yaw = f.output().yaw_sp_rad;
-        let out = f.step(t, yaw, unknown(t));
+        let out = f.step(t, yaw, unknown(t), None);
         assert!(out.land);
         assert_eq!(out.forward_mps, 0.0);
         assert_eq!(out.yaw_sp_rad, yaw, "holds the heading it has");

@@ -163,8 +163,8 @@ impl VelocityGuidance {
     }
 
     /// Moves the reference towards `setpoint` over `dt` s (from `measured` if it has to
-    /// restart); returns the velocity expected of the drone and the acceleration to feed
-    /// forward, per axis.
+    /// restart; both finite); returns the velocity expected of the drone and the acceleration
+    /// to feed forward, per axis.
     fn advance_reference(
         &mut self,
         setpoint: [f32; 2],
@@ -176,11 +176,7 @@ impl VelocityGuidance {
         let mut r = self.reference.unwrap_or(Reference::at(measured));
         let mut accel = [0.0f32; 2];
         for i in 0..2 {
-            let target = if setpoint[i].is_finite() {
-                setpoint[i]
-            } else {
-                0.0
-            };
+            let target = setpoint[i];
             if !(a_max > 0.0 && a_max.is_finite() && r.velocity[i].is_finite()) {
                 r.velocity[i] = target;
                 r.lagged_accel[i] = 0.0;
@@ -218,7 +214,7 @@ impl VelocityGuidance {
             0.0
         };
         let finite = |v: [f32; 2]| v.map(|x| if x.is_finite() { x } else { 0.0 });
-        let (reference, accel) = self.advance_reference(setpoint, finite(measured), dt);
+        let (reference, accel) = self.advance_reference(finite(setpoint), finite(measured), dt);
         let mut tilt = [0.0f32; 2];
         for i in 0..2 {
             let feedforward = libm::atanf(accel[i] / crate::attitude::GRAVITY);

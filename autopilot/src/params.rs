@@ -138,6 +138,8 @@ protocol::param_table! {
     "fsm_block_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.block_confirm;
     "fsm_approach_dist": F32 ["m"] 0.0, 10.0, true => |c| c.fsm.approach_distance_m;
     "fsm_approach_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.fsm.approach_speed_mps;
+    "fsm_brake_speed": F32 ["m/s"] 0.0, 1.0, true => |c| c.fsm.brake_speed_mps;
+    "fsm_brake_timeout_us": U32 ["us"] 0, 10_000_000, true => |c| c.fsm.brake_timeout_us;
     "fsm_check_timeout_us": U32 ["us"] 100_000, 30_000_000, true => |c| c.fsm.check_timeout_us;
     "fsm_max_searches": U32 ["-"] 1, 60, true => |c| c.fsm.max_searches;
     "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;

@@ -531,15 +531,20 @@ pub enum FsmState {
     Hover,
     /// Turn (by a fixed angle, or until clear).
     Turn,
+    /// Stop from forward flight (zero velocity requested) until the drone is still, then
+    /// `Hover`. Declared last so that the other states keep their wire values.
+    Brake,
 }
 
 impl FsmState {
-    /// Every state, in declaration order (plots and tables list them in this order).
-    pub const ALL: [FsmState; 4] = [
+    /// Every state, in declaration order (plots and tables list them in this order, and logs
+    /// number them by it).
+    pub const ALL: [FsmState; 5] = [
         FsmState::Check,
         FsmState::Forward,
         FsmState::Hover,
         FsmState::Turn,
+        FsmState::Brake,
     ];
 
     /// Short lower-case name for logs, tables and plots.
@@ -549,6 +554,7 @@ impl FsmState {
             FsmState::Forward => "forward",
             FsmState::Hover => "hover",
             FsmState::Turn => "turn",
+            FsmState::Brake => "brake",
         }
     }
 }

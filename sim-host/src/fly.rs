@@ -232,7 +232,7 @@ impl FlyArgs {
 macro_rules! summary_columns {
     () => {
         "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m,\
-         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg"
+         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,stop_speed_mps"
     };
 }
 
@@ -242,7 +242,7 @@ pub const CSV_HEADER: &str = summary_columns!();
 /// One CSV summary row.
 pub fn csv_row(r: &FlightResult) -> String {
     format!(
-        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3}",
+        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3},{:.4}",
         r.seed,
         r.duration_s,
         r.flight_time_s,
@@ -253,7 +253,8 @@ pub fn csv_row(r: &FlightResult) -> String {
         r.tracking.track_rmse_mps,
         r.tracking.hover_speed_mps,
         r.tracking.height_rmse_m,
-        r.tracking.tilt_rmse_deg
+        r.tracking.tilt_rmse_deg,
+        r.tracking.stop_speed_mps
     )
 }
 
@@ -344,9 +345,10 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                     );
                     println!("distance flown  {:.1} m", r.distance_m);
                     println!(
-                        "tracking        {:.3} m/s RMS in Forward, {:.3} m/s mean speed in Hover, {:.3} m RMS height (level flight, true state vs setpoints)",
+                        "tracking        {:.3} m/s RMS in Forward, {:.3} m/s mean speed in Hover ({:.3} over the whole stop, Brake included), {:.3} m RMS height (level flight, true state vs setpoints)",
                         r.tracking.track_rmse_mps,
                         r.tracking.hover_speed_mps,
+                        r.tracking.stop_speed_mps,
                         r.tracking.height_rmse_m
                     );
                     println!(
@@ -398,7 +400,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 Format::Csv => print!("{csv}"),
                 Format::Table => {
                     println!(
-                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
                         "seed",
                         "duration",
                         "flight",
@@ -408,11 +410,12 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         "dist",
                         "track",
                         "hover_v",
+                        "stop_v",
                         "height"
                     );
                     for r in &results {
                         println!(
-                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3}",
+                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3} {:>9.3}",
                             r.seed,
                             r.duration_s,
                             r.flight_time_s,
@@ -422,6 +425,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                             r.distance_m,
                             r.tracking.track_rmse_mps,
                             r.tracking.hover_speed_mps,
+                            r.tracking.stop_speed_mps,
                             r.tracking.height_rmse_m
                         );
                     }

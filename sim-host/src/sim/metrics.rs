@@ -1,8 +1,8 @@
 //! How well a flight followed its setpoints, from its 50 Hz log: the figures `fly` prints and
-//! writes as `track_rmse_mps`, `hover_speed_mps` and `height_rmse_m`, and the attitude
-//! estimate's error the velocity filter predicts with, `tilt_rmse_deg`.
+//! writes as `track_rmse_mps`, `hover_speed_mps`, `stop_speed_mps` and `height_rmse_m`, and the
+//! attitude estimate's error the velocity filter predicts with, `tilt_rmse_deg`.
 //!
-//! All four use the true state (the simulator's; the tilt error is the autopilot's estimate
+//! All of them use the true state (the simulator's; the tilt error is the autopilot's estimate
 //! against it) and only rows in level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
 //! ramp has reached the target height, and stops for landing and every failsafe).
 
@@ -19,6 +19,9 @@ pub struct TrackingFigures {
     pub track_rmse_mps: f64,
     /// Mean true horizontal speed while the FSM is in `Hover` (its setpoint is zero), m/s.
     pub hover_speed_mps: f64,
+    /// Mean true horizontal speed over the whole stop, `Brake` and `Hover` (the braking from
+    /// forward flight included), m/s.
+    pub stop_speed_mps: f64,
     /// RMS of true height minus the height setpoint in level flight, m.
     pub height_rmse_m: f64,
     /// RMS of the attitude estimate's roll and pitch error (as one 2-D vector) in level
@@ -31,6 +34,7 @@ impl TrackingFigures {
     pub fn from_log(log: &[LogRow]) -> Self {
         let mut track = Mean::default();
         let mut hover = Mean::default();
+        let mut stop = Mean::default();
         let mut height = Mean::default();
         let mut tilt = Mean::default();
         for row in log.iter().filter(|r| r.mode == FlightMode::Flying) {
@@ -40,6 +44,7 @@ impl TrackingFigures {
             height.add(f64::from(row.pos[2] - row.height_sp_m).powi(2));
             let [er, ep] = row.tilt_err_deg.map(f64::from);
             tilt.add(er * er + ep * ep);
+            let speed = f64::from(row.vel_true[0].hypot(row.vel_true[1]));
             match state {
                 FsmState::Forward => {
                     let ef = f64::from(row.vel_true[0] - row.vel_sp[0]);
@@ -47,14 +52,17 @@ impl TrackingFigures {
                     track.add(ef * ef + es * es);
                 }
                 FsmState::Hover => {
-                    hover.add(f64::from(row.vel_true[0].hypot(row.vel_true[1])));
+                    hover.add(speed);
+                    stop.add(speed);
                 }
+                FsmState::Brake => stop.add(speed),
                 FsmState::Check | FsmState::Turn => {}
             }
         }
         Self {
             track_rmse_mps: track.value().sqrt(),
             hover_speed_mps: hover.value(),
+            stop_speed_mps: stop.value(),
             height_rmse_m: height.value().sqrt(),
             tilt_rmse_deg: tilt.value().sqrt(),
         }
@@ -117,7 +125,8 @@ mod tests {
             // Forward: errors (0.3, 0.4) and (0, 0) -> RMS of |e| = sqrt(0.25 / 2).
             row(Flying, Some(Forward), [0.6, 0.4], [0.3, 0.0], 1.1),
             row(Flying, Some(Forward), [0.3, 0.0], [0.3, 0.0], 0.9),
-            // Hover: speeds 0.5 and 0.1.
+            // Brake: speed 0.9 (the stop only); Hover: speeds 0.5 and 0.1.
+            row(Flying, Some(Brake), [0.0, 0.9], [0.0, 0.0], 1.0),
             row(Flying, Some(Hover), [0.3, 0.4], [0.0, 0.0], 1.0),
             row(Flying, Some(Hover), [0.0, 0.1], [0.0, 0.0], 1.0),
             row(Flying, Some(Check), [0.0, 0.0], [0.0, 0.0], 1.2),
@@ -128,8 +137,9 @@ mod tests {
             "{f:?}"
         );
         assert!((f.hover_speed_mps - 0.3).abs() < 1e-6, "{f:?}");
-        // Heights 1.1, 0.9, 1.0, 1.0, 1.2 against 1.0.
-        let want = ((0.01 + 0.01 + 0.04) / 5.0f64).sqrt();
+        assert!((f.stop_speed_mps - 0.5).abs() < 1e-6, "{f:?}");
+        // Heights 1.1, 0.9, 1.0, 1.0, 1.0, 1.2 against 1.0.
+        let want = ((0.01 + 0.01 + 0.04) / 6.0f64).sqrt();
         assert!((f.height_rmse_m - want).abs() < 1e-6, "{f:?}");
     }
 
