@@ -2,7 +2,8 @@
 //! telemetry link) and the parameter files `fly --params` reads.
 //!
 //! The link is the autopilot's telemetry port (it passes the camera board's requests on): a serial device or `tcp:HOST:PORT` (a virtual
-//! board's `vboard serve autopilot`, a QEMU socket), the same ports `monitor` opens. One
+//! board's `vboard serve autopilot`, a QEMU socket), the same ports `monitor` opens. The first
+//! request waits for the autopilot's telemetry (a board still booting would lose it). One
 //! request is in flight at a time; an answer that does not match it is skipped, and a request
 //! with no answer within `--timeout` is sent again (twice) before the command fails.
 //!
@@ -229,12 +230,19 @@ impl ParamClient<'static> {
             Err(mpsc::RecvTimeoutError::Timeout) => Ok(None),
             Err(mpsc::RecvTimeoutError::Disconnected) => Err(LinkClosed),
         });
-        Ok(ParamClient::with_source(
-            Box::new(link),
-            source,
-            board,
-            timeout,
-        ))
+        let mut client = ParamClient::with_source(Box::new(link), source, board, timeout);
+        client.hear_the_board()?;
+        Ok(client)
+    }
+
+    /// Waits, at most one timeout, for the autopilot's first message on the link (it streams
+    /// telemetry from boot): a request sent to a board still booting would be lost, and only
+    /// its retry, a timeout later, answered.
+    fn hear_the_board(&mut self) -> anyhow::Result<()> {
+        match (self.source)(self.timeout) {
+            Ok(_) => Ok(()),
+            Err(LinkClosed) => bail!("the link closed before the board sent anything"),
+        }
     }
 
     /// Opens `port` (serial at `baud`, or `tcp:HOST:PORT`).

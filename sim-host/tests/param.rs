@@ -46,14 +46,16 @@ impl Boards {
     }
 }
 
-/// Serves the boards to every client that connects, one after the other (a telemetry frame
-/// before each answer, as the firmware's 10 Hz telemetry interleaves).
+/// Serves the boards to every client that connects, one after the other (telemetry every
+/// 100 ms of silence and before each answer, as the firmware's 10 Hz telemetry interleaves).
 fn serve(boards: Boards) -> u16 {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
     std::thread::spawn(move || {
         for stream in listener.incoming() {
             let Ok(mut s) = stream else { return };
+            s.set_read_timeout(Some(Duration::from_millis(100)))
+                .unwrap();
             let boards = boards.clone();
             std::thread::spawn(move || board(&mut s, &boards, &|| false));
         }
@@ -73,6 +75,10 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
                 if stop() {
                     return;
                 }
+                // The telemetry the firmware streams from boot (the tool waits for it); a
+                // serial port with no tool open may refuse it.
+                let telemetry = BoardToHost::Telemetry(boards.ap.lock().unwrap().telemetry(0));
+                let _ = s.write_all(&protocol::encode_to_vec::<_, 128>(&telemetry).unwrap());
                 continue;
             }
             Err(_) => return,

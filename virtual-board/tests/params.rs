@@ -45,15 +45,18 @@ fn sim_host() -> PathBuf {
     path
 }
 
-/// Starts `sim-host param --port tcp:... ARGS` on a fresh local port (it waits up to 20 s of
-/// wall time for an answer: the bench may run well below real time on a loaded machine, and a
-/// retry while a board still erases would end the run in the middle of a save).
+/// Starts `sim-host param --port tcp:... ARGS` on a fresh local port. The tool's timeout is
+/// wall time, the bench's clock virtual time (paced at most real time, far slower on a loaded
+/// machine): a retry would send a second request, and the end of the run (the tool's
+/// disconnect) would cut a second save off mid-erase, its flash left unlocked (every time with
+/// a 2 s timeout). So the tool waits up to 600 s, which it never does: the end of the run
+/// closes the port and the tool with it.
 fn start_tool(args: &[&str]) -> (TcpListener, Child) {
     let listener = TcpListener::bind("127.0.0.1:0").expect("a local port");
     let port = listener.local_addr().unwrap().port();
     let tool = Command::new(sim_host())
         .args(["param", "--port", &format!("tcp:127.0.0.1:{port}")])
-        .args(["--timeout", "20"])
+        .args(["--timeout", "600"])
         .args(args)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
