@@ -152,8 +152,13 @@ impl<B> TcpBridge<B> {
     fn exchange(&mut self, now_ns: u64, end: &WireEnd) -> Result<(), String> {
         let sent = end.tx.sent_bytes_from(self.forwarded);
         self.forwarded += sent.len();
-        self.write_all(&sent)
-            .map_err(|e| format!("the client went away: {e}"))?;
+        self.write_all(&sent).map_err(|e| {
+            if closed_by_client(&e) {
+                CLIENT_DISCONNECTED.into()
+            } else {
+                format!("writing to the client: {e}")
+            }
+        })?;
         self.bytes_out += sent.len() as u64;
         if let Some(wait) = self.answer_wait.filter(|_| !sent.is_empty()) {
             self.await_answer(now_ns, end, wait)?;
@@ -179,11 +184,12 @@ impl<B> TcpBridge<B> {
 const CLIENT_DISCONNECTED: &str = "the client disconnected";
 
 /// A client that closes its socket while our telemetry is still unread in its buffer resets
-/// the connection instead of closing it: it went away all the same.
+/// the connection instead of closing it, and a write after its close breaks the pipe: it went
+/// away all the same, whether a read or a write notices.
 fn closed_by_client(e: &std::io::Error) -> bool {
     matches!(
         e.kind(),
-        ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted
+        ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted | ErrorKind::BrokenPipe
     )
 }
 
