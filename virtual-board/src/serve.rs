@@ -144,21 +144,15 @@ impl<B> TcpBridge<B> {
             }
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => Ok(()),
             Err(e) if e.kind() == ErrorKind::Interrupted => Ok(()),
-            Err(e) if closed_by_client(&e) => Err(CLIENT_DISCONNECTED.into()),
-            Err(e) => Err(format!("reading from the client: {e}")),
+            Err(e) => Err(run_end(&e, "reading from")),
         }
     }
 
     fn exchange(&mut self, now_ns: u64, end: &WireEnd) -> Result<(), String> {
         let sent = end.tx.sent_bytes_from(self.forwarded);
         self.forwarded += sent.len();
-        self.write_all(&sent).map_err(|e| {
-            if closed_by_client(&e) {
-                CLIENT_DISCONNECTED.into()
-            } else {
-                format!("writing to the client: {e}")
-            }
-        })?;
+        self.write_all(&sent)
+            .map_err(|e| run_end(&e, "writing to"))?;
         self.bytes_out += sent.len() as u64;
         if let Some(wait) = self.answer_wait.filter(|_| !sent.is_empty()) {
             self.await_answer(now_ns, end, wait)?;
@@ -173,8 +167,7 @@ impl<B> TcpBridge<B> {
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return Ok(()),
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(e) if closed_by_client(&e) => return Err(CLIENT_DISCONNECTED.into()),
-                Err(e) => return Err(format!("reading from the client: {e}")),
+                Err(e) => return Err(run_end(&e, "reading from")),
             }
         }
     }
@@ -183,14 +176,17 @@ impl<B> TcpBridge<B> {
 /// How a run ends when the client goes away (closed or reset).
 const CLIENT_DISCONNECTED: &str = "the client disconnected";
 
-/// A client that closes its socket while our telemetry is still unread in its buffer resets
-/// the connection instead of closing it, and a write after its close breaks the pipe: it went
-/// away all the same, whether a read or a write notices.
-fn closed_by_client(e: &std::io::Error) -> bool {
-    matches!(
-        e.kind(),
-        ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted | ErrorKind::BrokenPipe
-    )
+/// Why the run ends on a failed read or write (`doing`: "reading from", "writing to"). A client
+/// that closes its socket while our telemetry is still unread in its buffer resets the
+/// connection instead of closing it, and a write after its close breaks the pipe: it went away
+/// all the same, whether a read or a write notices.
+fn run_end(e: &std::io::Error, doing: &str) -> String {
+    match e.kind() {
+        ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted | ErrorKind::BrokenPipe => {
+            CLIENT_DISCONNECTED.into()
+        }
+        _ => format!("{doing} the client: {e}"),
+    }
 }
 
 impl<B: BenchBoard + Send> Probe<B> for TcpBridge<B> {
