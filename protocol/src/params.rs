@@ -301,6 +301,29 @@ macro_rules! param_table {
     };
 }
 
+/// Two parameters whose values disagree: a bound of one depends on the other (a board's
+/// consistency check returns it, [`ParamTable::consistent`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Conflict {
+    /// The parameter reported at fault.
+    pub name: &'static str,
+    /// The parameter its bound depends on.
+    pub other: &'static str,
+    /// Why the two disagree, read between the two names ("`name` must be below `other`").
+    pub reason: &'static str,
+}
+
+impl Conflict {
+    /// `name` disagrees with `other` because of `reason`.
+    pub const fn new(name: &'static str, other: &'static str, reason: &'static str) -> Self {
+        Self {
+            name,
+            other,
+            reason,
+        }
+    }
+}
+
 /// Why a configuration, or one parameter change, was refused.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rejected {
@@ -311,6 +334,8 @@ pub struct Rejected {
     pub spec: Option<&'static ParamSpec>,
     /// Why.
     pub error: ParamError,
+    /// For [`ParamError::Inconsistent`]: the two parameters that disagree and why.
+    pub conflict: Option<Conflict>,
 }
 
 impl Rejected {
@@ -320,6 +345,7 @@ impl Rejected {
             index: None,
             spec: None,
             error,
+            conflict: None,
         }
     }
 
@@ -337,10 +363,13 @@ impl core::fmt::Display for Rejected {
                 if self.error == ParamError::OutOfBounds {
                     write!(f, " [{} ..= {}] {}", s.min, s.max, s.unit)?;
                 }
-                Ok(())
             }
-            _ => f.write_str(self.error.describe()),
+            _ => f.write_str(self.error.describe())?,
         }
+        if let Some(c) = self.conflict {
+            write!(f, ": {} {} {}", c.name, c.reason, c.other)?;
+        }
+        Ok(())
     }
 }
 
@@ -355,9 +384,9 @@ pub struct ParamTable<C: 'static> {
     pub access: &'static [ParamAccess<C>],
     /// The configuration the firmware starts with.
     pub defaults: fn() -> C,
-    /// Checks values against each other (each is already within its bounds): `Err(name)` of
-    /// the parameter at fault.
-    pub consistent: fn(&C) -> Result<(), &'static str>,
+    /// Checks values against each other (each is already within its bounds): the first pair
+    /// that disagrees.
+    pub consistent: fn(&C) -> Result<(), Conflict>,
 }
 
 /// Copies `s` into a wire string, cut at its capacity.
@@ -402,6 +431,7 @@ impl<C: Copy> ParamTable<C> {
             index: Some(index),
             spec: self.specs.get(index),
             error,
+            conflict: None,
         }
     }
 
@@ -427,9 +457,10 @@ impl<C: Copy> ParamTable<C> {
                 Ok(())
             }
             // The change made another value inconsistent: name the one that was set.
-            Err(r) if r.error == ParamError::Inconsistent => {
-                Err(self.rejected(index, ParamError::Inconsistent))
-            }
+            Err(r) if r.error == ParamError::Inconsistent => Err(Rejected {
+                conflict: r.conflict,
+                ..self.rejected(index, ParamError::Inconsistent)
+            }),
             Err(r) => Err(r),
         }
     }
@@ -449,9 +480,15 @@ impl<C: Copy> ParamTable<C> {
             spec.check((access.get)(cfg))
                 .map_err(|e| self.rejected(i, e))?;
         }
-        (self.consistent)(cfg).map_err(|name| match self.index_of(name) {
-            Some(i) => self.rejected(i, ParamError::Inconsistent),
-            None => Rejected::refused(ParamError::Inconsistent),
+        (self.consistent)(cfg).map_err(|c| {
+            let at = match self.index_of(c.name) {
+                Some(i) => self.rejected(i, ParamError::Inconsistent),
+                None => Rejected::refused(ParamError::Inconsistent),
+            };
+            Rejected {
+                conflict: Some(c),
+                ..at
+            }
         })
     }
 
@@ -1040,7 +1077,13 @@ mod tests {
         specs: CFG_SPECS,
         access: CFG_ACCESS,
         defaults: || CFG_DEFAULT,
-        consistent: |c| if c.lo > c.hi { Err("lo") } else { Ok(()) },
+        consistent: |c| {
+            if c.lo > c.hi {
+                Err(Conflict::new("lo", "hi", "must not exceed"))
+            } else {
+                Ok(())
+            }
+        },
     };
 
     #[test]
@@ -1078,6 +1121,9 @@ mod tests {
         assert!(std::format!("{r}").contains("[-20 ..= 20] px"), "{r}");
         let r = t.set_by_name(&mut c, "lo", ParamValue::U32(6)).unwrap_err();
         assert_eq!((r.name(), r.error), ("lo", ParamError::Inconsistent));
+        // The reason names both parameters of the pair.
+        let why = std::format!("{r}");
+        assert!(why.contains("lo must not exceed hi"), "{why}");
         let r = t.set_by_name(&mut c, "hi", ParamValue::U32(9)).unwrap_err();
         assert_eq!(r.error, ParamError::ReadOnly);
         assert_eq!(c.lo, 1);
