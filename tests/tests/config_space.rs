@@ -219,7 +219,8 @@ fn the_flight_check_catches_each_failure() {
         .iter()
         .position(|l| l.mode == FlightMode::Landing)
         .expect("a landing");
-    let broken: [(&str, fn(&mut LogRow)); 4] = [
+    type Breaks = fn(&mut LogRow);
+    let broken: [(&str, Breaks); 4] = [
         ("motor", |l| l.motors[2] = f32::NAN),
         ("height", |l| l.pos[2] = 5.0),
         ("speed", |l| l.vel_true = [3.0, 0.0]),
