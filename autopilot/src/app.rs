@@ -360,6 +360,10 @@ pub enum ArmBlock {
     /// The camera board speaks another protocol version (the value): its estimates cannot be
     /// read, so the drone would fly blind.
     PeerVersion(u8),
+    /// The boot could not load the saved parameters (why): the defaults in use are not what
+    /// was saved. Cleared by a successful save or `ParamOp::Acknowledge`
+    /// ([`StorageStatus::blocks_arming`]).
+    ParamsNotLoaded(RecordError),
 }
 
 fn finite3(v: &[f32; 3], max_abs: f32) -> bool {
@@ -760,6 +764,12 @@ impl Autopilot {
     pub fn arm_blocker(&self) -> Option<ArmBlock> {
         if self.rc_kill_latched {
             Some(ArmBlock::RcKill)
+        } else if let Some(Err(e)) = self
+            .storage
+            .filter(StorageStatus::blocks_arming)
+            .map(|s| s.loaded)
+        {
+            Some(ArmBlock::ParamsNotLoaded(e))
         } else {
             self.camera
                 .peer_version_mismatch()

@@ -1054,6 +1054,7 @@ fn parameters_saved_on_the_ground_load_at_the_next_boot() {
             loaded: Err(RecordError::Blank),
             saves: 1,
             failed_saves: 0,
+            acknowledged: false,
         })
     );
 
@@ -1081,6 +1082,7 @@ fn parameters_saved_on_the_ground_load_at_the_next_boot() {
         Some(StorageStatus {
             saves: 0,
             failed_saves: 1,
+            acknowledged: false,
             ..
         })
     ));
@@ -1095,6 +1097,94 @@ fn parameters_saved_on_the_ground_load_at_the_next_boot() {
         ap.storage().map(|s| s.loaded),
         Some(Err(RecordError::BadCrc))
     );
+}
+
+/// Flies a take-off and a hover whose clock starts `before_s` before `wrap_us`, so that the
+/// flight crosses it; returns the run.
+fn fly_across(wrap_us: u64, before_s: u64) -> Run {
+    let mut r = Run::new(AutopilotConfig::default());
+    // On the IMU's and the loops' cadence (`Run::fly` schedules by `now / IMU_US`).
+    let period = IMU_US * 10 * 17;
+    r.now = (wrap_us - before_s * 1_000_000) / period * period;
+    r.takeoff();
+    r.fly(before_s as f32 + 4.0);
+    assert!(r.now > wrap_us, "the flight crossed the wrap");
+    r
+}
+
+#[test]
+fn a_flight_continues_across_the_clock_wraps() {
+    // The 32-bit wire timestamp wraps at 2^32 us (71.6 min of uptime), the board's 32-bit
+    // millisecond tick at 2^32 ms (49.7 days); the library's clock is 64-bit and each input is
+    // stamped on it, so a flight across either wrap sees no stale input, no failsafe and
+    // holds its height.
+    for wrap_us in [1u64 << 32, (1u64 << 32) * 1_000] {
+        let r = fly_across(wrap_us, 8);
+        let modes: Vec<FlightMode> = r.modes.iter().map(|m| m.1).collect();
+        assert_eq!(
+            modes,
+            [FlightMode::Disarmed, FlightMode::Flying],
+            "wrap at {wrap_us} us: {:?}",
+            r.modes
+        );
+        let target = AutopilotConfig::default().target_height_m;
+        let h = r.quad.height();
+        assert!((h - target).abs() < 0.1, "wrap at {wrap_us} us: height {h}");
+        assert!(
+            r.max_tilt < 0.3,
+            "wrap at {wrap_us} us: tilt {}",
+            r.max_tilt
+        );
+    }
+}
+
+#[test]
+fn a_failed_parameter_load_blocks_arming_until_acknowledged_or_saved() {
+    use protocol::params::MemSlots;
+    // Two slots, one saved record, then corrupted: nothing good to boot on.
+    let mut slots = MemSlots::<1024>::blank();
+    let (mut ap, _) = Autopilot::from_store(&slots);
+    let req = |op| ParamRequest {
+        board: Node::Autopilot,
+        op,
+    };
+    assert_eq!(
+        ap.on_param_request_stored(&req(ParamOp::Save), &mut slots)
+            .reply,
+        ParamReply::Saved
+    );
+    slots.bytes[0][40] ^= 0x04;
+    for clear_by_save in [false, true] {
+        let mut r = Run::new(AutopilotConfig::default());
+        let (ap, loaded) = Autopilot::from_store(&slots.clone());
+        assert_eq!(loaded, Err(RecordError::BadCrc));
+        r.ap = ap;
+        r.fly(0.5);
+        assert_eq!(
+            r.ap.arm_blocker(),
+            Some(ArmBlock::ParamsNotLoaded(RecordError::BadCrc))
+        );
+        r.ap.on_command(PilotCommand::Arm, r.now);
+        assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+        assert_eq!(r.ap.arm_refused(), 1);
+        let mut store = slots.clone();
+        let op = if clear_by_save {
+            ParamOp::Save
+        } else {
+            ParamOp::Acknowledge
+        };
+        let reply = r.ap.on_param_request_stored(&req(op), &mut store).reply;
+        assert!(
+            matches!(reply, ParamReply::Saved | ParamReply::Storage(_)),
+            "{reply:?}"
+        );
+        assert_eq!(r.ap.arm_blocker(), None);
+        r.takeoff();
+    }
+    // A board never saved (blank slots) is not blocked.
+    let (ap, loaded) = Autopilot::from_store(&MemSlots::<1024>::blank());
+    assert_eq!(loaded, Err(RecordError::Blank));
+    assert_eq!(ap.arm_blocker(), None);
 }
 
 #[test]

@@ -69,6 +69,24 @@ impl SecondOrderFilter {
         }
     }
 
+    /// Largest value of `(omega dt)² + 4 zeta omega dt` accepted by [`Self::is_stable`]. The
+    /// step's characteristic polynomial `z² - (2 - (wh)² - 2ζwh) z + (1 - 2ζwh)` (`h` = `dt`)
+    /// has both roots inside the unit circle exactly when `2ζwh < 2` and its value at -1,
+    /// `4 - (wh)² - 4ζwh`, is positive (Jury's test; the first follows from the second). At 4
+    /// a root reaches -1 and the filter rings at half the step rate without decay; a sum of at
+    /// most 3 keeps the polynomial at -1 at a quarter or more of its value for a slow filter.
+    pub const STABILITY_LIMIT: f32 = 3.0;
+
+    /// True when a filter of natural frequency `omega` (rad/s) and damping `zeta` stepped at
+    /// `dt` (s) is stable with margin ([`Self::STABILITY_LIMIT`]): `(omega dt)² + 4 zeta omega
+    /// dt <= 3`. At 512 Hz that is `omega` up to 790 rad/s at `zeta` 0.1, 487 at 0.55 and 184
+    /// at 2. Non-finite or negative values are not.
+    pub fn is_stable(omega: f32, zeta: f32, dt: f32) -> bool {
+        let a = omega * dt;
+        let sum = a * a + 4.0 * zeta * a;
+        a.is_finite() && a >= 0.0 && zeta >= 0.0 && sum <= Self::STABILITY_LIMIT
+    }
+
     /// Resets the state to `x` at rest.
     pub fn reset(&mut self, x: f32) {
         self.x = x;
@@ -474,6 +492,44 @@ mod tests {
             "lag {}",
             t - f.x
         );
+    }
+
+    /// `omega` at which `(omega dt)² + 4 zeta omega dt` is `sum`.
+    fn omega_at(sum: f32, zeta: f32) -> f32 {
+        let a = -2.0 * zeta + (4.0 * zeta * zeta + sum).sqrt();
+        a / DT
+    }
+
+    #[test]
+    fn the_stability_check_matches_the_filter_at_the_loop_rate() {
+        for zeta in [0.1, 0.55, 1.0, 2.0] {
+            // Accepted at the limit: a unit step settles.
+            let w = omega_at(SecondOrderFilter::STABILITY_LIMIT, zeta) * 0.999;
+            assert!(SecondOrderFilter::is_stable(w, zeta, DT), "{w} {zeta}");
+            let mut f = SecondOrderFilter::new(w, zeta, DT);
+            for _ in 0..2048 {
+                f.update(1.0);
+            }
+            assert!((f.x - 1.0).abs() < 1e-3, "{w} {zeta}: {}", f.x);
+            // Past the edge (4): refused, and the error grows step after step.
+            let w = omega_at(4.2, zeta);
+            assert!(!SecondOrderFilter::is_stable(w, zeta, DT), "{w} {zeta}");
+            let mut f = SecondOrderFilter::new(w, zeta, DT);
+            let mut errors = [0.0f32; 200];
+            for e in errors.iter_mut() {
+                f.update(1.0);
+                *e = (f.x - 1.0).abs();
+            }
+            // Ringing at half the step rate: two consecutive errors, both past the step.
+            assert!(
+                errors[198..].iter().all(|&e| e > 1.0),
+                "{w} {zeta}: {errors:?}"
+            );
+        }
+        // The case: omega near 500 with zeta near 2 diverges and is refused.
+        assert!(!SecondOrderFilter::is_stable(500.0, 2.0, DT));
+        assert!(SecondOrderFilter::is_stable(50.0, 0.55, DT));
+        assert!(!SecondOrderFilter::is_stable(f32::NAN, 0.55, DT));
     }
 
     #[test]

@@ -10,14 +10,19 @@
 //! the IMU's [`crate::board::LOOP_RATE_HZ`] whatever it says.
 //!
 //! A configuration is accepted when every value is within its bounds and the values agree
-//! with each other (the thrust range holds the hover thrust, the G1 clamps hold the G1 start
-//! values); anything else is rejected with the parameter and the reason ([`Rejected`]), and
-//! nothing changes.
+//! with each other: the INDI filters are stable at the 512 Hz loop
+//! ([`SecondOrderFilter::is_stable`]), the thrusts are ordered (arming <= minimum <= hover <=
+//! maximum, arming <= blind landing < hover), the G1 clamps hold the G1 start values, the
+//! landed height below the flight height and the vision height not above it, the clear distance above the
+//! obstacle distance, and the estimate windows within the velocity filter's history. Anything
+//! else is rejected with the parameter, the one it disagrees with and the reason
+//! ([`Rejected`], its [`Conflict`]), and nothing changes.
 
 use crate::app::{AutopilotConfig, VelocitySource};
 use crate::fsm::FsmVariant;
 use crate::guidance::MAX_MEASUREMENT_DELAY_US;
-use protocol::params::{ParamField, ParamTable};
+use crate::indi::SecondOrderFilter;
+use protocol::params::{Conflict, ParamField, ParamTable};
 use protocol::{ParamEntry, ParamValue};
 
 pub use protocol::params::Rejected;
@@ -241,27 +246,85 @@ pub fn validate(cfg: &AutopilotConfig) -> Result<(), Rejected> {
     AUTOPILOT.validate(cfg)
 }
 
-/// Values that only make sense together: the name of the first parameter of a pair at fault.
-fn consistent(cfg: &AutopilotConfig) -> Result<(), &'static str> {
-    let h = &cfg.height;
-    if h.min_thrust > h.hover_thrust || h.hover_thrust > h.max_thrust {
-        return Err("height_hover_thrust");
-    }
+/// Values that only make sense together: the first pair at fault, both named.
+fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
+    let fail = |name, other, reason| Err(Conflict::new(name, other, reason));
     let i = &cfg.indi;
-    if i.g1_min > i.g1_max {
-        return Err("indi_g1_min");
+    // The INDI filters step at the loop rate, not at the configured one (read-only, fixed).
+    let dt = 1.0 / LOOP_HZ;
+    if !SecondOrderFilter::is_stable(i.filter_omega, i.filter_zeta, dt) {
+        return fail(
+            "indi_filter_omega",
+            "indi_filter_zeta",
+            "makes the 512 Hz filter unstable with this",
+        );
     }
-    if i.g1.iter().any(|&g| g < i.g1_min || g > i.g1_max) {
-        return Err("indi_g1_p");
+    if !SecondOrderFilter::is_stable(i.adapt_omega, i.adapt_zeta, dt) {
+        return fail(
+            "indi_adapt_omega",
+            "indi_adapt_zeta",
+            "makes the 512 Hz filter unstable with this",
+        );
+    }
+    let h = &cfg.height;
+    if h.hover_thrust < h.min_thrust {
+        return fail(
+            "height_hover_thrust",
+            "height_min_thrust",
+            "must not be below",
+        );
+    }
+    if h.hover_thrust > h.max_thrust {
+        return fail(
+            "height_hover_thrust",
+            "height_max_thrust",
+            "must not exceed",
+        );
+    }
+    // Below the arming thrust the INDI holds its commands at zero (on the ground): any thrust
+    // commanded in the air must stay above it.
+    if h.min_thrust < i.arming_thrust {
+        return fail(
+            "height_min_thrust",
+            "indi_arming_thrust",
+            "must not be below",
+        );
+    }
+    // A landing without a height descends on this thrust alone: below hover, and in the air.
+    if cfg.blind_land_thrust >= h.hover_thrust {
+        return fail("blind_land_thrust", "height_hover_thrust", "must be below");
+    }
+    if cfg.blind_land_thrust < i.arming_thrust {
+        return fail(
+            "blind_land_thrust",
+            "indi_arming_thrust",
+            "must not be below",
+        );
+    }
+    if i.g1_min > i.g1_max {
+        return fail("indi_g1_min", "indi_g1_max", "must not exceed");
+    }
+    const G1: [&str; 3] = ["indi_g1_p", "indi_g1_q", "indi_g1_r"];
+    for (g, name) in i.g1.iter().zip(G1) {
+        if *g < i.g1_min {
+            return fail(name, "indi_g1_min", "must not be below");
+        }
+        if *g > i.g1_max {
+            return fail(name, "indi_g1_max", "must not exceed");
+        }
     }
     if i.g2 > i.g2_max {
-        return Err("indi_g2");
+        return fail("indi_g2", "indi_g2_max", "must not exceed");
     }
     if cfg.fsm.clear_distance_m < cfg.fsm.obstacle_distance_m {
-        return Err("fsm_clear_dist");
+        return fail("fsm_clear_dist", "fsm_obstacle_dist", "must not be below");
     }
     if cfg.landed_height_m >= cfg.target_height_m {
-        return Err("landed_height");
+        return fail("landed_height", "target_height", "must be below");
+    }
+    // Above the flight height no estimate would ever be fused.
+    if cfg.min_vision_height_m > cfg.target_height_m {
+        return fail("min_vision_height", "target_height", "must not exceed");
     }
     // The oldest estimate window (the longest processing time an estimate can report, then the
     // link, the output filter's lag and the window itself) must lie inside the velocity
@@ -271,12 +334,20 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), &'static str> {
         + u64::from(cfg.estimate_filter_lag_us)
         + u64::from(cfg.estimate_horizon_us);
     if oldest_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
-        return Err("est_horizon_us");
+        return fail(
+            "est_horizon_us",
+            "est_filter_lag_us",
+            "reaches past the velocity filter's history with this",
+        );
     }
     let oldest_fit_window_us =
         u64::from(u16::MAX) + u64::from(cfg.estimate_link_us) + u64::from(cfg.fit_horizon_us);
     if oldest_fit_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
-        return Err("fit_horizon_us");
+        return fail(
+            "fit_horizon_us",
+            "est_link_us",
+            "reaches past the velocity filter's history with this",
+        );
     }
     Ok(())
 }
@@ -319,9 +390,11 @@ pub fn decode_record(bytes: &[u8]) -> (AutopilotConfig, Result<(), protocol::par
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
     use super::*;
     use protocol::params::RecordError;
     use protocol::ParamError;
+    use std::string::{String, ToString};
 
     #[test]
     fn a_saved_configuration_loads_back_and_a_bad_record_means_defaults() {
@@ -455,6 +528,72 @@ mod tests {
         assert_eq!(r.error, ParamError::Inconsistent);
         assert_eq!(c.estimate_filter_lag_us, 150_000);
         assert!(validate(&AutopilotConfig::default()).is_ok());
+    }
+
+    /// Sets `name` to `v` on the defaults and returns the refusal as a user reads it.
+    fn refusal(name: &str, v: ParamValue) -> (Rejected, String) {
+        let mut c = AutopilotConfig::default();
+        let r = set_by_name(&mut c, name, v).unwrap_err();
+        assert_eq!(c, AutopilotConfig::default(), "{name}: nothing changes");
+        assert_eq!(r.error, ParamError::Inconsistent, "{name}");
+        (r, r.to_string())
+    }
+
+    #[test]
+    fn dependent_bounds_are_refused_naming_both_parameters() {
+        // Each value within its own bounds; the pair is what fails.
+        let cases: [(&str, ParamValue, &str); 8] = [
+            // Semi-implicit Euler at 1/512 s diverges there (each alone is allowed).
+            (
+                "indi_filter_omega",
+                ParamValue::F32(500.0),
+                "indi_filter_zeta",
+            ),
+            (
+                "indi_adapt_omega",
+                ParamValue::F32(900.0),
+                "indi_adapt_zeta",
+            ),
+            (
+                "blind_land_thrust",
+                ParamValue::F32(0.8),
+                "height_hover_thrust",
+            ),
+            (
+                "blind_land_thrust",
+                ParamValue::F32(0.05),
+                "indi_arming_thrust",
+            ),
+            (
+                "height_min_thrust",
+                ParamValue::F32(0.05),
+                "indi_arming_thrust",
+            ),
+            (
+                "indi_arming_thrust",
+                ParamValue::F32(0.3),
+                "height_min_thrust",
+            ),
+            ("min_vision_height", ParamValue::F32(1.5), "target_height"),
+            ("fsm_obstacle_dist", ParamValue::F32(4.0), "fsm_clear_dist"),
+        ];
+        for (name, v, other) in cases {
+            let (r, text) = refusal(name, v);
+            assert_eq!(r.name(), name);
+            let c = r.conflict.expect("a conflict names the pair");
+            assert!(
+                [c.name, c.other].contains(&name) && [c.name, c.other].contains(&other),
+                "{name}: {c:?}"
+            );
+            assert!(text.contains(name) && text.contains(other), "{text}");
+        }
+        // The zeta half of the filter pair is refused the same way.
+        let mut c = AutopilotConfig::default();
+        set_by_name(&mut c, "indi_filter_omega", ParamValue::F32(300.0)).unwrap();
+        let r = set_by_name(&mut c, "indi_filter_zeta", ParamValue::F32(2.0)).unwrap_err();
+        assert_eq!(r.name(), "indi_filter_zeta");
+        assert!(r.to_string().contains("indi_filter_omega"), "{r}");
+        assert_eq!(c.indi.filter_zeta, 0.55);
     }
 
     #[test]

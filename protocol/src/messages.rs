@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 8;
+pub const PROTOCOL_VERSION: u8 = 9;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.

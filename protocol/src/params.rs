@@ -8,11 +8,16 @@
 //! save. Every request is answered with one [`ParamResponse`].
 //!
 //! The flash record ([`encode_record`], [`decode_record`]) holds the values in table order
-//! behind a magic, a format version and the table's [`table_hash`] (names and kinds), closed
-//! by a CRC-32: a blank, corrupt, older-format or other-table record decodes to an error, and
-//! the board keeps its defaults and reports why. A board's storage is a [`RecordStore`] (its
-//! flash sector in the firmware, a [`MemStore`] on the host): [`ParamTable::load`] reads it at
-//! boot, [`ParamTable::save`] writes and reads back the record of the values in use, and
+//! behind a magic, a format version, the table's [`table_hash`] (names and kinds) and a save
+//! sequence number, closed by a CRC-32: a blank, corrupt, older-format or other-table record
+//! decodes to an error. A board's storage is a [`RecordStore`] (its flash sectors in the
+//! firmware, a [`MemStore`] or [`MemSlots`] on the host) of one or two separately erased
+//! slots. [`ParamTable::load`] reads every slot at boot and takes the good record with the
+//! highest sequence number; [`ParamTable::save`] writes the next number into the slot that
+//! does not hold it and reads it back, so with two slots a power loss at any point of a save
+//! leaves the last complete record to boot on. A board whose boot found no good record (other
+//! than a blank store) runs on its defaults and reports why; [`StorageStatus::blocks_arming`]
+//! holds until a save succeeds or the failure is acknowledged ([`ParamOp::Acknowledge`]).
 //! [`ParamOp::Storage`] reports what the boot loaded and the saves since.
 
 use serde::{Deserialize, Serialize};
@@ -301,6 +306,29 @@ macro_rules! param_table {
     };
 }
 
+/// Two parameters whose values disagree: a bound of one depends on the other (a board's
+/// consistency check returns it, [`ParamTable::consistent`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Conflict {
+    /// The parameter reported at fault.
+    pub name: &'static str,
+    /// The parameter its bound depends on.
+    pub other: &'static str,
+    /// Why the two disagree, read between the two names ("`name` must be below `other`").
+    pub reason: &'static str,
+}
+
+impl Conflict {
+    /// `name` disagrees with `other` because of `reason`.
+    pub const fn new(name: &'static str, other: &'static str, reason: &'static str) -> Self {
+        Self {
+            name,
+            other,
+            reason,
+        }
+    }
+}
+
 /// Why a configuration, or one parameter change, was refused.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rejected {
@@ -311,6 +339,8 @@ pub struct Rejected {
     pub spec: Option<&'static ParamSpec>,
     /// Why.
     pub error: ParamError,
+    /// For [`ParamError::Inconsistent`]: the two parameters that disagree and why.
+    pub conflict: Option<Conflict>,
 }
 
 impl Rejected {
@@ -320,6 +350,7 @@ impl Rejected {
             index: None,
             spec: None,
             error,
+            conflict: None,
         }
     }
 
@@ -337,10 +368,13 @@ impl core::fmt::Display for Rejected {
                 if self.error == ParamError::OutOfBounds {
                     write!(f, " [{} ..= {}] {}", s.min, s.max, s.unit)?;
                 }
-                Ok(())
             }
-            _ => f.write_str(self.error.describe()),
+            _ => f.write_str(self.error.describe())?,
         }
+        if let Some(c) = self.conflict {
+            write!(f, ": {} {} {}", c.name, c.reason, c.other)?;
+        }
+        Ok(())
     }
 }
 
@@ -355,9 +389,9 @@ pub struct ParamTable<C: 'static> {
     pub access: &'static [ParamAccess<C>],
     /// The configuration the firmware starts with.
     pub defaults: fn() -> C,
-    /// Checks values against each other (each is already within its bounds): `Err(name)` of
-    /// the parameter at fault.
-    pub consistent: fn(&C) -> Result<(), &'static str>,
+    /// Checks values against each other (each is already within its bounds): the first pair
+    /// that disagrees.
+    pub consistent: fn(&C) -> Result<(), Conflict>,
 }
 
 /// Copies `s` into a wire string, cut at its capacity.
@@ -402,6 +436,7 @@ impl<C: Copy> ParamTable<C> {
             index: Some(index),
             spec: self.specs.get(index),
             error,
+            conflict: None,
         }
     }
 
@@ -427,9 +462,10 @@ impl<C: Copy> ParamTable<C> {
                 Ok(())
             }
             // The change made another value inconsistent: name the one that was set.
-            Err(r) if r.error == ParamError::Inconsistent => {
-                Err(self.rejected(index, ParamError::Inconsistent))
-            }
+            Err(r) if r.error == ParamError::Inconsistent => Err(Rejected {
+                conflict: r.conflict,
+                ..self.rejected(index, ParamError::Inconsistent)
+            }),
             Err(r) => Err(r),
         }
     }
@@ -449,9 +485,15 @@ impl<C: Copy> ParamTable<C> {
             spec.check((access.get)(cfg))
                 .map_err(|e| self.rejected(i, e))?;
         }
-        (self.consistent)(cfg).map_err(|name| match self.index_of(name) {
-            Some(i) => self.rejected(i, ParamError::Inconsistent),
-            None => Rejected::refused(ParamError::Inconsistent),
+        (self.consistent)(cfg).map_err(|c| {
+            let at = match self.index_of(c.name) {
+                Some(i) => self.rejected(i, ParamError::Inconsistent),
+                None => Rejected::refused(ParamError::Inconsistent),
+            };
+            Rejected {
+                conflict: Some(c),
+                ..at
+            }
         })
     }
 
@@ -511,6 +553,10 @@ impl<C: Copy> ParamTable<C> {
             ParamOp::Storage => storage.map_or(ParamReply::Error(ParamError::NoStorage), |s| {
                 ParamReply::Storage(*s.status)
             }),
+            ParamOp::Acknowledge => storage.map_or(ParamReply::Error(ParamError::NoStorage), |s| {
+                s.status.acknowledged = true;
+                ParamReply::Storage(*s.status)
+            }),
         }
     }
 
@@ -535,36 +581,73 @@ impl<C: Copy> ParamTable<C> {
         }
     }
 
-    /// The flash record of `cfg` ([`encode_record`]) written into `out`; returns its length,
+    /// The flash record of `cfg` ([`encode_record`], sequence number 0) written into `out`;
+    /// returns its length,
     /// [`record_bytes`] of the table's length.
     pub fn encode_record(&self, cfg: &C, out: &mut [u8]) -> Result<usize, RecordError> {
-        encode_values(self.specs, self.access.iter().map(|a| (a.get)(cfg)), out)
+        encode_values(self.specs, self.access.iter().map(|a| (a.get)(cfg)), 0, out)
     }
 
     /// The configuration saved in `store` ([`ParamTable::decode_record`]) and the storage's
-    /// status from it: the saved values when the record is good, otherwise the defaults and,
-    /// in [`StorageStatus::loaded`], why.
+    /// status from it: of the store's slots, the good record with the highest sequence number
+    /// when there is one; otherwise the defaults and, in [`StorageStatus::loaded`], why (the
+    /// first slot's reason that is not a blank slot, or `Blank` when every slot is).
     pub fn load(&self, store: &dyn RecordStore) -> (C, StorageStatus) {
-        let (cfg, loaded) = self.decode_record(store.bytes());
-        let status = StorageStatus {
-            loaded,
-            saves: 0,
-            failed_saves: 0,
+        let (cfg, loaded) = match self.newest(store) {
+            Ok((_, _, cfg)) => (cfg, Ok(())),
+            Err(e) => ((self.defaults)(), Err(e)),
         };
-        (cfg, status)
+        (cfg, StorageStatus::booted(loaded))
     }
 
-    /// Saves `cfg`: writes its record ([`ParamTable::encode_record`]) to the store and reads
-    /// it back; `Saved`, or `SaveFailed` when the store refused or holds other bytes. Counted
-    /// in the storage's status. The write takes as long as the store's erase (a second or two
-    /// for a 128 KiB flash sector).
+    /// The store's newest good record: its slot, sequence number and configuration; or why no
+    /// slot holds one.
+    fn newest(&self, store: &dyn RecordStore) -> Result<(usize, u32, C), RecordError> {
+        let mut best: Option<(usize, u32, C)> = None;
+        let mut why = RecordError::Blank;
+        for slot in 0..store.slots() {
+            let bytes = store.slot(slot);
+            match self.decode_record(bytes) {
+                (cfg, Ok(())) => {
+                    let seq = record_sequence(bytes).unwrap_or(0);
+                    // Sequence numbers wrap: the newer is the one the other is behind.
+                    let newer = best.as_ref().is_none_or(|&(_, b, _)| {
+                        i32::from_le_bytes(seq.wrapping_sub(b).to_le_bytes()) > 0
+                    });
+                    if newer {
+                        best = Some((slot, seq, cfg));
+                    }
+                }
+                (_, Err(RecordError::Blank)) => {}
+                (_, Err(e)) => {
+                    if why == RecordError::Blank {
+                        why = e;
+                    }
+                }
+            }
+        }
+        best.ok_or(why)
+    }
+
+    /// Saves `cfg`: writes its record ([`ParamTable::encode_record`]), numbered one after the
+    /// store's newest good record, into the slot that does not hold that record (the only slot
+    /// of a one-slot store) and reads it back; `Saved`, or `SaveFailed` when the store refused
+    /// or holds other bytes. Counted in the storage's status. Until the write is read back the
+    /// newest record stays where it was, so a two-slot store interrupted at any point boots
+    /// on it. The write takes as long as the slot's erase (a second or two for a 128 KiB flash
+    /// sector).
     pub fn save(&self, cfg: &C, storage: ParamStorage<'_>) -> ParamReply {
         let ParamStorage { store, status } = storage;
+        let (slot, sequence) = match self.newest(store) {
+            Ok((current, seq, _)) => ((current + 1) % store.slots().max(1), seq.wrapping_add(1)),
+            Err(_) => (0, 1),
+        };
         let mut record = [0u8; MAX_RECORD_BYTES];
-        let written = match self.encode_record(cfg, &mut record) {
+        let values = self.access.iter().map(|a| (a.get)(cfg));
+        let written = match encode_values(self.specs, values, sequence, &mut record) {
             Ok(n) => {
                 let record = record.get(..n).unwrap_or(&[]);
-                store.write(record).is_ok() && store.bytes().get(..n) == Some(record)
+                store.write_slot(slot, record).is_ok() && store.slot(slot).get(..n) == Some(record)
             }
             // A configuration in use passed `validate` and a table fits MAX_PARAMS: it always
             // encodes.
@@ -630,6 +713,9 @@ pub enum ParamOp {
     Save,
     /// What the board's parameter storage holds (answered with [`ParamReply::Storage`]).
     Storage,
+    /// Accepts that the boot's record failed to load, so that the defaults in use may fly
+    /// ([`StorageStatus::blocks_arming`]); answered with [`ParamReply::Storage`].
+    Acknowledge,
 }
 
 /// A parameter request to one board (host -> autopilot; the autopilot answers for itself and
@@ -738,6 +824,29 @@ pub struct StorageStatus {
     pub saves: u32,
     /// Saves that failed since boot (the flash refused, or read back wrong).
     pub failed_saves: u32,
+    /// A failed load was acknowledged ([`ParamOp::Acknowledge`]).
+    pub acknowledged: bool,
+}
+
+impl StorageStatus {
+    /// The status of a boot that loaded `loaded`, before any save.
+    pub const fn booted(loaded: Result<(), RecordError>) -> Self {
+        Self {
+            loaded,
+            saves: 0,
+            failed_saves: 0,
+            acknowledged: false,
+        }
+    }
+
+    /// True while the board must not arm: the boot found a record it could not load (a blank
+    /// store is a board never saved, not a failure), and neither has a save succeeded since
+    /// nor has the failure been acknowledged. The defaults in use are not what was saved.
+    pub const fn blocks_arming(&self) -> bool {
+        matches!(self.loaded, Err(e) if !matches!(e, RecordError::Blank))
+            && self.saves == 0
+            && !self.acknowledged
+    }
 }
 
 /// A board's parameter storage as [`ParamTable::answer`] and [`ParamTable::save`] use it: the
@@ -810,14 +919,152 @@ impl<const N: usize> RecordStore for MemStore<N> {
     }
 }
 
-/// A board's parameter storage: one erasable region (a flash sector, a test's buffer) that
-/// holds one record at its start. The firmware implements it on its flash; the library
-/// decides what is written and checks what reads back.
+/// A two-slot [`RecordStore`] in memory with a flash sector's rules per slot (erased bytes are
+/// `0xFF`, programming only clears bits) and a power supply a test can cut: after
+/// [`MemSlots::power_steps`] more steps of a write (an erase is four steps of a quarter slot
+/// each, a program one step a 32-bit word) the power fails, leaving the step under way half
+/// done (a quarter half erased, a word with half its bits programmed), and every later write
+/// fails until [`MemSlots::power_on`]. Host tests and simulated boards use it in place of two
+/// flash sectors.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MemSlots<const N: usize> {
+    /// The two slots' bytes.
+    pub bytes: [[u8; N]; 2],
+    /// Steps left before the power fails (`None`: it never does).
+    pub power_steps: Option<u32>,
+    /// Writes asked for (refused ones too).
+    pub writes: u32,
+    /// Set when the power failed; writes fail until [`MemSlots::power_on`].
+    pub powered_off: bool,
+}
+
+impl<const N: usize> MemSlots<N> {
+    /// Both slots erased, the power on.
+    pub const fn blank() -> Self {
+        Self {
+            bytes: [[0xff; N]; 2],
+            power_steps: None,
+            writes: 0,
+            powered_off: false,
+        }
+    }
+
+    /// The power back (a reset): writes work again, with no cut planned.
+    pub fn power_on(&mut self) {
+        self.powered_off = false;
+        self.power_steps = None;
+    }
+
+    /// Steps a write of `len` bytes takes (four for the erase, one per word).
+    pub const fn steps_of(len: usize) -> u32 {
+        4 + len.div_ceil(4) as u32
+    }
+
+    /// Takes one step; false (and the power off) when the supply fails during it.
+    fn step(&mut self) -> bool {
+        match self.power_steps {
+            Some(0) => {
+                self.powered_off = true;
+                false
+            }
+            Some(ref mut n) => {
+                *n -= 1;
+                true
+            }
+            None => true,
+        }
+    }
+}
+
+impl<const N: usize> Default for MemSlots<N> {
+    fn default() -> Self {
+        Self::blank()
+    }
+}
+
+impl<const N: usize> RecordStore for MemSlots<N> {
+    fn bytes(&self) -> &[u8] {
+        &self.bytes[0]
+    }
+
+    fn write(&mut self, record: &[u8]) -> Result<(), ParamError> {
+        self.write_slot(0, record)
+    }
+
+    fn slots(&self) -> usize {
+        2
+    }
+
+    fn slot(&self, slot: usize) -> &[u8] {
+        self.bytes.get(slot).map_or(&[], |b| &b[..])
+    }
+
+    fn write_slot(&mut self, slot: usize, record: &[u8]) -> Result<(), ParamError> {
+        self.writes = self.writes.saturating_add(1);
+        if self.powered_off || slot >= 2 || record.len() > N {
+            return Err(ParamError::SaveFailed);
+        }
+        let quarter = N.div_ceil(4);
+        for q in 0..4 {
+            let start = (q * quarter).min(N);
+            let end = ((q + 1) * quarter).min(N);
+            if !self.step() {
+                // Cut during this quarter's erase: its first half erased.
+                let half = start + (end - start) / 2;
+                self.bytes[slot][start..half].fill(0xff);
+                return Err(ParamError::SaveFailed);
+            }
+            self.bytes[slot][start..end].fill(0xff);
+        }
+        for (i, word) in record.chunks(4).enumerate() {
+            let powered = self.step();
+            let cells = &mut self.bytes[slot][4 * i..4 * i + word.len()];
+            // Cut while programming this word: only the low bits of each byte cleared.
+            let kept = if powered { 0x00 } else { 0xf0 };
+            for (cell, b) in cells.iter_mut().zip(word) {
+                *cell &= *b | kept;
+            }
+            if !powered {
+                return Err(ParamError::SaveFailed);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A board's parameter storage: one or two slots, each a separately erasable region (a flash
+/// sector, a test's buffer) that holds one record at its start. The firmware implements it on
+/// its flash; the library decides what is written where and checks what reads back. A store
+/// of one slot (`bytes` and `write` alone) saves by erasing its only record first; one of two
+/// ([`RecordStore::slots`], [`RecordStore::slot`], [`RecordStore::write_slot`]) always keeps
+/// the last complete record.
 pub trait RecordStore {
-    /// The region's bytes from its start (erased bytes read `0xFF`).
+    /// The first slot's bytes from its start (erased bytes read `0xFF`).
     fn bytes(&self) -> &[u8];
-    /// Erases the region and writes `record` at its start; `SaveFailed` if the flash refused.
+    /// Erases the first slot and writes `record` at its start; `SaveFailed` if the flash
+    /// refused.
     fn write(&mut self, record: &[u8]) -> Result<(), ParamError>;
+    /// Number of slots (1 or 2).
+    fn slots(&self) -> usize {
+        1
+    }
+    /// Slot `slot`'s bytes from its start (empty past the last slot).
+    fn slot(&self, slot: usize) -> &[u8] {
+        if slot == 0 {
+            self.bytes()
+        } else {
+            &[]
+        }
+    }
+    /// Erases slot `slot` and writes `record` at its start; `SaveFailed` if the flash refused
+    /// or there is no such slot.
+    fn write_slot(&mut self, slot: usize, record: &[u8]) -> Result<(), ParamError> {
+        if slot == 0 {
+            self.write(record)
+        } else {
+            Err(ParamError::SaveFailed)
+        }
+    }
 }
 
 /// A parameter answer (board -> host).
@@ -833,9 +1080,9 @@ pub struct ParamResponse {
 /// First word of a parameter record ("PDPR" little-endian).
 pub const RECORD_MAGIC: u32 = u32::from_le_bytes(*b"PDPR");
 /// Layout version of the record (header fields, value encoding, CRC).
-pub const RECORD_FORMAT_VERSION: u16 = 1;
-/// Bytes before the values: magic, format version, count, table hash.
-pub const RECORD_HEADER_BYTES: usize = 12;
+pub const RECORD_FORMAT_VERSION: u16 = 2;
+/// Bytes before the values: magic, format version, count, table hash, sequence number.
+pub const RECORD_HEADER_BYTES: usize = 16;
 
 /// Bytes of the record of a `count`-entry table (header, 4 bytes a value, CRC-32).
 pub const fn record_bytes(count: usize) -> usize {
@@ -880,13 +1127,22 @@ pub fn encode_record(
     if values.len() != table.len() {
         return Err(RecordError::Length);
     }
-    encode_values(table, values.iter().copied(), out)
+    encode_values(table, values.iter().copied(), 0, out)
 }
 
-/// [`encode_record`] of values in table order as they come (one per entry of `table`).
+/// The sequence number in the header of the record at the start of `bytes` (meaningful once
+/// [`decode_record`] accepted it); `None` when `bytes` is shorter than a header.
+pub fn record_sequence(bytes: &[u8]) -> Option<u32> {
+    let b = bytes.get(12..RECORD_HEADER_BYTES)?;
+    Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+}
+
+/// [`encode_record`] of values in table order as they come (one per entry of `table`),
+/// numbered `sequence`.
 fn encode_values(
     table: &[ParamSpec],
     values: impl Iterator<Item = ParamValue>,
+    sequence: u32,
     out: &mut [u8],
 ) -> Result<usize, RecordError> {
     let n = record_bytes(table.len());
@@ -898,6 +1154,7 @@ fn encode_values(
     head[4..6].copy_from_slice(&RECORD_FORMAT_VERSION.to_le_bytes());
     head[6..8].copy_from_slice(&(table.len() as u16).to_le_bytes());
     head[8..12].copy_from_slice(&table_hash(table).to_le_bytes());
+    head[12..16].copy_from_slice(&sequence.to_le_bytes());
     let mut written = 0;
     for (i, ((chunk, v), spec)) in rest.chunks_exact_mut(4).zip(values).zip(table).enumerate() {
         if spec.check(v).is_err() {
@@ -932,9 +1189,7 @@ pub fn decode_record(
     if magic != RECORD_MAGIC {
         return Err(RecordError::BadMagic);
     }
-    let head = bytes
-        .get(4..RECORD_HEADER_BYTES)
-        .ok_or(RecordError::Length)?;
+    let head = bytes.get(4..12).ok_or(RecordError::Length)?;
     let format = u16::from_le_bytes([head[0], head[1]]);
     if format != RECORD_FORMAT_VERSION {
         return Err(RecordError::FormatVersion(format));
@@ -1040,7 +1295,13 @@ mod tests {
         specs: CFG_SPECS,
         access: CFG_ACCESS,
         defaults: || CFG_DEFAULT,
-        consistent: |c| if c.lo > c.hi { Err("lo") } else { Ok(()) },
+        consistent: |c| {
+            if c.lo > c.hi {
+                Err(Conflict::new("lo", "hi", "must not exceed"))
+            } else {
+                Ok(())
+            }
+        },
     };
 
     #[test]
@@ -1078,6 +1339,9 @@ mod tests {
         assert!(std::format!("{r}").contains("[-20 ..= 20] px"), "{r}");
         let r = t.set_by_name(&mut c, "lo", ParamValue::U32(6)).unwrap_err();
         assert_eq!((r.name(), r.error), ("lo", ParamError::Inconsistent));
+        // The reason names both parameters of the pair.
+        let why = std::format!("{r}");
+        assert!(why.contains("lo must not exceed hi"), "{why}");
         let r = t.set_by_name(&mut c, "hi", ParamValue::U32(9)).unwrap_err();
         assert_eq!(r.error, ParamError::ReadOnly);
         assert_eq!(c.lo, 1);
@@ -1134,6 +1398,133 @@ mod tests {
         );
     }
 
+    fn save_to(store: &mut MemSlots<64>, status: &mut StorageStatus, c: &Cfg) -> ParamReply {
+        CFG_TABLE.save(c, ParamStorage { store, status })
+    }
+
+    fn with_shift(shift: i8) -> Cfg {
+        Cfg {
+            shift,
+            ..CFG_DEFAULT
+        }
+    }
+
+    #[test]
+    fn a_power_loss_at_any_step_of_a_save_boots_on_the_last_complete_record() {
+        let t = CFG_TABLE;
+        let steps = MemSlots::<64>::steps_of(record_bytes(CFG_SPECS.len()));
+        // Saves 0 and 1 fill both slots; save 2 overwrites the older one (slot 0), and so on:
+        // each is cut at every step, each slot is cut in every position.
+        for saved in 1..=3u8 {
+            for cut in 0..=steps {
+                let mut store = MemSlots::<64>::blank();
+                let mut status = StorageStatus::booted(Err(RecordError::Blank));
+                for k in 0..saved {
+                    let c = with_shift(i8::try_from(k).unwrap());
+                    assert_eq!(save_to(&mut store, &mut status, &c), ParamReply::Saved);
+                }
+                let last = with_shift(i8::try_from(saved - 1).unwrap());
+                let next = with_shift(-9);
+                store.power_steps = Some(cut);
+                let reply = save_to(&mut store, &mut status, &next);
+                store.power_on();
+                let (cfg, boot) = t.load(&store);
+                let complete = cut == steps;
+                assert_eq!(reply == ParamReply::Saved, complete, "cut at {cut}");
+                let expected = if complete { next } else { last };
+                assert_eq!(
+                    (cfg, boot.loaded),
+                    (expected, Ok(())),
+                    "saved {saved}, cut at {cut}"
+                );
+                assert!(!boot.blocks_arming());
+                // The save after the reset numbers on from the record the boot took.
+                let after = with_shift(7);
+                assert_eq!(save_to(&mut store, &mut status, &after), ParamReply::Saved);
+                assert_eq!(
+                    t.load(&store).0,
+                    after,
+                    "saved {saved}, cut at {cut}, then saved"
+                );
+            }
+        }
+        // The first save ever, cut: nothing complete, so the defaults, and arming blocked
+        // unless the cut left the slot blank (cut during the erase, before any word).
+        for cut in 0..steps {
+            let mut store = MemSlots::<64>::blank();
+            let mut status = StorageStatus::booted(Err(RecordError::Blank));
+            store.power_steps = Some(cut);
+            assert_ne!(
+                save_to(&mut store, &mut status, &with_shift(3)),
+                ParamReply::Saved
+            );
+            store.power_on();
+            let (cfg, boot) = t.load(&store);
+            assert_eq!(cfg, CFG_DEFAULT, "cut at {cut}");
+            assert_eq!(
+                boot.loaded == Err(RecordError::Blank),
+                cut < 4,
+                "cut at {cut}"
+            );
+            assert_eq!(boot.blocks_arming(), cut >= 4, "cut at {cut}");
+        }
+    }
+
+    #[test]
+    fn the_newest_sequence_number_wins_across_the_wrap() {
+        let t = CFG_TABLE;
+        let mut vals = [ParamValue::U32(0); 4];
+        let mut store = MemSlots::<64>::blank();
+        // Slot 0 numbered just before the wrap, slot 1 just after it: slot 1 is newer.
+        for (slot, (seq, shift)) in [(u32::MAX, 4), (0, 6)].into_iter().enumerate() {
+            t.values(&with_shift(shift), &mut vals);
+            let values = vals.iter().copied();
+            let n = encode_values(CFG_SPECS, values, seq, &mut store.bytes[slot]).unwrap();
+            assert_eq!(n, record_bytes(4));
+        }
+        assert_eq!(t.load(&store).0, with_shift(6));
+        let mut status = StorageStatus::booted(Ok(()));
+        assert_eq!(
+            save_to(&mut store, &mut status, &with_shift(8)),
+            ParamReply::Saved
+        );
+        assert_eq!(
+            record_sequence(&store.bytes[0]),
+            Some(1),
+            "written over the older slot"
+        );
+        assert_eq!(t.load(&store).0, with_shift(8));
+    }
+
+    #[test]
+    fn a_failed_load_blocks_arming_until_acknowledged_or_saved() {
+        let t = CFG_TABLE;
+        let mut store = MemSlots::<64>::blank();
+        let mut status = StorageStatus::booted(Err(RecordError::Blank));
+        assert!(
+            !status.blocks_arming(),
+            "a board never saved flies its defaults"
+        );
+        save_to(&mut store, &mut status, &with_shift(5));
+        // Both slots unreadable (the only record corrupted): the defaults, blocked.
+        store.bytes[0][20] ^= 0x01;
+        let (cfg, mut boot) = t.load(&store);
+        assert_eq!((cfg, boot.loaded), (CFG_DEFAULT, Err(RecordError::BadCrc)));
+        assert!(boot.blocks_arming());
+        let storage = ParamStorage {
+            store: &mut store,
+            status: &mut boot,
+        };
+        let reply = t.answer(&cfg, &ParamOp::Acknowledge, |_| Ok(()), Some(storage));
+        assert!(matches!(reply, ParamReply::Storage(s) if s.acknowledged));
+        assert!(!boot.blocks_arming());
+        // A save clears it too.
+        let (_, mut boot) = t.load(&store);
+        assert_eq!(save_to(&mut store, &mut boot, &cfg), ParamReply::Saved);
+        assert!(!boot.blocks_arming());
+        assert_eq!(t.load(&store).1.loaded, Ok(()));
+    }
+
     #[test]
     fn a_table_saves_to_its_store_and_loads_back() {
         let t = CFG_TABLE;
@@ -1161,6 +1552,7 @@ mod tests {
                 loaded: Err(RecordError::Blank),
                 saves: 1,
                 failed_saves: 0,
+                acknowledged: false,
             })
         );
         // The next boot loads the saved values and says so.
@@ -1186,6 +1578,7 @@ mod tests {
                     loaded: Err(RecordError::BadCrc),
                     saves: 0,
                     failed_saves: 0,
+                    acknowledged: false,
                 }
             )
         );

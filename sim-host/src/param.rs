@@ -102,6 +102,9 @@ pub enum ParamAction {
     /// What the board's parameter storage holds: whether the boot loaded a saved record (or
     /// why it runs on the defaults), and the saves since.
     Storage,
+    /// Accepts that the boot could not load the saved record, so that the board arms on the
+    /// defaults in use (a failed load blocks arming until then, or until a save succeeds).
+    Ack,
 }
 
 /// The shortest wait for the answer to a save: the erase of a 128 KiB flash sector takes up
@@ -114,8 +117,15 @@ pub fn format_storage(s: &StorageStatus) -> String {
         Ok(()) => "the saved parameters are in use".to_owned(),
         Err(e) => format!("defaults in use: {}", describe_record_error(e)),
     };
+    let blocked = if s.blocks_arming() {
+        "; arming blocked until `ack` or a save"
+    } else if s.acknowledged {
+        "; acknowledged"
+    } else {
+        ""
+    };
     format!(
-        "{loaded}; saves since boot: {}, failed: {}",
+        "{loaded}; saves since boot: {}, failed: {}{blocked}",
         s.saves, s.failed_saves
     )
 }
@@ -314,7 +324,7 @@ impl<'a> ParamClient<'a> {
                     (ParamReply::Entry(e), ParamOp::List(i)) => e.index == *i,
                     (ParamReply::Entry(e), ParamOp::Get(n) | ParamOp::Set(n, _)) => e.name == *n,
                     (ParamReply::Saved, ParamOp::Save) => true,
-                    (ParamReply::Storage(_), ParamOp::Storage) => true,
+                    (ParamReply::Storage(_), ParamOp::Storage | ParamOp::Acknowledge) => true,
                     _ => false,
                 };
                 if matches {
@@ -393,7 +403,16 @@ impl<'a> ParamClient<'a> {
 
     /// The board's parameter storage status.
     pub fn storage(&mut self) -> anyhow::Result<StorageStatus> {
-        match self.request(&ParamOp::Storage)? {
+        self.storage_op(&ParamOp::Storage)
+    }
+
+    /// Acknowledges a failed load ([`ParamOp::Acknowledge`]); the storage status after it.
+    pub fn acknowledge(&mut self) -> anyhow::Result<StorageStatus> {
+        self.storage_op(&ParamOp::Acknowledge)
+    }
+
+    fn storage_op(&mut self, op: &ParamOp) -> anyhow::Result<StorageStatus> {
+        match self.request(op)? {
             ParamReply::Storage(s) => Ok(s),
             ParamReply::Error(e) => bail!("storage: {}", e.describe()),
             ParamReply::Entry(_) | ParamReply::Saved => bail!("storage: unexpected answer"),
@@ -435,6 +454,7 @@ pub fn run(args: &ParamArgs) -> anyhow::Result<()> {
             println!("saved");
         }
         ParamAction::Storage => println!("{}", format_storage(&c.storage()?)),
+        ParamAction::Ack => println!("{}", format_storage(&c.acknowledge()?)),
     }
     Ok(())
 }

@@ -315,12 +315,17 @@ fn parameters_saved_over_the_link_load_at_the_next_boot() {
             loaded: Err(RecordError::Blank),
             saves: 1,
             failed_saves: 0,
+            acknowledged: false,
         })
     );
-    // The record is the table's, with its CRC and version, where the flash sector starts.
+    // The record is the table's, with its version, where the flash sector starts; the first
+    // save is numbered 1 (the free function numbers 0, so the CRC differs too).
     let mut record = [0u8; crate::params::RECORD_BYTES];
     crate::params::encode_record(board.params(), &mut record).unwrap();
-    assert_eq!(&sector.bytes[..record.len()], &record[..]);
+    let (header, crc_at) = (protocol::params::RECORD_HEADER_BYTES, record.len() - 4);
+    assert_eq!(&sector.bytes[..12], &record[..12]);
+    assert_eq!(protocol::params::record_sequence(&sector.bytes), Some(1));
+    assert_eq!(&sector.bytes[header..crc_at], &record[header..crc_at]);
 
     // The next boot runs Edge-FS on the saved value and says so.
     let mut next = app();
