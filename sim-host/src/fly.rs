@@ -12,7 +12,7 @@ use crate::param::ParamFile;
 use crate::sim::flight::{run_flight, run_flight_observed, FlightConfig, FlightResult, Fsm};
 use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
-use crate::sim::suite::{self, FlightFigures, RoomClass, SuiteRoom};
+use crate::sim::suite::{self, FlightFigures, SuiteRoom};
 use crate::sim::uart::LinkFaults;
 use anyhow::Context;
 use autopilot::app::{AutopilotConfig, VelocitySource};
@@ -503,62 +503,11 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
         print!("{csv}");
         return Ok(());
     }
-    println!(
-        "{:<13} {:>7} {:>9} {:>13} {:>11} {:>10} {:>10} {:>9}",
-        "class", "flights", "contact", "first_contact", "min_clr", "speed", "hovering", "landed"
-    );
-    let mut rows: Vec<(&str, Vec<usize>)> = RoomClass::ALL
-        .iter()
-        .map(|c| {
-            let idx = (0..rooms.len()).filter(|&k| rooms[k].class == *c).collect();
-            (c.name(), idx)
-        })
-        .collect();
-    rows.push(("all", (0..rooms.len()).collect()));
-    for (name, idx) in rows {
-        if idx.is_empty() {
-            continue;
-        }
-        let k = idx.len() as f64;
-        let contact: Vec<&FlightResult> = idx
-            .iter()
-            .map(|&i| &results[i].0)
-            .filter(|r| r.collisions > 0)
-            .collect();
-        let first = if contact.is_empty() {
-            "-".to_string()
-        } else {
-            let min = contact
-                .iter()
-                .map(|r| r.flight_time_s)
-                .fold(f64::INFINITY, f64::min);
-            format!("{min:.1} s")
-        };
-        let min_clr = idx
-            .iter()
-            .map(|&i| results[i].0.min_clearance_m)
-            .filter(|c| c.is_finite())
-            .fold(f64::INFINITY, f64::min);
-        let mean = |f: &dyn Fn(&FlightFigures) -> f64| {
-            idx.iter().map(|&i| f(&results[i].1)).sum::<f64>() / k
-        };
-        println!(
-            "{:<13} {:>7} {:>9} {:>13} {:>9.3} m {:>6.2} m/s {:>8.1} s {:>7.1} s",
-            name,
-            idx.len(),
-            contact.len(),
-            first,
-            min_clr,
-            mean(&|f| f.mean_speed_mps),
-            mean(&|f| f.hovering_s),
-            mean(&|f| f.landed_s),
-        );
-    }
+    let rows = suite::parse_csv("suite.csv", &csv, SUITE_CSV_HEADER)?;
+    print!("{}", suite::table(&rows));
     let sim_s: f64 = results.iter().map(|(r, _)| r.duration_s).sum();
     println!(
-        "contact = flights with a wall or obstacle contact; first_contact = earliest; min_clr = \
-         smallest clearance; speed, hovering, landed = means per flight. {sim_s:.0} s simulated \
-         in {:.0} s wall; rows in {}",
+        "{sim_s:.0} s simulated in {:.0} s wall; rows in {}",
         wall.elapsed().as_secs_f64(),
         args.out.join("suite.csv").display()
     );

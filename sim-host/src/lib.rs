@@ -10,3 +10,4 @@ pub mod monitor;
 pub mod param;
 pub mod plot_font;
 pub mod sim;
+pub mod suite;

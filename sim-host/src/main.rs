@@ -29,6 +29,8 @@ enum Command {
     /// List, read, write and save a board's parameters over its telemetry link (serial port or
     /// TCP).
     Param(sim_host::param::ParamArgs),
+    /// Room suites: merge the CSVs of a suite's shards into the suite's table or CSV.
+    Suite(sim_host::suite::SuiteArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -40,5 +42,6 @@ fn main() -> anyhow::Result<()> {
         Command::Hil(args) => sim_host::hil::run_cli(args),
         Command::Monitor(args) => sim_host::monitor::run(args),
         Command::Param(args) => sim_host::param::run(args),
+        Command::Suite(args) => sim_host::suite::run(args),
     }
 }

@@ -223,6 +223,258 @@ pub fn figures(r: &FlightResult) -> FlightFigures {
     }
 }
 
+/// One flight of a suite as its CSV row reports it (`sim-host fly --suite N --format csv`):
+/// the text of the row and the figures the table by class is computed from. A whole run and
+/// merged shards both build their table from these rows, so the two print the same table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SuiteRow {
+    /// The row as printed, without its line end.
+    pub line: String,
+    /// The suite's seed (`--seed`), from the room's name.
+    pub suite_seed: u64,
+    /// Index of the room in the suite, from the room's name.
+    pub index: u64,
+    /// Class of the room.
+    pub class: RoomClass,
+    /// Simulated duration, s.
+    pub duration_s: f64,
+    /// Flight time until the first collision, s.
+    pub flight_time_s: f64,
+    /// Number of collisions.
+    pub collisions: u64,
+    /// Smallest clearance, m (not finite: never measured).
+    pub min_clearance_m: f64,
+    /// Mean horizontal speed while airborne, m/s.
+    pub mean_speed_mps: f64,
+    /// Time hovering, s.
+    pub hovering_s: f64,
+    /// Time on the floor, s.
+    pub landed_s: f64,
+}
+
+/// A suite CSV that cannot be read or merged.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SuiteCsvError {
+    /// The file's first line is not the suite header.
+    #[error("{file}: the first line is not the suite CSV header `{expected}`")]
+    Header {
+        /// The file.
+        file: String,
+        /// The header a suite CSV starts with.
+        expected: String,
+    },
+    /// A row that does not parse.
+    #[error("{file}:{line}: {reason}")]
+    Row {
+        /// The file.
+        file: String,
+        /// Its line number (1-based).
+        line: usize,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// The same room in two rows.
+    #[error("room {room} appears twice ({first} and {second})")]
+    Duplicate {
+        /// The room's name.
+        room: String,
+        /// Where it was first seen.
+        first: String,
+        /// Where it was seen again.
+        second: String,
+    },
+    /// Rows of different suites.
+    #[error("rows of two suites: seed {a} and seed {b} (merge the shards of one suite)")]
+    Seeds {
+        /// One suite's seed.
+        a: u64,
+        /// The other's.
+        b: u64,
+    },
+    /// A room below the highest index is missing (a shard left out).
+    #[error(
+        "room {index} of the suite is missing (rooms 0 to {last} are expected; a shard left out?)"
+    )]
+    Missing {
+        /// The first missing index.
+        index: u64,
+        /// The highest index present.
+        last: u64,
+    },
+    /// No rows at all.
+    #[error("no rows to merge")]
+    Empty,
+}
+
+impl RoomClass {
+    /// The class named `name` (as [`RoomClass::name`] prints it).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.name() == name)
+    }
+}
+
+impl SuiteRow {
+    /// Parses one data row of a suite CSV whose header is `header` (columns found by name).
+    pub fn parse(header: &str, line: &str) -> Result<Self, String> {
+        let names: Vec<&str> = header.split(',').collect();
+        let values: Vec<&str> = line.split(',').collect();
+        if names.len() != values.len() {
+            return Err(format!(
+                "{} columns, the header has {}",
+                values.len(),
+                names.len()
+            ));
+        }
+        let get = |name: &str| -> Result<&str, String> {
+            names
+                .iter()
+                .position(|n| *n == name)
+                .map(|k| values[k])
+                .ok_or_else(|| format!("no column {name}"))
+        };
+        let num = |name: &str| -> Result<f64, String> {
+            let v = get(name)?;
+            v.parse::<f64>().map_err(|e| format!("{name} = {v:?}: {e}"))
+        };
+        let room = get("room")?;
+        let (suite_seed, index) = room
+            .strip_prefix("suite-")
+            .and_then(|r| r.rsplit_once('-'))
+            .and_then(|(s, i)| Some((s.parse().ok()?, i.parse().ok()?)))
+            .ok_or_else(|| format!("room {room:?} is not named suite-SEED-INDEX"))?;
+        let class = get("class")?;
+        let collisions = get("collisions")?;
+        Ok(Self {
+            line: line.to_string(),
+            suite_seed,
+            index,
+            class: RoomClass::from_name(class).ok_or_else(|| format!("unknown class {class:?}"))?,
+            duration_s: num("duration_s")?,
+            flight_time_s: num("flight_time_s")?,
+            collisions: collisions
+                .parse()
+                .map_err(|e| format!("collisions = {collisions:?}: {e}"))?,
+            min_clearance_m: num("min_clearance_m")?,
+            mean_speed_mps: num("mean_speed_mps")?,
+            hovering_s: num("hovering_s")?,
+            landed_s: num("landed_s")?,
+        })
+    }
+}
+
+/// Reads the rows of one suite CSV (`text`, named `file` in errors) whose header must be
+/// `header`.
+pub fn parse_csv(file: &str, text: &str, header: &str) -> Result<Vec<SuiteRow>, SuiteCsvError> {
+    let mut lines = text.lines();
+    if lines.next().map(str::trim_end) != Some(header) {
+        return Err(SuiteCsvError::Header {
+            file: file.to_string(),
+            expected: header.to_string(),
+        });
+    }
+    lines
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(k, l)| {
+            SuiteRow::parse(header, l.trim_end()).map_err(|reason| SuiteCsvError::Row {
+                file: file.to_string(),
+                line: k + 2,
+                reason,
+            })
+        })
+        .collect()
+}
+
+/// Merges the rows of a suite's shards (`(file, rows)` in any order) into the suite's rows in
+/// room order. Fails on rows of two suites, a room twice, or a room missing below the highest
+/// index.
+pub fn merge(parts: Vec<(String, Vec<SuiteRow>)>) -> Result<Vec<SuiteRow>, SuiteCsvError> {
+    let mut seen: std::collections::BTreeMap<u64, (String, SuiteRow)> = Default::default();
+    let mut seed: Option<u64> = None;
+    for (file, rows) in parts {
+        for row in rows {
+            match seed {
+                Some(s) if s != row.suite_seed => {
+                    return Err(SuiteCsvError::Seeds {
+                        a: s,
+                        b: row.suite_seed,
+                    })
+                }
+                _ => seed = Some(row.suite_seed),
+            }
+            if let Some((first, _)) = seen.get(&row.index) {
+                return Err(SuiteCsvError::Duplicate {
+                    room: format!("suite-{}-{}", row.suite_seed, row.index),
+                    first: first.clone(),
+                    second: file.clone(),
+                });
+            }
+            seen.insert(row.index, (file.clone(), row));
+        }
+    }
+    let last = *seen.keys().next_back().ok_or(SuiteCsvError::Empty)?;
+    if let Some(index) = (0..=last).find(|i| !seen.contains_key(i)) {
+        return Err(SuiteCsvError::Missing { index, last });
+    }
+    Ok(seen.into_values().map(|(_, row)| row).collect())
+}
+
+/// The suite's table by class of room (a row per class present, then "all") and its legend,
+/// each line ending in a newline.
+pub fn table(rows: &[SuiteRow]) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<13} {:>7} {:>9} {:>13} {:>11} {:>10} {:>10} {:>9}",
+        "class", "flights", "contact", "first_contact", "min_clr", "speed", "hovering", "landed"
+    );
+    let mut groups: Vec<(&str, Vec<&SuiteRow>)> = RoomClass::ALL
+        .iter()
+        .map(|c| (c.name(), rows.iter().filter(|r| r.class == *c).collect()))
+        .collect();
+    groups.push(("all", rows.iter().collect()));
+    for (name, group) in groups {
+        if group.is_empty() {
+            continue;
+        }
+        let k = group.len() as f64;
+        let contact: Vec<&&SuiteRow> = group.iter().filter(|r| r.collisions > 0).collect();
+        let first = if contact.is_empty() {
+            "-".to_string()
+        } else {
+            let min = contact
+                .iter()
+                .map(|r| r.flight_time_s)
+                .fold(f64::INFINITY, f64::min);
+            format!("{min:.1} s")
+        };
+        let min_clr = group
+            .iter()
+            .map(|r| r.min_clearance_m)
+            .filter(|c| c.is_finite())
+            .fold(f64::INFINITY, f64::min);
+        let mean = |f: &dyn Fn(&SuiteRow) -> f64| group.iter().map(|r| f(r)).sum::<f64>() / k;
+        let _ = writeln!(
+            out,
+            "{:<13} {:>7} {:>9} {:>13} {:>9.3} m {:>6.2} m/s {:>8.1} s {:>7.1} s",
+            name,
+            group.len(),
+            contact.len(),
+            first,
+            min_clr,
+            mean(&|r| r.mean_speed_mps),
+            mean(&|r| r.hovering_s),
+            mean(&|r| r.landed_s),
+        );
+    }
+    out.push_str(
+        "contact = flights with a wall or obstacle contact; first_contact = earliest; min_clr = \
+         smallest clearance; speed, hovering, landed = means per flight.\n",
+    );
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -262,5 +514,65 @@ mod tests {
         let mut all: Vec<u64> = (0..3).flat_map(|s| shard_indices(10, s, 3)).collect();
         all.sort();
         assert_eq!(all, (0..10).collect::<Vec<_>>());
+    }
+
+    const HEADER: &str = "seed,duration_s,flight_time_s,collisions,min_clearance_m,room,class,\
+                          mean_speed_mps,hovering_s,landed_s";
+
+    fn row(seed: u64, index: u64, class: &str, collisions: u64) -> String {
+        format!(
+            "{},10.0,9.50,{collisions},0.3000,suite-{seed}-{index},{class},0.400,1.0,0.5",
+            seed + index
+        )
+    }
+
+    #[test]
+    fn merge_orders_rooms_and_refuses_mixed_suites() {
+        let parse = |lines: &[String]| {
+            let text = format!("{HEADER}\n{}\n", lines.join("\n"));
+            parse_csv("f.csv", &text, HEADER).unwrap()
+        };
+        let a = parse(&[row(4, 1, "mixed", 0), row(4, 3, "textured", 2)]);
+        let b = parse(&[row(4, 0, "featureless", 0), row(4, 2, "mixed", 1)]);
+        let merged = merge(vec![("a".into(), a), ("b".into(), b.clone())]).unwrap();
+        assert_eq!(
+            merged.iter().map(|r| r.index).collect::<Vec<_>>(),
+            [0, 1, 2, 3]
+        );
+        assert_eq!(merged[3].class, RoomClass::Textured);
+        assert_eq!(merged[3].collisions, 2);
+        let table = table(&merged);
+        assert!(
+            table
+                .lines()
+                .any(|l| l.starts_with("all") && l.contains(" 4 ")),
+            "{table}"
+        );
+        let other = parse(&[row(5, 1, "mixed", 0)]);
+        assert_eq!(
+            merge(vec![("b".into(), b), ("o".into(), other)]),
+            Err(SuiteCsvError::Seeds { a: 4, b: 5 })
+        );
+        assert_eq!(merge(vec![]), Err(SuiteCsvError::Empty));
+    }
+
+    #[test]
+    fn a_bad_row_or_header_names_the_file_and_line() {
+        let text = format!("{HEADER}\n{}\n1,2,3\n", row(1, 0, "mixed", 0));
+        match parse_csv("s.csv", &text, HEADER) {
+            Err(SuiteCsvError::Row { file, line, .. }) => {
+                assert_eq!((file.as_str(), line), ("s.csv", 3))
+            }
+            other => panic!("{other:?}"),
+        }
+        let text = format!("{HEADER}\n{}\n", row(1, 0, "bright", 0));
+        assert!(matches!(
+            parse_csv("s.csv", &text, HEADER),
+            Err(SuiteCsvError::Row { line: 2, .. })
+        ));
+        assert!(matches!(
+            parse_csv("s.csv", "seed,room\n", HEADER),
+            Err(SuiteCsvError::Header { .. })
+        ));
     }
 }

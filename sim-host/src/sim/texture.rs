@@ -65,8 +65,11 @@ impl Texture {
     /// Albedo 0..1 at surface coordinates `s` (along) and `h` (up, or the second floor axis), m.
     #[inline]
     pub fn sample(&self, s: f32, h: f32) -> f32 {
-        let i = ((s * self.res[0]).max(0.0) as usize).min(self.nx - 1);
-        let j = ((h * self.res[1]).max(0.0) as usize).min(self.ny - 1);
+        // Clamped to the grid as a float (NaN and below 0 to the first cell, past the end to
+        // the last), then truncated: the same cell as truncating first and clamping the
+        // integer, without the saturating 64-bit conversions (the renderer's inner loop).
+        let i = (s * self.res[0]).max(0.0).min((self.nx - 1) as f32) as u32 as usize;
+        let j = (h * self.res[1]).max(0.0).min((self.ny - 1) as f32) as u32 as usize;
         self.data[j * self.nx + i]
     }
 
@@ -365,6 +368,48 @@ mod tests {
             ..Surface::of(kind)
         };
         Texture::vertical(&s, 4.0, 2.5, &mut ChaCha8Rng::seed_from_u64(3)).unwrap()
+    }
+
+    #[test]
+    fn sample_picks_the_cell_of_truncating_then_clamping() {
+        let t = make(TextureKind::Bricks, 1.0);
+        let reference = |s: f32, h: f32| {
+            let i = ((s * t.res[0]).max(0.0) as usize).min(t.nx - 1);
+            let j = ((h * t.res[1]).max(0.0) as usize).min(t.ny - 1);
+            t.data[j * t.nx + i]
+        };
+        let (len, height) = (t.nx as f32 / t.res[0], t.ny as f32 / t.res[1]);
+        let specials = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -1e30,
+            1e30,
+            -0.0,
+            0.0,
+            f32::MIN_POSITIVE,
+            len,
+            height,
+            (t.nx - 1) as f32 / t.res[0],
+            (t.ny - 1) as f32 / t.res[1],
+        ];
+        let mut coords: Vec<f32> = specials.to_vec();
+        // Every cell boundary and around it, beyond both ends.
+        for k in -20..(t.nx.max(t.ny) as i32 + 20) {
+            for off in [-1e-4f32, 0.0, 0.37, 0.999] {
+                coords.push((k as f32 + off) / t.res[0]);
+                coords.push((k as f32 + off) / t.res[1]);
+            }
+        }
+        for &s in &coords {
+            for &h in coords.iter().step_by(7).chain(&specials) {
+                assert_eq!(
+                    t.sample(s, h).to_bits(),
+                    reference(s, h).to_bits(),
+                    "({s}, {h})"
+                );
+            }
+        }
     }
 
     #[test]
