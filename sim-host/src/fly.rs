@@ -19,7 +19,7 @@ use autopilot::app::{AutopilotConfig, VelocitySource};
 use autopilot::fsm::FsmVariant;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 use stereo_board::edge_fs::EdgeFsParams;
@@ -451,6 +451,11 @@ pub const SUITE_CSV_HEADER: &str = concat!(
 );
 
 /// Runs `sim-host fly --suite N`.
+/// Where the suite draws a flight's contact ([`output::plot_contact`]): `OUT/contacts/ROOM.png`.
+fn contact_plot_path(out: &Path, room: &str) -> PathBuf {
+    out.join("contacts").join(format!("{room}.png"))
+}
+
 fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Result<()> {
     anyhow::ensure!(n > 0, "--suite must be at least 1");
     let (shard, of) = args.shard.unwrap_or((0, 1));
@@ -475,6 +480,15 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
                 std::fs::create_dir_all(&dir)
                     .with_context(|| format!("creating {}", dir.display()))?;
                 output::write_log_csv(&r, &dir.join("log.csv"))?;
+            }
+            if r.collisions > 0 {
+                let plot = contact_plot_path(&args.out, &room.spec.name);
+                if let Some(dir) = plot.parent() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("creating {}", dir.display()))?;
+                }
+                output::plot_contact(&r, &plot)
+                    .with_context(|| format!("plotting {}", plot.display()))?;
             }
             let f = suite::figures(&r);
             r.log = Vec::new();
@@ -562,6 +576,16 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
         wall.elapsed().as_secs_f64(),
         args.out.join("suite.csv").display()
     );
+    for (room, (r, _)) in rooms.iter().zip(&results) {
+        if r.collisions > 0 {
+            println!(
+                "contact: {:<24} at {:>6.1} s  {}",
+                room.spec.name,
+                r.flight_time_s,
+                contact_plot_path(&args.out, &room.spec.name).display()
+            );
+        }
+    }
     Ok(())
 }
 
