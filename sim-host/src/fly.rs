@@ -6,6 +6,7 @@
 //! `flight.gif` to `--out`. `--seeds N`: Monte Carlo over seeds `seed..seed+N`
 //! on all cores, one summary row per seed (and `montecarlo.csv` in `--out`).
 
+use crate::log::live::LiveServer;
 use crate::log::sim::{LogRates, SimRecorder};
 use crate::log::FlightLog;
 use crate::param::ParamFile;
@@ -103,6 +104,13 @@ pub struct FlyArgs {
     /// Where to write the MCAP flight log (default: flight.mcap in --out; one seed only).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Serve the log's channels live over the Foxglove WebSocket protocol on 127.0.0.1 as
+    /// they are written, the flight paced to real time (see `--live-port`; one seed only).
+    #[arg(long)]
+    pub live: bool,
+    /// Port of the live view (0: any free port; the address is printed at the start).
+    #[arg(long, default_value_t = crate::log::live::DEFAULT_PORT)]
+    pub live_port: u16,
     /// Summary format.
     #[arg(long, value_enum, default_value_t = Format::Table)]
     pub format: Format,
@@ -303,8 +311,14 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 .mcap
                 .clone()
                 .unwrap_or_else(|| args.out.join("flight.mcap"));
-            let mut recorder =
-                SimRecorder::new(FlightLog::create(&mcap_path)?, LogRates::default());
+            let mut log = FlightLog::create(&mcap_path)?;
+            if args.live {
+                log.serve_live(LiveServer::start_announced(args.live_port)?);
+            }
+            let mut recorder = SimRecorder::new(log, LogRates::default());
+            if args.live {
+                recorder.pace_to_wall_clock();
+            }
             let r = run_flight_observed(&cfg, &mut |t| pb.set_position(t as u64), &mut recorder)?;
             pb.finish_and_clear();
             let secs = wall.elapsed().as_secs_f64();

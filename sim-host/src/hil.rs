@@ -1084,6 +1084,13 @@ pub struct HilArgs {
     /// Where to write the MCAP flight log (default: flight.mcap in --out, if given).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Serve the log's channels live over the Foxglove WebSocket protocol on 127.0.0.1 as
+    /// they are written (see `--live-port`).
+    #[arg(long)]
+    pub live: bool,
+    /// Port of the live view (0: any free port; the address is printed at the start).
+    #[arg(long, default_value_t = crate::log::live::DEFAULT_PORT)]
+    pub live_port: u16,
     /// Board parameters (TOML, `[autopilot]` and `[camera]`, as `fly --params`; see
     /// docs/parameters.md): set on the boards and read back before the flight; any refusal or
     /// mismatch stops the run before arming.
@@ -1129,6 +1136,14 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         .clone()
         .or_else(|| args.out.as_ref().map(|d| d.join("flight.mcap")));
     let mut mcap = mcap_path.as_deref().map(FlightLog::create).transpose()?;
+    if args.live {
+        let log = mcap.as_mut().ok_or_else(|| {
+            anyhow::anyhow!("hil --live serves the flight log's channels: give --out or --mcap")
+        })?;
+        log.serve_live(crate::log::live::LiveServer::start_announced(
+            args.live_port,
+        )?);
+    }
     let r = run_logged(
         &cfg,
         stereo,

@@ -44,6 +44,13 @@ pub struct MonitorArgs {
     /// Where to record the MCAP log.
     #[arg(long, default_value = "out/monitor.mcap")]
     pub mcap: PathBuf,
+    /// Serve the log's channels live over the Foxglove WebSocket protocol on 127.0.0.1 as
+    /// they are written (see `--live-port`).
+    #[arg(long)]
+    pub live: bool,
+    /// Port of the live view (0: any free port; the address is printed at the start).
+    #[arg(long, default_value_t = crate::log::live::DEFAULT_PORT)]
+    pub live_port: u16,
     /// Stop after this many seconds (default: until Ctrl-C or the link closes).
     #[arg(long)]
     pub duration: Option<f64>,
@@ -481,6 +488,11 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let mut log = FlightLog::create(&args.mcap)?;
+    if args.live {
+        log.serve_live(crate::log::live::LiveServer::start_announced(
+            args.live_port,
+        )?);
+    }
     let mut view3d = board_view3d();
     let stop = Arc::new(AtomicBool::new(false));
     {

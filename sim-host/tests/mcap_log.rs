@@ -312,7 +312,10 @@ fn layout_matches_the_log(log: &Path) {
         seen.entry(m.channel.topic.clone()).or_insert(value);
     }
     for t in &topics {
-        assert!(seen.contains_key(t), "the layout shows {t}, which the log lacks");
+        assert!(
+            seen.contains_key(t),
+            "the layout shows {t}, which the log lacks"
+        );
     }
     for (topic, field) in &fields {
         assert!(

@@ -18,6 +18,7 @@
 //!
 //! A channel appears with its first message, so a log only lists what its source reports.
 
+pub mod live;
 pub mod records;
 pub mod scene3d;
 pub mod sim;
@@ -48,6 +49,7 @@ pub struct FlightLog<W: Write + Seek = BufWriter<File>> {
     counts: BTreeMap<&'static str, u64>,
     last_ns: u64,
     path: PathBuf,
+    live: Option<live::LiveServer>,
 }
 
 /// What a finished log holds.
@@ -90,7 +92,13 @@ impl<W: Write + Seek> FlightLog<W> {
             counts: BTreeMap::new(),
             last_ns: 0,
             path: path.to_path_buf(),
+            live: None,
         })
+    }
+
+    /// Serves every channel written from now on live as well (see [`live`]).
+    pub fn serve_live(&mut self, server: live::LiveServer) {
+        self.live = Some(server);
     }
 
     /// The channel of `topic`, created with its schema on first use.
@@ -119,6 +127,11 @@ impl<W: Write + Seek> FlightLog<W> {
             .add_channel(schema_id, topic, &spec.message_encoding, &BTreeMap::new())
             .map_err(|e| anyhow!("{}: adding channel {topic}: {e}", path.display()))?;
         self.channels.insert(topic, id);
+        if let Some(live) = self.live.as_mut() {
+            let schema =
+                foxglove::Schema::new(spec.schema_name, spec.schema_encoding, spec.schema_data);
+            live.add_channel(topic, schema, &spec.message_encoding)?;
+        }
         Ok(id)
     }
 
@@ -138,6 +151,9 @@ impl<W: Write + Seek> FlightLog<W> {
         };
         *count += 1;
         self.last_ns = self.last_ns.max(t_ns);
+        if let Some(live) = &self.live {
+            live.send(topic, data);
+        }
         self.writer
             .write_to_known_channel(&header, data)
             .map_err(|e| anyhow!("writing {topic} to {}: {e}", self.path.display()))
@@ -216,6 +232,9 @@ impl<W: Write + Seek> FlightLog<W> {
 
     /// Writes the summary and index records and closes the file.
     pub fn finish(mut self) -> anyhow::Result<LogSummary> {
+        if let Some(mut live) = self.live.take() {
+            live.stop();
+        }
         let path = self.path.clone();
         self.writer
             .finish()

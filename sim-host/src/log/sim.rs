@@ -43,6 +43,8 @@ pub struct SimRecorder<W: Write + Seek> {
     images: Thinner,
     last_status_uptime: Option<u32>,
     view: View3d,
+    /// Wall-clock instant of world time 0, when the flight is paced to real time.
+    pace: Option<std::time::Instant>,
 }
 
 impl<W: Write + Seek> SimRecorder<W> {
@@ -54,6 +56,7 @@ impl<W: Write + Seek> SimRecorder<W> {
             control: Thinner::new(rates.control_hz),
             images: Thinner::new(rates.image_hz),
             last_status_uptime: None,
+            pace: None,
             view: View3d::new(
                 rates.view,
                 CameraMount {
@@ -71,6 +74,12 @@ impl<W: Write + Seek> SimRecorder<W> {
                 self.log = None;
             }
         }
+    }
+
+    /// Holds the flight back to real time (for a live view): each guidance step waits until
+    /// the wall clock has caught up with world time.
+    pub fn pace_to_wall_clock(&mut self) {
+        self.pace = Some(std::time::Instant::now());
     }
 
     fn with_view(&mut self, f: impl FnOnce(&mut View3d, &mut FlightLog<W>) -> anyhow::Result<()>) {
@@ -164,6 +173,12 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
     }
 
     fn on_guidance(&mut self, t_us: u64, ap: &Autopilot, row: &LogRow, c: &FlightCounters) {
+        if let Some(start) = self.pace {
+            let due = start + std::time::Duration::from_micros(t_us);
+            if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
         let t = ns(t_us);
         let tel = ap.telemetry(t_us);
         let sp = ap.setpoints();
