@@ -6,6 +6,7 @@
 //! `flight.gif` to `--out`. `--seeds N`: Monte Carlo over seeds `seed..seed+N`
 //! on all cores, one summary row per seed (and `montecarlo.csv` in `--out`).
 
+use crate::log::live::LiveServer;
 use crate::log::sim::{LogRates, SimRecorder};
 use crate::log::FlightLog;
 use crate::param::ParamFile;
@@ -19,7 +20,7 @@ use autopilot::app::{AutopilotConfig, VelocitySource};
 use autopilot::fsm::FsmVariant;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 use stereo_board::edge_fs::EdgeFsParams;
@@ -103,6 +104,13 @@ pub struct FlyArgs {
     /// Where to write the MCAP flight log (default: flight.mcap in --out; one seed only).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Serve the log's channels live over the Foxglove WebSocket protocol on 127.0.0.1 as
+    /// they are written, the flight paced to real time (see `--live-port`; one seed only).
+    #[arg(long)]
+    pub live: bool,
+    /// Port of the live view (0: any free port; the address is printed at the start).
+    #[arg(long, default_value_t = crate::log::live::DEFAULT_PORT)]
+    pub live_port: u16,
     /// Summary format.
     #[arg(long, value_enum, default_value_t = Format::Table)]
     pub format: Format,
@@ -303,8 +311,14 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 .mcap
                 .clone()
                 .unwrap_or_else(|| args.out.join("flight.mcap"));
-            let mut recorder =
-                SimRecorder::new(FlightLog::create(&mcap_path)?, LogRates::default());
+            let mut log = FlightLog::create(&mcap_path)?;
+            if args.live {
+                log.serve_live(LiveServer::start_announced(args.live_port)?);
+            }
+            let mut recorder = SimRecorder::new(log, LogRates::default());
+            if args.live {
+                recorder.pace_to_wall_clock();
+            }
             let r = run_flight_observed(&cfg, &mut |t| pb.set_position(t as u64), &mut recorder)?;
             pb.finish_and_clear();
             let secs = wall.elapsed().as_secs_f64();
@@ -451,6 +465,11 @@ pub const SUITE_CSV_HEADER: &str = concat!(
 );
 
 /// Runs `sim-host fly --suite N`.
+/// Where the suite draws a flight's contact ([`output::plot_contact`]): `OUT/contacts/ROOM.png`.
+fn contact_plot_path(out: &Path, room: &str) -> PathBuf {
+    out.join("contacts").join(format!("{room}.png"))
+}
+
 fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Result<()> {
     anyhow::ensure!(n > 0, "--suite must be at least 1");
     let (shard, of) = args.shard.unwrap_or((0, 1));
@@ -475,6 +494,15 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
                 std::fs::create_dir_all(&dir)
                     .with_context(|| format!("creating {}", dir.display()))?;
                 output::write_log_csv(&r, &dir.join("log.csv"))?;
+            }
+            if r.collisions > 0 {
+                let plot = contact_plot_path(&args.out, &room.spec.name);
+                if let Some(dir) = plot.parent() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("creating {}", dir.display()))?;
+                }
+                output::plot_contact(&r, &plot)
+                    .with_context(|| format!("plotting {}", plot.display()))?;
             }
             let f = suite::figures(&r);
             r.log = Vec::new();
@@ -511,6 +539,16 @@ fn run_suite(args: &FlyArgs, n: u64, params: Option<&ParamFile>) -> anyhow::Resu
         wall.elapsed().as_secs_f64(),
         args.out.join("suite.csv").display()
     );
+    for (room, (r, _)) in rooms.iter().zip(&results) {
+        if r.collisions > 0 {
+            println!(
+                "contact: {:<24} at {:>6.1} s  {}",
+                room.spec.name,
+                r.flight_time_s,
+                contact_plot_path(&args.out, &room.spec.name).display()
+            );
+        }
+    }
     Ok(())
 }
 

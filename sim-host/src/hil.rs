@@ -75,7 +75,9 @@
 //! the relay copies bytes both ways unchanged and decodes them on the way, so the run counts
 //! decode errors on the inter-board link too.
 
-use crate::log::records::{EstimateRecord, LinkRecord, MotorsRecord, TruthRecord};
+use crate::log::records::{EstimateRecord, LinkRecord, MotorsRecord, StateRecord, TruthRecord};
+use crate::log::scene3d::{self, BodyPose, CameraMount};
+use crate::log::view3d::{View3d, ViewRates, ViewSample};
 use crate::log::{ns as log_ns, write_telemetry, FlightLog, TelemetryExtras, Thinner};
 use crate::param::{FileSection, LinkClosed, MessageSource, ParamClient, ParamFile};
 use crate::sim::dynamics::Drone;
@@ -610,17 +612,10 @@ pub fn run_logged(
         if let Some((file, sections)) = &cfg.params {
             send_params(file, sections, &mut ap_tx, &ap_rx, cfg.reply_timeout)?;
         }
+        let recorder = HilRecorder::new(log, &world);
         lockstep(
-            cfg,
-            &mut world,
-            &mut ap_tx,
-            &ap_rx,
-            &cam_rx,
-            &frame_tx,
-            relay,
-            start_xy,
-            progress,
-            HilRecorder::new(log),
+            cfg, &mut world, &mut ap_tx, &ap_rx, &cam_rx, &frame_tx, relay, start_xy, progress,
+            recorder,
         )
     })();
     stop.store(true, Ordering::Relaxed);
@@ -862,15 +857,36 @@ pub struct HilRecorder<'a> {
     error: Option<anyhow::Error>,
     images: Thinner,
     motors: Thinner,
+    view: View3d,
+    /// The autopilot's last telemetry, what the 3D view shows it believes.
+    last_telemetry: Option<Telemetry>,
 }
 
 impl<'a> HilRecorder<'a> {
-    fn new(log: Option<&'a mut FlightLog>) -> Self {
-        Self {
+    /// Records into `log` (if any) a flight in `world`, starting with the room in 3D.
+    fn new(log: Option<&'a mut FlightLog>, world: &World) -> Self {
+        let mount = CameraMount {
+            forward_m: world.camera.params.forward_offset_m,
+            baseline_m: world.camera.params.baseline_m,
+        };
+        let mut recorder = Self {
             log,
             error: None,
             images: Thinner::new(5.0),
             motors: Thinner::new(128.0),
+            view: View3d::new(ViewRates::default(), mount),
+            last_telemetry: None,
+        };
+        recorder.with_view(|view, log| view.start(log, 0, Some(&world.scene)));
+        recorder
+    }
+
+    fn with_view(&mut self, f: impl FnOnce(&mut View3d, &mut FlightLog) -> anyhow::Result<()>) {
+        if let Some(log) = self.log.as_deref_mut() {
+            if let Err(e) = f(&mut self.view, log) {
+                self.error = Some(e);
+                self.log = None;
+            }
         }
     }
 
@@ -901,7 +917,23 @@ impl<'a> HilRecorder<'a> {
 
     fn truth(&mut self, t_us: u64, drone: &Drone, collisions: u32) {
         let s = &drone.state;
-        let (_, _, yaw) = s.att.to_euler();
+        let (roll, pitch, yaw) = s.att.to_euler();
+        if let Some(tel) = self.last_telemetry {
+            let state = StateRecord::new(tel.fsm_state, tel.flight_mode);
+            let label = format!("{} / {}", state.fsm_state, state.mode);
+            let sample = ViewSample {
+                truth: Some(BodyPose {
+                    position: scene3d::world_point(s.pos.x as f32, s.pos.y as f32, -s.pos.z as f32),
+                    orientation: scene3d::body_orientation(roll as f32, pitch as f32, yaw as f32),
+                }),
+                attitude_rad: tel.attitude_rad,
+                velocity_mps: tel.velocity_mps,
+                height_m: tel.height_m,
+                obstacle_m: tel.obstacle_m,
+                state: &label,
+            };
+            self.with_view(|view, log| view.step(log, t_us, &sample));
+        }
         self.with(|log| {
             log.write(
                 log_ns(t_us),
@@ -935,6 +967,7 @@ impl<'a> HilRecorder<'a> {
         ];
         let host_errors = add_errors(host[0].errors(), host[1].errors());
         let t = log_ns(t_us);
+        self.last_telemetry = Some(*tel);
         self.with(|log| {
             write_telemetry(
                 log,
@@ -1051,6 +1084,13 @@ pub struct HilArgs {
     /// Where to write the MCAP flight log (default: flight.mcap in --out, if given).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Serve the log's channels live over the Foxglove WebSocket protocol on 127.0.0.1 as
+    /// they are written (see `--live-port`).
+    #[arg(long)]
+    pub live: bool,
+    /// Port of the live view (0: any free port; the address is printed at the start).
+    #[arg(long, default_value_t = crate::log::live::DEFAULT_PORT)]
+    pub live_port: u16,
     /// Board parameters (TOML, `[autopilot]` and `[camera]`, as `fly --params`; see
     /// docs/parameters.md): set on the boards and read back before the flight; any refusal or
     /// mismatch stops the run before arming.
@@ -1096,6 +1136,14 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         .clone()
         .or_else(|| args.out.as_ref().map(|d| d.join("flight.mcap")));
     let mut mcap = mcap_path.as_deref().map(FlightLog::create).transpose()?;
+    if args.live {
+        let log = mcap.as_mut().ok_or_else(|| {
+            anyhow::anyhow!("hil --live serves the flight log's channels: give --out or --mcap")
+        })?;
+        log.serve_live(crate::log::live::LiveServer::start_announced(
+            args.live_port,
+        )?);
+    }
     let r = run_logged(
         &cfg,
         stereo,

@@ -15,7 +15,10 @@
 use crate::hil::{open_link, Link};
 use crate::log::records::{
     BoardClockRecord, EstimateRecord, HeartbeatRecord, LinkErrorsRecord, LinkRecord, MotorsRecord,
+    StateRecord,
 };
+use crate::log::scene3d::CameraMount;
+use crate::log::view3d::{View3d, ViewRates, ViewSample};
 use crate::log::{write_telemetry, FlightLog, TelemetryExtras};
 use anyhow::Context as _;
 use protocol::{
@@ -41,6 +44,13 @@ pub struct MonitorArgs {
     /// Where to record the MCAP log.
     #[arg(long, default_value = "out/monitor.mcap")]
     pub mcap: PathBuf,
+    /// Serve the log's channels live over the Foxglove WebSocket protocol on 127.0.0.1 as
+    /// they are written (see `--live-port`).
+    #[arg(long)]
+    pub live: bool,
+    /// Port of the live view (0: any free port; the address is printed at the start).
+    #[arg(long, default_value_t = crate::log::live::DEFAULT_PORT)]
+    pub live_port: u16,
     /// Stop after this many seconds (default: until Ctrl-C or the link closes).
     #[arg(long)]
     pub duration: Option<f64>,
@@ -375,17 +385,42 @@ pub fn describe_errors(e: &LinkErrorCounts) -> String {
     }
 }
 
+/// The 3D view of a real board: what it believes (attitude, height, the path its velocity
+/// estimate integrates to, the nearest obstacle, its state), with the camera board's mounting.
+fn board_view3d() -> View3d {
+    let camera = crate::sim::camera::CameraParams::default();
+    View3d::new(
+        ViewRates::default(),
+        CameraMount {
+            forward_m: camera.forward_offset_m,
+            baseline_m: camera.baseline_m,
+        },
+    )
+}
+
 /// Writes the records of the messages received at `t_ns` to the log.
 fn record(
     log: &mut FlightLog,
     t_ns: u64,
     view: &BoardView,
+    view3d: &mut View3d,
     messages: &[BoardToHost],
 ) -> anyhow::Result<()> {
     for m in messages {
         match m {
             BoardToHost::Telemetry(t) => {
                 write_telemetry(log, t_ns, t, &TelemetryExtras::default())?;
+                let state = StateRecord::new(t.fsm_state, t.flight_mode);
+                let label = format!("{} / {}", state.fsm_state, state.mode);
+                let sample = ViewSample {
+                    truth: None,
+                    attitude_rad: t.attitude_rad,
+                    velocity_mps: t.velocity_mps,
+                    height_m: t.height_m,
+                    obstacle_m: t.obstacle_m,
+                    state: &label,
+                };
+                view3d.step(log, t_ns / 1_000, &sample)?;
                 log.write(t_ns, &BoardClockRecord::telemetry(t))?;
                 log.write(
                     t_ns,
@@ -453,6 +488,12 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let mut log = FlightLog::create(&args.mcap)?;
+    if args.live {
+        log.serve_live(crate::log::live::LiveServer::start_announced(
+            args.live_port,
+        )?);
+    }
+    let mut view3d = board_view3d();
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();
@@ -468,6 +509,7 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
     let epoch_ns = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64);
+    view3d.start(&mut log, epoch_ns / 1_000, None)?;
     let mut view = BoardView::new(args.link_timeout);
     let mut next_draw = 0.0;
     let mut was_lost = false;
@@ -484,8 +526,10 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
             Ok(Received::Bytes(bytes)) => {
                 let now = start.elapsed().as_secs_f64();
                 let messages = view.on_bytes(now, &bytes);
-                let t_ns = epoch_ns + start.elapsed().as_nanos() as u64;
-                record(&mut log, t_ns, &view, &messages)?;
+                // Whole microseconds, the 3D view's resolution, so that its messages keep the
+                // log in time order with the records of the same arrival.
+                let t_ns = (epoch_ns + start.elapsed().as_nanos() as u64) / 1_000 * 1_000;
+                record(&mut log, t_ns, &view, &mut view3d, &messages)?;
             }
             Ok(Received::Closed) => break "the link closed",
             Ok(Received::Failed(e)) => {

@@ -76,6 +76,9 @@ fn board(listener: TcpListener, seconds: f64) -> Sent {
     sent
 }
 
+/// The 3D view's channels (Foxglove's types, protobuf).
+const VIEW_3D: [&str; 4] = ["/tf", "/camera/frustum", "/annotations", "/path"];
+
 #[test]
 fn monitor_shows_a_board_and_records_what_it_received() {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
@@ -119,6 +122,15 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         let m = m.expect("a readable message");
         assert!(m.log_time >= last, "time order");
         last = m.log_time;
+        *counts.entry(m.channel.topic.clone()).or_default() += 1;
+        if VIEW_3D.contains(&m.channel.topic.as_str()) {
+            assert_eq!(
+                m.channel.message_encoding, "protobuf",
+                "{}",
+                m.channel.topic
+            );
+            continue;
+        }
         assert_eq!(m.channel.message_encoding, "json");
         let value: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
         if m.channel.topic == "/state" {
@@ -130,8 +142,15 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         if m.channel.topic == "/link" {
             assert!(value["host_link_errors"]["total"].as_u64().unwrap() <= 1);
         }
-        *counts.entry(m.channel.topic.clone()).or_default() += 1;
     }
+    // The 3D view of what the board believes: its pose at each telemetry, the camera.
+    assert_eq!(counts.get("/tf"), Some(&sent.telemetry), "{counts:?}");
+    assert_eq!(counts.get("/camera/frustum"), Some(&1), "{counts:?}");
+    assert_eq!(
+        counts.get("/scene"),
+        None,
+        "a real board's room is not known"
+    );
     for topic in [
         "/state",
         "/attitude",

@@ -4,8 +4,8 @@
 //!    `flip-link` (the firmware linker; cargo install), a nightly toolchain and `cargo-fuzz`
 //!    (for the bounded fuzz run), `qemu-system-arm` (the instruction-count benchmark, `cargo
 //!    xtask insns`, which a host test runs; and python3-pip if there is no pip) from Debian's
-//!    main archive (apt-get), and the `mcap` Python package (pip), the independent reader the
-//!    flight-log test checks MCAP files with.
+//!    main archive (apt-get), and the `mcap` and `mcap-protobuf-support` Python packages (pip),
+//!    the independent reader the flight-log test checks MCAP files with.
 //! 2. Checks formatting and runs clippy with warnings denied on the host (the workspace and the
 //!    virtual-board bench, its own workspace) and on thumbv7em, builds the docs of both
 //!    workspaces with rustdoc's warnings denied (a link to a renamed item fails), runs all host
@@ -24,8 +24,9 @@ use std::time::Instant;
 /// The firmware target.
 pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
 
-/// The Python MCAP reader the flight-log test uses (pip requirement).
-const MCAP_PYTHON: &str = "mcap>=1.1,<2";
+/// The Python MCAP reader the flight-log test uses, and its protobuf decoder for Foxglove's
+/// well-known types (pip requirements).
+const MCAP_PYTHON: [&str; 2] = ["mcap>=1.1,<2", "mcap-protobuf-support>=0.5,<1"];
 
 /// Runs `cargo xtask test`.
 pub fn run(args: &[String]) -> Result<()> {
@@ -219,21 +220,24 @@ fn install_prerequisites(need_fuzz: bool) -> Result<()> {
     if !succeeds(Command::new("qemu-system-arm").arg("--version")) {
         apt_install("qemu-system-arm")?;
     }
-    if !succeeds(Command::new("python3").args(["-c", "import mcap.reader"])) {
+    if !succeeds(Command::new("python3").args(["-c", "import mcap.reader, mcap_protobuf.decoder"]))
+    {
         if !succeeds(Command::new("python3").args(["-m", "pip", "--version"])) {
             apt_install("python3-pip")?;
         }
-        eprintln!("xtask: installing the mcap Python package (pip)");
+        eprintln!("xtask: installing the mcap Python packages (pip)");
         let pip = |extra: &[&str]| {
             let mut cmd = Command::new("python3");
-            cmd.args(["-m", "pip", "install", "--quiet", MCAP_PYTHON])
+            cmd.args(["-m", "pip", "install", "--quiet"])
+                .args(MCAP_PYTHON)
                 .args(extra);
             succeeds(&mut cmd)
         };
         // Debian's own Python refuses pip outside a virtual environment (PEP 668) unless told.
         if !pip(&[]) && !pip(&["--break-system-packages"]) {
             bail!(
-                "installing the mcap Python package failed (python3 -m pip install {MCAP_PYTHON})"
+                "installing the mcap Python packages failed (python3 -m pip install {})",
+                MCAP_PYTHON.join(" ")
             );
         }
     }

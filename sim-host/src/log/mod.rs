@@ -1,26 +1,33 @@
 //! Flight logs in MCAP (written with the `mcap` crate), readable by PlotJuggler, Foxglove and
 //! Lichtblick.
 //!
-//! Every channel carries JSON messages described by a JSON Schema: the typed records of
-//! [`records`] (estimates with their flags and quality, attitude and body rates, setpoints,
-//! motor duties, FSM state and flight mode by name, velocity, height, link and status
-//! counters, the simulated truth) and the camera's left and right images as
-//! `foxglove.RawImage` (`mono8`, pixels base64-encoded as that schema's JSON form asks).
+//! Two kinds of channel:
+//!
+//! * the typed records of [`records`] (estimates with their flags and quality, attitude and
+//!   body rates, setpoints, motor duties, FSM state and flight mode by name, velocity, height,
+//!   link and status counters, the simulated truth): JSON messages described by a JSON Schema
+//!   generated from the record type, which every plotting tool reads by field name;
+//! * Foxglove's well-known types in their protobuf encoding, with the schema's descriptor set:
+//!   the camera's left and right images (`foxglove.CompressedImage`, grey PNG) and the 3D view of
+//!   [`scene3d`] (`foxglove.SceneUpdate`, `foxglove.FrameTransform`), which Foxglove and
+//!   Lichtblick display without any setup.
+//!
 //! Message times (`log_time`) are nanoseconds of the flight's clock: world time from 0 in the
 //! simulator and HIL, wall time since the Unix epoch for a live board. Chunks are
 //! zstd-compressed.
 //!
 //! A channel appears with its first message, so a log only lists what its source reports.
 
+pub mod live;
 pub mod records;
+pub mod scene3d;
 pub mod sim;
+pub mod view3d;
 
 use anyhow::{anyhow, Context as _};
-use base64::Engine as _;
 use protocol::STEREO_FRAME_BYTES;
 use records::Record;
 use schemars::JsonSchema;
-use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
@@ -35,48 +42,6 @@ pub const IMAGE_WIDTH: u32 = 128;
 /// Height of one camera's image, px.
 pub const IMAGE_HEIGHT: u32 = 96;
 
-/// The `foxglove.RawImage` JSON Schema (the schema Foxglove publishes for that type).
-const RAW_IMAGE_SCHEMA: &str = r#"{
-  "title": "foxglove.RawImage",
-  "description": "A raw image",
-  "type": "object",
-  "properties": {
-    "timestamp": {
-      "type": "object",
-      "title": "time",
-      "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}
-      },
-      "description": "Timestamp of image"
-    },
-    "frame_id": {"type": "string", "description": "Frame of reference for the image."},
-    "width": {"type": "integer", "minimum": 0, "description": "Image width"},
-    "height": {"type": "integer", "minimum": 0, "description": "Image height"},
-    "encoding": {"type": "string", "description": "Encoding of the raw image data"},
-    "step": {"type": "integer", "minimum": 0, "description": "Byte length of a single row"},
-    "data": {"type": "string", "contentEncoding": "base64", "description": "Raw image data"}
-  }
-}"#;
-
-/// A `foxglove.RawImage` in its JSON form.
-#[derive(Serialize)]
-struct RawImage<'a> {
-    timestamp: FoxgloveTime,
-    frame_id: &'a str,
-    width: u32,
-    height: u32,
-    encoding: &'a str,
-    step: u32,
-    data: String,
-}
-
-#[derive(Serialize)]
-struct FoxgloveTime {
-    sec: u64,
-    nsec: u32,
-}
-
 /// An MCAP flight log being written.
 pub struct FlightLog<W: Write + Seek = BufWriter<File>> {
     writer: mcap::Writer<W>,
@@ -84,6 +49,7 @@ pub struct FlightLog<W: Write + Seek = BufWriter<File>> {
     counts: BTreeMap<&'static str, u64>,
     last_ns: u64,
     path: PathBuf,
+    live: Option<live::LiveServer>,
 }
 
 /// What a finished log holds.
@@ -126,28 +92,46 @@ impl<W: Write + Seek> FlightLog<W> {
             counts: BTreeMap::new(),
             last_ns: 0,
             path: path.to_path_buf(),
+            live: None,
         })
     }
 
+    /// Serves every channel written from now on live as well (see [`live`]).
+    pub fn serve_live(&mut self, server: live::LiveServer) {
+        self.live = Some(server);
+    }
+
+    /// The channel of `topic`, created with its schema on first use.
     fn channel(
         &mut self,
         topic: &'static str,
-        schema: &str,
-        schema_json: &dyn Fn() -> String,
+        spec: &dyn Fn() -> ChannelSpec,
     ) -> anyhow::Result<u16> {
         if let Some(&id) = self.channels.get(topic) {
             return Ok(id);
         }
+        let spec = spec();
         let path = &self.path;
         let schema_id = self
             .writer
-            .add_schema(schema, "jsonschema", schema_json().as_bytes())
-            .map_err(|e| anyhow!("{}: adding schema {schema}: {e}", path.display()))?;
+            .add_schema(&spec.schema_name, &spec.schema_encoding, &spec.schema_data)
+            .map_err(|e| {
+                anyhow!(
+                    "{}: adding schema {}: {e}",
+                    path.display(),
+                    spec.schema_name
+                )
+            })?;
         let id = self
             .writer
-            .add_channel(schema_id, topic, "json", &BTreeMap::new())
+            .add_channel(schema_id, topic, &spec.message_encoding, &BTreeMap::new())
             .map_err(|e| anyhow!("{}: adding channel {topic}: {e}", path.display()))?;
         self.channels.insert(topic, id);
+        if let Some(live) = self.live.as_mut() {
+            let schema =
+                foxglove::Schema::new(spec.schema_name, spec.schema_encoding, spec.schema_data);
+            live.add_channel(topic, schema, &spec.message_encoding)?;
+        }
         Ok(id)
     }
 
@@ -167,6 +151,9 @@ impl<W: Write + Seek> FlightLog<W> {
         };
         *count += 1;
         self.last_ns = self.last_ns.max(t_ns);
+        if let Some(live) = &self.live {
+            live.send(topic, data);
+        }
         self.writer
             .write_to_known_channel(&header, data)
             .map_err(|e| anyhow!("writing {topic} to {}: {e}", self.path.display()))
@@ -174,39 +161,61 @@ impl<W: Write + Seek> FlightLog<W> {
 
     /// Writes `record` on its channel at `t_ns`.
     pub fn write<R: Record>(&mut self, t_ns: u64, record: &R) -> anyhow::Result<()> {
-        let id = self.channel(R::TOPIC, R::SCHEMA, &schema_of::<R>)?;
+        let id = self.channel(R::TOPIC, &|| ChannelSpec {
+            schema_name: R::SCHEMA.to_string(),
+            schema_encoding: "jsonschema".to_string(),
+            schema_data: schema_of::<R>().into_bytes(),
+            message_encoding: "json".to_string(),
+        })?;
         let data = serde_json::to_vec(record).context("serialising a log record")?;
         self.put(id, R::TOPIC, t_ns, &data)
     }
 
+    /// Writes a message of one of Foxglove's well-known types (protobuf) on `topic` at `t_ns`.
+    pub fn write_foxglove<M: foxglove::Encode>(
+        &mut self,
+        topic: &'static str,
+        t_ns: u64,
+        message: &M,
+    ) -> anyhow::Result<()> {
+        let id = self.channel(topic, &|| {
+            let schema = M::get_schema();
+            ChannelSpec {
+                schema_name: schema.as_ref().map_or(String::new(), |s| s.name.clone()),
+                schema_encoding: schema
+                    .as_ref()
+                    .map_or(String::new(), |s| s.encoding.clone()),
+                schema_data: schema.map_or(Vec::new(), |s| s.data.into_owned()),
+                message_encoding: M::get_message_encoding(),
+            }
+        })?;
+        let mut data = Vec::with_capacity(message.encoded_len().unwrap_or(64));
+        message
+            .encode(&mut data)
+            .map_err(|e| anyhow!("encoding a {topic} message: {e}"))?;
+        self.put(id, topic, t_ns, &data)
+    }
+
     /// Writes an interleaved stereo frame (`[L0 R0 L1 R1 ...]`, 128x96 each) as two
-    /// `foxglove.RawImage` messages, left and right camera.
+    /// `foxglove.CompressedImage` messages, left and right camera, in the camera frames of
+    /// [`scene3d`]: grey PNG, lossless (a third smaller than the raw pixels compressed).
     pub fn stereo_frame(
         &mut self,
         t_ns: u64,
         frame: &[u8; STEREO_FRAME_BYTES],
     ) -> anyhow::Result<()> {
-        for (topic, eye) in [(LEFT_IMAGE_TOPIC, 0), (RIGHT_IMAGE_TOPIC, 1)] {
+        for (topic, eye, frame_id) in [
+            (LEFT_IMAGE_TOPIC, 0, scene3d::LEFT_CAMERA_FRAME),
+            (RIGHT_IMAGE_TOPIC, 1, scene3d::RIGHT_CAMERA_FRAME),
+        ] {
             let pixels: Vec<u8> = frame.iter().skip(eye).step_by(2).copied().collect();
-            let image = RawImage {
-                timestamp: FoxgloveTime {
-                    sec: t_ns / 1_000_000_000,
-                    nsec: (t_ns % 1_000_000_000) as u32,
-                },
-                frame_id: if eye == 0 {
-                    "camera_left"
-                } else {
-                    "camera_right"
-                },
-                width: IMAGE_WIDTH,
-                height: IMAGE_HEIGHT,
-                encoding: "mono8",
-                step: IMAGE_WIDTH,
-                data: base64::engine::general_purpose::STANDARD.encode(&pixels),
+            let image = foxglove::schemas::CompressedImage {
+                timestamp: Some(scene3d::timestamp(t_ns)),
+                frame_id: frame_id.to_string(),
+                data: png_grey(&pixels, IMAGE_WIDTH, IMAGE_HEIGHT)?.into(),
+                format: "png".to_string(),
             };
-            let id = self.channel(topic, "foxglove.RawImage", &|| RAW_IMAGE_SCHEMA.to_string())?;
-            let data = serde_json::to_vec(&image).context("serialising an image")?;
-            self.put(id, topic, t_ns, &data)?;
+            self.write_foxglove(topic, t_ns, &image)?;
         }
         Ok(())
     }
@@ -223,6 +232,9 @@ impl<W: Write + Seek> FlightLog<W> {
 
     /// Writes the summary and index records and closes the file.
     pub fn finish(mut self) -> anyhow::Result<LogSummary> {
+        if let Some(mut live) = self.live.take() {
+            live.stop();
+        }
         let path = self.path.clone();
         self.writer
             .finish()
@@ -235,6 +247,25 @@ impl<W: Write + Seek> FlightLog<W> {
             path,
         })
     }
+}
+
+/// A grey image as PNG (best compression, adaptive row filters).
+fn png_grey(pixels: &[u8], width: u32, height: u32) -> anyhow::Result<Vec<u8>> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder as _;
+    let mut png = Vec::with_capacity(pixels.len());
+    PngEncoder::new_with_quality(&mut png, CompressionType::Best, FilterType::Adaptive)
+        .write_image(pixels, width, height, image::ColorType::L8)
+        .context("encoding a camera image as PNG")?;
+    Ok(png)
+}
+
+/// How a channel's messages are encoded and described.
+struct ChannelSpec {
+    schema_name: String,
+    schema_encoding: String,
+    schema_data: Vec<u8>,
+    message_encoding: String,
 }
 
 /// The JSON Schema of a record type.
@@ -403,7 +434,7 @@ mod tests {
         let mut topics = Vec::new();
         for m in mcap::MessageStream::new(&bytes).unwrap() {
             let m = m.unwrap();
-            let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+            let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap_or_default();
             topics.push((m.channel.topic.clone(), m.log_time));
             match m.channel.topic.as_str() {
                 "/estimate" => {
@@ -423,14 +454,19 @@ mod tests {
                     assert_eq!(v["mode"], "flying");
                 }
                 t @ ("/camera/left" | "/camera/right") => {
-                    assert_eq!(m.channel.schema.as_ref().unwrap().name, "foxglove.RawImage");
-                    assert_eq!(v["encoding"], "mono8");
-                    let data = base64::engine::general_purpose::STANDARD
-                        .decode(v["data"].as_str().unwrap())
-                        .unwrap();
-                    assert_eq!(data.len(), 128 * 96);
+                    let schema = m.channel.schema.as_ref().unwrap();
+                    assert_eq!(schema.name, "foxglove.CompressedImage");
+                    assert_eq!(schema.encoding, "protobuf");
+                    assert_eq!(m.channel.message_encoding, "protobuf");
+                    let image = <foxglove::schemas::CompressedImage as foxglove::Decode>::decode(
+                        &m.data[..],
+                    )
+                    .unwrap();
+                    assert_eq!(image.format, "png");
+                    let pixels = image::load_from_memory(&image.data).unwrap().to_luma8();
+                    assert_eq!(pixels.dimensions(), (128, 96));
                     let want = if t == "/camera/left" { 10 } else { 200 };
-                    assert!(data.iter().all(|&p| p == want), "{t}");
+                    assert!(pixels.pixels().all(|p| p.0[0] == want), "{t}");
                 }
                 other => panic!("unexpected topic {other}"),
             }

@@ -1,12 +1,17 @@
 //! The simulator's flight log: a [`FlightObserver`] writing a [`FlightLog`].
 
 use super::records::*;
+use super::scene3d::{self, BodyPose, CameraMount};
+use super::view3d::{View3d, ViewRates, ViewSample};
 use super::{ns, FlightLog, Thinner};
+use crate::sim::camera::CameraParams;
 use crate::sim::flight::{FlightCounters, FlightObserver, LogRow};
+use crate::sim::scene::Scene;
 use autopilot::app::Autopilot;
 use autopilot::ms5611::BaroReading;
 use protocol::{Estimate, STEREO_FRAME_BYTES};
 use std::io::{Seek, Write};
+use stereo_board::edge_fs::Diagnostics;
 
 /// Rates of the channels that are thinned out.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -15,6 +20,8 @@ pub struct LogRates {
     pub control_hz: f64,
     /// Camera images (left and right), about this many per second (see [`Thinner`]).
     pub image_hz: f64,
+    /// The 3D view.
+    pub view: ViewRates,
 }
 
 impl Default for LogRates {
@@ -22,6 +29,7 @@ impl Default for LogRates {
         Self {
             control_hz: 128.0,
             image_hz: 5.0,
+            view: ViewRates::default(),
         }
     }
 }
@@ -34,6 +42,9 @@ pub struct SimRecorder<W: Write + Seek> {
     control: Thinner,
     images: Thinner,
     last_status_uptime: Option<u32>,
+    view: View3d,
+    /// Wall-clock instant of world time 0, when the flight is paced to real time.
+    pace: Option<std::time::Instant>,
 }
 
 impl<W: Write + Seek> SimRecorder<W> {
@@ -45,12 +56,35 @@ impl<W: Write + Seek> SimRecorder<W> {
             control: Thinner::new(rates.control_hz),
             images: Thinner::new(rates.image_hz),
             last_status_uptime: None,
+            pace: None,
+            view: View3d::new(
+                rates.view,
+                CameraMount {
+                    forward_m: 0.0,
+                    baseline_m: 0.0,
+                },
+            ),
         }
     }
 
     fn with_log(&mut self, f: impl FnOnce(&mut FlightLog<W>) -> anyhow::Result<()>) {
         if let Some(log) = self.log.as_mut() {
             if let Err(e) = f(log) {
+                self.error = Some(e);
+                self.log = None;
+            }
+        }
+    }
+
+    /// Holds the flight back to real time (for a live view): each guidance step waits until
+    /// the wall clock has caught up with world time.
+    pub fn pace_to_wall_clock(&mut self) {
+        self.pace = Some(std::time::Instant::now());
+    }
+
+    fn with_view(&mut self, f: impl FnOnce(&mut View3d, &mut FlightLog<W>) -> anyhow::Result<()>) {
+        if let Some(log) = self.log.as_mut() {
+            if let Err(e) = f(&mut self.view, log) {
                 self.error = Some(e);
                 self.log = None;
             }
@@ -72,7 +106,32 @@ fn finite(v: f32) -> Option<f32> {
     v.is_finite().then_some(v)
 }
 
+/// The true body pose of a log row, with the true roll and pitch (the estimate less its
+/// error).
+fn true_pose(ap: &Autopilot, row: &LogRow) -> BodyPose {
+    let [roll_est, pitch_est, _] = ap.attitude();
+    let roll = roll_est - row.tilt_err_deg[0].to_radians();
+    let pitch = pitch_est - row.tilt_err_deg[1].to_radians();
+    BodyPose {
+        position: scene3d::world_point(row.pos[0], row.pos[1], row.pos[2]),
+        orientation: scene3d::body_orientation(roll, pitch, row.yaw),
+    }
+}
+
 impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
+    fn on_scene(&mut self, scene: &Scene, camera: &CameraParams) {
+        let mount = CameraMount {
+            forward_m: camera.forward_offset_m,
+            baseline_m: camera.baseline_m,
+        };
+        self.view.set_mount(mount);
+        self.with_view(|view, log| view.start(log, 0, Some(scene)));
+    }
+
+    fn on_edge_fs(&mut self, t_us: u64, diagnostics: &Diagnostics) {
+        self.with_view(|view, log| view.depths(log, t_us, &diagnostics.depth_m));
+    }
+
     fn on_estimate(&mut self, t_us: u64, estimate: &Estimate) {
         self.with_log(|log| log.write(ns(t_us), &EstimateRecord::from(estimate)));
     }
@@ -114,6 +173,12 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
     }
 
     fn on_guidance(&mut self, t_us: u64, ap: &Autopilot, row: &LogRow, c: &FlightCounters) {
+        if let Some(start) = self.pace {
+            let due = start + std::time::Duration::from_micros(t_us);
+            if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
         let t = ns(t_us);
         let tel = ap.telemetry(t_us);
         let sp = ap.setpoints();
@@ -183,5 +248,16 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
             }
             Ok(())
         });
+        let state = StateRecord::new(tel.fsm_state, tel.flight_mode);
+        let label = format!("{} / {}", state.fsm_state, state.mode);
+        let sample = ViewSample {
+            truth: Some(true_pose(ap, row)),
+            attitude_rad: ap.attitude(),
+            velocity_mps: row.vel_est,
+            height_m: tel.height_m,
+            obstacle_m: row.obstacle_m.is_finite().then_some(row.obstacle_m),
+            state: &label,
+        };
+        self.with_view(|view, log| view.step(log, t_us, &sample));
     }
 }

@@ -22,7 +22,7 @@ use protocol::{
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
-use stereo_board::edge_fs::{EdgeFsOutput, EdgeFsParams};
+use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput, EdgeFsParams};
 use timebase::{Instant, WorldTime};
 
 /// Which avoidance logic the autopilot flies.
@@ -213,10 +213,14 @@ pub struct FlightCounters {
 
 /// What a flight shows as it happens (a flight log records it). Times are simulated, µs.
 pub trait FlightObserver {
+    /// Once before the flight: the room it flies in and the stereo camera's mounting.
+    fn on_scene(&mut self, _scene: &Scene, _camera: &CameraParams) {}
     /// An estimate as the autopilot received it (decoded from the wire).
     fn on_estimate(&mut self, _t_us: u64, _estimate: &Estimate) {}
     /// A stereo frame exposed at `t_us` (interleaved `[L0 R0 L1 R1 ...]`).
     fn on_frame(&mut self, _t_us: u64, _frame: &[u8; STEREO_FRAME_BYTES]) {}
+    /// After Edge-FS processed a frame: its per-column diagnostics (stereo depths, flow).
+    fn on_edge_fs(&mut self, _t_us: u64, _diagnostics: &Diagnostics) {}
     /// A barometer reading as the autopilot received it.
     fn on_baro(&mut self, _t_us: u64, _reading: &BaroReading) {}
     /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
@@ -268,6 +272,7 @@ pub fn run_flight_observed(
     observer: &mut dyn FlightObserver,
 ) -> anyhow::Result<FlightResult> {
     let mut world = World::new(cfg)?;
+    observer.on_scene(&world.scene, &world.camera.params);
     let mut ap_cfg = cfg.autopilot;
     ap_cfg.fsm.variant = match cfg.fsm {
         Fsm::Paper => FsmVariant::Paper,
@@ -393,6 +398,7 @@ pub fn run_flight_observed(
                 // Edge-FS starts now (gyro sample as of now); the estimate leaves when the
                 // modelled processing time is over.
                 let out = cb.process_frame(&p.frame, p.capture, cb_now);
+                observer.on_edge_fs(t, cb.edge_fs().diagnostics());
                 let done = t + cfg.processing_us;
                 busy_until = done;
                 outbox.push_back((done, p.capture, out));

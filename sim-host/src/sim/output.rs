@@ -162,6 +162,51 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         (0.0, s.size_y as f64, 1.0),
         (0.0, s.size_x as f64, 1.0),
     )?;
+    draw_room(&mut chart, s)?;
+    let airborne: Vec<(f64, f64)> = r
+        .log
+        .iter()
+        .filter(|l| l.pos[2] > 0.05)
+        .map(|l| (l.pos[1] as f64, l.pos[0] as f64))
+        .collect();
+    chart
+        .draw_series(LineSeries::new(
+            airborne,
+            ShapeStyle::from(&BLUE).stroke_width(2),
+        ))
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    if let Some(l) = r.log.first() {
+        chart
+            .draw_series([Circle::new(
+                (l.pos[1] as f64, l.pos[0] as f64),
+                6,
+                GREEN.filled(),
+            )])
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    }
+    let hits = r
+        .log
+        .iter()
+        .filter(|l| l.clearance_m <= 0.0 && l.pos[2] > 0.05)
+        .map(|l| Circle::new((l.pos[1] as f64, l.pos[0] as f64), 4, RED.filled()));
+    chart
+        .draw_series(hits)
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    root.present().map_err(e)?;
+    Ok(())
+}
+
+/// The room's walls and obstacles on a plan chart (horizontal east, vertical north, m).
+fn draw_room<DB: DrawingBackend>(
+    chart: &mut ChartContext<
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    s: &Scene,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
     let wall = ShapeStyle::from(&BLACK).stroke_width(3);
     let (sx, sy) = (s.size_x as f64, s.size_y as f64);
     chart
@@ -205,36 +250,6 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             }
         }
     }
-    let airborne: Vec<(f64, f64)> = r
-        .log
-        .iter()
-        .filter(|l| l.pos[2] > 0.05)
-        .map(|l| (l.pos[1] as f64, l.pos[0] as f64))
-        .collect();
-    chart
-        .draw_series(LineSeries::new(
-            airborne,
-            ShapeStyle::from(&BLUE).stroke_width(2),
-        ))
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    if let Some(l) = r.log.first() {
-        chart
-            .draw_series([Circle::new(
-                (l.pos[1] as f64, l.pos[0] as f64),
-                6,
-                GREEN.filled(),
-            )])
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    }
-    let hits = r
-        .log
-        .iter()
-        .filter(|l| l.clearance_m <= 0.0 && l.pos[2] > 0.05)
-        .map(|l| Circle::new((l.pos[1] as f64, l.pos[0] as f64), 4, RED.filled()));
-    chart
-        .draw_series(hits)
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    root.present().map_err(e)?;
     Ok(())
 }
 
@@ -316,7 +331,7 @@ fn runs(points: impl Iterator<Item = (f64, f64)>) -> Vec<Vec<(f64, f64)>> {
 fn plot_levels<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     caption: &str,
-    t_end: f64,
+    (t_start, t_end): (f64, f64),
     names: &[&str],
     level: impl Fn(&super::flight::LogRow) -> usize,
     r: &FlightResult,
@@ -331,7 +346,7 @@ where
         .caption(caption, (FAMILY, 16))
         .x_label_area_size(30)
         .y_label_area_size(130)
-        .build_cartesian_2d(0.0..t_end, -0.5..top)
+        .build_cartesian_2d(t_start..t_end, -0.5..top)
         .map_err(|e| err(&e))?;
     let label = |y: &f64| {
         let i = y.round();
@@ -350,10 +365,14 @@ where
         .label_style((FAMILY, 13))
         .draw()
         .map_err(|e| err(&e))?;
-    grid(&mut chart, (0.0, t_end, 10.0), (0.0, top - 0.5, 1.0))?;
+    let step = if t_end - t_start > 20.0 { 10.0 } else { 1.0 };
+    grid(&mut chart, (t_start, t_end, step), (0.0, top - 0.5, 1.0))?;
     chart
         .draw_series(LineSeries::new(
-            r.log.iter().map(|l| (l.t_s, level(l) as f64)),
+            r.log
+                .iter()
+                .filter(|l| (t_start..=t_end).contains(&l.t_s))
+                .map(|l| (l.t_s, level(l) as f64)),
             ShapeStyle::from(&color).stroke_width(2),
         ))
         .map_err(|e| err(&e))?;
@@ -383,7 +402,7 @@ pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     plot_levels(
         &fsm_area,
         "FSM state",
-        t_end,
+        (0.0, t_end),
         &fsm_names,
         fsm_level,
         r,
@@ -399,7 +418,7 @@ pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     plot_levels(
         &mode_area,
         "flight mode",
-        t_end,
+        (0.0, t_end),
         &mode_names,
         mode_level,
         r,
@@ -442,6 +461,141 @@ pub fn plot_fsm(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         .label("true clearance [m]")
         .legend(line_key(BLACK));
     legend(&mut chart)?;
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
+
+/// How much of a flight before its first contact [`plot_contact`] shows, s.
+pub const CONTACT_WINDOW_S: f64 = 10.0;
+
+/// Why a flight touched: the last [`CONTACT_WINDOW_S`] before its first contact (and half a
+/// second after) in one picture. Left, the room's plan with the obstacles, the path over the
+/// window (blue, the start of the window green, the contact red). Right, over time: forward
+/// and sideways velocity, truth (black) and the autopilot's estimate (blue); the FSM state;
+/// the obstacle distance the autopilot holds (gray) and the true clearance (black).
+pub fn plot_contact(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
+    let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("{e:?}");
+    let t_contact = r.flight_time_s;
+    let (t0, t1) = ((t_contact - CONTACT_WINDOW_S).max(0.0), t_contact + 0.5);
+    let window: Vec<&super::flight::LogRow> = r
+        .log
+        .iter()
+        .filter(|l| (t0..=t1).contains(&l.t_s))
+        .collect();
+    plot_font::register();
+    let root = BitMapBackend::new(path, (1400, 820)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let root = root.margin(10, 10, 10, 10);
+    let (plan_area, right) = root.split_horizontally(600);
+
+    let s = &r.scene;
+    let mut plan = ChartBuilder::on(&plan_area)
+        .caption(
+            format!(
+                "{} seed {}: contact at {t_contact:.1} s, the {CONTACT_WINDOW_S:.0} s before",
+                s.name, r.seed
+            ),
+            (FAMILY, 15),
+        )
+        .x_label_area_size(35)
+        .y_label_area_size(45)
+        .build_cartesian_2d(0.0..s.size_y as f64, 0.0..s.size_x as f64)
+        .map_err(|e| err(&e))?;
+    axes(&mut plan, "east [m]", "north [m]")?;
+    grid(
+        &mut plan,
+        (0.0, s.size_y as f64, 1.0),
+        (0.0, s.size_x as f64, 1.0),
+    )?;
+    draw_room(&mut plan, s)?;
+    let at = |l: &&super::flight::LogRow| (l.pos[1] as f64, l.pos[0] as f64);
+    plan.draw_series(LineSeries::new(
+        window.iter().map(at),
+        ShapeStyle::from(&BLUE).stroke_width(2),
+    ))
+    .map_err(|e| err(&e))?;
+    if let Some(first) = window.first() {
+        plan.draw_series([Circle::new(at(first), 6, GREEN.filled())])
+            .map_err(|e| err(&e))?;
+    }
+    if let Some(hit) = window.iter().find(|l| l.t_s >= t_contact) {
+        plan.draw_series([Circle::new(at(hit), 6, RED.filled())])
+            .map_err(|e| err(&e))?;
+    }
+
+    let panels = right.split_evenly((3, 1));
+    let mut velocity = ChartBuilder::on(&panels[0])
+        .caption("velocity: truth (black), estimate (blue)", (FAMILY, 15))
+        .x_label_area_size(30)
+        .y_label_area_size(50)
+        .build_cartesian_2d(t0..t1, -0.6..0.6)
+        .map_err(|e| err(&e))?;
+    axes(&mut velocity, "time [s]", "fwd / side [m/s]")?;
+    grid(&mut velocity, (t0, t1, 1.0), (-0.6, 0.6, 0.2))?;
+    for axis in 0..2 {
+        let width = if axis == 0 { 2 } else { 1 };
+        for (pick, color) in [(0, BLACK), (1, BLUE)] {
+            let series = window.iter().map(|l| {
+                let v = if pick == 0 {
+                    l.vel_true[axis]
+                } else {
+                    l.vel_est[axis]
+                };
+                (l.t_s, f64::from(v).clamp(-0.6, 0.6))
+            });
+            for run in runs(series) {
+                velocity
+                    .draw_series(LineSeries::new(
+                        run,
+                        ShapeStyle::from(&color).stroke_width(width),
+                    ))
+                    .map_err(|e| err(&e))?;
+            }
+        }
+    }
+    let mut fsm_names = vec!["inactive"];
+    fsm_names.extend(FsmState::ALL.iter().map(|s| s.name()));
+    plot_levels(
+        &panels[1],
+        "FSM state",
+        (t0, t1),
+        &fsm_names,
+        |l| {
+            l.fsm_state
+                .and_then(|s| FsmState::ALL.iter().position(|&x| x == s))
+                .map_or(0, |i| i + 1)
+        },
+        r,
+        BLUE,
+    )?;
+    let mut distance = ChartBuilder::on(&panels[2])
+        .caption(
+            "obstacle distance (gray) and true clearance (black)",
+            (FAMILY, 15),
+        )
+        .x_label_area_size(30)
+        .y_label_area_size(50)
+        .build_cartesian_2d(t0..t1, 0.0..4.0)
+        .map_err(|e| err(&e))?;
+    axes(&mut distance, "time [s]", "metres")?;
+    grid(&mut distance, (t0, t1, 1.0), (0.0, 4.0, 0.5))?;
+    for run in runs(
+        window
+            .iter()
+            .map(|l| (l.t_s, f64::from(l.obstacle_m).clamp(0.0, 4.0))),
+    ) {
+        distance
+            .draw_series(LineSeries::new(run, RGBColor(160, 160, 160)))
+            .map_err(|e| err(&e))?;
+    }
+    distance
+        .draw_series(LineSeries::new(
+            window
+                .iter()
+                .map(|l| (l.t_s, f64::from(l.clearance_m).clamp(0.0, 4.0))),
+            BLACK,
+        ))
+        .map_err(|e| err(&e))?;
     root.present().map_err(|e| err(&e))?;
     Ok(())
 }
@@ -579,5 +733,28 @@ mod tests {
         let r = runs(pts.into_iter());
         assert_eq!(r, vec![vec![(1.0, 1.0), (2.0, 2.0)], vec![(5.0, 3.0)]]);
         assert!(runs([(0.0, f64::NAN)].into_iter()).is_empty());
+    }
+
+    #[test]
+    fn a_contact_is_drawn_with_its_window_start_and_the_contact() {
+        let cfg = super::super::flight::FlightConfig {
+            duration_s: 4.0,
+            ..Default::default()
+        };
+        let mut r = super::super::flight::run_flight(&cfg, &mut |_| {}).unwrap();
+        // The picture of a contact at 3.5 s: the window is the whole flight here.
+        r.flight_time_s = 3.5;
+        let path = std::env::temp_dir().join(format!("contact-{}.png", std::process::id()));
+        plot_contact(&r, &path).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(img.dimensions(), (1400, 820));
+        let count = |want: [u8; 3]| img.pixels().filter(|p| p.0 == want).count();
+        assert!(count([255, 0, 0]) > 50, "the contact's red marker");
+        assert!(count([0, 255, 0]) > 50, "the window's green start");
+        assert!(
+            count([0, 0, 255]) > 200,
+            "the path and the estimate in blue"
+        );
     }
 }

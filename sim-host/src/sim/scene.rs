@@ -216,6 +216,21 @@ impl Scene {
         Some(Self::build(&spec, texture_seed).expect("presets have no pictures"))
     }
 
+    /// Mean albedo 0..1 of a surface's texture (the ceiling for an obstacle that does not
+    /// exist).
+    pub fn mean_albedo(&self, surface: Surface) -> f32 {
+        let texture = match surface {
+            Surface::Wall(k) => &self.walls[usize::from(k.min(3))],
+            Surface::Floor => &self.floor,
+            Surface::Ceiling => &self.ceiling,
+            Surface::Obstacle(n) => self
+                .obstacle_tex
+                .get(usize::from(n))
+                .unwrap_or(&self.ceiling),
+        };
+        texture.mean_albedo()
+    }
+
     /// Albedo seen along the ray `o + t d` (t > 0), and the hit distance `t`. The origin must
     /// be inside the room.
     #[inline]

@@ -62,6 +62,14 @@ const TRIM_M: f32 = 0.1;
 const TRIM_ALBEDO: f32 = 0.35;
 
 impl Texture {
+    /// Mean albedo 0..1 over the surface (what a viewer paints it with).
+    pub fn mean_albedo(&self) -> f32 {
+        if self.data.is_empty() {
+            return 0.0;
+        }
+        self.data.iter().sum::<f32>() / self.data.len() as f32
+    }
+
     /// Albedo 0..1 at surface coordinates `s` (along) and `h` (up, or the second floor axis), m.
     #[inline]
     pub fn sample(&self, s: f32, h: f32) -> f32 {
