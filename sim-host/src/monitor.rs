@@ -7,7 +7,8 @@
 //! decodes whatever arrives, counts every frame it has to reject (by kind, as the boards do),
 //! and shows mode, FSM state, estimates, height, link health and errors. A link that goes
 //! silent for longer than `--link-timeout` is shown as lost, and a board whose protocol
-//! version is not this host's is flagged.
+//! version is not this host's is flagged. The monitor sends the host's `Heartbeat` once a
+//! second: the autopilot lands when its host falls silent.
 //!
 //! Message times in the log are wall-clock nanoseconds since the Unix epoch at reception
 //! (monotonic within one run); the board's own clock is logged beside them (`/board_clock`).
@@ -19,8 +20,8 @@ use crate::log::records::{
 use crate::log::{write_telemetry, FlightLog, TelemetryExtras};
 use anyhow::Context as _;
 use protocol::{
-    BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, LinkErrorCounts, Node, Telemetry,
-    PROTOCOL_VERSION,
+    BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, HostToBoard, LinkErrorCounts,
+    Message as _, Node, Telemetry, PROTOCOL_VERSION,
 };
 use std::fmt::Write as _;
 use std::io::{IsTerminal as _, Write as _};
@@ -459,6 +460,12 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the Ctrl-C handler")?;
     }
+    // The host's heartbeat goes out on the same link: the autopilot counts a silent host as a
+    // lost telemetry link (it lands) and refuses to arm without one.
+    let mut heartbeat_out = link
+        .try_clone_link()
+        .context("cloning the link for writing")?;
+    let mut next_heartbeat = 0.0;
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || reader(link, tx));
 
@@ -479,6 +486,16 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         }
         if args.duration.is_some_and(|d| now >= d) {
             break "duration reached";
+        }
+        if now >= next_heartbeat {
+            next_heartbeat = now + crate::param::HOST_HEARTBEAT_PERIOD.as_secs_f64();
+            let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, (now * 1e3) as u32));
+            let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&hb)
+                .map_err(|e| anyhow::anyhow!("encoding the heartbeat: {e:?}"))?;
+            if let Err(e) = heartbeat_out.write_all(&frame) {
+                let _ = log.finish();
+                return Err(e).with_context(|| format!("writing the heartbeat to {}", args.port));
+            }
         }
         match rx.recv_timeout(Duration::from_millis(50)) {
             Ok(Received::Bytes(bytes)) => {
@@ -554,6 +571,7 @@ mod tests {
                 temperature_c: 24.5,
             }),
             link_errors: LinkErrorCounts::default(),
+            failsafe_reason: None,
         }
     }
 
