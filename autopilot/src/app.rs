@@ -362,9 +362,9 @@ impl AutopilotConfig {
 /// Ground signature: the low-passed squared body rate stays below this, rad/s.
 pub const GROUND_MAX_RATE_RADPS: f32 = 0.5;
 
-/// Low-pass weight per IMU sample of the ground signature's specific force and body rate (a
-/// time constant of about 0.1 s at 512 Hz).
-const GROUND_LP_ALPHA: f32 = 0.02;
+/// Low-pass weight per guidance step of the ground signature's specific force and body rate,
+/// sampled from the latest IMU sample (a time constant of about 0.1 s at 50 Hz).
+const GROUND_LP_ALPHA: f32 = 0.2;
 
 /// The whole autopilot state (fixed size, no heap): the stages in data-flow order.
 #[derive(Debug, Clone)]
@@ -376,6 +376,7 @@ pub struct Autopilot {
     att: AttitudeEstimator,
     indi: Indi,
     gyro: [f32; 3],
+    accel: [f32; 3],
     last_imu_us: Option<u64>,
     motors: [f32; 4],
     /// Low-passed squared specific force, (m/s²)², and squared body rate, (rad/s)²: the
@@ -431,6 +432,7 @@ impl Autopilot {
             att: AttitudeEstimator::new(config.attitude),
             indi: Indi::new(config.indi),
             gyro: [0.0; 3],
+            accel: [0.0, 0.0, -GRAVITY],
             last_imu_us: None,
             motors: MOTORS_OFF,
             ground_lp: [GRAVITY * GRAVITY, 0.0],
@@ -742,12 +744,7 @@ impl Autopilot {
         let gyro = self.gyro_cal.correct(imu.gyro_radps);
         self.gyro = gyro;
         self.att.update(gyro, imu.accel_mps2, dt);
-        let [ax, ay, az] = imu.accel_mps2;
-        let [p, q, r] = gyro;
-        let squares = [ax * ax + ay * ay + az * az, p * p + q * q + r * r];
-        for (lp, x) in self.ground_lp.iter_mut().zip(squares) {
-            *lp += GROUND_LP_ALPHA * (x - *lp);
-        }
+        self.accel = imu.accel_mps2;
 
         let q = self.att.quat();
         let [roll, pitch, _] = q.to_euler();
@@ -918,6 +915,12 @@ impl Autopilot {
     /// the height loop update the setpoints the 512 Hz loop flies.
     pub fn guidance_step(&mut self, now_us: u64) {
         let dt = self.guidance.tick(now_us);
+        let [ax, ay, az] = self.accel;
+        let [p, q, r] = self.gyro;
+        let squares = [ax * ax + ay * ay + az * az, p * p + q * q + r * r];
+        for (lp, x) in self.ground_lp.iter_mut().zip(squares) {
+            *lp += GROUND_LP_ALPHA * (x - *lp);
+        }
         let f = self.freshness();
         let mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
