@@ -419,6 +419,12 @@ enum Received {
     Failed(std::io::Error),
 }
 
+/// The peer closed the connection (a reset or a broken pipe), as opposed to a failing port.
+fn closed_by_peer(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::{BrokenPipe, ConnectionAborted, ConnectionReset};
+    matches!(e.kind(), BrokenPipe | ConnectionAborted | ConnectionReset)
+}
+
 fn reader(mut link: Box<dyn Link>, tx: mpsc::Sender<Received>) {
     let mut buf = [0u8; 1024];
     loop {
@@ -426,6 +432,8 @@ fn reader(mut link: Box<dyn Link>, tx: mpsc::Sender<Received>) {
             Ok(0) => Received::Closed,
             Ok(n) => Received::Bytes(buf[..n].to_vec()),
             Err(e) if crate::hil::is_transient_read_error(&e) => continue,
+            // A peer that closed with our heartbeats unread resets the connection.
+            Err(e) if closed_by_peer(&e) => Received::Closed,
             Err(e) => Received::Failed(e),
         };
         let last = !matches!(r, Received::Bytes(_));
@@ -492,9 +500,14 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
             let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, (now * 1e3) as u32));
             let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&hb)
                 .map_err(|e| anyhow::anyhow!("encoding the heartbeat: {e:?}"))?;
-            if let Err(e) = heartbeat_out.write_all(&frame) {
-                let _ = log.finish();
-                return Err(e).with_context(|| format!("writing the heartbeat to {}", args.port));
+            match heartbeat_out.write_all(&frame) {
+                Ok(()) => {}
+                Err(e) if closed_by_peer(&e) => break "the link closed",
+                Err(e) => {
+                    let _ = log.finish();
+                    return Err(e)
+                        .with_context(|| format!("writing the heartbeat to {}", args.port));
+                }
             }
         }
         match rx.recv_timeout(Duration::from_millis(50)) {
