@@ -27,7 +27,7 @@ use crate::avoidance::{Avoidance, AvoidanceInput};
 use crate::camera_link::{CameraLink, CameraNews};
 pub use crate::estimation::VelocitySource;
 use crate::estimation::{VelocityEstimation, VisionContext};
-use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
+use crate::failsafe::{Failsafe, FailsafeConfig, FailsafeReason, FlightMode, Freshness};
 use crate::force_field::ForceFieldConfig;
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState};
 use crate::guidance::{GuidanceConfig, ObserverConfig, VelocityObserver};
@@ -165,6 +165,26 @@ pub struct AutopilotConfig {
     pub landed_time_us: u64,
     /// The avoidance FSM starts once the height is within this of the target, m.
     pub fsm_start_height_tolerance_m: f32,
+    /// A landing that has not touched down after this long (a biased barometer that reads the
+    /// floor as higher than it is) cuts the motors once the height estimate is below
+    /// `land_cut_height_m` or the drone shows the ground signature, µs.
+    pub land_timeout_us: u64,
+    /// After `land_timeout_us`, the motors are cut below this height estimate, m.
+    pub land_cut_height_m: f32,
+    /// Ground signature (touchdown whatever the height says): the level-flight thrust below
+    /// this fraction of the hover thrust while the specific force stays above
+    /// `ground_min_specific_force` g and the body rates below [`GROUND_MAX_RATE_RADPS`]. In the
+    /// air that little thrust makes the drone fall (its specific force drops with the
+    /// thrust); only the floor holds it at 1 g. 0 turns the signature off.
+    pub ground_thrust_ratio: f32,
+    /// Ground signature: the low-passed specific force stays above this fraction of g.
+    pub ground_min_specific_force: f32,
+    /// A barometer whose readings (pressure and temperature, as compensated from the raw
+    /// conversions) stay bit-for-bit identical for longer than this is frozen: its readings
+    /// are not used (as a stuck IMU's), so the height failsafe acts without fixes, µs. A live
+    /// MS5611's noise (about 1.5 Pa rms on a 1 Pa resolution) repeats a reading with about
+    /// 0.3 probability: 25 repeats in a row (0.5 s at 50 Hz) happen with about 1e-13.
+    pub baro_stuck_us: u64,
     /// Level-flight thrust when landing without a height measurement (0..=1, below hover).
     pub blind_land_thrust: f32,
     /// Landing without a height measurement: motors off after this long, µs.
@@ -266,6 +286,11 @@ impl Default for AutopilotConfig {
             landed_height_m: 0.06,
             landed_time_us: 500_000,
             fsm_start_height_tolerance_m: 0.15,
+            land_timeout_us: 10_000_000,
+            land_cut_height_m: 0.3,
+            ground_thrust_ratio: 0.6,
+            ground_min_specific_force: 0.9,
+            baro_stuck_us: 500_000,
             blind_land_thrust: 0.5,
             blind_land_time_us: 3_000_000,
             min_quality: 0,
@@ -301,6 +326,23 @@ impl AutopilotConfig {
         self.failsafe.estimate_timeout_us + self.camera_stopped_motors_off_us()
     }
 
+    /// The longest time from the host's last heartbeat to every motor at 0, µs, with the
+    /// default host action (land) for a drone flying at up to `target_height_m` (the host
+    /// timeout, then a landing as in [`AutopilotConfig::camera_stopped_motors_off_us`] at the
+    /// slower of the two landing rates, without the hover).
+    pub fn host_loss_motors_off_us(&self) -> u64 {
+        let ramp_m = self.target_height_m.max(0.0) - LAND_SETPOINT_FLOOR_M;
+        let rate = self
+            .land_rate_mps
+            .abs()
+            .min(self.blind_land_rate_mps.abs())
+            .max(0.01);
+        self.failsafe.host_timeout_us
+            + ((ramp_m / rate) * 1e6) as u64
+            + self.landed_time_us
+            + u64::from(GUIDANCE_PERIOD_US)
+    }
+
     /// The longest time from the camera board's `Status` reporting its camera stopped to every
     /// motor at 0, µs (the report ends the estimates at once): the hover before landing; the
     /// height setpoint's ramp at `blind_land_rate_mps` from the target height down to its stop
@@ -317,6 +359,13 @@ impl AutopilotConfig {
     }
 }
 
+/// Ground signature: the low-passed squared body rate stays below this, rad/s.
+pub const GROUND_MAX_RATE_RADPS: f32 = 0.5;
+
+/// Low-pass weight per guidance step of the ground signature's specific force and body rate,
+/// sampled from the latest IMU sample (a time constant of about 0.1 s at 50 Hz).
+const GROUND_LP_ALPHA: f32 = 0.2;
+
 /// The whole autopilot state (fixed size, no heap): the stages in data-flow order.
 #[derive(Debug, Clone)]
 pub struct Autopilot {
@@ -327,14 +376,21 @@ pub struct Autopilot {
     att: AttitudeEstimator,
     indi: Indi,
     gyro: [f32; 3],
+    accel: [f32; 3],
     last_imu_us: Option<u64>,
     motors: [f32; 4],
+    /// Low-passed squared specific force, (m/s²)², and squared body rate, (rad/s)²: the
+    /// ground signature's inputs.
+    ground_lp: [f32; 2],
     /// The camera board's link.
     camera: CameraLink,
     /// Height: vertical estimator, the last barometer reading, the height loop (which holds
     /// the height measurement it flies on).
     vertical: VerticalEstimator,
     baro: Option<(u64, BaroReading)>,
+    /// When the barometer's reading last changed, µs, and frozen readings refused since boot.
+    baro_changed_us: u64,
+    baro_frozen: u32,
     height: HeightController,
     /// Horizontal velocity from the Edge-FS estimates.
     estimation: VelocityEstimation,
@@ -346,6 +402,8 @@ pub struct Autopilot {
     failsafe: Failsafe,
     rc_kill_latched: bool,
     arm_refused: u32,
+    /// When the host's last heartbeat arrived, µs.
+    last_host_us: Option<u64>,
     /// The parameter storage's state (`None`: a build without storage).
     storage: Option<StorageStatus>,
 }
@@ -378,11 +436,15 @@ impl Autopilot {
             att: AttitudeEstimator::new(config.attitude),
             indi: Indi::new(config.indi),
             gyro: [0.0; 3],
+            accel: [0.0, 0.0, -GRAVITY],
             last_imu_us: None,
             motors: MOTORS_OFF,
+            ground_lp: [GRAVITY * GRAVITY, 0.0],
             camera: CameraLink::new(),
             vertical: VerticalEstimator::new(config.vertical),
             baro: None,
+            baro_changed_us: 0,
+            baro_frozen: 0,
             height: HeightController::new(config.height),
             estimation: VelocityEstimation::new(&config),
             avoidance: Avoidance::new(config.fsm),
@@ -390,6 +452,7 @@ impl Autopilot {
             failsafe: Failsafe::new(config.failsafe),
             rc_kill_latched: false,
             arm_refused: 0,
+            last_host_us: None,
             storage: None,
             cfg: config,
         }
@@ -627,7 +690,26 @@ impl Autopilot {
             last_valid_estimate_us: self.estimation.last_valid_estimate_us(),
             last_imu_us: self.last_imu_us,
             last_height_us: self.height.last_measurement_us(),
+            last_host_us: self.last_host_us,
+            baro_frozen: self.baro_is_frozen(),
         }
+    }
+
+    /// A heartbeat from the host (ground tool, simulator, HIL bridge) arrived at `now_us`:
+    /// the telemetry link is alive (see [`crate::failsafe`]'s host timeout).
+    pub fn on_host_heartbeat(&mut self, now_us: u64) {
+        self.last_host_us = Some(now_us);
+    }
+
+    /// When the host's last heartbeat arrived, µs (`None`: none since boot).
+    pub fn last_host_heartbeat_us(&self) -> Option<u64> {
+        self.last_host_us
+    }
+
+    /// Why the drone last left normal flight since it was armed (`None`: it has not); after
+    /// a landing, why it landed ([`FailsafeReason::TelemetryLost`] for a lost host link).
+    pub fn failsafe_reason(&self) -> Option<FailsafeReason> {
+        self.failsafe.reason()
     }
 
     /// 512 Hz: one IMU sample (body frame x forward, y right, z down; gyro rad/s, accel m/s²)
@@ -666,6 +748,7 @@ impl Autopilot {
         let gyro = self.gyro_cal.correct(imu.gyro_radps);
         self.gyro = gyro;
         self.att.update(gyro, imu.accel_mps2, dt);
+        self.accel = imu.accel_mps2;
 
         let q = self.att.quat();
         let [roll, pitch, _] = q.to_euler();
@@ -719,7 +802,8 @@ impl Autopilot {
         self.height.on_measurement(h, now_us);
     }
 
-    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, an
+    /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, a host
+    /// heartbeat within the host timeout (unless autonomous arming is allowed), an
     /// initialised attitude estimate (an accelerometer sample near 1 g), no
     /// [`Autopilot::arm_blocker`], and the drone on the ground (disarmed, killed or after an IMU
     /// fault). Every `Arm` that does not leave the drone flying is counted in
@@ -778,7 +862,7 @@ impl Autopilot {
     }
 
     /// `Arm` commands refused since boot (wrapping): the attitude not initialised, an
-    /// [`Autopilot::arm_blocker`], a stale IMU or height, or the drone not on the ground
+    /// [`Autopilot::arm_blocker`], a stale IMU, height or host heartbeat, or the drone not on the ground
     /// (hovering blind or landing). An `Arm` while already flying changes nothing and is not
     /// counted.
     pub fn arm_refused(&self) -> u32 {
@@ -786,10 +870,20 @@ impl Autopilot {
     }
 
     /// A barometer reading (pressure, temperature) taken at `now_us`, fused by the vertical
-    /// estimator the height loop flies on when no external fixes come.
+    /// estimator the height loop flies on when no external fixes come. A reading identical to
+    /// the ones before it for longer than [`AutopilotConfig::baro_stuck_us`] is a frozen
+    /// sensor's: kept for telemetry, not fused, and counted ([`Autopilot::baro_frozen`]).
     pub fn on_baro(&mut self, reading: &BaroReading, now_us: u64) {
         if reading.pressure_pa.is_finite() && reading.temperature_c.is_finite() {
+            let same = matches!(self.baro, Some((_, last)) if last == *reading);
+            if !same {
+                self.baro_changed_us = now_us;
+            }
             self.baro = Some((now_us, *reading));
+            if self.baro_is_frozen() {
+                self.baro_frozen = self.baro_frozen.wrapping_add(1);
+                return;
+            }
             let running = self.motors.iter().any(|&m| m > 0.0);
             if self.vertical.on_pressure(reading.pressure_pa, running)
                 && !self.vertical.has_recent_fix()
@@ -804,10 +898,39 @@ impl Autopilot {
         self.baro
     }
 
+    /// The barometer's readings have stayed identical for longer than
+    /// [`AutopilotConfig::baro_stuck_us`]: a frozen sensor.
+    pub fn baro_is_frozen(&self) -> bool {
+        matches!(self.baro, Some((t, _))
+            if t.saturating_sub(self.baro_changed_us) > self.cfg.baro_stuck_us)
+    }
+
+    /// Frozen barometer readings refused since boot (wrapping).
+    pub fn baro_frozen(&self) -> u32 {
+        self.baro_frozen
+    }
+
+    /// The ground signature: the commanded level-flight thrust well below hover while the
+    /// specific force stays near 1 g and the body still (see
+    /// [`AutopilotConfig::ground_thrust_ratio`]).
+    pub fn ground_signature(&self) -> bool {
+        let cfg = &self.cfg;
+        let min_force = cfg.ground_min_specific_force * GRAVITY;
+        self.guidance.setpoints().thrust < cfg.ground_thrust_ratio * cfg.height.hover_thrust
+            && self.ground_lp[0] >= min_force * min_force
+            && self.ground_lp[1] <= GROUND_MAX_RATE_RADPS * GROUND_MAX_RATE_RADPS
+    }
+
     /// Guidance step (e.g. 50 Hz): failsafes, avoidance FSM, force field, velocity guidance and
     /// the height loop update the setpoints the 512 Hz loop flies.
     pub fn guidance_step(&mut self, now_us: u64) {
         let dt = self.guidance.tick(now_us);
+        let [ax, ay, az] = self.accel;
+        let [p, q, r] = self.gyro;
+        let squares = [ax * ax + ay * ay + az * az, p * p + q * q + r * r];
+        for (lp, x) in self.ground_lp.iter_mut().zip(squares) {
+            *lp += GROUND_LP_ALPHA * (x - *lp);
+        }
         let f = self.freshness();
         let mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
@@ -824,7 +947,8 @@ impl Autopilot {
         let request = self.avoidance.step(
             &AvoidanceInput {
                 now_us,
-                flying: mode == FlightMode::Flying,
+                // A lost host link with the hold action: hover where it is.
+                flying: mode == FlightMode::Flying && !self.failsafe.holding(),
                 at_flight_height: self.guidance.at_flight_height(h, cfg),
                 yaw_rad: self.att.euler()[2],
                 held_yaw_rad: self.guidance.setpoints().attitude_rad[2],
@@ -834,22 +958,35 @@ impl Autopilot {
         );
         if request.land {
             // No way to go found within the FSM's timeouts: land where it is.
-            self.failsafe.command(PilotCommand::Land, &f, now_us);
+            self.failsafe.land(FailsafeReason::NoWayFound, now_us);
         }
         self.guidance.fly(&request, fresh_velocity, dt);
         let height_fresh = matches!(self.height.last_measurement_us(),
             Some(t) if now_us.saturating_sub(t) <= cfg.failsafe.height_timeout_us);
+        let landing = mode == FlightMode::Landing;
         let down = if height_fresh {
             self.guidance
                 .hold_height(&mut self.height, height_sp, h, dt, cfg);
+            let on_ground = landing && self.ground_signature();
             self.guidance
-                .touched_down(mode == FlightMode::Landing, h, now_us, cfg)
+                .touched_down(landing, h, on_ground, now_us, cfg)
         } else {
             // Blind landing (the failsafe switched to Landing): reduced thrust, then off.
             self.guidance
                 .blind_landing(self.failsafe.since_us(), now_us, cfg)
         };
         if down {
+            self.touchdown(now_us);
+            return;
+        }
+        // A landing that does not end (a biased barometer holds the height above the landed
+        // height): cut near the floor or on the ground signature once it has taken too long.
+        let landing_for = now_us.saturating_sub(self.failsafe.since_us());
+        if landing
+            && landing_for >= self.cfg.land_timeout_us
+            && ((height_fresh && h <= self.cfg.land_cut_height_m) || self.ground_signature())
+        {
+            self.failsafe.cut(FailsafeReason::LandTimeout, now_us);
             self.touchdown(now_us);
         }
     }
@@ -868,7 +1005,8 @@ impl Autopilot {
         self.motors = MOTORS_OFF;
     }
 
-    /// Touchdown confirmed: disarmed, motors off, integrators empty, the FSM stopped.
+    /// Touchdown confirmed (or a landing cut): disarmed, motors off, integrators empty, the
+    /// FSM stopped.
     fn touchdown(&mut self, now_us: u64) {
         self.failsafe.landed(now_us);
         self.guidance.landed();
@@ -911,6 +1049,7 @@ impl Autopilot {
             height_m: self.height.height_m(),
             baro: self.baro.map(|(_, r)| r),
             link_errors: self.camera.errors(),
+            failsafe_reason: self.failsafe.reason(),
         }
     }
 }

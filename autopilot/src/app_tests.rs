@@ -161,6 +161,10 @@ struct Run {
     now: u64,
     estimates: bool,
     imu: bool,
+    /// The host sends its heartbeat (at the guidance rate here).
+    host: bool,
+    /// Added to the height the position fixes report, m (a biased height sensor).
+    height_bias: f32,
     seq: u16,
     max_tilt: f32,
     min_wall_gap: f32,
@@ -175,6 +179,8 @@ impl Run {
             now: 0,
             estimates: true,
             imu: true,
+            host: true,
+            height_bias: 0.0,
             seq: 0,
             max_tilt: 0.0,
             min_wall_gap: f32::MAX,
@@ -191,12 +197,16 @@ impl Run {
                 motors = self.ap.on_imu(&self.quad.imu(self.now), self.now);
             }
             if k.is_multiple_of(10) {
+                if self.host {
+                    self.ap.on_host_heartbeat(self.now);
+                }
                 self.ap.guidance_step(self.now);
                 if let Some(m) = self.ap.motor_safety(self.now) {
                     motors = m;
                 }
-                self.ap
-                    .on_external_position(&self.quad.position(self.now), self.now);
+                let mut fix = self.quad.position(self.now);
+                fix.position_m[2] -= self.height_bias;
+                self.ap.on_external_position(&fix, self.now);
                 let mode = self.ap.mode();
                 if self.modes.last().map(|m| m.1) != Some(mode) {
                     self.modes.push((self.now, mode));
@@ -382,6 +392,183 @@ fn a_stopped_camera_lands_and_stops_the_motors_within_its_promise() {
 }
 
 #[test]
+fn a_silent_host_lands_the_drone_and_stops_the_motors_within_its_promise() {
+    let cfg = AutopilotConfig::default();
+    let mut r = Run::new(cfg);
+    r.takeoff();
+    r.fly(4.0);
+    assert!((r.quad.height() - cfg.target_height_m).abs() < 0.1);
+    r.host = false;
+    let last_heartbeat = r.ap.last_host_heartbeat_us().expect("heartbeats came");
+    let promise = cfg.host_loss_motors_off_us();
+    let mut off_at = None;
+    while r.now < last_heartbeat + promise + 1_000_000 {
+        r.fly(0.02);
+        if off_at.is_none() && r.ap.motors() == [0.0; 4] && r.ap.motor_safety(r.now).is_some() {
+            off_at = Some(r.now);
+        }
+    }
+    let off_at = off_at.expect("the motors stopped");
+    let modes: Vec<(u64, FlightMode)> = r
+        .modes
+        .iter()
+        .filter(|m| m.0 > last_heartbeat)
+        .copied()
+        .collect();
+    std::println!(
+        "host silent: motors 0 after {} ms (promised {} ms), modes {modes:?}",
+        (off_at - last_heartbeat) / 1000,
+        promise / 1000
+    );
+    assert_eq!(modes[0].1, FlightMode::Landing);
+    assert!(modes[0].0 - last_heartbeat > cfg.failsafe.host_timeout_us);
+    assert_eq!(modes[1].1, FlightMode::Disarmed);
+    assert!(off_at - last_heartbeat <= promise);
+    assert!(r.quad.height() < 0.02);
+    assert_eq!(
+        r.ap.telemetry(r.now).failsafe_reason,
+        Some(FailsafeReason::TelemetryLost)
+    );
+}
+
+/// A height sensor that reads the floor 0.3 m high never reaches the landed height: the
+/// ground signature (thrust far below hover, yet 1 g of specific force) ends the landing.
+#[test]
+fn a_biased_height_still_touches_down_on_the_ground_signature() {
+    let cfg = AutopilotConfig::default();
+    let mut r = Run::new(cfg);
+    r.takeoff();
+    r.fly(4.0);
+    r.height_bias = 0.3;
+    r.ap.on_command(PilotCommand::Land, r.now);
+    let land_at = r.now;
+    r.fly(8.0);
+    let down = r.modes.last().unwrap();
+    assert_eq!(down.1, FlightMode::Disarmed);
+    std::println!(
+        "biased height: disarmed {} ms after Land",
+        (down.0 - land_at) / 1000
+    );
+    assert!(down.0 - land_at < cfg.land_timeout_us, "before the timeout");
+    assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::Command));
+    assert_eq!(r.ap.motors(), [0.0; 4]);
+    assert!(r.quad.height() < 0.02);
+}
+
+/// Without the ground signature (turned off), a landing held above the landed height by a
+/// biased height is cut after the land timeout, the height estimate being below the cut
+/// height.
+#[test]
+fn a_landing_that_does_not_end_is_cut_after_its_timeout() {
+    let cfg = AutopilotConfig {
+        ground_thrust_ratio: 0.0,
+        ..AutopilotConfig::default()
+    };
+    let mut r = Run::new(cfg);
+    r.takeoff();
+    r.fly(4.0);
+    r.height_bias = 0.2;
+    r.ap.on_command(PilotCommand::Land, r.now);
+    let land_at = r.now;
+    r.fly(cfg.land_timeout_us as f32 * 1e-6 - 0.1);
+    assert_eq!(r.ap.mode(), FlightMode::Landing, "still landing");
+    r.fly(0.2);
+    let down = r.modes.last().unwrap();
+    assert_eq!(down.1, FlightMode::Disarmed);
+    assert!(down.0 - land_at >= cfg.land_timeout_us);
+    assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::LandTimeout));
+    assert_eq!(r.ap.motors(), [0.0; 4]);
+}
+
+/// A barometer whose readings freeze is refused after `baro_stuck_us` (its heights no longer
+/// reach the height loop); a reading that moves again is used again.
+#[test]
+fn a_frozen_barometer_is_refused_and_counted() {
+    let cfg = AutopilotConfig::default();
+    let mut ap = Autopilot::new(cfg);
+    let reading = |p: f32| BaroReading {
+        pressure_pa: p,
+        temperature_c: 25.0,
+    };
+    let mut t = 0;
+    for k in 0..50 {
+        ap.on_baro(&reading(101_325.0 + (k % 3) as f32), t);
+        t += 20_000;
+    }
+    assert!(!ap.baro_is_frozen());
+    assert_eq!(ap.baro_frozen(), 0);
+    let frozen_from = t;
+    while t <= frozen_from + cfg.baro_stuck_us + 100_000 {
+        ap.on_baro(&reading(101_330.0), t);
+        t += 20_000;
+    }
+    assert!(ap.baro_is_frozen());
+    assert!(ap.baro_frozen() >= 4);
+    let last_height = ap.height.last_measurement_us();
+    assert!(last_height.is_none_or(|h| h <= frozen_from + cfg.baro_stuck_us));
+    assert!(ap.freshness().baro_frozen);
+    ap.on_baro(&reading(101_331.0), t);
+    assert!(!ap.baro_is_frozen());
+}
+
+/// A frozen barometer in flight without other height fixes: its heights stop, and the height
+/// failsafe lands for it.
+#[test]
+fn a_barometer_frozen_in_flight_lands_the_drone_and_says_why() {
+    let cfg = AutopilotConfig::default();
+    let mut ap = Autopilot::new(cfg);
+    let mut f = Failsafe::new(cfg.failsafe);
+    let fresh = Freshness {
+        last_valid_estimate_us: Some(0),
+        last_imu_us: Some(0),
+        last_height_us: Some(0),
+        last_host_us: Some(0),
+        baro_frozen: false,
+    };
+    f.command(PilotCommand::Arm, &fresh, 0);
+    let t = cfg.failsafe.height_timeout_us + 1;
+    let stale = Freshness {
+        last_valid_estimate_us: Some(t),
+        last_imu_us: Some(t),
+        last_host_us: Some(t),
+        baro_frozen: true,
+        ..fresh
+    };
+    assert_eq!(f.update(&stale, t), FlightMode::Landing);
+    assert_eq!(f.reason(), Some(FailsafeReason::BaroFrozen));
+    // The autopilot hands the failsafe its barometer's state.
+    ap.on_baro(
+        &BaroReading {
+            pressure_pa: 1.0e5,
+            temperature_c: 20.0,
+        },
+        0,
+    );
+    ap.on_baro(
+        &BaroReading {
+            pressure_pa: 1.0e5,
+            temperature_c: 20.0,
+        },
+        cfg.baro_stuck_us + 1,
+    );
+    assert!(ap.freshness().baro_frozen);
+}
+
+#[test]
+fn an_arm_without_a_host_heartbeat_is_refused_and_counted() {
+    let mut r = Run::new(AutopilotConfig::default());
+    r.host = false;
+    r.fly(0.5);
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+    assert_eq!(r.ap.arm_refused(), 1);
+    r.host = true;
+    r.fly(0.1);
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Flying);
+}
+
+#[test]
 fn arm_is_refused_until_the_attitude_is_initialised() {
     let mut ap = Autopilot::new(AutopilotConfig::default());
     let pos = ExternalPosition {
@@ -398,6 +585,7 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
         ap.on_imu(&imu, k * IMU_US);
         ap.on_external_position(&pos, k * IMU_US);
     }
+    ap.on_host_heartbeat(100 * IMU_US);
     ap.on_command(PilotCommand::Arm, 100 * IMU_US);
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     let imu = ImuSample {
@@ -589,6 +777,7 @@ fn every_refused_arm_is_counted() {
         position_m: [0.0; 3],
     };
     let mut ap = Autopilot::new(AutopilotConfig::default());
+    ap.on_host_heartbeat(0);
     // Not initialised (no IMU sample yet): refused before the failsafe.
     ap.on_command(PilotCommand::Arm, 0);
     assert_eq!(ap.arm_refused(), 1);
@@ -856,7 +1045,10 @@ proptest! {
                 }, now),
                 Input::Cmd(c) => ap.on_command(
                     [PilotCommand::Arm, PilotCommand::Land, PilotCommand::Kill][c as usize], now),
-                Input::Guidance => ap.guidance_step(now),
+                Input::Guidance => {
+                    ap.on_host_heartbeat(now);
+                    ap.guidance_step(now);
+                }
                 Input::Wait(us) => now += us as u64,
             }
             let sp = ap.setpoints();

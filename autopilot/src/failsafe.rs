@@ -13,13 +13,36 @@
 //!   (the caller descends open-loop on reduced thrust).
 //! * IMU stale for [`FailsafeConfig::imu_timeout_us`] while armed -> [`FlightMode::ImuFault`]:
 //!   motors off (nothing can stabilise the drone without rates).
-//! * `Landing` ends in `Disarmed` when the caller reports touchdown.
+//! * No host heartbeat for [`FailsafeConfig::host_timeout_us`] while armed (the telemetry link,
+//!   the pocket drone's only kill path, is gone) -> [`FailsafeConfig::host_action`]: land (the
+//!   default), hold (the avoidance FSM stops, the drone hovers where it is until heartbeats
+//!   come back) or kill. Arming needs a fresh host heartbeat unless
+//!   [`FailsafeConfig::autonomous_arm`] allows arming without one; a drone armed that way with
+//!   no host heard since boot has no host to lose.
+//! * `Landing` ends in `Disarmed` when the caller reports touchdown; a landing that cannot end
+//!   is cut by the caller ([`Failsafe::cut`]).
 //!
-//! [`FlightMode`] is the protocol's type: telemetry carries it as it is.
+//! Each failsafe (and each `Land` or `Kill` command) records its [`FailsafeReason`], which
+//! stands until the next arming.
+//!
+//! [`FlightMode`] and [`FailsafeReason`] are the protocol's types: telemetry carries them as
+//! they are.
 
 use protocol::PilotCommand;
 
-pub use protocol::FlightMode;
+pub use protocol::{FailsafeReason, FlightMode};
+
+/// What the autopilot does when its host's heartbeats stop while armed (parameter
+/// `fs_host_action`: 0 land, 1 hold, 2 kill).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HostLossAction {
+    /// Land where it is, then disarm.
+    Land,
+    /// Stop the avoidance FSM and hover in place until the heartbeats come back.
+    Hold,
+    /// Motors off at once.
+    Kill,
+}
 
 /// Failsafe timings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -32,6 +55,12 @@ pub struct FailsafeConfig {
     pub imu_timeout_us: u64,
     /// No height measurement for this long in flight -> land, µs.
     pub height_timeout_us: u64,
+    /// No host heartbeat for this long while armed -> [`FailsafeConfig::host_action`], µs.
+    pub host_timeout_us: u64,
+    /// What a lost host link does.
+    pub host_action: HostLossAction,
+    /// Arming is allowed without a host heartbeat (a drone that flies with no ground station).
+    pub autonomous_arm: bool,
 }
 
 impl Default for FailsafeConfig {
@@ -41,6 +70,9 @@ impl Default for FailsafeConfig {
             hover_before_land_us: 1_500_000,
             imu_timeout_us: 20_000,
             height_timeout_us: 500_000,
+            host_timeout_us: 3_000_000,
+            host_action: HostLossAction::Land,
+            autonomous_arm: false,
         }
     }
 }
@@ -54,6 +86,10 @@ pub struct Freshness {
     pub last_imu_us: Option<u64>,
     /// Time of the last usable height measurement, µs.
     pub last_height_us: Option<u64>,
+    /// Time of the last host heartbeat, µs.
+    pub last_host_us: Option<u64>,
+    /// The barometer is frozen (a stale height is then blamed on it).
+    pub baro_frozen: bool,
 }
 
 fn fresh(t: Option<u64>, now: u64, timeout: u64) -> bool {
@@ -69,6 +105,10 @@ pub struct Failsafe {
     armed_us: u64,
     /// A valid estimate has come since the last arming.
     seen_estimate: bool,
+    /// Why normal flight was last left since the last arming.
+    reason: Option<FailsafeReason>,
+    /// The host link is lost and its action is to hold.
+    holding: bool,
 }
 
 impl Failsafe {
@@ -85,6 +125,8 @@ impl Failsafe {
             since_us: 0,
             armed_us: 0,
             seen_estimate: false,
+            reason: None,
+            holding: false,
         }
     }
 
@@ -103,10 +145,53 @@ impl Failsafe {
         self.since_us
     }
 
+    /// Why normal flight was last left since the last arming (`None`: it has not).
+    pub fn reason(&self) -> Option<FailsafeReason> {
+        self.reason
+    }
+
+    /// True while the host link is lost and [`HostLossAction::Hold`] keeps the drone hovering
+    /// in place (the avoidance FSM stopped).
+    pub fn holding(&self) -> bool {
+        self.holding
+    }
+
     fn set(&mut self, m: FlightMode, now: u64) {
         if m != self.mode {
             self.mode = m;
             self.since_us = now;
+        }
+    }
+
+    /// Changes to `m` for `reason`; the reason is recorded when the mode changes.
+    fn fail(&mut self, m: FlightMode, reason: FailsafeReason, now: u64) {
+        if m != self.mode {
+            self.reason = Some(reason);
+            self.set(m, now);
+        }
+    }
+
+    /// True when the host's heartbeats have stopped: none for the host timeout, or none ever
+    /// (unless autonomous arming allows flying without a host).
+    pub fn host_lost(&self, f: &Freshness, now_us: u64) -> bool {
+        match f.last_host_us {
+            None => !self.cfg.autonomous_arm,
+            t => !fresh(t, now_us, self.cfg.host_timeout_us),
+        }
+    }
+
+    /// Lands for `reason` (e.g. the avoidance FSM found no way to go), if the motors run.
+    pub fn land(&mut self, reason: FailsafeReason, now_us: u64) {
+        if self.mode.motors_enabled() {
+            self.fail(FlightMode::Landing, reason, now_us);
+        }
+    }
+
+    /// Motors off at once for `reason` (from any armed mode), e.g. a landing that cannot
+    /// end; the drone stays down until the next arm.
+    pub fn cut(&mut self, reason: FailsafeReason, now_us: u64) {
+        if self.mode.motors_enabled() {
+            self.fail(FlightMode::Disarmed, reason, now_us);
         }
     }
 
@@ -116,13 +201,14 @@ impl Failsafe {
     }
 
     /// Applies a pilot command. Returns the new mode. `Arm` is refused (mode unchanged) unless
-    /// disarmed/killed/faulted with a fresh IMU and height.
+    /// disarmed/killed/faulted with a fresh IMU and height and a host heartbeat (see
+    /// [`Failsafe::host_lost`]).
     pub fn command(&mut self, cmd: PilotCommand, f: &Freshness, now_us: u64) -> FlightMode {
         match cmd {
-            PilotCommand::Kill => self.set(FlightMode::Killed, now_us),
+            PilotCommand::Kill => self.fail(FlightMode::Killed, FailsafeReason::Command, now_us),
             PilotCommand::Land => {
                 if self.mode.motors_enabled() {
-                    self.set(FlightMode::Landing, now_us);
+                    self.fail(FlightMode::Landing, FailsafeReason::Command, now_us);
                 }
             }
             PilotCommand::Arm => {
@@ -133,10 +219,13 @@ impl Failsafe {
                 if grounded
                     && self.imu_fresh(f, now_us)
                     && fresh(f.last_height_us, now_us, self.cfg.height_timeout_us)
+                    && !self.host_lost(f, now_us)
                 {
                     self.set(FlightMode::Flying, now_us);
                     self.armed_us = now_us;
                     self.seen_estimate = false;
+                    self.reason = None;
+                    self.holding = false;
                 }
             }
         }
@@ -153,14 +242,36 @@ impl Failsafe {
     /// Re-evaluates the timeouts at `now_us`. Returns the new mode.
     pub fn update(&mut self, f: &Freshness, now_us: u64) -> FlightMode {
         if !self.mode.motors_enabled() {
+            self.holding = false;
             return self.mode;
         }
         if !self.imu_fresh(f, now_us) {
-            self.set(FlightMode::ImuFault, now_us);
+            self.fail(FlightMode::ImuFault, FailsafeReason::ImuLost, now_us);
             return self.mode;
         }
+        let host_lost = self.host_lost(f, now_us);
+        self.holding = host_lost && self.cfg.host_action == HostLossAction::Hold;
+        if host_lost {
+            let lost = FailsafeReason::TelemetryLost;
+            match self.cfg.host_action {
+                HostLossAction::Kill => {
+                    self.fail(FlightMode::Killed, lost, now_us);
+                    return self.mode;
+                }
+                HostLossAction::Land => {
+                    self.fail(FlightMode::Landing, lost, now_us);
+                    return self.mode;
+                }
+                HostLossAction::Hold => {}
+            }
+        }
         if !fresh(f.last_height_us, now_us, self.cfg.height_timeout_us) {
-            self.set(FlightMode::Landing, now_us);
+            let reason = if f.baro_frozen {
+                FailsafeReason::BaroFrozen
+            } else {
+                FailsafeReason::HeightLost
+            };
+            self.fail(FlightMode::Landing, reason, now_us);
             return self.mode;
         }
         // The estimate clock starts at arming: a drone armed without estimates gets the same
@@ -175,14 +286,18 @@ impl Failsafe {
         }
         match self.mode {
             FlightMode::Flying if !est_ok && !self.seen_estimate => {
-                self.set(FlightMode::Landing, now_us)
+                self.fail(FlightMode::Landing, FailsafeReason::EstimateLost, now_us)
             }
-            FlightMode::Flying if !est_ok => self.set(FlightMode::HoverNoEstimate, now_us),
+            FlightMode::Flying if !est_ok => self.fail(
+                FlightMode::HoverNoEstimate,
+                FailsafeReason::EstimateLost,
+                now_us,
+            ),
             FlightMode::HoverNoEstimate => {
                 if est_ok {
                     self.set(FlightMode::Flying, now_us);
                 } else if now_us.saturating_sub(self.since_us) >= self.cfg.hover_before_land_us {
-                    self.set(FlightMode::Landing, now_us);
+                    self.fail(FlightMode::Landing, FailsafeReason::EstimateLost, now_us);
                 }
             }
             _ => {}
@@ -202,6 +317,8 @@ mod tests {
             last_valid_estimate_us: Some(now),
             last_imu_us: Some(now),
             last_height_us: Some(now),
+            last_host_us: Some(now),
+            baro_frozen: false,
         }
     }
 
@@ -275,6 +392,7 @@ mod tests {
         let at = |t: u64, f: &Freshness| Freshness {
             last_imu_us: Some(t),
             last_height_us: Some(t),
+            last_host_us: Some(t),
             ..*f
         };
         // 500 ms after the last valid estimate: still flying; 1 µs later: hover.
@@ -319,6 +437,8 @@ mod tests {
             last_valid_estimate_us: None,
             last_imu_us: Some(t),
             last_height_us: Some(t),
+            last_host_us: Some(t),
+            baro_frozen: false,
         };
         assert_eq!(fs.update(&f2(10_400 * MS), 10_400 * MS), FlightMode::Flying);
         assert_eq!(
@@ -373,5 +493,115 @@ mod tests {
             fs.command(PilotCommand::Land, &all_fresh(MS), MS),
             FlightMode::Disarmed
         );
+    }
+
+    fn host_silent_since(fs: &mut Failsafe, last_host: u64, now: u64) -> FlightMode {
+        let f = Freshness {
+            last_host_us: Some(last_host),
+            ..all_fresh(now)
+        };
+        fs.update(&f, now)
+    }
+
+    #[test]
+    fn host_silence_lands_by_default_and_says_why() {
+        let mut fs = armed(0);
+        let timeout = fs.config().host_timeout_us;
+        assert_eq!(
+            host_silent_since(&mut fs, 100 * MS, 100 * MS + timeout),
+            FlightMode::Flying
+        );
+        assert_eq!(fs.reason(), None);
+        assert_eq!(
+            host_silent_since(&mut fs, 100 * MS, 100 * MS + timeout + 1),
+            FlightMode::Landing
+        );
+        assert_eq!(fs.reason(), Some(FailsafeReason::TelemetryLost));
+        // A heartbeat coming back does not stop the landing; touchdown disarms, the reason
+        // stays for the flight summary until the next arming.
+        assert_eq!(
+            fs.update(&all_fresh(5000 * MS), 5000 * MS),
+            FlightMode::Landing
+        );
+        fs.landed(6000 * MS);
+        assert_eq!(fs.mode(), FlightMode::Disarmed);
+        assert_eq!(fs.reason(), Some(FailsafeReason::TelemetryLost));
+        fs.command(PilotCommand::Arm, &all_fresh(7000 * MS), 7000 * MS);
+        assert_eq!(fs.reason(), None);
+    }
+
+    #[test]
+    fn host_silence_kills_or_holds_on_request() {
+        let mut fs = armed(0);
+        fs.set_config(FailsafeConfig {
+            host_action: HostLossAction::Kill,
+            ..FailsafeConfig::default()
+        });
+        let late = fs.config().host_timeout_us + 1;
+        assert_eq!(host_silent_since(&mut fs, 0, late), FlightMode::Killed);
+        assert_eq!(fs.reason(), Some(FailsafeReason::TelemetryLost));
+
+        let mut fs = armed(0);
+        fs.set_config(FailsafeConfig {
+            host_action: HostLossAction::Hold,
+            ..FailsafeConfig::default()
+        });
+        assert_eq!(host_silent_since(&mut fs, 0, late), FlightMode::Flying);
+        assert!(fs.holding());
+        // The other failsafes still act while holding.
+        let mut f = all_fresh(late + 600 * MS);
+        f.last_host_us = Some(0);
+        f.last_height_us = Some(late);
+        assert_eq!(fs.update(&f, late + 600 * MS), FlightMode::Landing);
+        // Heartbeats back: no longer holding.
+        fs.update(&all_fresh(late + 700 * MS), late + 700 * MS);
+        assert!(!fs.holding());
+    }
+
+    #[test]
+    fn arming_needs_a_host_heartbeat_unless_autonomous_arming_is_allowed() {
+        let mut fs = Failsafe::new(FailsafeConfig::default());
+        let mut f = all_fresh(10_000 * MS);
+        f.last_host_us = None;
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &f, 10_000 * MS),
+            FlightMode::Disarmed
+        );
+        f.last_host_us = Some(5_000 * MS);
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &f, 10_000 * MS),
+            FlightMode::Disarmed,
+            "a heartbeat older than the host timeout does not count"
+        );
+        let mut fs = Failsafe::new(FailsafeConfig {
+            autonomous_arm: true,
+            ..FailsafeConfig::default()
+        });
+        f.last_host_us = None;
+        assert_eq!(
+            fs.command(PilotCommand::Arm, &f, 10_000 * MS),
+            FlightMode::Flying
+        );
+        // No host ever heard: none to lose.
+        let mut later = all_fresh(12_000 * MS);
+        later.last_host_us = None;
+        assert_eq!(fs.update(&later, 12_000 * MS), FlightMode::Flying);
+        // A host that was there and went silent is lost even so.
+        f.last_host_us = Some(10_000 * MS);
+        let late = 10_000 * MS + fs.config().host_timeout_us + 1;
+        f.last_imu_us = Some(late);
+        f.last_height_us = Some(late);
+        f.last_valid_estimate_us = Some(late);
+        assert_eq!(fs.update(&f, late), FlightMode::Landing);
+    }
+
+    #[test]
+    fn a_cut_turns_the_motors_off_with_its_reason() {
+        let mut fs = armed(0);
+        fs.command(PilotCommand::Land, &all_fresh(MS), MS);
+        assert_eq!(fs.reason(), Some(FailsafeReason::Command));
+        fs.cut(FailsafeReason::LandTimeout, 2 * MS);
+        assert_eq!(fs.mode(), FlightMode::Disarmed);
+        assert_eq!(fs.reason(), Some(FailsafeReason::LandTimeout));
     }
 }

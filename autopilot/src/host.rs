@@ -34,8 +34,8 @@ impl Autopilot {
     /// Handles one message from the host at board time `now_us`: a height / position fix, a
     /// pilot command, a parameter request (answered; one for the camera board's table is
     /// passed on to it, except a set or save while the motors may run, which is refused here).
-    /// Heartbeats are liveness only, and frame chunks are for the camera board: both are
-    /// dropped here.
+    /// A host heartbeat keeps the telemetry link alive ([`Autopilot::on_host_heartbeat`]);
+    /// frame chunks are for the camera board and dropped here.
     pub fn on_host_message(&mut self, msg: HostToBoard, now_us: u64) -> HostOutcome {
         self.host_message(msg, now_us, None)
     }
@@ -81,7 +81,13 @@ impl Autopilot {
                 HostOutcome::Reply(BoardToHost::Param(self.answer_param(&req, store)))
             }
             HostToBoard::Imu(sample) => HostOutcome::Imu(sample),
-            HostToBoard::Heartbeat(_) | HostToBoard::FrameChunk(_) => HostOutcome::Done,
+            HostToBoard::Heartbeat(hb) => {
+                if hb.node == Node::Host {
+                    self.on_host_heartbeat(now_us);
+                }
+                HostOutcome::Done
+            }
+            HostToBoard::FrameChunk(_) => HostOutcome::Done,
         }
     }
 }

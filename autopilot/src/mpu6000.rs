@@ -12,10 +12,14 @@
 //! * the 14 data bytes are not all 0x00 and not all 0xFF (a dead bus),
 //! * no gyro or accelerometer axis sits at full scale (-32768 or +32767: saturated, the value
 //!   is a bound, not a measurement),
-//! * and the six axes are not bit-for-bit the same as in the previous [`STUCK_SAMPLES`] - 1
-//!   samples (a frozen sensor or a stale register).
+//! * the six axes are not bit-for-bit the same as in the previous [`STUCK_SAMPLES`] - 1
+//!   samples (a frozen sensor or a stale register),
+//! * and neither sensor alone is frozen: the three gyro axes not the same as in the previous
+//!   [`GYRO_STUCK_SAMPLES`] - 1 samples, the three accelerometer axes not the same as in the
+//!   previous [`ACCEL_STUCK_SAMPLES`] - 1 (a gyro that froze while the accelerometer lives, or
+//!   the other way round, would otherwise pass).
 //!
-//! # Why four samples for "stuck"
+//! # Why four samples for "stuck", and more for one sensor alone
 //!
 //! The sensor is set to output 1 kHz and the loop reads at 512 Hz, so every read gets a new
 //! conversion; real samples repeat only by chance. The noise floor (datasheet table 6.1 and
@@ -26,6 +30,11 @@
 //! six agree with about 8e-9, once every 67 hours at 512 Hz. Four equal samples in a row (three
 //! repeats) happen by chance with about 5e-25: never; a frozen sensor is caught after 5.9 ms,
 //! well inside the 20 ms IMU failsafe. A noiseless sensor model is rightly rejected as stuck.
+//!
+//! One sensor alone has three axes: its three agree by chance with about 0.2^3 = 8e-3 (gyro)
+//! and 0.01^3 = 1e-6 (accelerometer). Ten gyro repeats (eleven equal samples, 19.5 ms) happen
+//! by chance with about 1e-21 per sample, four accelerometer repeats with 1e-24: never. A gyro
+//! frozen alone is caught after 19.5 ms, an accelerometer alone after 7.8 ms.
 //!
 //! Invalid samples are not handed to the flight code: the IMU failsafe
 //! ([`crate::failsafe`]) sees them as missing and turns the motors off after its timeout.
@@ -172,6 +181,39 @@ pub const ACCEL_MPS2_PER_LSB: f32 = 9.806_65 / 4096.0;
 /// the fourth equal one is rejected (see the module documentation for the choice).
 pub const STUCK_SAMPLES: u8 = 4;
 
+/// Equal consecutive gyro readings (its three axes, bit for bit) that make the gyro stuck
+/// however the accelerometer moves (see the module documentation for the choice).
+pub const GYRO_STUCK_SAMPLES: u8 = 11;
+
+/// Equal consecutive accelerometer readings (its three axes, bit for bit) that make it stuck
+/// however the gyro moves.
+pub const ACCEL_STUCK_SAMPLES: u8 = 5;
+
+/// Counts how many times in a row a reading has repeated bit for bit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Repeats<const N: usize> {
+    last: Option<[i16; N]>,
+    repeats: u8,
+}
+
+impl<const N: usize> Repeats<N> {
+    const NEW: Self = Self {
+        last: None,
+        repeats: 0,
+    };
+
+    /// Takes `reading`; true when it is the `samples`-th equal one in a row or later.
+    fn stuck(&mut self, reading: [i16; N], samples: u8) -> bool {
+        if self.last == Some(reading) {
+            self.repeats = self.repeats.saturating_add(1);
+        } else {
+            self.repeats = 0;
+            self.last = Some(reading);
+        }
+        self.repeats.saturating_add(1) >= samples
+    }
+}
+
 /// The 14 data bytes as words.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RawSample {
@@ -221,7 +263,9 @@ pub enum SampleFault {
     AllOnes,
     /// An axis at full scale.
     FullScale,
-    /// The same sample [`STUCK_SAMPLES`] times in a row.
+    /// The same sample [`STUCK_SAMPLES`] times in a row, or the same gyro reading
+    /// [`GYRO_STUCK_SAMPLES`] times, or the same accelerometer reading
+    /// [`ACCEL_STUCK_SAMPLES`] times.
     Stuck,
 }
 
@@ -272,8 +316,9 @@ impl FaultCounts {
 pub struct SampleCheck {
     axes: AxisMap,
     mounting: Mounting,
-    last: Option<[i16; 6]>,
-    repeats: u8,
+    all: Repeats<6>,
+    gyro: Repeats<3>,
+    accel: Repeats<3>,
     faults: FaultCounts,
 }
 
@@ -284,8 +329,9 @@ impl SampleCheck {
         Self {
             axes,
             mounting,
-            last: None,
-            repeats: 0,
+            all: Repeats::NEW,
+            gyro: Repeats::NEW,
+            accel: Repeats::NEW,
             faults: FaultCounts::default(),
         }
     }
@@ -342,13 +388,10 @@ impl SampleCheck {
         let raw = RawSample::from_bytes(data);
         let axes = raw.axes();
         // Stuck is judged before full scale, so a sensor frozen at a bound counts as stuck too.
-        if self.last == Some(axes) {
-            self.repeats = self.repeats.saturating_add(1);
-        } else {
-            self.repeats = 0;
-            self.last = Some(axes);
-        }
-        if self.repeats + 1 >= STUCK_SAMPLES {
+        let all = self.all.stuck(axes, STUCK_SAMPLES);
+        let gyro = self.gyro.stuck(raw.gyro, GYRO_STUCK_SAMPLES);
+        let accel = self.accel.stuck(raw.accel, ACCEL_STUCK_SAMPLES);
+        if all || gyro || accel {
             return Err(SampleFault::Stuck);
         }
         if axes.iter().any(|&a| a == i16::MAX || a == i16::MIN) {
@@ -532,8 +575,63 @@ mod tests {
             c.check(0x68, 0x03, &same_axes, WireTime(0)),
             Err(SampleFault::Stuck)
         );
+        // Both sensors must move again: a new accelerometer value beside the same gyro
+        // reading leaves the gyro frozen.
         assert!(c
-            .check(0x68, 0x03, &bytes([13, -7, -4090], [3, -2, 1]), WireTime(0))
+            .check(0x68, 0x03, &bytes([13, -7, -4090], [4, -2, 1]), WireTime(0))
             .is_ok());
+    }
+
+    /// Bytes whose gyro axes change with `k` and whose accelerometer stays `accel`, or the
+    /// other way round.
+    fn moving(k: i16, accel: Option<[i16; 3]>, gyro: Option<[i16; 3]>) -> [u8; 14] {
+        bytes(
+            accel.unwrap_or([12 + k, -7, -4090]),
+            gyro.unwrap_or([3, -2 + k, 1]),
+        )
+    }
+
+    #[test]
+    fn a_gyro_frozen_alone_is_stuck_while_the_accelerometer_lives() {
+        let mut c = check();
+        let frozen_gyro = Some([5, -9, 2]);
+        for k in 1..GYRO_STUCK_SAMPLES {
+            assert!(c
+                .check(
+                    0x68,
+                    0x03,
+                    &moving(k as i16, None, frozen_gyro),
+                    WireTime(0)
+                )
+                .is_ok());
+        }
+        assert_eq!(
+            c.check(0x68, 0x03, &moving(99, None, frozen_gyro), WireTime(0)),
+            Err(SampleFault::Stuck)
+        );
+        assert!(c
+            .check(0x68, 0x03, &moving(100, None, None), WireTime(0))
+            .is_ok());
+    }
+
+    #[test]
+    fn an_accelerometer_frozen_alone_is_stuck_while_the_gyro_lives() {
+        let mut c = check();
+        let frozen_accel = Some([100, 200, -4000]);
+        for k in 1..ACCEL_STUCK_SAMPLES {
+            assert!(c
+                .check(
+                    0x68,
+                    0x03,
+                    &moving(k as i16, frozen_accel, None),
+                    WireTime(0)
+                )
+                .is_ok());
+        }
+        assert_eq!(
+            c.check(0x68, 0x03, &moving(50, frozen_accel, None), WireTime(0)),
+            Err(SampleFault::Stuck)
+        );
+        assert_eq!(c.faults().stuck, 1);
     }
 }

@@ -5,7 +5,8 @@
 //! Array fields appear once per axis (`indi_kp_p`, `indi_kp_q`, `indi_kp_r`); durations are
 //! `u32` microseconds; `fsm_variant` is 0 (the paper's FSM) or 1 (turn until clear);
 //! `velocity_source` is 0 (the Kalman filter on the camera board's output), 1 (the paper's
-//! median-5 and observer) or 2 (the Kalman filter on each frame's own fit). The
+//! median-5 and observer) or 2 (the Kalman filter on each frame's own fit); `fs_host_action` is
+//! 0 (land), 1 (hold) or 2 (kill). The
 //! defaults are [`AutopilotConfig::default`]'s. `indi_rate_hz` is read-only: the loop runs at
 //! the IMU's [`crate::board::LOOP_RATE_HZ`] whatever it says.
 //!
@@ -19,6 +20,7 @@
 //! ([`Rejected`], its [`Conflict`]), and nothing changes.
 
 use crate::app::{AutopilotConfig, VelocitySource};
+use crate::failsafe::HostLossAction;
 use crate::fsm::FsmVariant;
 use crate::guidance::MAX_MEASUREMENT_DELAY_US;
 use crate::indi::SecondOrderFilter;
@@ -56,6 +58,24 @@ impl ParamField for VelocitySource {
             ParamValue::U32(0) => Some(VelocitySource::Kalman),
             ParamValue::U32(1) => Some(VelocitySource::MedianObserver),
             ParamValue::U32(2) => Some(VelocitySource::KalmanFits),
+            _ => None,
+        }
+    }
+}
+
+impl ParamField for HostLossAction {
+    fn to_param(self) -> ParamValue {
+        ParamValue::U32(match self {
+            HostLossAction::Land => 0,
+            HostLossAction::Hold => 1,
+            HostLossAction::Kill => 2,
+        })
+    }
+    fn from_param(v: ParamValue) -> Option<Self> {
+        match v {
+            ParamValue::U32(0) => Some(HostLossAction::Land),
+            ParamValue::U32(1) => Some(HostLossAction::Hold),
+            ParamValue::U32(2) => Some(HostLossAction::Kill),
             _ => None,
         }
     }
@@ -153,12 +173,20 @@ protocol::param_table! {
     "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
     "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;
     "fs_height_timeout_us": U32 ["us"] 20_000, 5_000_000, true => |c| c.failsafe.height_timeout_us;
+    "fs_host_timeout_us": U32 ["us"] 200_000, 60_000_000, true => |c| c.failsafe.host_timeout_us;
+    "fs_host_action": U32 ["enum"] 0, 2, true => |c| c.failsafe.host_action;
+    "fs_autonomous_arm": Bool ["-"] false, true, true => |c| c.failsafe.autonomous_arm;
     "target_height": F32 ["m"] 0.2, 3.0, true => |c| c.target_height_m;
     "climb_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.climb_rate_mps;
     "land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.land_rate_mps;
     "blind_land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.blind_land_rate_mps;
     "landed_height": F32 ["m"] 0.01, 0.5, true => |c| c.landed_height_m;
     "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.landed_time_us;
+    "land_timeout_us": U32 ["us"] 1_000_000, 120_000_000, true => |c| c.land_timeout_us;
+    "land_cut_height": F32 ["m"] 0.0, 1.0, true => |c| c.land_cut_height_m;
+    "ground_thrust_ratio": F32 ["-"] 0.0, 1.0, true => |c| c.ground_thrust_ratio;
+    "ground_min_accel": F32 ["g"] 0.5, 1.0, true => |c| c.ground_min_specific_force;
+    "baro_stuck_us": U32 ["us"] 40_000, 10_000_000, true => |c| c.baro_stuck_us;
     "fsm_start_height_tol": F32 ["m"] 0.01, 1.0, true => |c| c.fsm_start_height_tolerance_m;
     "blind_land_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.blind_land_thrust;
     "blind_land_time_us": U32 ["us"] 0, 20_000_000, true => |c| c.blind_land_time_us;
@@ -325,6 +353,9 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
     // Above the flight height no estimate would ever be fused.
     if cfg.min_vision_height_m > cfg.target_height_m {
         return fail("min_vision_height", "target_height", "must not exceed");
+    }
+    if cfg.land_cut_height_m >= cfg.target_height_m {
+        return Err("land_cut_height");
     }
     // The oldest estimate window (the longest processing time an estimate can report, then the
     // link, the output filter's lag and the window itself) must lie inside the velocity

@@ -18,7 +18,8 @@
 //!    avoidance's heading.
 //! 4. With a fresh height: the height loop's thrust ([`Guidance::hold_height`]), and
 //!    touchdown while landing after [`AutopilotConfig::landed_time_us`] below
-//!    [`AutopilotConfig::landed_height_m`] ([`Guidance::touched_down`]). Without: the blind landing's reduced thrust, and touchdown
+//!    [`AutopilotConfig::landed_height_m`] or on the ground signature
+//!    ([`Guidance::touched_down`]). Without: the blind landing's reduced thrust, and touchdown
 //!    [`AutopilotConfig::blind_land_time_us`] after the mode changed ([`Guidance::blind_landing`]).
 //!
 //! [`Autopilot::guidance_step`]: crate::Autopilot::guidance_step
@@ -251,15 +252,17 @@ impl Guidance {
     }
 
     /// Step 4 with a fresh height `height_m`, after [`Guidance::hold_height`]: true at
-    /// touchdown (`landing` and below the landed height for the landed time).
+    /// touchdown (`landing`, and below the landed height or `on_ground` (the ground signature,
+    /// [`crate::Autopilot::ground_signature`]) for the landed time).
     pub fn touched_down(
         &mut self,
         landing: bool,
         height_m: f32,
+        on_ground: bool,
         now_us: u64,
         cfg: &AutopilotConfig,
     ) -> bool {
-        if landing && height_m <= cfg.landed_height_m {
+        if landing && (height_m <= cfg.landed_height_m || on_ground) {
             let since = *self.below_landed_since_us.get_or_insert(now_us);
             now_us.saturating_sub(since) >= cfg.landed_time_us
         } else {
@@ -408,7 +411,7 @@ mod tests {
         let low = cfg.landed_height_m;
         let mut hold = |g: &mut Guidance, h: f32, landing: bool, t: u64| {
             g.hold_height(&mut height, sp, h, 0.02, &cfg);
-            g.touched_down(landing, h, t, &cfg)
+            g.touched_down(landing, h, false, t, &cfg)
         };
         // Below it, but not landing: nothing.
         assert!(!hold(&mut g, low, false, 0));
@@ -421,6 +424,12 @@ mod tests {
         assert!(g.setpoints().thrust >= 0.0);
         g.landed();
         assert_eq!(g.setpoints().thrust, 0.0);
+        // High above the landed height (a biased barometer), the ground signature alone
+        // touches down after the same landed time.
+        let high = low + 0.3;
+        assert!(!g.touched_down(true, high, true, 3_000_000, &cfg));
+        assert!(!g.touched_down(true, high, true, 3_000_000 + cfg.landed_time_us - 1, &cfg));
+        assert!(g.touched_down(true, high, true, 3_000_000 + cfg.landed_time_us, &cfg));
     }
 
     #[test]

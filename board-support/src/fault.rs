@@ -1,6 +1,7 @@
-//! The fault path both firmwares share: on a panic or a HardFault the board's actuators are
-//! forced off first, then the fault is logged, then the board waits for the independent
-//! watchdog to reset it (MCU only).
+//! The fault path both firmwares share: on a panic, a HardFault, an NMI or any exception or
+//! interrupt the firmware does not handle (an unbound IRQ reaches `DefaultHandler`) the board's
+//! actuators are forced off first, then the fault is logged, then the board waits for the
+//! independent watchdog to reset it (MCU only).
 //!
 //! A board installs the handlers with [`fault_handlers!`], naming its actuator stop: a plain
 //! `fn()` that writes the output registers directly (no lock, no allocation, no HAL state; it
@@ -24,8 +25,10 @@ use core::sync::atomic::{AtomicBool, Ordering};
 /// skips logging and goes straight to the wait.
 static FAULTED: AtomicBool = AtomicBool::new(false);
 
-/// Installs the panic handler and the HardFault handler of a firmware. `$stop` is the path of
-/// the board's `fn()` that forces every actuator output off at the registers.
+/// Installs the panic handler, the HardFault handler, the NMI handler (`NonMaskableInt`) and
+/// the `DefaultHandler` (every exception or interrupt without a handler of its own: an IRQ
+/// enabled without an RTIC binding, a spurious one) of a firmware. `$stop` is the path of the
+/// board's `fn()` that forces every actuator output off at the registers.
 ///
 /// The HardFault handler is entered through [`hard_fault_entry!`]'s instructions, which need no
 /// stack: a HardFault from a stack overflow arrives with the stack pointer below the stack
@@ -50,6 +53,20 @@ macro_rules! fault_handlers {
         }
 
         $crate::hard_fault_entry!(board_support_hard_fault);
+
+        /// An NMI (clock security system, or a pended NMI): nothing of ours raises one, so
+        /// it is a fault.
+        #[no_mangle]
+        extern "C" fn NonMaskableInt() -> ! {
+            $crate::fault::on_unexpected($stop, 2)
+        }
+
+        /// Every exception or interrupt without a handler of its own (cortex-m-rt's vector
+        /// table points them here).
+        #[no_mangle]
+        extern "C" fn DefaultHandler() -> ! {
+            $crate::fault::on_unexpected($stop, $crate::fault::active_vector())
+        }
     };
 }
 
@@ -132,6 +149,38 @@ pub fn on_hard_fault(stop: fn(), pc: u32, stack_lost: bool) -> ! {
             cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
         }
     }
+    wait_for_watchdog()
+}
+
+/// The path of an NMI or an exception or interrupt without a handler (`vector`: its number
+/// in the vector table, 16 and up for IRQ 0 and up): the same as a HardFault's.
+pub fn on_unexpected(stop: fn(), vector: u32) -> ! {
+    cortex_m::interrupt::disable();
+    stop();
+    start_watchdog();
+    if !FAULTED.swap(true, Ordering::AcqRel) {
+        defmt::error!("unhandled exception or interrupt: vector {=u32}", vector);
+        #[cfg(feature = "qemu")]
+        {
+            cortex_m_semihosting::hprintln!("unhandled exception or interrupt: vector {}", vector);
+            cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+        }
+    }
+    wait_for_watchdog()
+}
+
+/// The number of the exception being handled (`ICSR.VECTACTIVE`, ARMv7-M ARM B3.2.4).
+pub fn active_vector() -> u32 {
+    // SAFETY: a read of the SCB's ICSR, which has no side effect.
+    let icsr = unsafe { (*cortex_m::peripheral::SCB::PTR).icsr.read() };
+    icsr & 0x1FF
+}
+
+/// Starts the watchdog and waits for its reset: the end of a set-up error that has no
+/// actuator to stop ([`crate::log::fatal`]).
+pub fn reset_by_watchdog() -> ! {
+    cortex_m::interrupt::disable();
+    start_watchdog();
     wait_for_watchdog()
 }
 

@@ -18,7 +18,9 @@ macro_rules! __board_support_info {
 }
 pub use crate::__board_support_info as info;
 
-/// Stops the firmware after an unrecoverable set-up error (never called on bad input).
+/// Stops the firmware after an unrecoverable set-up error (never called on bad input): logs
+/// it, then waits, interrupts off, for the independent watchdog (started here if it was not
+/// yet) to reset the board.
 pub fn fatal(what: &str) -> ! {
     defmt::error!("fatal: {}", what);
     #[cfg(feature = "qemu")]
@@ -26,9 +28,7 @@ pub fn fatal(what: &str) -> ! {
         cortex_m_semihosting::hprintln!("fatal: {}", what);
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
     }
-    loop {
-        cortex_m::asm::nop();
-    }
+    crate::fault::reset_by_watchdog()
 }
 
 /// Ends a QEMU run successfully (semihosting exit 0).

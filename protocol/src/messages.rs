@@ -56,6 +56,12 @@ pub enum Node {
 
 /// Periodic liveness message (1 Hz). Lets each side detect a lost link and a peer built with
 /// another protocol version.
+///
+/// Every host that talks to the autopilot (a ground station, `sim-host monitor`, `param`,
+/// `hil`) sends one with [`Node::Host`] at least once a second: the telemetry link is the
+/// pocket drone's only kill path, so the autopilot refuses to arm without a recent host
+/// heartbeat and, armed, lands (or holds or kills, per its `fs_host_action` parameter) when
+/// none has come for `fs_host_timeout_us` ([`FailsafeReason::TelemetryLost`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Heartbeat {
@@ -519,6 +525,48 @@ impl FlightMode {
     }
 }
 
+/// Why the autopilot last left normal flight (a failsafe or a command), as telemetry reports
+/// it: the reason stands from the mode change it caused until the next arming, so that after a
+/// landing it still says why the drone came down.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FailsafeReason {
+    /// A pilot command (`Land` or `Kill`, from the host or the RC).
+    Command,
+    /// No valid velocity estimate for the estimate timeout (hover, then land).
+    EstimateLost,
+    /// No height measurement for the height timeout (blind landing).
+    HeightLost,
+    /// No usable IMU sample for the IMU timeout (motors off).
+    ImuLost,
+    /// No heartbeat from the host (the telemetry link, the only kill path) for
+    /// `fs_host_timeout_us`: the `fs_host_action` (land, hold or kill) was taken.
+    TelemetryLost,
+    /// The avoidance state machine found no way to go and asked to land.
+    NoWayFound,
+    /// A landing had not touched down after `land_timeout_us`: motors cut near the floor.
+    LandTimeout,
+    /// The barometer's raw readings stayed identical for `baro_stuck_us` (a frozen sensor):
+    /// its heights are no longer used.
+    BaroFrozen,
+}
+
+impl FailsafeReason {
+    /// Short lower-case name for logs, tables and plots.
+    pub fn name(self) -> &'static str {
+        match self {
+            FailsafeReason::Command => "command",
+            FailsafeReason::EstimateLost => "estimate-lost",
+            FailsafeReason::HeightLost => "height-lost",
+            FailsafeReason::ImuLost => "imu-lost",
+            FailsafeReason::TelemetryLost => "telemetry-lost",
+            FailsafeReason::NoWayFound => "no-way-found",
+            FailsafeReason::LandTimeout => "land-timeout",
+            FailsafeReason::BaroFrozen => "baro-frozen",
+        }
+    }
+}
+
 /// The autopilot's avoidance state machine state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -584,6 +632,8 @@ pub struct Telemetry {
     pub baro: Option<BaroTelemetry>,
     /// Errors decoding messages from the camera board since boot.
     pub link_errors: LinkErrorCounts,
+    /// Why the drone last left normal flight since it was armed (`None`: it has not).
+    pub failsafe_reason: Option<FailsafeReason>,
 }
 
 /// A compensated barometer reading (the autopilot's MS5611), as telemetry reports it.

@@ -4,6 +4,18 @@
 use proptest::prelude::*;
 use protocol::*;
 
+/// Every [`FailsafeReason`], for the telemetry strategies.
+const REASONS: [FailsafeReason; 8] = [
+    FailsafeReason::Command,
+    FailsafeReason::EstimateLost,
+    FailsafeReason::HeightLost,
+    FailsafeReason::ImuLost,
+    FailsafeReason::TelemetryLost,
+    FailsafeReason::NoWayFound,
+    FailsafeReason::LandTimeout,
+    FailsafeReason::BaroFrozen,
+];
+
 fn finite() -> impl Strategy<Value = f32> {
     -1.0e6f32..1.0e6f32
 }
@@ -297,6 +309,8 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                             temperature_c,
                         }),
                         link_errors,
+                        // Every reason and none, spread over the timestamps.
+                        failsafe_reason: REASONS.get(timestamp_us as usize % 9).copied(),
                     })
                 }
             ),
@@ -500,6 +514,7 @@ fn declared_maximum_frame_sizes_hold() {
             temperature_c: f32::MAX,
         }),
         link_errors: all_counters_at_max(),
+        failsafe_reason: Some(FailsafeReason::BaroFrozen),
     });
     assert!(encode(&telemetry, &mut wire).unwrap() <= BoardToHost::MAX_FRAME_BYTES);
 }

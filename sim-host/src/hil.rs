@@ -43,7 +43,8 @@
 //!   allowed to pass the next exposure time before the estimate of the previous frame is back
 //!   (it waits, holding the lockstep). So the boards always see frames at `fps` of world time
 //!   with at most one frame period of latency, however slow the link.
-//! * Arming: a `PilotCommand::Arm` at [`HilConfig::arm_at_s`].
+//! * Arming: a `PilotCommand::Arm` at [`HilConfig::arm_at_s`]; a host `Heartbeat` every
+//!   second of world time from the start (without it the autopilot refuses to arm, and lands).
 //! * Parameters (`--params FILE`, [`HilConfig::params`]): after both heartbeats and before the
 //!   world starts, every value of the file is set with a parameter request on the autopilot's
 //!   host link (a `[camera]` one passed on by the autopilot to the camera board) and read
@@ -87,9 +88,9 @@ use crate::sim::world::World;
 use anyhow::{anyhow, bail, Context as _};
 use protocol::{
     encode, AutopilotToStereo, AutopilotToStereoDecoder, BoardToHost, BoardToHostDecoder, Estimate,
-    FlightMode, FrameChunk, HostToBoard, ImuSample, LinkErrorCounts, Message, PilotCommand,
-    StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, WireTime, FRAME_CHUNK_BYTES,
-    STEREO_FRAME_BYTES,
+    FlightMode, FrameChunk, Heartbeat, HostToBoard, ImuSample, LinkErrorCounts, Message, Node,
+    PilotCommand, StereoToAutopilot, StereoToAutopilotDecoder, Telemetry, WireTime,
+    FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 use std::io::{Read, Write};
 use std::path::PathBuf;
@@ -675,6 +676,7 @@ fn lockstep(
     let mut t = 0u64;
     let mut next_frame = 100_000u64;
     let mut next_height = 0u64;
+    let mut next_heartbeat = 0u64;
     let mut next_log = 0u64;
     let mut next_progress = 1_000_000u64;
     let mut armed = false;
@@ -729,8 +731,14 @@ fn lockstep(
             }
         }
 
-        // Autopilot: height fix, arm, then the IMU sample of this instant.
+        // Autopilot: the host's heartbeat (the autopilot lands without it), height fix, arm,
+        // then the IMU sample of this instant.
         out.clear();
+        if t >= next_heartbeat {
+            next_heartbeat += u64::from(autopilot::app::HEARTBEAT_PERIOD_US);
+            let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
+            push_msg(&HostToBoard::Heartbeat(hb), &mut out)?;
+        }
         if t >= next_height {
             next_height += height_period_us;
             push_msg(

@@ -7,7 +7,8 @@
 //! decodes whatever arrives, counts every frame it has to reject (by kind, as the boards do),
 //! and shows mode, FSM state, estimates, height, link health and errors. A link that goes
 //! silent for longer than `--link-timeout` is shown as lost, and a board whose protocol
-//! version is not this host's is flagged.
+//! version is not this host's is flagged. The monitor sends the host's `Heartbeat` once a
+//! second: the autopilot lands when its host falls silent.
 //!
 //! Message times in the log are wall-clock nanoseconds since the Unix epoch at reception
 //! (monotonic within one run); the board's own clock is logged beside them (`/board_clock`).
@@ -22,8 +23,8 @@ use crate::log::view3d::{View3d, ViewRates, ViewSample};
 use crate::log::{write_telemetry, FlightLog, TelemetryExtras};
 use anyhow::Context as _;
 use protocol::{
-    BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, LinkErrorCounts, Node, Telemetry,
-    PROTOCOL_VERSION,
+    BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, HostToBoard, LinkErrorCounts,
+    Message as _, Node, Telemetry, PROTOCOL_VERSION,
 };
 use std::fmt::Write as _;
 use std::io::{IsTerminal as _, Write as _};
@@ -453,6 +454,12 @@ enum Received {
     Failed(std::io::Error),
 }
 
+/// The peer closed the connection (a reset or a broken pipe), as opposed to a failing port.
+fn closed_by_peer(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::{BrokenPipe, ConnectionAborted, ConnectionReset};
+    matches!(e.kind(), BrokenPipe | ConnectionAborted | ConnectionReset)
+}
+
 fn reader(mut link: Box<dyn Link>, tx: mpsc::Sender<Received>) {
     let mut buf = [0u8; 1024];
     loop {
@@ -460,6 +467,8 @@ fn reader(mut link: Box<dyn Link>, tx: mpsc::Sender<Received>) {
             Ok(0) => Received::Closed,
             Ok(n) => Received::Bytes(buf[..n].to_vec()),
             Err(e) if crate::hil::is_transient_read_error(&e) => continue,
+            // A peer that closed with our heartbeats unread resets the connection.
+            Err(e) if closed_by_peer(&e) => Received::Closed,
             Err(e) => Received::Failed(e),
         };
         let last = !matches!(r, Received::Bytes(_));
@@ -500,6 +509,12 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the Ctrl-C handler")?;
     }
+    // The host's heartbeat goes out on the same link: the autopilot counts a silent host as a
+    // lost telemetry link (it lands) and refuses to arm without one.
+    let mut heartbeat_out = link
+        .try_clone_link()
+        .context("cloning the link for writing")?;
+    let mut next_heartbeat = 0.0;
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || reader(link, tx));
 
@@ -521,6 +536,21 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         }
         if args.duration.is_some_and(|d| now >= d) {
             break "duration reached";
+        }
+        if now >= next_heartbeat {
+            next_heartbeat = now + crate::param::HOST_HEARTBEAT_PERIOD.as_secs_f64();
+            let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, (now * 1e3) as u32));
+            let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&hb)
+                .map_err(|e| anyhow::anyhow!("encoding the heartbeat: {e:?}"))?;
+            match heartbeat_out.write_all(&frame) {
+                Ok(()) => {}
+                Err(e) if closed_by_peer(&e) => break "the link closed",
+                Err(e) => {
+                    let _ = log.finish();
+                    return Err(e)
+                        .with_context(|| format!("writing the heartbeat to {}", args.port));
+                }
+            }
         }
         match rx.recv_timeout(Duration::from_millis(50)) {
             Ok(Received::Bytes(bytes)) => {
@@ -598,6 +628,7 @@ mod tests {
                 temperature_c: 24.5,
             }),
             link_errors: LinkErrorCounts::default(),
+            failsafe_reason: None,
         }
     }
 

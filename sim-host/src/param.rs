@@ -208,7 +208,16 @@ pub struct ParamClient<'a> {
     source: MessageSource<'a>,
     board: Node,
     timeout: Duration,
+    /// When the session began (the heartbeat's uptime counts from it).
+    started: Instant,
+    /// When the last host heartbeat was sent (`None`: none yet).
+    last_heartbeat: Option<Instant>,
 }
+
+/// How often a host tool sends its heartbeat: the autopilot's heartbeat rate (its host
+/// timeout, `fs_host_timeout_us`, is several of these).
+pub const HOST_HEARTBEAT_PERIOD: Duration =
+    Duration::from_micros(autopilot::app::HEARTBEAT_PERIOD_US as u64);
 
 impl ParamClient<'static> {
     /// Talks to `board` over `link`, waiting `timeout` for each answer.
@@ -276,10 +285,33 @@ impl<'a> ParamClient<'a> {
             source,
             board,
             timeout,
+            started: Instant::now(),
+            last_heartbeat: None,
         }
     }
 
+    /// Sends the host's heartbeat if one is due: the autopilot refuses to arm without it and
+    /// counts a silent host as a lost telemetry link.
+    fn keep_alive(&mut self) -> anyhow::Result<()> {
+        if self
+            .last_heartbeat
+            .is_some_and(|t| t.elapsed() < HOST_HEARTBEAT_PERIOD)
+        {
+            return Ok(());
+        }
+        self.last_heartbeat = Some(Instant::now());
+        let uptime_ms = self.started.elapsed().as_millis() as u32;
+        let msg = HostToBoard::Heartbeat(protocol::Heartbeat::new(Node::Host, uptime_ms));
+        let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&msg)
+            .map_err(|e| anyhow!("encoding: {e:?}"))?;
+        self.out
+            .write_all(&frame)
+            .context("writing the heartbeat")?;
+        self.out.flush().context("writing the heartbeat")
+    }
+
     fn send(&mut self, op: &ParamOp) -> anyhow::Result<()> {
+        self.keep_alive()?;
         let msg = HostToBoard::Param(ParamRequest {
             board: self.board,
             op: op.clone(),
@@ -297,12 +329,12 @@ impl<'a> ParamClient<'a> {
             if left.is_zero() {
                 return Ok(None);
             }
-            match (self.source)(left) {
+            self.keep_alive()?;
+            match (self.source)(left.min(HOST_HEARTBEAT_PERIOD)) {
                 Ok(Some(BoardToHost::Param(r))) if r.board == self.board => {
                     return Ok(Some(r.reply))
                 }
-                Ok(Some(_)) => {}
-                Ok(None) => return Ok(None),
+                Ok(Some(_)) | Ok(None) => {}
                 Err(LinkClosed) => bail!("the link closed"),
             }
         }

@@ -257,3 +257,59 @@ fn height_holds_without_motion_capture() {
         assert!(lo > 0.5 && hi < 1.5, "seed {seed}: height {lo}..{hi} m");
     }
 }
+
+/// The telemetry link (host -> autopilot, the pocket drone's only kill path) cut in flight:
+/// the autopilot, without the host's heartbeat for `fs_host_timeout_us`, lands where it is
+/// and the motors stop within `AutopilotConfig::host_loss_motors_off_us` of the last heartbeat
+/// (at most 1 s before the cut), without touching a wall; the flight reports why it ended.
+/// Without motion capture (whose fixes travel on the same link: losing them is a height
+/// failsafe of its own), the drone flies on its barometer.
+#[test]
+fn a_flight_whose_telemetry_is_cut_lands() {
+    let cut_s = 12.0;
+    let cfg = FlightConfig {
+        duration_s: 24.0,
+        seed: 5,
+        mocap: false,
+        host_link_cut_at_s: Some(cut_s),
+        ..FlightConfig::default()
+    };
+    let r = fly(&cfg);
+    let timeout_s = cfg.autopilot.failsafe.host_timeout_us as f64 * 1e-6;
+    let promise_s = cfg.autopilot.host_loss_motors_off_us() as f64 * 1e-6;
+    let before_cut = r.log.iter().filter(|l| l.t_s < cut_s);
+    assert!(
+        before_cut.clone().any(|l| l.fsm_state.is_some()),
+        "flying the FSM before the cut"
+    );
+    assert!(before_cut
+        .clone()
+        .all(|l| l.t_s < 1.1 || l.mode == FlightMode::Flying));
+    let landing = r
+        .log
+        .iter()
+        .find(|l| l.mode == FlightMode::Landing)
+        .expect("the drone lands");
+    let off = r
+        .log
+        .iter()
+        .find(|l| l.t_s > cut_s && l.motors == [0.0; 4])
+        .expect("the motors stop");
+    println!(
+        "telemetry cut at {cut_s} s: landing at {:.2} s, motors off at {:.2} s (promised by {:.2} s)",
+        landing.t_s,
+        off.t_s,
+        cut_s + promise_s
+    );
+    assert!(landing.t_s > cut_s - 1.0 + timeout_s && landing.t_s <= cut_s + timeout_s + 0.05);
+    assert!(off.t_s <= cut_s + promise_s);
+    let end = r.log.last().unwrap();
+    assert_eq!(end.mode, FlightMode::Disarmed);
+    assert_eq!(end.motors, [0.0; 4]);
+    assert!(end.pos[2] < 0.05, "on the floor: {} m", end.pos[2]);
+    assert_eq!(r.collisions, 0);
+    assert_eq!(
+        r.failsafe_reason,
+        Some(protocol::FailsafeReason::TelemetryLost)
+    );
+}

@@ -1,13 +1,13 @@
-//! What a user does to fly the autopilot, done on the bench: the ground tool's height fixes and
-//! pilot commands over the telemetry port, as `sim-host hil` sends them (an `ExternalPosition`
-//! at 50 Hz, a `PilotCommand::Arm` when the user arms), and events scheduled on the bench's
-//! stops.
+//! What a user does to fly the autopilot, done on the bench: the ground tool's heartbeat, height
+//! fixes and pilot commands over the telemetry port, as `sim-host hil` sends them (a host
+//! `Heartbeat` a second, an `ExternalPosition` at 50 Hz, a `PilotCommand::Arm` when the user
+//! arms), and events scheduled on the bench's stops.
 //!
 //! A stop lands a little after the instant it was asked for (rigless stops at an instruction
 //! boundary, or where a sleeping core wakes), so a schedule never compares a stop's time for
 //! equality: [`Once`] and [`Every`] fire at the first stop at or after their instant.
 
-use protocol::{ExternalPosition, HostToBoard, PilotCommand};
+use protocol::{ExternalPosition, Heartbeat, HostToBoard, Node, PilotCommand};
 
 use crate::host;
 use crate::link::Line;
@@ -86,10 +86,15 @@ impl Every {
 /// The ground tool's height-fix period (`sim-host hil` sends 50 per second), ns.
 pub const HEIGHT_FIX_PERIOD_NS: u64 = 20 * MS;
 
-/// The user at the ground tool: height fixes on the telemetry port every
-/// [`HEIGHT_FIX_PERIOD_NS`] from boot, and an `Arm` at the instant the test chooses.
+/// The ground tool's heartbeat period (every host tool sends one a second), ns.
+pub const HEARTBEAT_PERIOD_NS: u64 = 1_000 * MS;
+
+/// The user at the ground tool: a host heartbeat every [`HEARTBEAT_PERIOD_NS`] and height fixes
+/// every [`HEIGHT_FIX_PERIOD_NS`] on the telemetry port from boot, and an `Arm` at the instant
+/// the test chooses.
 #[derive(Debug, Clone)]
 pub struct GroundStation {
+    heartbeats: Every,
     fixes: Every,
     arm: Once,
     height_m: f64,
@@ -103,6 +108,7 @@ impl GroundStation {
     #[must_use]
     pub fn arming_at(arm_at_ns: u64, height_after_arm_m: f64) -> Self {
         Self {
+            heartbeats: Every::ns(HEARTBEAT_PERIOD_NS),
             fixes: Every::ns(HEIGHT_FIX_PERIOD_NS),
             arm: Once::at(arm_at_ns),
             height_m: 0.0,
@@ -142,6 +148,11 @@ impl GroundStation {
         }
         if self.silent {
             return false;
+        }
+        if self.heartbeats.due(now_ns) {
+            let uptime_ms = (now_ns / MS) as u32;
+            let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, uptime_ms));
+            telemetry.send_at(now_ns, &host::frame(&hb));
         }
         if self.fixes.due(now_ns) {
             let fix = HostToBoard::ExternalPosition(ExternalPosition {
@@ -212,6 +223,11 @@ mod tests {
             })
             .collect();
         assert_eq!(heights, vec![0.0, 0.0, 0.5, 0.5]);
+        let heartbeats = messages
+            .iter()
+            .filter(|m| matches!(m, HostToBoard::Heartbeat(h) if h.node == Node::Host))
+            .count();
+        assert_eq!(heartbeats, 1, "one a second, the first at boot");
         assert!(
             messages
                 .iter()

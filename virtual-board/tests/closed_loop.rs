@@ -19,6 +19,7 @@
 
 use std::sync::Arc;
 
+use protocol::Heartbeat;
 use protocol::{
     BoardToHost, Decoder, FlightMode, HostToBoard, Message, Node, ParamOp, ParamReply,
     ParamRequest, ParamValue, PilotCommand, StereoToAutopilot, Telemetry,
@@ -29,7 +30,7 @@ use virtual_board::boards::camera::CameraBoard;
 use virtual_board::firmware::Firmware;
 use virtual_board::host;
 use virtual_board::link;
-use virtual_board::pilot::{GroundStation, MS, Once};
+use virtual_board::pilot::{Every, GroundStation, HEARTBEAT_PERIOD_NS, MS, Once};
 use virtual_board::world::{FlightConfig, Plant, Truth, TruthCamera};
 
 /// The parameter set on the ground, and when.
@@ -58,8 +59,9 @@ struct Flight {
     /// The host playing the camera board, or `None` when the camera board runs.
     camera: Option<TruthCamera>,
     param: Once,
-    /// The user's `Arm` when no height fixes are sent (the ground station arms otherwise).
-    arm: Option<Once>,
+    /// The user's `Arm` when no height fixes are sent (the ground station arms otherwise),
+    /// and the ground tool's heartbeat beside it.
+    arm: Option<(Once, Every)>,
     telemetry: Decoder<BoardToHost, { BoardToHost::MAX_FRAME_BYTES }>,
     telemetry_read: usize,
     /// Every telemetry frame: (bench time of the stop it arrived by, ns; the frame).
@@ -79,7 +81,7 @@ impl Flight {
             ground: GroundStation::arming_at(ARM_AT, 0.0),
             camera: truth_camera.then(|| TruthCamera::new(25.0, 0.05, 20, horizon_us, cfg.seed)),
             param: Once::at(PARAM_AT),
-            arm: (!cfg.mocap).then(|| Once::at(ARM_AT)),
+            arm: (!cfg.mocap).then(|| (Once::at(ARM_AT), Every::ns(HEARTBEAT_PERIOD_NS))),
             telemetry: Decoder::new_mid_stream(),
             telemetry_read: 0,
             telemetries: Vec::new(),
@@ -93,7 +95,11 @@ impl Probe<Autopilot> for Flight {
         let now = at.now;
         let board = at.board();
         self.plant.step(now, board);
-        if let Some(arm) = &mut self.arm {
+        if let Some((arm, heartbeats)) = &mut self.arm {
+            if heartbeats.due(now) {
+                let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, (now / MS) as u32));
+                board.telemetry.rx.send_at(now, &host::frame(&hb));
+            }
             if arm.due(now) {
                 let arm = HostToBoard::Command(PilotCommand::Arm);
                 board.telemetry.rx.send_at(now, &host::frame(&arm));

@@ -17,8 +17,8 @@ use autopilot::app::{Autopilot, AutopilotConfig};
 use autopilot::fsm::FsmVariant;
 use autopilot::ms5611::BaroReading;
 use protocol::{
-    AutopilotToStereo, Decoder, Estimate, FlightMode, FsmState, Heartbeat, HostToBoard, ImuSample,
-    Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+    AutopilotToStereo, Decoder, Estimate, FailsafeReason, FlightMode, FsmState, Heartbeat,
+    HostToBoard, ImuSample, Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
@@ -78,6 +78,10 @@ pub struct FlightConfig {
     pub height_rate_hz: f64,
     /// Height measurement noise (standard deviation), m.
     pub height_noise_m: f64,
+    /// The telemetry link (host -> autopilot) is cut at this time, s: from then on nothing of
+    /// the host reaches the autopilot (heartbeats, height fixes); `None`: never. The host
+    /// sends its heartbeat once a second before that.
+    pub host_link_cut_at_s: Option<f64>,
     /// Arm (take off) at this time, s. The autopilot calibrates its gyro on the ground first
     /// (256 still samples, 0.5 s), so this must be later than that.
     pub arm_at_s: f64,
@@ -113,6 +117,7 @@ impl Default for FlightConfig {
             mocap: true,
             height_rate_hz: 100.0,
             height_noise_m: 0.003,
+            host_link_cut_at_s: None,
             arm_at_s: 1.0,
             keep_image_every: 0,
             stop_on_collision: false,
@@ -196,6 +201,10 @@ pub struct FlightResult {
     pub frames_dropped: u32,
     /// The scene flown in.
     pub scene: Scene,
+    /// Why the autopilot last left normal flight (`Autopilot::failsafe_reason` at the end;
+    /// `None`: it flew normally to the end); `Some(FailsafeReason::TelemetryLost)` after a
+    /// landing for a lost host link.
+    pub failsafe_reason: Option<FailsafeReason>,
 }
 
 /// Counters of a flight so far, as an observer sees them.
@@ -298,6 +307,10 @@ pub fn run_flight_observed(
     let mut next_capture = 100_000u64;
     let mut next_height = if cfg.mocap { 0 } else { u64::MAX };
     let mut next_baro = 0u64;
+    let host_cut_us = cfg
+        .host_link_cut_at_s
+        .map_or(u64::MAX, |s| (s * 1e6) as u64);
+    let mut next_host_heartbeat = 0u64;
     let mut armed = false;
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
@@ -322,7 +335,11 @@ pub fn run_flight_observed(
     while t < end_us {
         // Next event.
         let mut next = end_us.min(t + cfg.physics_dt_us);
-        next = next.min(next_capture).min(next_height).min(next_baro);
+        next = next
+            .min(next_capture)
+            .min(next_height)
+            .min(next_baro)
+            .min(next_host_heartbeat);
         if let Some(r) = sched.next_release_us() {
             next = next.min(r);
         }
@@ -430,11 +447,22 @@ pub fn run_flight_observed(
                 });
             }
         }
-        // Height fix (motion capture) to the autopilot's host link.
+        // The host's heartbeat and height fixes (motion capture) on the autopilot's host link,
+        // until it is cut.
+        let host_link = t < host_cut_us;
+        if t >= next_host_heartbeat {
+            next_host_heartbeat += u64::from(autopilot::app::HEARTBEAT_PERIOD_US);
+            if host_link {
+                let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
+                ap.on_host_message(HostToBoard::Heartbeat(hb), t);
+            }
+        }
         if t >= next_height {
             next_height += height_period_us;
             let fix = world.height_fix(t);
-            ap.on_host_message(HostToBoard::ExternalPosition(fix), t);
+            if host_link {
+                ap.on_host_message(HostToBoard::ExternalPosition(fix), t);
+            }
         }
         // The barometer on the autopilot's SPI bus.
         if t >= next_baro {
@@ -534,6 +562,7 @@ pub fn run_flight_observed(
         estimates,
         frames_dropped: cb.counters().frames_dropped,
         scene: world.scene,
+        failsafe_reason: ap.failsafe_reason(),
     })
 }
 

@@ -189,6 +189,10 @@ mod bench {
         let mut t = 0u64;
         for k in 0..3072u32 {
             t = u64::from(k) * 1_953;
+            // The host's heartbeat (the autopilot neither arms nor stays in flight without).
+            if k % 256 == 0 {
+                ap.on_host_heartbeat(t);
+            }
             // Arm once the attitude estimate has settled (the autopilot refuses earlier).
             if k == 512 {
                 ap.on_command(protocol::PilotCommand::Arm, t);
