@@ -139,6 +139,10 @@ pub struct FlyArgs {
     /// Horizontal stereo misalignment of the rendered camera pair, px.
     #[arg(long, default_value_t = 0.0)]
     pub misalign_px: f32,
+    /// Camera model: `calibrated` (the effects measured on the recorded frames) or `ideal`
+    /// (without them, for comparison).
+    #[arg(long, value_enum, default_value_t = crate::sim::camera::CameraModel::Calibrated)]
+    pub camera: crate::sim::camera::CameraModel,
     /// Start pose `X,Y,YAW_DEG` (m, m, deg) instead of the scene's (and its seeded heading).
     #[arg(long, value_parser = parse_start, allow_hyphen_values = true)]
     pub start: Option<[f64; 3]>,
@@ -220,6 +224,7 @@ impl FlyArgs {
             cfg.start_xy = Some([x, y]);
             cfg.start_yaw_rad = Some(yaw_deg.to_radians());
         }
+        cfg.camera = self.camera.params();
         cfg.camera.fps = self.fps;
         cfg.camera.misalign_px = self.misalign_px;
         match self.velocity {

@@ -20,6 +20,9 @@ enum Command {
     /// texture statistics, run Edge-FS on the recorded and the rendered frames, and compare
     /// their errors and statistics.
     Replay(sim_host::eval::replay::ReplayArgs),
+    /// Measure the recorded camera pair's effects (fixed patterns, vignetting, noise, the two
+    /// cameras' mismatch, frame timing, depth structure) on a data set's frames and timing.
+    CameraCalib(sim_host::eval::camera_calib::CameraCalibArgs),
     /// Hardware in the loop: fly the simulated world with the two boards' hil firmwares, on the
     /// real boards (serial links), the virtual boards or in QEMU (TCP), in lockstep on world
     /// time.
@@ -39,6 +42,7 @@ fn main() -> anyhow::Result<()> {
         Command::Fly(args) => sim_host::fly::run(args),
         Command::Eval(args) => sim_host::eval::run(args),
         Command::Replay(args) => sim_host::eval::replay::run(args),
+        Command::CameraCalib(args) => sim_host::eval::camera_calib::run(args),
         Command::Hil(args) => sim_host::hil::run_cli(args),
         Command::Monitor(args) => sim_host::monitor::run(args),
         Command::Param(args) => sim_host::param::run(args),

@@ -90,7 +90,10 @@ fn moving_towards_a_wall_gives_forward_velocity() {
 /// image is close to the motion over the flow horizon).
 fn approach_fit_rms(seed: u64, yaw_deg: f64, params: EdgeFsParams) -> f64 {
     let scene = Scene::preset("room", seed).unwrap();
-    let mut cam = StereoCamera::new(CameraParams::default());
+    // The ideal camera: these approaches were found to alias with it (with the calibrated
+    // camera's fixed patterns and vignetting the same approach at seed 903 no longer aliases:
+    // fit RMS 0.011 m/s unguided).
+    let mut cam = StereoCamera::new(CameraParams::ideal());
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
     let mut ef = Box::new(EdgeFs::new(params));

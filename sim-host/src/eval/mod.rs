@@ -15,6 +15,7 @@
 //! the estimator; no autopilot-side filter is applied here). The data set has no gyro rates,
 //! so the attitude carries the yaw only and the rates are zero.
 
+pub mod camera_calib;
 pub mod dataset;
 pub mod frame_stats;
 pub mod metrics;

@@ -27,7 +27,7 @@ use super::frame_stats::{FrameStats, TakeStats};
 use super::metrics::{metrics, Metrics};
 use super::truth::{ground_truth, image_times, Alignment, MocapTrack};
 use super::{estimate_series, params_for, select_takes, Config};
-use crate::sim::camera::{CameraParams, Motion, StereoCamera};
+use crate::sim::camera::{CameraModel, CameraParams, Motion, StereoCamera};
 use crate::sim::math::{Quat, V3};
 use crate::sim::scene::Scene;
 use crate::sim::scene_spec::{ObstacleSpec, SceneSpec, Shape, Surface, TextureKind};
@@ -76,6 +76,43 @@ pub struct ReplayArgs {
     /// Output format.
     #[arg(long, value_enum, default_value_t = ReplayFormat::Table)]
     pub format: ReplayFormat,
+    /// Camera model: `calibrated` (every measured effect) or `ideal` (none of them).
+    #[arg(long, value_enum, default_value_t = CameraModel::Calibrated)]
+    pub camera: CameraModel,
+    /// Only these measured effects on top of the ideal camera (repeatable; overrides
+    /// `--camera`): to see what one effect does to the ratios on its own.
+    #[arg(long = "only", value_enum, value_name = "EFFECT")]
+    pub only: Vec<Effect>,
+}
+
+/// A measured effect of the calibrated camera and recorder (docs/replay.md, "Camera
+/// effects").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Effect {
+    /// Column fixed-pattern offsets.
+    ColumnFpn,
+    /// Row fixed-pattern offsets.
+    RowFpn,
+    /// Pixel fixed-pattern offsets.
+    PixelFpn,
+    /// Vignetting.
+    Vignetting,
+    /// Rolling shutter.
+    RollingShutter,
+    /// The recorder's latency ([`RECORDER_LATENCY_S`]).
+    Latency,
+}
+
+impl Effect {
+    /// Every effect: the calibrated camera.
+    pub const ALL: [Effect; 6] = [
+        Effect::ColumnFpn,
+        Effect::RowFpn,
+        Effect::PixelFpn,
+        Effect::Vignetting,
+        Effect::RollingShutter,
+        Effect::Latency,
+    ];
 }
 
 /// The scene parameters chosen for a take (see [`fit_scene`]).
@@ -159,10 +196,20 @@ pub struct Pose {
     pub motion: Motion,
 }
 
+/// The recorder's latency: an image shows the scene this long before its recorded time, s.
+/// Measured by `sim-host camera-calib` (the lag at which the images' global horizontal shift
+/// correlates best with the motion capture's yaw change: 0.16 to 0.22 s on the takes where
+/// that correlation is at least 0.45, 1/3, 1/5, 1/9, 1/19, 1/21 and 2/3; docs/replay.md).
+pub const RECORDER_LATENCY_S: f64 = 0.19;
+
 /// The camera poses of images `1..=N-1` from the take's motion capture, interpolated at the
-/// images' recorded times (see the module docs for the axes).
-pub fn trajectory(take: &Take, n_images: usize) -> Result<Vec<Pose>> {
-    let times = image_times(take, n_images)?;
+/// images' exposure times: their recorded times minus `latency_s` (see the module docs for
+/// the axes).
+pub fn trajectory(take: &Take, n_images: usize, latency_s: f64) -> Result<Vec<Pose>> {
+    let times: Vec<f64> = image_times(take, n_images)?
+        .iter()
+        .map(|t| t - latency_s)
+        .collect();
     let track = MocapTrack::read(take)?;
     let s = if take.board == 2 { -1.0 } else { 1.0 };
     let at = |t: f64| -> (V3, f64, f64, f64) {
@@ -276,8 +323,22 @@ fn black_rows(frames: &[Frame]) -> Vec<usize> {
 /// mismatch: gain = the recorded right/left edge-energy ratio (edges scale with the gain),
 /// offset = (recorded level ratio - gain) x the auto-exposure target, so the levels' ratio
 /// matches too.
-pub fn camera_for(take: &Take, real: &FrameStats) -> Result<CameraParams> {
-    let d = CameraParams::default();
+///
+/// The camera's own effects are those of `effects` (each at its calibrated value, see
+/// [`CameraParams::default`]), the others off.
+pub fn camera_for(take: &Take, real: &FrameStats, effects: &[Effect]) -> Result<CameraParams> {
+    let calibrated = CameraParams::default();
+    let mut d = CameraParams::ideal();
+    for e in effects {
+        match e {
+            Effect::ColumnFpn => d.column_fpn_dn = calibrated.column_fpn_dn,
+            Effect::RowFpn => d.row_fpn_dn = calibrated.row_fpn_dn,
+            Effect::PixelFpn => d.pixel_fpn_dn = calibrated.pixel_fpn_dn,
+            Effect::Vignetting => d.vignetting_k = calibrated.vignetting_k,
+            Effect::RollingShutter => d.rolling_shutter_s = calibrated.rolling_shutter_s,
+            Effect::Latency => {}
+        }
+    }
     let gain = real.right_left_edges.clamp(0.5, 2.0) as f32;
     let level = real.right_left_level.clamp(0.5, 2.0) as f32;
     Ok(CameraParams {
@@ -692,12 +753,14 @@ pub fn fit_scene(
 }
 
 /// Replays one take (see the module docs), rendering it `renders` times (seeds `seed`,
-/// `seed + 1000`, ...; the scene is fitted with `seed`); the rendered error is the mean MSE.
+/// `seed + 1000`, ...; the scene is fitted with `seed`) with the camera effects `effects`
+/// ([`Effect::ALL`]: the calibrated camera); the rendered error is the mean MSE.
 pub fn replay_take(
     take: &Take,
     alignment: Alignment,
     seed: u64,
     renders: usize,
+    effects: &[Effect],
 ) -> Result<ReplayResult> {
     let n = take.image_count();
     ensure!(
@@ -715,8 +778,13 @@ pub fn replay_take(
     let real_stats = real_st.mean().context("no frames")?;
     let shift = stereo_shift(take)?;
     let depth = real_depth_m(&real, shift);
-    let poses = trajectory(take, n)?;
-    let camera = camera_for(take, &real_stats)?;
+    let latency = if effects.contains(&Effect::Latency) {
+        RECORDER_LATENCY_S
+    } else {
+        0.0
+    };
+    let poses = trajectory(take, n, latency)?;
+    let camera = camera_for(take, &real_stats, effects)?;
     let black = black_rows(&real);
     let ahead = depth_quantile_m(&real, shift, 0.1);
     let ahead = if ahead.is_finite() {
@@ -818,12 +886,17 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         (!list.is_empty()).then_some(list.as_str()),
     )
     .map_err(|e| anyhow::anyhow!("{}", format!("{e:#}").replace("--takes", "--take")))?;
+    let effects: &[Effect] = match (args.only.is_empty(), args.camera) {
+        (false, _) => &args.only,
+        (true, CameraModel::Calibrated) => &Effect::ALL,
+        (true, CameraModel::Ideal) => &[],
+    };
     let results: Vec<(Take, Result<ReplayResult>)> = takes
         .par_iter()
         .map(|t| {
             (
                 t.clone(),
-                replay_take(t, args.alignment, args.seed, args.renders),
+                replay_take(t, args.alignment, args.seed, args.renders, effects),
             )
         })
         .collect();

@@ -20,6 +20,27 @@ pub const WIDTH: usize = 128;
 /// Image height, px.
 pub const HEIGHT: usize = 96;
 
+// The calibrated camera's effects, measured by `sim-host camera-calib` on board 1's eleven
+// forward takes (docs/replay.md, "Camera effects").
+
+/// Column fixed-pattern offset of the calibrated camera (left, right), DN: the part of the
+/// high-passed mean column profile common to different takes (left 1.70 DN, correlation 0.35
+/// between takes; right 0.30 DN).
+pub const CALIBRATED_COLUMN_FPN_DN: [f32; 2] = [1.70, 0.30];
+/// Row fixed-pattern offset of the calibrated camera, DN (common part of the row profiles:
+/// 0.53 left, 0.49 right).
+pub const CALIBRATED_ROW_FPN_DN: f32 = 0.5;
+/// Pixel fixed-pattern offset of the calibrated camera, DN (common part of the per-pixel
+/// means' 3x3 high-pass: 0.74).
+pub const CALIBRATED_PIXEL_FPN_DN: f32 = 0.74;
+/// Vignetting of the calibrated camera, per px²: the mean column level over all takes falls
+/// as `1 + k x²` from the centre (left -5.9e-5, right -6.0e-5; board 2 -7.3e-5 to -8.0e-5):
+/// 0.76 at the side edges.
+pub const CALIBRATED_VIGNETTING_K: f32 = -6.0e-5;
+/// Rolling-shutter readout of the calibrated camera, s: the bottom half's column edges shift
+/// against the top half's by 2.97 +- 1.19 px per rad/s of yaw (46 +- 19 ms top to bottom).
+pub const CALIBRATED_ROLLING_SHUTTER_S: f32 = 0.046;
+
 /// Camera parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraParams {
@@ -66,14 +87,47 @@ pub struct CameraParams {
     pub misalign_px: f32,
     /// Vertical misalignment of the right image, px (rows, positive: feature lower in right).
     pub misalign_v_px: f32,
+    /// Column fixed-pattern offset of the left and the right camera: standard deviation of a
+    /// per-column offset that does not move with the scene, DN (each camera its own pattern,
+    /// drawn from [`pattern_seed`](Self::pattern_seed)).
+    pub column_fpn_dn: [f32; 2],
+    /// Row fixed-pattern offset: standard deviation of a per-row offset, DN.
+    pub row_fpn_dn: f32,
+    /// Pixel fixed-pattern offset (dark-signal non-uniformity, dust): standard deviation of a
+    /// per-pixel offset, DN.
+    pub pixel_fpn_dn: f32,
+    /// Vignetting: the response falls as `1 + k r²` with `r` the distance from the image
+    /// centre, px (`k` per px², negative: darker towards the edges).
+    pub vignetting_k: f32,
+    /// Rolling shutter: time from the exposure of the top row to that of the bottom row, s
+    /// (0: global shutter). Rows below the middle are exposed later.
+    pub rolling_shutter_s: f32,
+    /// Seed of the sensor's fixed patterns (a given camera pair: fixed, not the flight's seed).
+    pub pattern_seed: u64,
 }
 
 impl Default for CameraParams {
-    /// A small CMOS camera pair (TCM8230 class): at the default lighting the auto-exposure
+    /// The calibrated camera: [`CameraParams::ideal`] with the effects measured on the
+    /// recorded stereo-board frames (`sim-host camera-calib`, docs/replay.md).
+    fn default() -> Self {
+        Self {
+            column_fpn_dn: CALIBRATED_COLUMN_FPN_DN,
+            row_fpn_dn: CALIBRATED_ROW_FPN_DN,
+            pixel_fpn_dn: CALIBRATED_PIXEL_FPN_DN,
+            vignetting_k: CALIBRATED_VIGNETTING_K,
+            rolling_shutter_s: CALIBRATED_ROLLING_SHUTTER_S,
+            ..Self::ideal()
+        }
+    }
+}
+
+impl CameraParams {
+    /// The ideal camera, without the sensor's fixed patterns, vignetting or rolling shutter: a
+    /// small CMOS camera pair (TCM8230 class): at the default lighting the auto-exposure
     /// settles at 8 ms and unity gain on a mid-grey room (120 DN), where shot noise is about
     /// 2.3 DN; dimmer rooms get up to 20 ms of exposure (more motion blur), then up to 8x gain
     /// (more noise).
-    fn default() -> Self {
+    pub fn ideal() -> Self {
         Self {
             focal_length_px: stereo_board::edge_fs::CAMERA_FOCAL_PX,
             baseline_m: 0.06,
@@ -94,11 +148,15 @@ impl Default for CameraParams {
             offset_right_dn: -3.0,
             misalign_px: 0.0,
             misalign_v_px: 0.0,
+            column_fpn_dn: [0.0; 2],
+            row_fpn_dn: 0.0,
+            pixel_fpn_dn: 0.0,
+            vignetting_k: 0.0,
+            rolling_shutter_s: 0.0,
+            pattern_seed: 0x5e45_0a1b,
         }
     }
-}
 
-impl CameraParams {
     /// Focal length, px.
     pub fn focal_px(&self) -> f32 {
         self.focal_length_px
@@ -107,6 +165,25 @@ impl CameraParams {
     /// Horizontal field of view of the pinhole, rad.
     pub fn hfov_rad(&self) -> f32 {
         2.0 * (WIDTH as f32 * 0.5 / self.focal_length_px).atan()
+    }
+}
+
+/// Which camera model renders (`--camera` of `fly` and `replay`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CameraModel {
+    /// The camera calibrated to the recorded frames ([`CameraParams::default`]).
+    Calibrated,
+    /// The ideal camera, for comparison ([`CameraParams::ideal`]).
+    Ideal,
+}
+
+impl CameraModel {
+    /// The model's parameters.
+    pub fn params(self) -> CameraParams {
+        match self {
+            CameraModel::Calibrated => CameraParams::default(),
+            CameraModel::Ideal => CameraParams::ideal(),
+        }
     }
 }
 
@@ -142,6 +219,10 @@ pub struct StereoCamera {
     pub params: CameraParams,
     /// Body-frame ray directions of every subsample, left then right, row-major per image.
     rays: [Vec<[f32; 3]>; 2],
+    /// Per-pixel response factor of each camera (vignetting).
+    gain_map: [Vec<f32>; 2],
+    /// Per-pixel fixed offset of each camera (column, row and pixel patterns), DN.
+    offset_map: [Vec<f32>; 2],
     acc: Vec<f32>,
     tmp: Vec<f32>,
     /// Exposure x gain, s (`None` until the first frame: then it starts settled).
@@ -175,9 +256,12 @@ impl StereoCamera {
                 }
             }
         }
+        let (gain_map, offset_map) = sensor_maps(&params);
         Self {
             params,
             rays,
+            gain_map,
+            offset_map,
             acc: vec![0.0; WIDTH * HEIGHT],
             tmp: vec![0.0; WIDTH * HEIGHT],
             ae_product: None,
@@ -247,14 +331,28 @@ impl StereoCamera {
         let slots = (smear_px.ceil() as usize).clamp(1, MAX_TIME_SAMPLES);
         let passes = slots.div_ceil(n_sub);
         let n_slots = passes * n_sub;
-        // Pose (rotation matrix, per-eye origin) at each time slot.
-        let mut poses: Vec<SlotPose> = Vec::with_capacity(n_slots);
-        for k in 0..n_slots {
-            let tau = if slots > 1 {
-                ((k as f64 + 0.5) / n_slots as f64 - 0.5) * exposure_s as f64
+        // Rolling shutter: each row has its own exposure time (only when moving).
+        let moving = motion != Motion::default();
+        let pose_rows = if p.rolling_shutter_s > 0.0 && moving {
+            HEIGHT
+        } else {
+            1
+        };
+        // Pose (rotation matrix, per-eye origin) at each row and time slot.
+        let mut poses: Vec<SlotPose> = Vec::with_capacity(pose_rows * n_slots);
+        for k in 0..pose_rows * n_slots {
+            let (row, slot) = (k / n_slots, k % n_slots);
+            let row_tau = if pose_rows > 1 {
+                ((row as f64 + 0.5) / HEIGHT as f64 - 0.5) * p.rolling_shutter_s as f64
             } else {
                 0.0
             };
+            let tau = row_tau
+                + if slots > 1 {
+                    ((slot as f64 + 0.5) / n_slots as f64 - 0.5) * exposure_s as f64
+                } else {
+                    0.0
+                };
             let a = att
                 .add_scaled(att.derivative(motion.rates), tau)
                 .normalized();
@@ -283,7 +381,8 @@ impl StereoCamera {
                     for (k, b) in rays[px * n_sub..(px + 1) * n_sub].iter().enumerate() {
                         // Decorrelate subsample position and time from pixel to pixel.
                         let slot = pass * n_sub + (k + px) % n_sub;
-                        let (r, o) = &poses[slot];
+                        let row = if pose_rows > 1 { px / WIDTH } else { 0 };
+                        let (r, o) = &poses[row * n_slots + slot];
                         let d = [
                             r[0][0] * b[0] + r[0][1] * b[1] + r[0][2] * b[2],
                             r[1][0] * b[0] + r[1][1] * b[1] + r[1][2] * b[2],
@@ -306,15 +405,18 @@ impl StereoCamera {
             // Shot noise: variance of the signal in electrons, back in DN; read noise in DN.
             let e_per_dn = p.electrons_per_dn / g;
             let read_dn = p.read_noise_e / e_per_dn;
+            let (gain_map, offset_map) = (&self.gain_map[eye], &self.offset_map[eye]);
             for (px, a) in self.acc.iter().enumerate() {
-                let signal = a * dn_per_albedo;
+                let signal = a * dn_per_albedo * gain_map[px];
                 let n = if p.noise {
                     let sigma = (signal.max(0.0) / e_per_dn + read_dn * read_dn).sqrt();
                     gauss(rng) as f32 * sigma
                 } else {
                     0.0
                 };
-                let v = (signal + offset + n).round().clamp(0.0, 255.0);
+                let v = (signal + offset + offset_map[px] + n)
+                    .round()
+                    .clamp(0.0, 255.0);
                 out[2 * px + eye] = v as u8;
                 if eye == 0 {
                     level_sum += v as f64;
@@ -329,6 +431,33 @@ impl StereoCamera {
         let max_product = p.max_exposure_s * p.max_gain;
         self.ae_product = Some(want.clamp(product / step, product * step).min(max_product));
     }
+}
+
+/// The sensor's per-pixel response factors (vignetting) and fixed offsets (column, row and
+/// pixel patterns), per camera, drawn once from the parameters' pattern seed.
+fn sensor_maps(p: &CameraParams) -> ([Vec<f32>; 2], [Vec<f32>; 2]) {
+    use rand::SeedableRng;
+    let mut rng = ChaCha8Rng::seed_from_u64(p.pattern_seed);
+    let (cx, cy) = (WIDTH as f32 * 0.5 - 0.5, HEIGHT as f32 * 0.5 - 0.5);
+    let gain: Vec<f32> = (0..WIDTH * HEIGHT)
+        .map(|px| {
+            let (x, y) = ((px % WIDTH) as f32 - cx, (px / WIDTH) as f32 - cy);
+            (1.0 + p.vignetting_k * (x * x + y * y)).max(0.0)
+        })
+        .collect();
+    let mut offsets = [vec![0.0; WIDTH * HEIGHT], vec![0.0; WIDTH * HEIGHT]];
+    for (map, column_fpn_dn) in offsets.iter_mut().zip(p.column_fpn_dn) {
+        let cols: Vec<f32> = (0..WIDTH)
+            .map(|_| gauss(&mut rng) as f32 * column_fpn_dn)
+            .collect();
+        let rows: Vec<f32> = (0..HEIGHT)
+            .map(|_| gauss(&mut rng) as f32 * p.row_fpn_dn)
+            .collect();
+        for (px, o) in map.iter_mut().enumerate() {
+            *o = cols[px % WIDTH] + rows[px / WIDTH] + gauss(&mut rng) as f32 * p.pixel_fpn_dn;
+        }
+    }
+    ([gain.clone(), gain], offsets)
 }
 
 /// 3x3 binomial blur ([1 2 1]/4 separable), edges clamped. `tmp` is scratch.
@@ -536,5 +665,154 @@ mod tests {
             &mut f2,
         );
         assert_ne!(f1[..], f2[..]);
+    }
+
+    /// A plain wall seen still and noiseless by `params`: the left image, twice (two frames).
+    fn plain_wall(params: CameraParams) -> (Vec<u8>, Vec<u8>) {
+        let scene = Scene::build(
+            &crate::sim::scene_spec::SceneSpec::preset("plain-room").unwrap(),
+            1,
+        )
+        .unwrap();
+        let mut cam = StereoCamera::new(CameraParams {
+            noise: false,
+            ..params
+        });
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+        let p = V3::new(2.0, 2.0, -1.0);
+        let mut shots = Vec::new();
+        // The last two of 20 frames: the auto-exposure has settled.
+        for k in 0..20 {
+            cam.render(&scene, p, Quat::IDENTITY, &mut rng, &mut frame);
+            if k >= 18 {
+                shots.push(deinterleave(&frame).0);
+            }
+        }
+        (shots.remove(0), shots.remove(0))
+    }
+
+    /// Row `y`'s mean over columns `x0..x1`.
+    fn block_mean(img: &[u8], rows: std::ops::Range<usize>, cols: std::ops::Range<usize>) -> f32 {
+        let n = (rows.len() * cols.len()) as f32;
+        rows.flat_map(|y| cols.clone().map(move |x| (y, x)))
+            .map(|(y, x)| img[y * WIDTH + x] as f32)
+            .sum::<f32>()
+            / n
+    }
+
+    /// The calibrated camera's column pattern stays where it is from frame to frame and has
+    /// the calibrated size; the ideal camera has none.
+    #[test]
+    fn column_pattern_is_fixed_and_of_the_calibrated_size() {
+        let hp = |img: &[u8]| -> Vec<f32> {
+            let cols: Vec<f32> = (0..WIDTH)
+                .map(|x| block_mean(img, 30..66, x..x + 1))
+                .collect();
+            (2..WIDTH - 2)
+                .map(|x| cols[x] - (cols[x - 1] + cols[x + 1]) * 0.5)
+                .collect()
+        };
+        // A white pattern's [-1/2 1 -1/2] high-pass has variance 1.5 sigma².
+        let rms_of = |v: &[f32]| (v.iter().map(|v| v * v).sum::<f32>() / v.len() as f32).sqrt();
+        let hp_rms = |img: &[u8]| rms_of(&hp(img)) / 1.5f32.sqrt();
+        let (a, b) = plain_wall(CameraParams {
+            row_fpn_dn: 0.0,
+            pixel_fpn_dn: 0.0,
+            vignetting_k: 0.0,
+            ..CameraParams::default()
+        });
+        // Two frames of a still view: the pattern stays (up to the rounding to whole DN).
+        let moved: Vec<f32> = hp(&a).iter().zip(hp(&b)).map(|(x, y)| x - y).collect();
+        assert!(
+            rms_of(&moved) < 0.25 * rms_of(&hp(&a)),
+            "the pattern moved: {} of {}",
+            rms_of(&moved),
+            rms_of(&hp(&a))
+        );
+        let rms = hp_rms(&a);
+        let want = CALIBRATED_COLUMN_FPN_DN[0];
+        assert!(
+            (rms - want).abs() < 0.45 * want,
+            "column pattern {rms} DN vs {want}"
+        );
+        let (ideal, _) = plain_wall(CameraParams::ideal());
+        assert!(hp_rms(&ideal) < 0.3, "ideal: {}", hp_rms(&ideal));
+    }
+
+    /// Vignetting darkens the sides against the centre by the calibrated factor.
+    #[test]
+    fn vignetting_darkens_the_sides() {
+        let (img, _) = plain_wall(CameraParams {
+            column_fpn_dn: [0.0; 2],
+            row_fpn_dn: 0.0,
+            pixel_fpn_dn: 0.0,
+            ..CameraParams::default()
+        });
+        let centre = block_mean(&img, 40..56, 60..68);
+        let side = block_mean(&img, 40..56, 0..4);
+        let want = 1.0 + CALIBRATED_VIGNETTING_K * 62.0 * 62.0;
+        assert!(
+            (side / centre - want).abs() < 0.05,
+            "side/centre {} vs {want}",
+            side / centre
+        );
+    }
+
+    /// Under yaw the rolling shutter shifts the bottom rows against the top rows by
+    /// `f x rate x readout / 2` between the halves' centres.
+    #[test]
+    fn rolling_shutter_skews_vertical_edges_in_a_turn() {
+        let scene = Scene::preset("room", 3).unwrap();
+        let p = V3::new(2.0, 2.0, -1.0);
+        let skew = |params: CameraParams| {
+            let mut cam = StereoCamera::new(CameraParams {
+                noise: false,
+                motion_blur: false,
+                ..params
+            });
+            let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+            let motion = Motion {
+                vel: V3::new(0.0, 0.0, 0.0),
+                rates: V3::new(0.0, 0.0, 1.0),
+            };
+            let mut rng = ChaCha8Rng::seed_from_u64(1);
+            cam.render_moving(&scene, p, Quat::IDENTITY, motion, &mut rng, &mut frame);
+            let (l, _) = deinterleave(&frame);
+            let half = |rows: std::ops::Range<usize>| {
+                let mut h = vec![0.0; WIDTH];
+                for y in rows {
+                    for x in 1..WIDTH - 1 {
+                        h[x] += (l[y * WIDTH + x + 1] as f32 - l[y * WIDTH + x - 1] as f32).abs();
+                    }
+                }
+                h
+            };
+            let (top, bottom) = (half(0..48), half(48..96));
+            // Best shift of bottom against top, sub-pixel.
+            let cost = |d: i32| -> f32 {
+                (12..WIDTH as i32 - 12)
+                    .map(|x| (top[x as usize] - bottom[(x + d) as usize]).abs())
+                    .sum()
+            };
+            let c: Vec<f32> = (-8..=8).map(cost).collect();
+            let (i, _) = c
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(b.1))
+                .unwrap();
+            let i = i.clamp(1, c.len() - 2);
+            let (a, b, cc) = (c[i - 1], c[i], c[i + 1]);
+            i as f32 - 8.0 + 0.5 * (a - cc) / (a - 2.0 * b + cc)
+        };
+        let params = CameraParams {
+            rolling_shutter_s: 0.046,
+            ..CameraParams::ideal()
+        };
+        let want = params.focal_px() * 1.0 * 0.046 * 0.5;
+        let got = skew(params).abs();
+        assert!((got - want).abs() < 0.4 * want, "skew {got} px vs {want}");
+        let global = skew(CameraParams::ideal()).abs();
+        assert!(global < 0.3, "global shutter: skew {global} px");
     }
 }
