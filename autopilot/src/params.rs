@@ -354,8 +354,9 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
     if cfg.min_vision_height_m > cfg.target_height_m {
         return fail("min_vision_height", "target_height", "must not exceed");
     }
+    // A landing that times out cuts the motors below this height: below the flight height.
     if cfg.land_cut_height_m >= cfg.target_height_m {
-        return Err("land_cut_height");
+        return fail("land_cut_height", "target_height", "must be below");
     }
     // The oldest estimate window (the longest processing time an estimate can report, then the
     // link, the output filter's lag and the window itself) must lie inside the velocity
