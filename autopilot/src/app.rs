@@ -24,10 +24,11 @@
 
 use crate::attitude::{attitude_error, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
 use crate::avoidance::{Avoidance, AvoidanceInput};
+use crate::battery::{BatteryConfig, BatteryMonitor, BatteryState};
 use crate::camera_link::{CameraLink, CameraNews};
 pub use crate::estimation::VelocitySource;
 use crate::estimation::{VelocityEstimation, VisionContext};
-use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness};
+use crate::failsafe::{Failsafe, FailsafeConfig, FlightMode, Freshness, LandReason};
 use crate::force_field::ForceFieldConfig;
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState};
 use crate::guidance::{GuidanceConfig, ObserverConfig, VelocityObserver};
@@ -148,6 +149,8 @@ pub struct AutopilotConfig {
     pub fsm: FsmConfig,
     /// Failsafe timings.
     pub failsafe: FailsafeConfig,
+    /// Battery thresholds and sag model.
+    pub battery: BatteryConfig,
     /// Flight height after take-off, m above the floor.
     pub target_height_m: f32,
     /// Height-setpoint climb rate during take-off, m/s.
@@ -259,6 +262,7 @@ impl Default for AutopilotConfig {
             force_field: ForceFieldConfig::default(),
             fsm: FsmConfig::default(),
             failsafe: FailsafeConfig::default(),
+            battery: BatteryConfig::default(),
             target_height_m: 1.0,
             climb_rate_mps: 0.5,
             land_rate_mps: 0.3,
@@ -346,6 +350,8 @@ pub struct Autopilot {
     failsafe: Failsafe,
     rc_kill_latched: bool,
     arm_refused: u32,
+    /// The supply voltage: filter, sag compensation, verdict.
+    battery: BatteryMonitor,
     /// The parameter storage's state (`None`: a build without storage).
     storage: Option<StorageStatus>,
 }
@@ -360,6 +366,8 @@ pub enum ArmBlock {
     /// The camera board speaks another protocol version (the value): its estimates cannot be
     /// read, so the drone would fly blind.
     PeerVersion(u8),
+    /// The battery's resting voltage is below [`BatteryConfig::arm_v`].
+    BatteryLow,
 }
 
 fn finite3(v: &[f32; 3], max_abs: f32) -> bool {
@@ -386,6 +394,7 @@ impl Autopilot {
             failsafe: Failsafe::new(config.failsafe),
             rc_kill_latched: false,
             arm_refused: 0,
+            battery: BatteryMonitor::new(config.battery),
             storage: None,
             cfg: config,
         }
@@ -422,6 +431,7 @@ impl Autopilot {
         self.estimation.set_config(&config);
         self.avoidance.set_config(config.fsm);
         self.failsafe.set_config(config.failsafe);
+        self.battery.set_config(config.battery);
         self.cfg = config;
         Ok(())
     }
@@ -734,6 +744,7 @@ impl Autopilot {
         }
         if after == FlightMode::Flying && before != FlightMode::Flying {
             // Take-off: climb from where we are, hold the current heading.
+            self.battery.rearm();
             self.height.reset_integral();
             self.guidance
                 .take_off(self.height.height_m(), self.att.euler()[2]);
@@ -760,10 +771,12 @@ impl Autopilot {
     pub fn arm_blocker(&self) -> Option<ArmBlock> {
         if self.rc_kill_latched {
             Some(ArmBlock::RcKill)
+        } else if let Some(v) = self.camera.peer_version_mismatch() {
+            Some(ArmBlock::PeerVersion(v))
+        } else if !self.battery.arm_ok() {
+            Some(ArmBlock::BatteryLow)
         } else {
-            self.camera
-                .peer_version_mismatch()
-                .map(ArmBlock::PeerVersion)
+            None
         }
     }
 
@@ -789,6 +802,24 @@ impl Autopilot {
         }
     }
 
+    /// A supply-voltage reading, V, taken at `now_us` (the firmware's ADC through the divider,
+    /// [`crate::board::BATTERY_ADC`]; the simulated battery), judged with the motor duties of
+    /// now (see [`crate::battery`]). A flight ends in a landing once it reads low.
+    pub fn on_battery(&mut self, volts: f32, now_us: u64) {
+        let flying = self.failsafe.mode().motors_enabled();
+        self.battery.on_sample(volts, &self.motors, flying, now_us);
+    }
+
+    /// The battery monitor (last reading, resting voltage, verdict).
+    pub fn battery(&self) -> &BatteryMonitor {
+        &self.battery
+    }
+
+    /// Why the drone is landing, or why it landed last (`None`: no landing since it was armed).
+    pub fn land_reason(&self) -> Option<LandReason> {
+        self.failsafe.land_reason()
+    }
+
     /// The last barometer reading and when it was taken, µs.
     pub fn baro(&self) -> Option<(u64, BaroReading)> {
         self.baro
@@ -799,10 +830,18 @@ impl Autopilot {
     pub fn guidance_step(&mut self, now_us: u64) {
         let dt = self.guidance.tick(now_us);
         let f = self.freshness();
-        let mode = self.failsafe.update(&f, now_us);
+        let mut mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
             self.rest(mode, now_us);
             return;
+        }
+        match self.battery.state() {
+            BatteryState::Ok => {}
+            BatteryState::Low => mode = self.failsafe.land(LandReason::LowBattery, now_us),
+            BatteryState::Critical => {
+                mode = self.failsafe.land(LandReason::CriticalBattery, now_us);
+                self.guidance.hurry_landing();
+            }
         }
         let cfg = &self.cfg;
         let velocity = self.estimation.state(cfg.velocity_source);
@@ -824,7 +863,7 @@ impl Autopilot {
         );
         if request.land {
             // No way to go found within the FSM's timeouts: land where it is.
-            self.failsafe.command(PilotCommand::Land, &f, now_us);
+            self.failsafe.land(LandReason::SearchExhausted, now_us);
         }
         self.guidance.fly(&request, fresh_velocity, dt);
         let height_fresh = matches!(self.height.last_measurement_us(),
@@ -901,6 +940,7 @@ impl Autopilot {
             height_m: self.height.height_m(),
             baro: self.baro.map(|(_, r)| r),
             link_errors: self.camera.errors(),
+            battery: self.battery.telemetry(),
         }
     }
 }

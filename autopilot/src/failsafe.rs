@@ -13,13 +13,45 @@
 //!   (the caller descends open-loop on reduced thrust).
 //! * IMU stale for [`FailsafeConfig::imu_timeout_us`] while armed -> [`FlightMode::ImuFault`]:
 //!   motors off (nothing can stabilise the drone without rates).
-//! * `Landing` ends in `Disarmed` when the caller reports touchdown.
+//! * `Landing` ends in `Disarmed` when the caller reports touchdown. Every landing keeps its
+//!   [`LandReason`] ([`Failsafe::land_reason`]) until the next arming.
 //!
 //! [`FlightMode`] is the protocol's type: telemetry carries it as it is.
 
 use protocol::PilotCommand;
 
 pub use protocol::FlightMode;
+
+/// Why the drone is landing (or landed last).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum LandReason {
+    /// A `Land` pilot command.
+    Commanded,
+    /// No valid velocity estimate (a blind camera, a lost link, no texture in view).
+    NoEstimate,
+    /// The height measurement went stale.
+    HeightLost,
+    /// The avoidance FSM found no way to go within its timeouts.
+    SearchExhausted,
+    /// The battery fell below `bat_low_v`.
+    LowBattery,
+    /// The battery fell below `bat_critical_v`.
+    CriticalBattery,
+}
+
+impl LandReason {
+    /// Short lower-case name for logs and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            LandReason::Commanded => "commanded",
+            LandReason::NoEstimate => "no texture",
+            LandReason::HeightLost => "height lost",
+            LandReason::SearchExhausted => "search exhausted",
+            LandReason::LowBattery => "low battery",
+            LandReason::CriticalBattery => "critical battery",
+        }
+    }
+}
 
 /// Failsafe timings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -69,6 +101,7 @@ pub struct Failsafe {
     armed_us: u64,
     /// A valid estimate has come since the last arming.
     seen_estimate: bool,
+    land_reason: Option<LandReason>,
 }
 
 impl Failsafe {
@@ -85,6 +118,7 @@ impl Failsafe {
             since_us: 0,
             armed_us: 0,
             seen_estimate: false,
+            land_reason: None,
         }
     }
 
@@ -101,6 +135,22 @@ impl Failsafe {
     /// When the current mode began, µs.
     pub fn since_us(&self) -> u64 {
         self.since_us
+    }
+
+    /// Why the drone is landing, or why it landed last (`None`: no landing since the last
+    /// arming).
+    pub fn land_reason(&self) -> Option<LandReason> {
+        self.land_reason
+    }
+
+    /// Lands for `reason` if the motors run and it is not landing already (the first reason
+    /// is kept). Returns the new mode.
+    pub fn land(&mut self, reason: LandReason, now_us: u64) -> FlightMode {
+        if self.mode.motors_enabled() && self.mode != FlightMode::Landing {
+            self.land_reason = Some(reason);
+            self.set(FlightMode::Landing, now_us);
+        }
+        self.mode
     }
 
     fn set(&mut self, m: FlightMode, now: u64) {
@@ -121,9 +171,7 @@ impl Failsafe {
         match cmd {
             PilotCommand::Kill => self.set(FlightMode::Killed, now_us),
             PilotCommand::Land => {
-                if self.mode.motors_enabled() {
-                    self.set(FlightMode::Landing, now_us);
-                }
+                self.land(LandReason::Commanded, now_us);
             }
             PilotCommand::Arm => {
                 let grounded = matches!(
@@ -137,6 +185,7 @@ impl Failsafe {
                     self.set(FlightMode::Flying, now_us);
                     self.armed_us = now_us;
                     self.seen_estimate = false;
+                    self.land_reason = None;
                 }
             }
         }
@@ -160,8 +209,7 @@ impl Failsafe {
             return self.mode;
         }
         if !fresh(f.last_height_us, now_us, self.cfg.height_timeout_us) {
-            self.set(FlightMode::Landing, now_us);
-            return self.mode;
+            return self.land(LandReason::HeightLost, now_us);
         }
         // The estimate clock starts at arming: a drone armed without estimates gets the same
         // grace period as one that lost them.
@@ -175,14 +223,14 @@ impl Failsafe {
         }
         match self.mode {
             FlightMode::Flying if !est_ok && !self.seen_estimate => {
-                self.set(FlightMode::Landing, now_us)
+                self.land(LandReason::NoEstimate, now_us);
             }
             FlightMode::Flying if !est_ok => self.set(FlightMode::HoverNoEstimate, now_us),
             FlightMode::HoverNoEstimate => {
                 if est_ok {
                     self.set(FlightMode::Flying, now_us);
                 } else if now_us.saturating_sub(self.since_us) >= self.cfg.hover_before_land_us {
-                    self.set(FlightMode::Landing, now_us);
+                    self.land(LandReason::NoEstimate, now_us);
                 }
             }
             _ => {}
@@ -305,6 +353,7 @@ mod tests {
         );
         fs.landed(5000 * MS);
         assert_eq!(fs.mode(), FlightMode::Disarmed);
+        assert_eq!(fs.land_reason(), Some(LandReason::NoEstimate));
     }
 
     /// Armed without estimates: the estimate timeout's grace, then a landing at once (nothing
@@ -362,11 +411,20 @@ mod tests {
         f.last_height_us = Some(100 * MS);
         assert_eq!(fs.update(&f, 600 * MS), FlightMode::Flying);
         assert_eq!(fs.update(&f, 600 * MS + 1), FlightMode::Landing);
+        assert_eq!(fs.land_reason(), Some(LandReason::HeightLost));
         let mut fs = armed(0);
         assert_eq!(
             fs.command(PilotCommand::Land, &all_fresh(MS), MS),
             FlightMode::Landing
         );
+        // The first reason is kept; the next arming clears it.
+        fs.land(LandReason::LowBattery, 2 * MS);
+        assert_eq!(fs.land_reason(), Some(LandReason::Commanded));
+        fs.command(PilotCommand::Kill, &all_fresh(3 * MS), 3 * MS);
+        fs.command(PilotCommand::Arm, &all_fresh(4 * MS), 4 * MS);
+        assert_eq!(fs.land_reason(), None);
+        assert_eq!(fs.land(LandReason::LowBattery, 5 * MS), FlightMode::Landing);
+        assert_eq!(fs.land_reason(), Some(LandReason::LowBattery));
         // Land while disarmed does nothing.
         let mut fs = Failsafe::new(FailsafeConfig::default());
         assert_eq!(

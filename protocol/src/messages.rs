@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 8;
+pub const PROTOCOL_VERSION: u8 = 9;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -584,6 +584,48 @@ pub struct Telemetry {
     pub baro: Option<BaroTelemetry>,
     /// Errors decoding messages from the camera board since boot.
     pub link_errors: LinkErrorCounts,
+    /// The battery (`None`: no supply voltage read yet).
+    pub battery: Option<BatteryTelemetry>,
+}
+
+/// The flight battery as the autopilot judges it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BatteryState {
+    /// Above the low threshold.
+    Ok,
+    /// Below the low threshold: the autopilot lands.
+    Low,
+    /// Below the critical threshold: the autopilot lands at once, descending fast.
+    Critical,
+}
+
+impl BatteryState {
+    /// Every state, in declaration order (logs number them by it).
+    pub const ALL: [BatteryState; 3] =
+        [BatteryState::Ok, BatteryState::Low, BatteryState::Critical];
+
+    /// Short lower-case name for logs and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            BatteryState::Ok => "ok",
+            BatteryState::Low => "low",
+            BatteryState::Critical => "critical",
+        }
+    }
+}
+
+/// The flight battery, as telemetry reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BatteryTelemetry {
+    /// The last supply voltage read, V (under load: it sags while the motors draw current).
+    pub voltage_v: f32,
+    /// The filtered voltage with the sag under thrust added back (an estimate of the
+    /// battery's resting voltage), V: what the thresholds compare.
+    pub resting_v: f32,
+    /// The autopilot's verdict (latched for the flight once `Low` or `Critical`).
+    pub state: BatteryState,
 }
 
 /// A compensated barometer reading (the autopilot's MS5611), as telemetry reports it.

@@ -268,7 +268,12 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
             proptest::option::of(finite()),
             finite(),
             proptest::option::of((finite(), finite())),
-            link_errors()
+            link_errors(),
+            proptest::option::of((
+                finite(),
+                finite(),
+                proptest::sample::select(BatteryState::ALL.to_vec())
+            ))
         )
             .prop_map(
                 |(
@@ -282,6 +287,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                     height_m,
                     baro,
                     link_errors,
+                    battery,
                 )| {
                     BoardToHost::Telemetry(Telemetry {
                         timestamp_us: WireTime(timestamp_us),
@@ -297,6 +303,11 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                             temperature_c,
                         }),
                         link_errors,
+                        battery: battery.map(|(voltage_v, resting_v, state)| BatteryTelemetry {
+                            voltage_v,
+                            resting_v,
+                            state,
+                        }),
                     })
                 }
             ),
@@ -500,6 +511,11 @@ fn declared_maximum_frame_sizes_hold() {
             temperature_c: f32::MAX,
         }),
         link_errors: all_counters_at_max(),
+        battery: Some(BatteryTelemetry {
+            voltage_v: f32::MAX,
+            resting_v: f32::MAX,
+            state: BatteryState::Critical,
+        }),
     });
     assert!(encode(&telemetry, &mut wire).unwrap() <= BoardToHost::MAX_FRAME_BYTES);
 }
