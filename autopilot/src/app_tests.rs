@@ -1214,7 +1214,7 @@ fn the_fit_source_takes_each_frames_own_fit() {
 /// at 10 Hz under the current the motors draw.
 fn fly_on_battery(r: &mut Run, resting_v: f32, seconds: f32) {
     for _ in 0..(seconds * 10.0).round() as u32 {
-        let sag = 0.1 * r.ap.battery().current_a(&r.ap.motors());
+        let sag = 0.1 * r.ap.battery().current_a(&r.ap.motors(), resting_v);
         r.ap.on_battery(resting_v - sag, r.now);
         r.fly(0.1);
     }
@@ -1229,7 +1229,7 @@ fn a_flat_battery_refuses_to_arm_and_a_low_one_lands_the_flight() {
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
     assert_eq!(r.ap.arm_refused(), 1);
     // Charged: arms. Under hover thrust a 3.8 V battery reads about 3.5 V, below the landing
-    // threshold; the sag compensation keeps the flight going.
+    // threshold (3.6 V); the sag compensation keeps the flight going.
     fly_on_battery(&mut r, 3.8, 5.0);
     r.takeoff();
     fly_on_battery(&mut r, 3.8, 5.0);

@@ -2,6 +2,7 @@
 
 use super::records::*;
 use super::{ns, FlightLog, Thinner};
+use crate::sim::battery::Battery;
 use crate::sim::flight::{FlightCounters, FlightObserver, LogRow};
 use autopilot::app::Autopilot;
 use autopilot::ms5611::BaroReading;
@@ -81,6 +82,19 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
         let record = BaroRecord {
             pressure_pa: reading.pressure_pa,
             temperature_c: reading.temperature_c,
+        };
+        self.with_log(|log| log.write(ns(t_us), &record));
+    }
+
+    fn on_battery(&mut self, t_us: u64, ap: &Autopilot, battery: &Battery) {
+        let Some(report) = ap.battery().telemetry() else {
+            return;
+        };
+        let record = BatteryRecord {
+            true_resting_v: Some(battery.open_circuit_v() as f32),
+            true_current_a: Some(battery.current_a() as f32),
+            true_charge: Some(battery.charge() as f32),
+            ..BatteryRecord::new(&report)
         };
         self.with_log(|log| log.write(ns(t_us), &record));
     }

@@ -3,6 +3,8 @@
 //! same [`FlightResult`], bit for bit.
 
 use super::baro::BaroParams;
+use super::battery::Battery;
+use super::battery::BatteryParams;
 use super::boards::{autopilot_tasks, camera_tasks, send};
 use super::camera::CameraParams;
 use super::dynamics::{Drone, DroneParams};
@@ -14,6 +16,7 @@ use super::sched::{Board, Release, Scheduler};
 use super::uart::{LinkFaults, SimUart, UartStats};
 use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
+use autopilot::failsafe::LandReason;
 use autopilot::fsm::FsmVariant;
 use autopilot::ms5611::BaroReading;
 use protocol::{
@@ -64,6 +67,9 @@ pub struct FlightConfig {
     pub imu: ImuParams,
     /// Barometer.
     pub baro: BaroParams,
+    /// Flight battery, its voltage read by the autopilot at [`BATTERY_READ_HZ`] (`None`: an
+    /// ideal supply, no reading; the drone flies on its nominal thrust for ever).
+    pub battery: Option<BatteryParams>,
     /// Camera readout time after exposure, µs.
     pub readout_us: u64,
     /// Camera-board processing time per frame (Edge-FS on the Cortex-M4), µs: the estimate
@@ -107,6 +113,7 @@ impl Default for FlightConfig {
             drone: DroneParams::pocket_drone(),
             imu: ImuParams::default(),
             baro: BaroParams::default(),
+            battery: None,
             readout_us: 8_000,
             processing_us: 15_000,
             physics_dt_us: 500,
@@ -118,6 +125,48 @@ impl Default for FlightConfig {
             stop_on_collision: false,
             autopilot: AutopilotConfig::default(),
             edge_fs: EdgeFsParams::default_config(),
+        }
+    }
+}
+
+/// Rate at which the autopilot reads the battery voltage, Hz (the firmware's telemetry task).
+pub const BATTERY_READ_HZ: f64 = 10.0;
+
+/// Why a flight ended: the last column of every summary.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    /// The full simulated duration flown.
+    Duration,
+    /// A wall or obstacle was hit (the flight time ends there).
+    Collision,
+    /// The autopilot landed, for this reason, and disarmed.
+    Landed(LandReason),
+    /// The motors stopped without a landing (killed, IMU fault).
+    MotorsStopped(FlightMode),
+}
+
+impl EndReason {
+    /// The summary's words for it: `duration`, `collision`, `landed: low battery`, ...
+    pub fn describe(self) -> String {
+        match self {
+            EndReason::Duration => "duration".into(),
+            EndReason::Collision => "collision".into(),
+            EndReason::Landed(reason) => format!("landed: {}", reason.name()),
+            EndReason::MotorsStopped(mode) => format!("stopped: {}", mode.name()),
+        }
+    }
+
+    /// Why the flight of `ap` ended, with `collided` when it hit something.
+    pub fn of(ap: &Autopilot, armed: bool, collided: bool) -> Self {
+        if collided {
+            return EndReason::Collision;
+        }
+        match (armed, ap.mode(), ap.land_reason()) {
+            (true, FlightMode::Disarmed, Some(reason)) => EndReason::Landed(reason),
+            (true, mode @ (FlightMode::Killed | FlightMode::ImuFault), _) => {
+                EndReason::MotorsStopped(mode)
+            }
+            _ => EndReason::Duration,
         }
     }
 }
@@ -168,6 +217,8 @@ pub struct FlightResult {
     pub duration_s: f64,
     /// Time until the first collision, or the full duration, s.
     pub flight_time_s: f64,
+    /// Why the flight ended.
+    pub end_reason: EndReason,
     /// Number of collisions (contacts entered).
     pub collisions: u32,
     /// RMS error of the autopilot's velocity estimate (what it flies on, [`LogRow::vel_est`])
@@ -219,6 +270,9 @@ pub trait FlightObserver {
     fn on_frame(&mut self, _t_us: u64, _frame: &[u8; STEREO_FRAME_BYTES]) {}
     /// A barometer reading as the autopilot received it.
     fn on_baro(&mut self, _t_us: u64, _reading: &BaroReading) {}
+    /// A battery voltage reading the autopilot received (and judged), and the simulated
+    /// battery it came from.
+    fn on_battery(&mut self, _t_us: u64, _ap: &Autopilot, _battery: &Battery) {}
     /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
     /// duties applied (0..=1).
     fn on_control(
@@ -293,6 +347,8 @@ pub fn run_flight_observed(
     let mut next_capture = 100_000u64;
     let mut next_height = if cfg.mocap { 0 } else { u64::MAX };
     let mut next_baro = 0u64;
+    let battery_period_us = (1e6 / BATTERY_READ_HZ) as u64;
+    let mut next_battery = if cfg.battery.is_some() { 0 } else { u64::MAX };
     let mut armed = false;
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
@@ -317,7 +373,11 @@ pub fn run_flight_observed(
     while t < end_us {
         // Next event.
         let mut next = end_us.min(t + cfg.physics_dt_us);
-        next = next.min(next_capture).min(next_height).min(next_baro);
+        next = next
+            .min(next_capture)
+            .min(next_height)
+            .min(next_baro)
+            .min(next_battery);
         if let Some(r) = sched.next_release_us() {
             next = next.min(r);
         }
@@ -437,6 +497,16 @@ pub fn run_flight_observed(
             ap.on_baro(&reading, t);
             observer.on_baro(t, &reading);
         }
+        // The supply voltage on the autopilot's ADC, through the divider.
+        if t >= next_battery {
+            next_battery += battery_period_us;
+            if let Some(battery) = &world.battery {
+                let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
+                let volts = (battery.terminal_v() / lsb).round() * lsb;
+                ap.on_battery(volts as f32, t);
+                observer.on_battery(t, &ap, battery);
+            }
+        }
         if !armed && t >= arm_us {
             armed = true;
             ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t);
@@ -512,6 +582,7 @@ pub fn run_flight_observed(
         seed: cfg.seed,
         duration_s: cfg.duration_s,
         flight_time_s: world.first_contact_s.unwrap_or(cfg.duration_s),
+        end_reason: EndReason::of(&ap, armed, world.first_contact_s.is_some()),
         collisions: world.collisions,
         vel_rmse_mps: rms(filt_err2, n_filt),
         raw_vel_rmse_mps: rms(err2, n_err),
