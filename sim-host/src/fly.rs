@@ -415,7 +415,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 Format::Csv => print!("{csv}"),
                 Format::Table => {
                     println!(
-                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}  {}",
+                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}  end",
                         "seed",
                         "duration",
                         "flight",
@@ -426,8 +426,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         "track",
                         "hover_v",
                         "stop_v",
-                        "height",
-                        "end"
+                        "height"
                     );
                     for r in &results {
                         println!(
