@@ -18,7 +18,7 @@ use super::dynamics::DroneParams;
 /// Open-circuit voltage of a 1S LiPo at rest against its state of charge, V, every 5 % from
 /// empty (0) to full (1): a typical curve (steep above 90 % and below 10 %, flat around
 /// 3.8 V in between).
-const OCV_CURVE_V: [f64; 21] = [
+pub const OCV_CURVE_V: [f64; 21] = [
     3.27, 3.61, 3.69, 3.71, 3.73, 3.75, 3.77, 3.79, 3.80, 3.82, 3.84, 3.85, 3.87, 3.91, 3.95, 3.98,
     4.02, 4.08, 4.11, 4.15, 4.20,
 ];
