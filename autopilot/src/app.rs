@@ -24,6 +24,7 @@
 
 use crate::attitude::{attitude_error, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
 use crate::avoidance::{Avoidance, AvoidanceInput};
+use crate::battery::{BatteryConfig, BatteryMonitor, BatteryState};
 use crate::camera_link::{CameraLink, CameraNews};
 pub use crate::estimation::VelocitySource;
 use crate::estimation::{VelocityEstimation, VisionContext};
@@ -148,6 +149,8 @@ pub struct AutopilotConfig {
     pub fsm: FsmConfig,
     /// Failsafe timings.
     pub failsafe: FailsafeConfig,
+    /// Battery thresholds and sag model.
+    pub battery: BatteryConfig,
     /// Flight height after take-off, m above the floor.
     pub target_height_m: f32,
     /// Height-setpoint climb rate during take-off, m/s.
@@ -279,6 +282,7 @@ impl Default for AutopilotConfig {
             force_field: ForceFieldConfig::default(),
             fsm: FsmConfig::default(),
             failsafe: FailsafeConfig::default(),
+            battery: BatteryConfig::default(),
             target_height_m: 1.0,
             climb_rate_mps: 0.5,
             land_rate_mps: 0.3,
@@ -404,6 +408,8 @@ pub struct Autopilot {
     arm_refused: u32,
     /// When the host's last heartbeat arrived, µs.
     last_host_us: Option<u64>,
+    /// The supply voltage: filter, sag compensation, verdict.
+    battery: BatteryMonitor,
     /// The parameter storage's state (`None`: a build without storage).
     storage: Option<StorageStatus>,
 }
@@ -422,6 +428,8 @@ pub enum ArmBlock {
     /// was saved. Cleared by a successful save or `ParamOp::Acknowledge`
     /// ([`StorageStatus::blocks_arming`]).
     ParamsNotLoaded(RecordError),
+    /// The battery's resting voltage is below [`BatteryConfig::arm_v`].
+    BatteryLow,
 }
 
 fn finite3(v: &[f32; 3], max_abs: f32) -> bool {
@@ -453,6 +461,7 @@ impl Autopilot {
             rc_kill_latched: false,
             arm_refused: 0,
             last_host_us: None,
+            battery: BatteryMonitor::new(config.battery),
             storage: None,
             cfg: config,
         }
@@ -489,6 +498,7 @@ impl Autopilot {
         self.estimation.set_config(&config);
         self.avoidance.set_config(config.fsm);
         self.failsafe.set_config(config.failsafe);
+        self.battery.set_config(config.battery);
         self.cfg = config;
         Ok(())
     }
@@ -822,6 +832,7 @@ impl Autopilot {
         }
         if after == FlightMode::Flying && before != FlightMode::Flying {
             // Take-off: climb from where we are, hold the current heading.
+            self.battery.rearm();
             self.height.reset_integral();
             self.guidance
                 .take_off(self.height.height_m(), self.att.euler()[2]);
@@ -854,10 +865,12 @@ impl Autopilot {
             .map(|s| s.loaded)
         {
             Some(ArmBlock::ParamsNotLoaded(e))
+        } else if let Some(v) = self.camera.peer_version_mismatch() {
+            Some(ArmBlock::PeerVersion(v))
+        } else if !self.battery.arm_ok() {
+            Some(ArmBlock::BatteryLow)
         } else {
-            self.camera
-                .peer_version_mismatch()
-                .map(ArmBlock::PeerVersion)
+            None
         }
     }
 
@@ -891,6 +904,19 @@ impl Autopilot {
                 self.height.on_measurement(self.vertical.height_m(), now_us);
             }
         }
+    }
+
+    /// A supply-voltage reading, V, taken at `now_us` (the firmware's ADC through the divider,
+    /// [`crate::board::BATTERY_ADC`]; the simulated battery), judged with the motor duties of
+    /// now (see [`crate::battery`]). A flight ends in a landing once it reads low.
+    pub fn on_battery(&mut self, volts: f32, now_us: u64) {
+        let flying = self.failsafe.mode().motors_enabled();
+        self.battery.on_sample(volts, &self.motors, flying, now_us);
+    }
+
+    /// The battery monitor (last reading, resting voltage, verdict).
+    pub fn battery(&self) -> &BatteryMonitor {
+        &self.battery
     }
 
     /// The last barometer reading and when it was taken, µs.
@@ -932,10 +958,18 @@ impl Autopilot {
             *lp += GROUND_LP_ALPHA * (x - *lp);
         }
         let f = self.freshness();
-        let mode = self.failsafe.update(&f, now_us);
+        let mut mode = self.failsafe.update(&f, now_us);
         if !mode.motors_enabled() {
             self.rest(mode, now_us);
             return;
+        }
+        match self.battery.state() {
+            BatteryState::Ok => {}
+            BatteryState::Low => mode = self.failsafe.land(FailsafeReason::BatteryLow, now_us),
+            BatteryState::Critical => {
+                mode = self.failsafe.land(FailsafeReason::BatteryCritical, now_us);
+                self.guidance.hurry_landing();
+            }
         }
         let cfg = &self.cfg;
         let velocity = self.estimation.state(cfg.velocity_source);
@@ -1050,6 +1084,7 @@ impl Autopilot {
             baro: self.baro.map(|(_, r)| r),
             link_errors: self.camera.errors(),
             failsafe_reason: self.failsafe.reason(),
+            battery: self.battery.telemetry(),
         }
     }
 }

@@ -8,6 +8,7 @@ extern crate std;
 
 use super::*;
 use crate::attitude::GRAVITY;
+use crate::battery::BatteryState;
 use crate::indi::IndiConfig;
 use crate::test_support::{camera_status, forward_estimate};
 use proptest::prelude::*;
@@ -1489,4 +1490,72 @@ fn the_fit_source_takes_each_frames_own_fit() {
         fits.on_estimate(&e, k * 40_000);
     }
     assert_eq!(fits.freshness().last_valid_estimate_us, None);
+}
+
+/// Flies `seconds` on a battery resting at `resting_v` with 0.1 Ω of internal resistance, read
+/// at 10 Hz under the current the motors draw.
+fn fly_on_battery(r: &mut Run, resting_v: f32, seconds: f32) {
+    for _ in 0..(seconds * 10.0).round() as u32 {
+        let sag = 0.1 * r.ap.battery().current_a(&r.ap.motors(), resting_v);
+        r.ap.on_battery(resting_v - sag, r.now);
+        r.fly(0.1);
+    }
+}
+
+#[test]
+fn a_flat_battery_refuses_to_arm_and_a_low_one_lands_the_flight() {
+    let mut r = Run::new(AutopilotConfig::default());
+    fly_on_battery(&mut r, 3.6, 2.0);
+    assert_eq!(r.ap.arm_blocker(), Some(ArmBlock::BatteryLow));
+    r.ap.on_command(PilotCommand::Arm, r.now);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+    assert_eq!(r.ap.arm_refused(), 1);
+    // Charged: arms. Under hover thrust a 3.8 V battery reads about 3.5 V, below the landing
+    // threshold (3.6 V); the sag compensation keeps the flight going.
+    fly_on_battery(&mut r, 3.8, 5.0);
+    r.takeoff();
+    fly_on_battery(&mut r, 3.8, 5.0);
+    let reading = r.ap.battery().last_reading().unwrap().1;
+    assert!(reading < 3.55, "reads {reading} V under thrust");
+    assert_eq!(r.ap.mode(), FlightMode::Flying);
+    assert_eq!(
+        r.ap.telemetry(r.now).battery.unwrap().state,
+        BatteryState::Ok
+    );
+    // Discharged below the low threshold: lands, and stays landed as the voltage recovers.
+    fly_on_battery(&mut r, 3.4, 3.0);
+    assert_eq!(r.ap.mode(), FlightMode::Landing);
+    assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::BatteryLow));
+    fly_on_battery(&mut r, 3.4, 6.0);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
+    assert!(r.quad.height() < 0.02);
+    assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::BatteryLow));
+    let tel = r.ap.telemetry(r.now).battery.unwrap();
+    assert_eq!(tel.state, BatteryState::Low);
+    assert!((tel.resting_v - 3.4).abs() < 0.02, "{tel:?}");
+}
+
+#[test]
+fn a_critical_battery_lands_at_once_at_the_fast_descent_rate() {
+    let cfg = AutopilotConfig::default();
+    let mut r = Run::new(cfg);
+    fly_on_battery(&mut r, 3.9, 1.0);
+    r.takeoff();
+    fly_on_battery(&mut r, 3.9, 5.0);
+    assert_eq!(r.ap.mode(), FlightMode::Flying);
+    // A step down: the filter passes the low threshold first (the landing's reason), then
+    // the critical one, which hurries the descent.
+    fly_on_battery(&mut r, 3.1, 2.0);
+    assert_eq!(r.ap.mode(), FlightMode::Landing);
+    assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::BatteryLow));
+    assert_eq!(r.ap.battery().state(), BatteryState::Critical);
+    let h0 = r.ap.setpoints().height_m;
+    fly_on_battery(&mut r, 3.1, 0.5);
+    let rate = (h0 - r.ap.setpoints().height_m) / 0.5;
+    assert!(
+        (rate - cfg.blind_land_rate_mps).abs() < 0.05,
+        "descends at {rate} m/s"
+    );
+    fly_on_battery(&mut r, 3.1, 4.0);
+    assert_eq!(r.ap.mode(), FlightMode::Disarmed);
 }

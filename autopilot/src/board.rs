@@ -22,6 +22,7 @@
 //! | RC receiver (none on the pocket drone; [`RC_RECEIVER`]) | UART5 RX | PD2 (AF8) | 100,000 Bd 8E2 | AF:242 (open, see below) |
 //! | status LED (LED 1) | GPIO | PA8 (output) | **active low** | LM:36-84 |
 //! | loop timer | TIM2 | - | [`LOOP_RATE_HZ`] update interrupt | - (the original polls the IMU from its main loop) |
+//! | supply voltage ([`BATTERY_ADC`]) | ADC1 IN14 | PC4 (analog) | 0.0045 V per count (divider) | LM:330, 369-373, 381 |
 //!
 //! Pins the firmware leaves alone (never outputs): see [`NOT_DRIVEN`]. PB4 is LED 2 on the
 //! board but also JTAG NJTRST with a pull-up, and the brief of this port keeps it an input.
@@ -241,13 +242,35 @@ pub const NOT_DRIVEN: [(Pin, &str); 6] = [
     ),
     (
         pin(Port::C, 4),
-        "battery-voltage input ([PZ] lisa_mx_common.h:330, 369-373)",
+        "battery-voltage input, analog ([BATTERY_ADC]; [PZ] lisa_mx_common.h:330, 369-373)",
     ),
     (
         pin(Port::C, 5),
         "LED 4; left off, so that only LED 1 shows status",
     ),
 ];
+
+/// The supply-voltage input: PC4 in analog mode, read by ADC1 on channel 14 (\[PZ\]
+/// lisa_mx_common.h:330, "BATT PC4/ADC14", and 369-373, `AD1_4_CHANNEL 14` on `GPIOC`
+/// `GPIO4`), through the board's divider: Paparazzi converts a 12-bit conversion to volts as
+/// `DefaultVoltageOfAdc(adc) (0.0045*adc)` (lisa_mx_common.h:381; `lisa_mx_2.1.h` keeps it),
+/// that is a divider of 0.0045 × 4096 / 3.3 = 5.59 before the 3.3 V reference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BatteryAdc {
+    /// The input pin (analog mode).
+    pub pin: Pin,
+    /// ADC channel of the pin (ADC1/ADC2 IN14).
+    pub channel: u8,
+    /// Supply volts per count of a 12-bit conversion (divider and 3.3 V reference together).
+    pub volts_per_count: f32,
+}
+
+/// The Lisa/MX 2.1's supply-voltage input.
+pub const BATTERY_ADC: BatteryAdc = BatteryAdc {
+    pin: pin(Port::C, 4),
+    channel: 14,
+    volts_per_count: 0.0045,
+};
 
 /// Crystal, Hz (\[PZ\] lisa_mx_common.h:29-30).
 pub const HSE_HZ: u32 = 12_000_000;
@@ -435,8 +458,8 @@ impl Default for Mounting {
 /// above, brought up in one place.
 #[cfg(target_os = "none")]
 pub mod hw {
-    use super::{HSE_HZ, LINK_BAUD, MOTOR_PWM_HZ, SPI_HZ, TELEMETRY_BAUD};
-    use stm32f4xx_hal::gpio::{Output, PinState, PA8, PB12, PC13};
+    use super::{BATTERY_ADC, HSE_HZ, LINK_BAUD, MOTOR_PWM_HZ, SPI_HZ, TELEMETRY_BAUD};
+    use stm32f4xx_hal::gpio::{Analog, Output, PinState, PA8, PB12, PC13, PC4};
     use stm32f4xx_hal::pac;
     use stm32f4xx_hal::prelude::*;
     use stm32f4xx_hal::rcc::Rcc;
@@ -505,6 +528,9 @@ pub mod hw {
         /// The flash interface (the clock set-up has set its wait states), for the parameter
         /// sector.
         pub flash: pac::FLASH,
+        /// The supply-voltage converter and its pin, untouched: [`BatteryInput::new`] sets them
+        /// up (only a flavour that reads its own sensors does).
+        pub battery: (pac::ADC1, pac::ADC_COMMON, PC4),
     }
 
     /// Brings the board up: clocks, then every pin of [`super::PINS`] in its mode, motors at 0.
@@ -585,6 +611,59 @@ pub mod hw {
             led,
             iwdg: dp.IWDG,
             flash: dp.FLASH,
+            battery: (dp.ADC1, dp.ADC_COMMON, gpioc.pc4),
+        }
+    }
+
+    /// Polls of the end-of-conversion flag before a conversion counts as failed: one takes
+    /// 480 + 12 ADC cycles at 21 MHz, 23 µs or about 4,000 core cycles, and a poll several.
+    const CONVERSION_POLLS: u32 = 4_000;
+
+    /// The supply-voltage input ([`BATTERY_ADC`]): ADC1 on PC4 in analog mode, one
+    /// software-started conversion a read. Written on the PAC rather than the HAL's `Adc`,
+    /// whose set-up converts the internal reference against a factory value in system memory
+    /// and whose conversions wait without bound (and panic when none started): a supply
+    /// reading must never stall or stop the flight firmware.
+    pub struct BatteryInput {
+        adc: pac::ADC1,
+        _common: pac::ADC_COMMON,
+        _pin: PC4<Analog>,
+    }
+
+    impl BatteryInput {
+        /// Clocks ADC1 at APB2 / 4 = 21 MHz (at most 36 MHz), selects channel 14 alone with
+        /// 480 sampling cycles (the divider's source impedance) and powers it up.
+        pub fn new((adc, common, pin): (pac::ADC1, pac::ADC_COMMON, PC4), rcc: &mut Rcc) -> Self {
+            use stm32f4xx_hal::rcc::Enable as _;
+            pac::ADC1::enable(rcc);
+            let pin = pin.into_analog();
+            common.ccr().modify(|_, w| w.adcpre().div4());
+            adc.smpr1()
+                .modify(|_, w| w.smp(BATTERY_ADC.channel - 10).cycles480());
+            adc.sqr1().modify(|_, w| w.l().set(0));
+            // SAFETY: SQ1 takes any channel number 0..=18; 14 is PC4's.
+            adc.sqr3()
+                .write(|w| unsafe { w.sq1().bits(BATTERY_ADC.channel) });
+            adc.cr2().write(|w| w.adon().set_bit());
+            Self {
+                adc,
+                _common: common,
+                _pin: pin,
+            }
+        }
+
+        /// One conversion: the supply voltage, V (`None`: the conversion did not end within
+        /// the bounded number of polls).
+        pub fn read_volts(&mut self) -> Option<f32> {
+            self.adc.sr().modify(|_, w| w.eoc().clear_bit());
+            self.adc.cr2().modify(|_, w| w.swstart().set_bit());
+            for _ in 0..CONVERSION_POLLS {
+                if self.adc.sr().read().eoc().bit_is_set() {
+                    let raw = self.adc.dr().read().data().bits();
+                    return Some(f32::from(raw) * BATTERY_ADC.volts_per_count);
+                }
+            }
+            None
         }
     }
 

@@ -156,6 +156,15 @@ impl Failsafe {
         self.holding
     }
 
+    /// Lands for `reason` if the motors run and it is not landing already (the first reason
+    /// is kept). Returns the new mode.
+    pub fn land(&mut self, reason: FailsafeReason, now_us: u64) -> FlightMode {
+        if self.mode.motors_enabled() && self.mode != FlightMode::Landing {
+            self.fail(FlightMode::Landing, reason, now_us);
+        }
+        self.mode
+    }
+
     fn set(&mut self, m: FlightMode, now: u64) {
         if m != self.mode {
             self.mode = m;
@@ -177,13 +186,6 @@ impl Failsafe {
         match f.last_host_us {
             None => !self.cfg.autonomous_arm,
             t => !fresh(t, now_us, self.cfg.host_timeout_us),
-        }
-    }
-
-    /// Lands for `reason` (e.g. the avoidance FSM found no way to go), if the motors run.
-    pub fn land(&mut self, reason: FailsafeReason, now_us: u64) {
-        if self.mode.motors_enabled() {
-            self.fail(FlightMode::Landing, reason, now_us);
         }
     }
 
@@ -423,6 +425,7 @@ mod tests {
         );
         fs.landed(5000 * MS);
         assert_eq!(fs.mode(), FlightMode::Disarmed);
+        assert_eq!(fs.reason(), Some(FailsafeReason::EstimateLost));
     }
 
     /// Armed without estimates: the estimate timeout's grace, then a landing at once (nothing
@@ -482,11 +485,23 @@ mod tests {
         f.last_height_us = Some(100 * MS);
         assert_eq!(fs.update(&f, 600 * MS), FlightMode::Flying);
         assert_eq!(fs.update(&f, 600 * MS + 1), FlightMode::Landing);
+        assert_eq!(fs.reason(), Some(FailsafeReason::HeightLost));
         let mut fs = armed(0);
         assert_eq!(
             fs.command(PilotCommand::Land, &all_fresh(MS), MS),
             FlightMode::Landing
         );
+        // The first reason is kept; the next arming clears it.
+        fs.land(FailsafeReason::BatteryLow, 2 * MS);
+        assert_eq!(fs.reason(), Some(FailsafeReason::Command));
+        fs.command(PilotCommand::Kill, &all_fresh(3 * MS), 3 * MS);
+        fs.command(PilotCommand::Arm, &all_fresh(4 * MS), 4 * MS);
+        assert_eq!(fs.reason(), None);
+        assert_eq!(
+            fs.land(FailsafeReason::BatteryLow, 5 * MS),
+            FlightMode::Landing
+        );
+        assert_eq!(fs.reason(), Some(FailsafeReason::BatteryLow));
         // Land while disarmed does nothing.
         let mut fs = Failsafe::new(FailsafeConfig::default());
         assert_eq!(

@@ -25,7 +25,9 @@
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
 //! * [`avoidance`]: the avoidance stage: obstacle readings, the FSM and the force field make
 //!   guidance's velocity and heading request.
-//! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts.
+//! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts, why a landing began.
+//! * [`battery`]: the supply voltage filtered and compensated for its sag under thrust, the
+//!   arming, landing and critical thresholds.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
 //! * [`camera_link`]: the camera board's link: decoder, last heartbeat, status and answers.
 //! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
@@ -44,6 +46,7 @@
 pub mod app;
 pub mod attitude;
 pub mod avoidance;
+pub mod battery;
 pub mod board;
 pub mod camera_link;
 pub mod estimation;

@@ -226,6 +226,12 @@ protocol::param_table! {
     "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
     "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;
     "gyro_cal_still": F32 ["rad/s"] 0.001, 1.0, true => |c| c.gyro_calibration_still_radps;
+    "bat_arm_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.arm_v;
+    "bat_low_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.low_v;
+    "bat_critical_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.critical_v;
+    "bat_resistance": F32 ["ohm"] 0.0, 2.0, true => |c| c.battery.resistance_ohm;
+    "bat_full_current": F32 ["A"] 0.0, 100.0, true => |c| c.battery.full_throttle_current_a;
+    "bat_filter_tau_us": U32 ["us"] 0, 30_000_000, true => |c| c.battery.filter_tau_us;
     }
 }
 
@@ -343,6 +349,13 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
     }
     if i.g2 > i.g2_max {
         return fail("indi_g2", "indi_g2_max", "must not exceed");
+    }
+    // Battery thresholds in order: arming above landing, landing above landing at once.
+    if cfg.battery.critical_v > cfg.battery.low_v {
+        return fail("bat_critical_v", "bat_low_v", "must not exceed");
+    }
+    if cfg.battery.low_v > cfg.battery.arm_v {
+        return fail("bat_low_v", "bat_arm_v", "must not exceed");
     }
     if cfg.fsm.clear_distance_m < cfg.fsm.obstacle_distance_m {
         return fail("fsm_clear_dist", "fsm_obstacle_dist", "must not be below");

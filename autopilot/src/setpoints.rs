@@ -119,6 +119,8 @@ pub struct Guidance {
     last_step_us: Option<u64>,
     /// Since when the drone has been below the landed height while landing, µs.
     below_landed_since_us: Option<u64>,
+    /// Land at the blind descent rate whatever the velocity ([`Guidance::hurry_landing`]).
+    hurry: bool,
 }
 
 impl Guidance {
@@ -134,6 +136,7 @@ impl Guidance {
             velocity: VelocityGuidance::new(cfg),
             last_step_us: None,
             below_landed_since_us: None,
+            hurry: false,
         }
     }
 
@@ -173,6 +176,13 @@ impl Guidance {
         self.sp.attitude_rad = [0.0, 0.0, yaw_rad];
         self.sp.velocity_mps = [0.0; 2];
         self.below_landed_since_us = None;
+        self.hurry = false;
+    }
+
+    /// Until the next take-off, landings descend at
+    /// [`AutopilotConfig::blind_land_rate_mps`] (a critically low battery).
+    pub fn hurry_landing(&mut self) {
+        self.hurry = true;
     }
 
     /// Motors off: no thrust.
@@ -208,7 +218,8 @@ impl Guidance {
     ) -> HeightSetpoint {
         let target = match mode {
             FlightMode::Landing => HeightTarget::Land {
-                blind: !velocity.fixed_within(now_us, cfg.failsafe.estimate_timeout_us),
+                blind: self.hurry
+                    || !velocity.fixed_within(now_us, cfg.failsafe.estimate_timeout_us),
             },
             _ => HeightTarget::FlightHeight,
         };

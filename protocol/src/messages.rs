@@ -549,6 +549,10 @@ pub enum FailsafeReason {
     /// The barometer's raw readings stayed identical for `baro_stuck_us` (a frozen sensor):
     /// its heights are no longer used.
     BaroFrozen,
+    /// The battery's resting voltage fell below `bat_low_v`: land.
+    BatteryLow,
+    /// The battery's resting voltage fell below `bat_critical_v`: land at once, descending fast.
+    BatteryCritical,
 }
 
 impl FailsafeReason {
@@ -563,6 +567,8 @@ impl FailsafeReason {
             FailsafeReason::NoWayFound => "no-way-found",
             FailsafeReason::LandTimeout => "land-timeout",
             FailsafeReason::BaroFrozen => "baro-frozen",
+            FailsafeReason::BatteryLow => "battery-low",
+            FailsafeReason::BatteryCritical => "battery-critical",
         }
     }
 }
@@ -634,6 +640,48 @@ pub struct Telemetry {
     pub link_errors: LinkErrorCounts,
     /// Why the drone last left normal flight since it was armed (`None`: it has not).
     pub failsafe_reason: Option<FailsafeReason>,
+    /// The battery (`None`: no supply voltage read yet).
+    pub battery: Option<BatteryTelemetry>,
+}
+
+/// The flight battery as the autopilot judges it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BatteryState {
+    /// Above the low threshold.
+    Ok,
+    /// Below the low threshold: the autopilot lands.
+    Low,
+    /// Below the critical threshold: the autopilot lands at once, descending fast.
+    Critical,
+}
+
+impl BatteryState {
+    /// Every state, in declaration order (logs number them by it).
+    pub const ALL: [BatteryState; 3] =
+        [BatteryState::Ok, BatteryState::Low, BatteryState::Critical];
+
+    /// Short lower-case name for logs and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            BatteryState::Ok => "ok",
+            BatteryState::Low => "low",
+            BatteryState::Critical => "critical",
+        }
+    }
+}
+
+/// The flight battery, as telemetry reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BatteryTelemetry {
+    /// The last supply voltage read, V (under load: it sags while the motors draw current).
+    pub voltage_v: f32,
+    /// The filtered voltage with the sag under thrust added back (an estimate of the
+    /// battery's resting voltage), V: what the thresholds compare.
+    pub resting_v: f32,
+    /// The autopilot's verdict (latched for the flight once `Low` or `Critical`).
+    pub state: BatteryState,
 }
 
 /// A compensated barometer reading (the autopilot's MS5611), as telemetry reports it.

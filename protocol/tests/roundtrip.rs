@@ -5,7 +5,7 @@ use proptest::prelude::*;
 use protocol::*;
 
 /// Every [`FailsafeReason`], for the telemetry strategies.
-const REASONS: [FailsafeReason; 8] = [
+const REASONS: [FailsafeReason; 10] = [
     FailsafeReason::Command,
     FailsafeReason::EstimateLost,
     FailsafeReason::HeightLost,
@@ -14,6 +14,8 @@ const REASONS: [FailsafeReason; 8] = [
     FailsafeReason::NoWayFound,
     FailsafeReason::LandTimeout,
     FailsafeReason::BaroFrozen,
+    FailsafeReason::BatteryLow,
+    FailsafeReason::BatteryCritical,
 ];
 
 fn finite() -> impl Strategy<Value = f32> {
@@ -280,7 +282,12 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
             proptest::option::of(finite()),
             finite(),
             proptest::option::of((finite(), finite())),
-            link_errors()
+            link_errors(),
+            proptest::option::of((
+                finite(),
+                finite(),
+                proptest::sample::select(BatteryState::ALL.to_vec())
+            ))
         )
             .prop_map(
                 |(
@@ -294,6 +301,7 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                     height_m,
                     baro,
                     link_errors,
+                    battery,
                 )| {
                     BoardToHost::Telemetry(Telemetry {
                         timestamp_us: WireTime(timestamp_us),
@@ -310,7 +318,12 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                         }),
                         link_errors,
                         // Every reason and none, spread over the timestamps.
-                        failsafe_reason: REASONS.get(timestamp_us as usize % 9).copied(),
+                        failsafe_reason: REASONS.get(timestamp_us as usize % 11).copied(),
+                        battery: battery.map(|(voltage_v, resting_v, state)| BatteryTelemetry {
+                            voltage_v,
+                            resting_v,
+                            state,
+                        }),
                     })
                 }
             ),
@@ -514,7 +527,12 @@ fn declared_maximum_frame_sizes_hold() {
             temperature_c: f32::MAX,
         }),
         link_errors: all_counters_at_max(),
-        failsafe_reason: Some(FailsafeReason::BaroFrozen),
+        failsafe_reason: Some(FailsafeReason::BatteryCritical),
+        battery: Some(BatteryTelemetry {
+            voltage_v: f32::MAX,
+            resting_v: f32::MAX,
+            state: BatteryState::Critical,
+        }),
     });
     assert!(encode(&telemetry, &mut wire).unwrap() <= BoardToHost::MAX_FRAME_BYTES);
 }

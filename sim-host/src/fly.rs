@@ -10,6 +10,7 @@ use crate::log::live::LiveServer;
 use crate::log::sim::{LogRates, SimRecorder};
 use crate::log::FlightLog;
 use crate::param::ParamFile;
+use crate::sim::battery::BatteryParams;
 use crate::sim::flight::{run_flight, run_flight_observed, FlightConfig, FlightResult, Fsm};
 use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
@@ -146,6 +147,11 @@ pub struct FlyArgs {
     /// Start pose `X,Y,YAW_DEG` (m, m, deg) instead of the scene's (and its seeded heading).
     #[arg(long, value_parser = parse_start, allow_hyphen_values = true)]
     pub start: Option<[f64; 3]>,
+    /// Fly on a 1S LiPo of this capacity, mAh, charged (its voltage sags under thrust and
+    /// falls as it discharges; the autopilot reads it and lands when it runs low). Without it
+    /// the supply is ideal and the autopilot reads no voltage.
+    #[arg(long)]
+    pub battery_mah: Option<f64>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -227,6 +233,7 @@ impl FlyArgs {
         cfg.camera = self.camera.params();
         cfg.camera.fps = self.fps;
         cfg.camera.misalign_px = self.misalign_px;
+        cfg.battery = self.battery_mah.map(BatteryParams::lipo_1s);
         match self.velocity {
             Some(VelocityArg::Kalman) => cfg.autopilot.velocity_source = VelocitySource::Kalman,
             Some(VelocityArg::Median) => {
@@ -245,7 +252,7 @@ impl FlyArgs {
 macro_rules! summary_columns {
     () => {
         "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m,\
-         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,stop_speed_mps"
+         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,stop_speed_mps,end_reason"
     };
 }
 
@@ -255,7 +262,7 @@ pub const CSV_HEADER: &str = summary_columns!();
 /// One CSV summary row.
 pub fn csv_row(r: &FlightResult) -> String {
     format!(
-        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3},{:.4}",
+        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3},{:.4},{}",
         r.seed,
         r.duration_s,
         r.flight_time_s,
@@ -267,7 +274,8 @@ pub fn csv_row(r: &FlightResult) -> String {
         r.tracking.hover_speed_mps,
         r.tracking.height_rmse_m,
         r.tracking.tilt_rmse_deg,
-        r.tracking.stop_speed_mps
+        r.tracking.stop_speed_mps,
+        r.end_reason.describe()
     )
 }
 
@@ -295,6 +303,12 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
         args.fps > 0.0 && args.fps <= 200.0,
         "--fps must be in (0, 200]"
     );
+    if let Some(mah) = args.battery_mah {
+        anyhow::ensure!(
+            mah > 0.0 && mah.is_finite(),
+            "--battery-mah must be positive, got {mah}"
+        );
+    }
     let scene = SceneSpec::from_cli(args.scene.as_deref(), &args.scenario)?;
     let params = args.params.as_deref().map(ParamFile::load).transpose()?;
     let params = params.as_ref();
@@ -354,6 +368,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         r.flight_time_s
                     );
                     println!("collisions      {}", r.collisions);
+                    println!("end             {}", r.end_reason.describe());
                     println!(
                         "vel RMSE        {:.3} m/s (autopilot's velocity estimate vs truth; raw Edge-FS {:.3} m/s)",
                         r.vel_rmse_mps, r.raw_vel_rmse_mps
@@ -419,7 +434,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 Format::Csv => print!("{csv}"),
                 Format::Table => {
                     println!(
-                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}  end",
                         "seed",
                         "duration",
                         "flight",
@@ -434,7 +449,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                     );
                     for r in &results {
                         println!(
-                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3} {:>9.3}",
+                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3} {:>9.3}  {}",
                             r.seed,
                             r.duration_s,
                             r.flight_time_s,
@@ -445,7 +460,8 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                             r.tracking.track_rmse_mps,
                             r.tracking.hover_speed_mps,
                             r.tracking.stop_speed_mps,
-                            r.tracking.height_rmse_m
+                            r.tracking.height_rmse_m,
+                            r.end_reason.describe()
                         );
                     }
                     let ok = results.iter().filter(|r| r.collisions == 0).count();

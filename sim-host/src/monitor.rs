@@ -210,6 +210,13 @@ impl BoardView {
             if matches!(t.flight_mode, ImuFault | Killed) {
                 w.push(format!("flight mode {}", t.flight_mode.name()));
             }
+            if let Some(b) = t.battery.filter(|b| b.state != protocol::BatteryState::Ok) {
+                w.push(format!(
+                    "battery {} ({:.2} V resting): the autopilot lands",
+                    b.state.name(),
+                    b.resting_v
+                ));
+            }
         }
         w
     }
@@ -287,6 +294,15 @@ impl BoardView {
                     "height      {:.2} m   barometer {baro}   obstacle {obstacle}",
                     t.height_m
                 );
+                let battery = t.battery.map_or("no reading".to_string(), |b| {
+                    format!(
+                        "{:.2} V read, {:.2} V resting, {}",
+                        b.voltage_v,
+                        b.resting_v,
+                        b.state.name()
+                    )
+                });
+                let _ = writeln!(s, "battery     {battery}");
             }
         }
         if let Some(e) = &self.estimate {
@@ -629,6 +645,11 @@ mod tests {
             }),
             link_errors: LinkErrorCounts::default(),
             failsafe_reason: None,
+            battery: Some(protocol::BatteryTelemetry {
+                voltage_v: 3.61,
+                resting_v: 3.95,
+                state: protocol::BatteryState::Ok,
+            }),
         }
     }
 
@@ -646,6 +667,10 @@ mod tests {
         assert!(screen.contains("flying"), "{screen}");
         assert!(screen.contains("forward"), "{screen}");
         assert!(screen.contains("barometer 101200 Pa 24.5 °C"), "{screen}");
+        assert!(
+            screen.contains("battery     3.61 V read, 3.95 V resting, ok"),
+            "{screen}"
+        );
         assert!(screen.contains("host link 1 ("), "{screen}");
         assert_eq!(v.health(0.2), LinkHealth::Up);
     }

@@ -1,6 +1,7 @@
 //! `sim-host fly --format csv` prints one summary row per flight whose columns a user's script
 //! reads by name: the tracking figures among them (velocity against its setpoint in `Forward`,
-//! speed in `Hover`, height in level flight), measured from the true state.
+//! speed in `Hover`, height in level flight), measured from the true state, and why each
+//! flight ended (`end_reason`).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -34,9 +35,12 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let values: Vec<&str> = lines.next().expect("one row").split(',').collect();
     assert_eq!(header.len(), values.len(), "{text}");
-    let row: HashMap<&str, f64> = header
+    let fields: HashMap<&str, &str> = header.iter().copied().zip(values).collect();
+    // 30 s in the paper's room with no battery model: flown to the end.
+    assert_eq!(fields["end_reason"], "duration", "{text}");
+    let row: HashMap<&str, f64> = fields
         .iter()
-        .zip(&values)
+        .filter(|(k, _)| **k != "end_reason")
         .map(|(k, v)| (*k, v.parse().expect("a number")))
         .collect();
     for column in [
@@ -93,5 +97,27 @@ fn suite_room_logs_are_written_by_room_name() {
             log.lines().count()
         );
     }
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
+
+/// A battery too small for the flight: the autopilot reads it run low and lands, and the
+/// summary says so.
+#[test]
+fn a_small_battery_ends_the_flight_in_a_low_battery_landing() {
+    let out_dir = std::env::temp_dir().join(format!("fly-battery-{}", std::process::id()));
+    let text = fly_csv(
+        &["--duration", "40", "--seed", "3", "--battery-mah", "20"],
+        &out_dir,
+    );
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let values: Vec<&str> = lines.next().expect("one row").split(',').collect();
+    let row: HashMap<&str, &str> = header.iter().copied().zip(values).collect();
+    assert_eq!(row["end_reason"], "landed: low battery", "{text}");
+    assert_eq!(row["collisions"], "0", "{text}");
+    // The log shows the landing and the drone disarmed on the floor at the end.
+    let log = std::fs::read_to_string(out_dir.join("log.csv")).expect("the flight's log");
+    let last = log.lines().last().expect("rows");
+    assert!(last.contains(",disarmed,"), "{last}");
     let _ = std::fs::remove_dir_all(&out_dir);
 }

@@ -38,6 +38,7 @@ fn board(listener: TcpListener, seconds: f64) -> Sent {
         temperature_c: 24.5,
     };
     ap.on_baro(&baro, 0);
+    ap.on_battery(3.95, 0);
     let start = Instant::now();
     let mut sent = Sent::default();
     let mut tick = 0u64;
@@ -142,6 +143,10 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         if m.channel.topic == "/link" {
             assert!(value["host_link_errors"]["total"].as_u64().unwrap() <= 1);
         }
+        if m.channel.topic == "/battery" {
+            assert_eq!(value["voltage_v"], 3.95);
+            assert_eq!(value["state"], "ok");
+        }
     }
     // The 3D view of what the board believes: its pose at each telemetry, the camera.
     assert_eq!(counts.get("/tf"), Some(&sent.telemetry), "{counts:?}");
@@ -157,6 +162,7 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         "/velocity",
         "/height",
         "/baro",
+        "/battery",
         "/link",
         "/board_clock",
     ] {

@@ -83,6 +83,12 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
         with_baro + 1 >= telemetry,
         "{with_baro} of {telemetry} telemetry messages carry a barometer reading\n{report}"
     );
+    // ... and the supply voltage the real image reads at the telemetry's rate.
+    let with_battery = count(|m| matches!(m, BoardToHost::Telemetry(t) if t.battery.is_some()));
+    assert_eq!(
+        with_battery, telemetry,
+        "{with_battery} of {telemetry} telemetry messages carry the battery\n{report}"
+    );
     assert!(
         telemetry >= 20,
         "10 Hz telemetry over 3 s: {telemetry}\n{report}"
@@ -109,9 +115,9 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
     assert!(stdout.contains("disarmed fsm inactive"), "{stdout}");
     assert!(!stdout.contains("rejected"), "{stdout}");
     // Five records per telemetry message (state, attitude, setpoint, velocity, height) plus
-    // its link and board-clock records, one more where it has a barometer reading, and one per
-    // heartbeat.
-    let logged = 7 * telemetry + with_baro + heartbeats;
+    // its link and board-clock records, one more where it has a barometer reading, one more
+    // where it has a battery reading, and one per heartbeat.
+    let logged = 7 * telemetry + with_baro + with_battery + heartbeats;
     assert!(
         stdout.contains(&format!("({logged} messages on")),
         "{logged} records expected in the log:\n{stdout}"
@@ -143,6 +149,12 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
             let p = value["pressure_pa"].as_f64().expect("a pressure");
             assert!((100_000.0..102_500.0).contains(&p), "{value}");
         }
+        if m.channel.topic == "/battery" {
+            // The bench's battery through the divider, to the ADC's 4.5 mV count.
+            let v = value["voltage_v"].as_f64().expect("a voltage");
+            let want = virtual_board::boards::autopilot::BATTERY_V;
+            assert!((v - want).abs() < 0.01, "{value}");
+        }
         if m.channel.topic == "/state" {
             assert_eq!(value["mode"], "disarmed", "{value}");
             assert_eq!(value["fsm_state"], "inactive", "{value}");
@@ -163,6 +175,7 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
     }
     assert_eq!(counts.get("/heartbeat"), Some(&heartbeats), "{counts:?}");
     assert_eq!(counts.get("/baro"), Some(&with_baro), "{counts:?}");
+    assert_eq!(counts.get("/battery"), Some(&with_battery), "{counts:?}");
     println!(
         "monitor against the virtual autopilot: {telemetry} telemetry, {heartbeats} heartbeats, {} B",
         sent.len()

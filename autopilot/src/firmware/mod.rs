@@ -18,7 +18,7 @@
 //! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`, watchdog (real) |
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
 //! | `baro` | 2 | its conversions (real) | MS5611 on SPI2 -> `Autopilot::on_baro` |
-//! | `telemetry` | 1 | 10 Hz | `Autopilot::telemetry` to the host |
+//! | `telemetry` | 1 | 10 Hz | the supply voltage (real: ADC1 on PC4, `board::hw::BatteryInput`) -> `Autopilot::on_battery`; `Autopilot::telemetry` to the host |
 //! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog (lockstep), status line |
 //! | `idle` | 0 | nothing else to run | `WFI`: the core sleeps until the next interrupt (SysTick, TIM2, a UART); the watchdog, the timers and the UARTs run on in Sleep mode (RM0090 5.3.3) |
 //!
@@ -222,6 +222,8 @@ mod app {
         guidance_tick: Tick,
         gyro_tick: Tick,
         telemetry_tick: Tick,
+        /// The supply-voltage input (`None` in the lockstep flavours).
+        battery: Option<hw::BatteryInput>,
         world: autopilot::lockstep::WorldClock,
         releases: Releases,
     }
@@ -237,7 +239,7 @@ mod app {
         // First: the status line's `stack_free` is the headroom left from here on.
         board_support::stack::paint();
         let reset_cause = board_support::fault::take_reset_cause();
-        let b = hw::take(cx.device);
+        let mut b = hw::take(cx.device);
         Mono::start(cx.core.SYST, board_support::clocks::SYSTICK_HZ);
 
         // The saved parameters, or the defaults and why (QEMU models no flash interface).
@@ -292,6 +294,7 @@ mod app {
             None
         };
         let (guidance_tick, gyro_tick, telemetry_tick, releases) = Releases::new();
+        let battery = flavour::OWN_SENSORS.then(|| hw::BatteryInput::new(b.battery, &mut b.rcc));
 
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
         iwdg.start(board::WATCHDOG_MS.millis());
@@ -358,6 +361,7 @@ mod app {
                 guidance_tick,
                 gyro_tick,
                 telemetry_tick,
+                battery,
                 world: autopilot::lockstep::WorldClock::new(),
                 releases,
             },
@@ -779,12 +783,23 @@ mod app {
         }
     }
 
-    /// 10 Hz: telemetry to the host.
-    #[task(priority = 1, shared = [ap, host_tx], local = [telemetry_tick])]
+    /// 10 Hz: the supply voltage (a conversion that does not end is passed on as NaN, which
+    /// the autopilot counts as rejected), then telemetry to the host.
+    #[task(priority = 1, shared = [ap, host_tx], local = [telemetry_tick, battery])]
     async fn telemetry(mut cx: telemetry::Context) {
         loop {
             let now = cx.local.telemetry_tick.wait().await;
-            let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| ap.telemetry(now)));
+            let volts = cx
+                .local
+                .battery
+                .as_mut()
+                .map(|b| b.read_volts().unwrap_or(f32::NAN));
+            let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| {
+                if let Some(v) = volts {
+                    ap.on_battery(v, now);
+                }
+                ap.telemetry(now)
+            }));
             send::<_, B2H>(&mut cx.shared.host_tx, &msg);
         }
     }

@@ -285,7 +285,7 @@ pub struct TelemetryExtras {
 }
 
 /// Writes an autopilot telemetry message as its records (state, attitude, setpoint, velocity,
-/// height, barometer when it has a reading) at `t_ns`, with what else the logger knows.
+/// height, barometer and battery when it has a reading) at `t_ns`, with what else the logger knows.
 pub fn write_telemetry<W: Write + Seek>(
     log: &mut FlightLog<W>,
     t_ns: u64,
@@ -345,6 +345,9 @@ pub fn write_telemetry<W: Write + Seek>(
                 temperature_c: baro.temperature_c,
             },
         )?;
+    }
+    if let Some(battery) = &tel.battery {
+        log.write(t_ns, &records::BatteryRecord::new(battery))?;
     }
     Ok(())
 }

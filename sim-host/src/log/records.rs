@@ -3,8 +3,8 @@
 //! which is what PlotJuggler, Foxglove and Lichtblick read without plug-ins.
 
 use protocol::{
-    Estimate, EstimateFlags, FlightMode, FsmState, Heartbeat, LinkErrorCounts, Node, StereoStatus,
-    Telemetry, PROTOCOL_VERSION,
+    BatteryState, BatteryTelemetry, Estimate, EstimateFlags, FlightMode, FsmState, Heartbeat,
+    LinkErrorCounts, Node, StereoStatus, Telemetry, PROTOCOL_VERSION,
 };
 use schemars::JsonSchema;
 use serde::Serialize;
@@ -240,6 +240,48 @@ pub struct BaroRecord {
 impl Record for BaroRecord {
     const TOPIC: &'static str = "/baro";
     const SCHEMA: &'static str = "pocket_drone.Baro";
+}
+
+/// The flight battery: the voltage the autopilot read and its verdict.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct BatteryRecord {
+    /// Supply voltage read (under load), V.
+    pub voltage_v: f32,
+    /// The autopilot's filtered voltage with the sag under thrust added back, V.
+    pub resting_v: f32,
+    /// The autopilot's verdict: `ok`, `low` (lands) or `critical` (lands at once).
+    pub state: &'static str,
+    /// The verdict as a number (0 ok, 1 low, 2 critical), for plotting.
+    pub state_id: u8,
+    /// True open-circuit voltage (simulator), V (null: not known).
+    pub true_resting_v: Option<f32>,
+    /// True current drawn (simulator), A (null: not known).
+    pub true_current_a: Option<f32>,
+    /// True state of charge (simulator), 0..1 (null: not known).
+    pub true_charge: Option<f32>,
+}
+
+impl BatteryRecord {
+    /// The record of a telemetry battery report, without the simulator's truth.
+    pub fn new(b: &BatteryTelemetry) -> Self {
+        Self {
+            voltage_v: b.voltage_v,
+            resting_v: b.resting_v,
+            state: b.state.name(),
+            state_id: BatteryState::ALL
+                .iter()
+                .position(|s| *s == b.state)
+                .unwrap_or(0) as u8,
+            true_resting_v: None,
+            true_current_a: None,
+            true_charge: None,
+        }
+    }
+}
+
+impl Record for BatteryRecord {
+    const TOPIC: &'static str = "/battery";
+    const SCHEMA: &'static str = "pocket_drone.Battery";
 }
 
 /// Height above the floor.

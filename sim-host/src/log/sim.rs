@@ -4,6 +4,7 @@ use super::records::*;
 use super::scene3d::{self, BodyPose, CameraMount};
 use super::view3d::{View3d, ViewRates, ViewSample};
 use super::{ns, FlightLog, Thinner};
+use crate::sim::battery::Battery;
 use crate::sim::camera::CameraParams;
 use crate::sim::flight::{FlightCounters, FlightObserver, LogRow};
 use crate::sim::scene::Scene;
@@ -140,6 +141,19 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
         let record = BaroRecord {
             pressure_pa: reading.pressure_pa,
             temperature_c: reading.temperature_c,
+        };
+        self.with_log(|log| log.write(ns(t_us), &record));
+    }
+
+    fn on_battery(&mut self, t_us: u64, ap: &Autopilot, battery: &Battery) {
+        let Some(report) = ap.battery().telemetry() else {
+            return;
+        };
+        let record = BatteryRecord {
+            true_resting_v: Some(battery.open_circuit_v() as f32),
+            true_current_a: Some(battery.current_a() as f32),
+            true_charge: Some(battery.charge() as f32),
+            ..BatteryRecord::new(&report)
         };
         self.with_log(|log| log.write(ns(t_us), &record));
     }

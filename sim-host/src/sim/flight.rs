@@ -3,6 +3,8 @@
 //! same [`FlightResult`], bit for bit.
 
 use super::baro::BaroParams;
+use super::battery::Battery;
+use super::battery::BatteryParams;
 use super::boards::{autopilot_tasks, camera_tasks, send};
 use super::camera::CameraParams;
 use super::dynamics::{Drone, DroneParams};
@@ -64,6 +66,9 @@ pub struct FlightConfig {
     pub imu: ImuParams,
     /// Barometer.
     pub baro: BaroParams,
+    /// Flight battery, its voltage read by the autopilot at [`BATTERY_READ_HZ`] (`None`: an
+    /// ideal supply, no reading; the drone flies on its nominal thrust for ever).
+    pub battery: Option<BatteryParams>,
     /// Camera readout time after exposure, µs.
     pub readout_us: u64,
     /// Camera-board processing time per frame (Edge-FS on the Cortex-M4), µs: the estimate
@@ -111,6 +116,7 @@ impl Default for FlightConfig {
             drone: DroneParams::pocket_drone(),
             imu: ImuParams::default(),
             baro: BaroParams::default(),
+            battery: None,
             readout_us: 8_000,
             processing_us: 15_000,
             physics_dt_us: 500,
@@ -124,6 +130,65 @@ impl Default for FlightConfig {
             autopilot: AutopilotConfig::default(),
             edge_fs: EdgeFsParams::default_config(),
         }
+    }
+}
+
+/// Rate at which the autopilot reads the battery voltage, Hz (the firmware's telemetry task).
+pub const BATTERY_READ_HZ: f64 = 10.0;
+
+/// Why a flight ended: the last column of every summary.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    /// The full simulated duration flown.
+    Duration,
+    /// A wall or obstacle was hit (the flight time ends there).
+    Collision,
+    /// The autopilot landed, for this reason, and disarmed.
+    Landed(FailsafeReason),
+    /// The motors stopped without a landing (killed, IMU fault).
+    MotorsStopped(FlightMode),
+}
+
+impl EndReason {
+    /// The summary's words for it: `duration`, `collision`, `landed: low battery`, ...
+    pub fn describe(self) -> String {
+        match self {
+            EndReason::Duration => "duration".into(),
+            EndReason::Collision => "collision".into(),
+            EndReason::Landed(reason) => format!("landed: {}", landing_words(reason)),
+            EndReason::MotorsStopped(mode) => format!("stopped: {}", mode.name()),
+        }
+    }
+
+    /// Why the flight of `ap` ended, with `collided` when it hit something.
+    pub fn of(ap: &Autopilot, armed: bool, collided: bool) -> Self {
+        if collided {
+            return EndReason::Collision;
+        }
+        match (armed, ap.mode(), ap.failsafe_reason()) {
+            (true, FlightMode::Disarmed, Some(reason)) => EndReason::Landed(reason),
+            (true, mode @ (FlightMode::Killed | FlightMode::ImuFault), _) => {
+                EndReason::MotorsStopped(mode)
+            }
+            _ => EndReason::Duration,
+        }
+    }
+}
+
+/// What a summary says of a landing's reason: `no texture` for a lost estimate (what the
+/// camera most often lacks), `low battery`, `telemetry lost`, `search exhausted`, ...
+fn landing_words(reason: FailsafeReason) -> &'static str {
+    match reason {
+        FailsafeReason::Command => "command",
+        FailsafeReason::EstimateLost => "no texture",
+        FailsafeReason::HeightLost => "height lost",
+        FailsafeReason::ImuLost => "imu lost",
+        FailsafeReason::TelemetryLost => "telemetry lost",
+        FailsafeReason::NoWayFound => "search exhausted",
+        FailsafeReason::LandTimeout => "land timeout",
+        FailsafeReason::BaroFrozen => "barometer frozen",
+        FailsafeReason::BatteryLow => "low battery",
+        FailsafeReason::BatteryCritical => "critical battery",
     }
 }
 
@@ -173,6 +238,8 @@ pub struct FlightResult {
     pub duration_s: f64,
     /// Time until the first collision, or the full duration, s.
     pub flight_time_s: f64,
+    /// Why the flight ended.
+    pub end_reason: EndReason,
     /// Number of collisions (contacts entered).
     pub collisions: u32,
     /// RMS error of the autopilot's velocity estimate (what it flies on, [`LogRow::vel_est`])
@@ -232,6 +299,9 @@ pub trait FlightObserver {
     fn on_edge_fs(&mut self, _t_us: u64, _diagnostics: &Diagnostics) {}
     /// A barometer reading as the autopilot received it.
     fn on_baro(&mut self, _t_us: u64, _reading: &BaroReading) {}
+    /// A battery voltage reading the autopilot received (and judged), and the simulated
+    /// battery it came from.
+    fn on_battery(&mut self, _t_us: u64, _ap: &Autopilot, _battery: &Battery) {}
     /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
     /// duties applied (0..=1).
     fn on_control(
@@ -311,6 +381,8 @@ pub fn run_flight_observed(
         .host_link_cut_at_s
         .map_or(u64::MAX, |s| (s * 1e6) as u64);
     let mut next_host_heartbeat = 0u64;
+    let battery_period_us = (1e6 / BATTERY_READ_HZ) as u64;
+    let mut next_battery = if cfg.battery.is_some() { 0 } else { u64::MAX };
     let mut armed = false;
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
@@ -339,7 +411,8 @@ pub fn run_flight_observed(
             .min(next_capture)
             .min(next_height)
             .min(next_baro)
-            .min(next_host_heartbeat);
+            .min(next_host_heartbeat)
+            .min(next_battery);
         if let Some(r) = sched.next_release_us() {
             next = next.min(r);
         }
@@ -471,6 +544,16 @@ pub fn run_flight_observed(
             ap.on_baro(&reading, t);
             observer.on_baro(t, &reading);
         }
+        // The supply voltage on the autopilot's ADC, through the divider.
+        if t >= next_battery {
+            next_battery += battery_period_us;
+            if let Some(battery) = &world.battery {
+                let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
+                let volts = (battery.terminal_v() / lsb).round() * lsb;
+                ap.on_battery(volts as f32, t);
+                observer.on_battery(t, &ap, battery);
+            }
+        }
         if !armed && t >= arm_us {
             armed = true;
             ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t);
@@ -546,6 +629,7 @@ pub fn run_flight_observed(
         seed: cfg.seed,
         duration_s: cfg.duration_s,
         flight_time_s: world.first_contact_s.unwrap_or(cfg.duration_s),
+        end_reason: EndReason::of(&ap, armed, world.first_contact_s.is_some()),
         collisions: world.collisions,
         vel_rmse_mps: rms(filt_err2, n_filt),
         raw_vel_rmse_mps: rms(err2, n_err),

@@ -75,6 +75,7 @@
 //!   chaotic); the tests in `tests/tests/sim_flight.rs` state their bounds and seeds.
 
 pub mod baro;
+pub mod battery;
 pub mod boards;
 pub mod camera;
 pub mod dynamics;

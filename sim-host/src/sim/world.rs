@@ -7,6 +7,7 @@
 //! fixes).
 
 use super::baro::Barometer;
+use super::battery::Battery;
 use super::camera::{Motion, StereoCamera};
 use super::dynamics::Drone;
 use super::flight::FlightConfig;
@@ -34,6 +35,8 @@ pub struct World {
     pub camera: StereoCamera,
     /// Its barometer.
     pub baro: Barometer,
+    /// Its flight battery (`None`: an ideal supply at the nominal voltage).
+    pub battery: Option<Battery>,
     /// Start position (x, y), m, and heading, rad.
     pub start: [f64; 3],
     /// Wall and obstacle contacts entered (the floor never counts).
@@ -82,6 +85,7 @@ impl World {
             imu,
             camera,
             baro,
+            battery: cfg.battery.map(Battery::new),
             start: [x0, y0, yaw0],
             collisions: 0,
             first_contact_s: None,
@@ -101,7 +105,15 @@ impl World {
     /// surface and loses its velocity into it. Returns whether it is in contact.
     pub fn step(&mut self, motors: &[f64; 4], dt: f64, t_end_us: u64) -> bool {
         let before = self.drone.state.pos;
-        self.drone.step(motors, dt);
+        match &mut self.battery {
+            Some(battery) => {
+                // The duty applies the battery's voltage to the motors.
+                let k = battery.speed_factor();
+                self.drone.step(&motors.map(|m| m * k), dt);
+                battery.step(&self.drone.state.rotor_radps, &self.drone.params, dt);
+            }
+            None => self.drone.step(motors, dt),
+        }
         self.imu.track(&self.drone, dt);
         let after = self.drone.state.pos;
         let h = -after.z;

@@ -10,6 +10,7 @@
 //! | motors | PC6 TIM3 CH1, PC7 TIM3 CH2, PA0 TIM5 CH1, PA1 TIM5 CH2 (all AF2), brushed via FETs |
 //! | link to the camera board | USART2, PA2 TX / PA3 RX |
 //! | telemetry | USART1, PA9 TX / PA10 RX |
+//! | battery | 1S LiPo through the supply divider to PC4, ADC1 channel 14 ([`Autopilot::set_battery_v`]) |
 //!
 //! The world reaches the chips through [`Autopilot::set_body_rate`] and friends, in the
 //! airframe's body axes (x forward, y right, z down), turned into the IMU chip's axes by the
@@ -20,6 +21,7 @@ use rigless::device::Level;
 use rigless::machine::{Board, Crystal, Supply, Target};
 use rigless::snapshot::Store;
 use rigless::soc::Error;
+use rigless::soc::stm32f427::peripherals::adc::Channel;
 use rigless::soc::stm32f427::peripherals::gpio::Pin;
 use rigless::soc::stm32f427::peripherals::spi::Select;
 use rigless::time::VirtualNanos;
@@ -37,8 +39,10 @@ use crate::soc::{Part, Soc};
 pub const NAME: &str = "pocket-drone-autopilot";
 /// The crystal, Hz (\[PZ\] lisa_mx_common.h:29-30).
 pub const HSE_HZ: u64 = 12_000_000;
-/// The rail, mV.
+/// The rail, mV (also the ADC's reference).
 pub const SUPPLY_MV: u32 = 3300;
+/// The battery a fresh board carries, V (a charged 1S LiPo at rest, about 70 %).
+pub const BATTERY_V: f64 = 3.9;
 /// SPI2 in rigless's order of serial interfaces (SPI1, SPI2, ...).
 const SPI2: usize = 1;
 /// USART1 and USART2 in rigless's order of serial ports.
@@ -270,7 +274,8 @@ impl Autopilot {
         let telemetry = WireEnd::open();
         soc.mcu.usart[USART2].attach(link.clone());
         soc.mcu.usart[USART1].attach(telemetry.clone());
-        Ok(Self {
+        soc.mcu.adc[0].set_reference(SUPPLY_MV);
+        let mut board = Self {
             soc,
             hse: Crystal(HSE_HZ),
             rail: Supply(SUPPLY_MV),
@@ -278,7 +283,19 @@ impl Autopilot {
             telemetry,
             clocks: None,
             flash: FlashContents::erased(),
-        })
+        };
+        board.set_battery_v(BATTERY_V);
+        Ok(board)
+    }
+
+    /// Puts `volts` of battery on the supply divider: PC4 sees `volts` over the divider
+    /// `autopilot::board::BATTERY_ADC` names (0.0045 V per count of 4096 at the 3.3 V
+    /// reference, \[PZ\] lisa_mx_common.h:381), to the millivolt.
+    pub fn set_battery_v(&mut self, volts: f64) {
+        let adc = autopilot::board::BATTERY_ADC;
+        let pin_mv = volts / (f64::from(adc.volts_per_count) * 4096.0) * f64::from(SUPPLY_MV);
+        let channel = Channel::new(adc.channel).expect("PC4's channel is a pin channel");
+        self.soc.mcu.adc[0].set_input(channel, pin_mv.round().max(0.0) as u32);
     }
 
     /// The same board, its flash holding `flash` beside the firmware at power-on.
