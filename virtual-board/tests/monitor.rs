@@ -139,7 +139,11 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
         *counts.entry(m.channel.topic.clone()).or_default() += 1;
         if ["/tf", "/camera/frustum", "/annotations", "/path"].contains(&m.channel.topic.as_str()) {
             // The 3D view of what the board believes: Foxglove's types in protobuf.
-            assert_eq!(m.channel.message_encoding, "protobuf", "{}", m.channel.topic);
+            assert_eq!(
+                m.channel.message_encoding, "protobuf",
+                "{}",
+                m.channel.topic
+            );
             continue;
         }
         assert_eq!(m.channel.message_encoding, "json");
@@ -160,7 +164,11 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
             assert_eq!(value["fsm_state"], "inactive", "{value}");
         }
     }
-    assert_eq!(counts.get("/tf"), Some(&telemetry), "a pose per telemetry: {counts:?}");
+    assert_eq!(
+        counts.get("/tf"),
+        Some(&telemetry),
+        "a pose per telemetry: {counts:?}"
+    );
     assert_eq!(counts.get("/camera/frustum"), Some(&1), "{counts:?}");
     for topic in [
         "/state",
