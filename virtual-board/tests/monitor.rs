@@ -114,14 +114,6 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
     assert!(stdout.contains("host-link errors 0\n"), "{stdout}");
     assert!(stdout.contains("disarmed fsm inactive"), "{stdout}");
     assert!(!stdout.contains("rejected"), "{stdout}");
-    // Five records per telemetry message (state, attitude, setpoint, velocity, height) plus
-    // its link and board-clock records, one more where it has a barometer reading, one more
-    // where it has a battery reading, and one per heartbeat.
-    let logged = 7 * telemetry + with_baro + with_battery + heartbeats;
-    assert!(
-        stdout.contains(&format!("({logged} messages on")),
-        "{logged} records expected in the log:\n{stdout}"
-    );
     // The log read back by the `mcap` crate's reader: every channel with one record per
     // message received, in time order, the board's state by name.
     let bytes = std::fs::read(&mcap).expect("the monitor leaves its log");
@@ -170,6 +162,19 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
         "a pose per telemetry: {counts:?}"
     );
     assert_eq!(counts.get("/camera/frustum"), Some(&1), "{counts:?}");
+    // Five records per telemetry message (state, attitude, setpoint, velocity, height) plus
+    // its link and board-clock records, one more where it has a barometer reading, one more
+    // where it has a battery reading, and one per heartbeat; then the 3D view (a pose per
+    // telemetry, the frustum, and annotations and path pieces on the wall clock's rates).
+    let view_3d: usize = ["/tf", "/camera/frustum", "/annotations", "/path"]
+        .iter()
+        .filter_map(|t| counts.get(*t))
+        .sum();
+    let logged = 7 * telemetry + with_baro + with_battery + heartbeats + view_3d;
+    assert!(
+        stdout.contains(&format!("({logged} messages on")),
+        "{logged} records expected in the log:\n{stdout}"
+    );
     for topic in [
         "/state",
         "/attitude",
