@@ -479,26 +479,15 @@ pub fn annotations(t_ns: u64, body: &str, obstacle_m: Option<f32>, state: &str) 
 mod tests {
     use super::*;
 
+    /// `v` turned by `q`, with the simulator's quaternion.
     fn rotate(q: &Quaternion, v: [f64; 3]) -> [f64; 3] {
-        // v' = q v q*
-        let (w, x, y, z) = (q.w, q.x, q.y, q.z);
-        let m = [
-            [
-                1.0 - 2.0 * (y * y + z * z),
-                2.0 * (x * y - w * z),
-                2.0 * (x * z + w * y),
-            ],
-            [
-                2.0 * (x * y + w * z),
-                1.0 - 2.0 * (x * x + z * z),
-                2.0 * (y * z - w * x),
-            ],
-            [
-                2.0 * (x * z - w * y),
-                2.0 * (y * z + w * x),
-                1.0 - 2.0 * (x * x + y * y),
-            ],
-        ];
+        let q = crate::sim::math::Quat {
+            w: q.w,
+            x: q.x,
+            y: q.y,
+            z: q.z,
+        };
+        let m = q.to_matrix();
         [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
     }
 

@@ -147,22 +147,12 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     root.fill(&WHITE).map_err(e)?;
     let root = root.margin(20, 20, 20, 20);
     // Plot coordinates: horizontal = east (y), vertical = north (x).
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!("seed {}: trajectory (start green, collisions red)", r.seed),
-            (FAMILY, 16),
-        )
-        .x_label_area_size(35)
-        .y_label_area_size(45)
-        .build_cartesian_2d(0.0..s.size_y as f64, 0.0..s.size_x as f64)
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    axes(&mut chart, "east [m]", "north [m]")?;
-    grid(
-        &mut chart,
-        (0.0, s.size_y as f64, 1.0),
-        (0.0, s.size_x as f64, 1.0),
+    let mut chart = plan_chart(
+        &root,
+        s,
+        format!("seed {}: trajectory (start green, collisions red)", r.seed),
+        16,
     )?;
-    draw_room(&mut chart, s)?;
     let airborne: Vec<(f64, f64)> = r
         .log
         .iter()
@@ -194,6 +184,39 @@ pub fn plot_trajectory(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
     root.present().map_err(e)?;
     Ok(())
+}
+
+/// A plan of the room on `area` (horizontal east, vertical north, m, 1 m grid) with its walls
+/// and obstacles, captioned `caption` in `size` points.
+fn plan_chart<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, plotters::coord::Shift>,
+    s: &Scene,
+    caption: String,
+    size: u32,
+) -> anyhow::Result<
+    ChartContext<
+        'a,
+        DB,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+>
+where
+    DB::ErrorType: 'static,
+{
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, (FAMILY, size))
+        .x_label_area_size(35)
+        .y_label_area_size(45)
+        .build_cartesian_2d(0.0..s.size_y as f64, 0.0..s.size_x as f64)
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    axes(&mut chart, "east [m]", "north [m]")?;
+    grid(
+        &mut chart,
+        (0.0, s.size_y as f64, 1.0),
+        (0.0, s.size_x as f64, 1.0),
+    )?;
+    draw_room(&mut chart, s)?;
+    Ok(chart)
 }
 
 /// The room's walls and obstacles on a plan chart (horizontal east, vertical north, m).
@@ -489,25 +512,15 @@ pub fn plot_contact(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
     let (plan_area, right) = root.split_horizontally(600);
 
     let s = &r.scene;
-    let mut plan = ChartBuilder::on(&plan_area)
-        .caption(
-            format!(
-                "{} seed {}: contact at {t_contact:.1} s, the {CONTACT_WINDOW_S:.0} s before",
-                s.name, r.seed
-            ),
-            (FAMILY, 15),
-        )
-        .x_label_area_size(35)
-        .y_label_area_size(45)
-        .build_cartesian_2d(0.0..s.size_y as f64, 0.0..s.size_x as f64)
-        .map_err(|e| err(&e))?;
-    axes(&mut plan, "east [m]", "north [m]")?;
-    grid(
-        &mut plan,
-        (0.0, s.size_y as f64, 1.0),
-        (0.0, s.size_x as f64, 1.0),
+    let mut plan = plan_chart(
+        &plan_area,
+        s,
+        format!(
+            "{} seed {}: contact at {t_contact:.1} s, the {CONTACT_WINDOW_S:.0} s before",
+            s.name, r.seed
+        ),
+        15,
     )?;
-    draw_room(&mut plan, s)?;
     let at = |l: &&super::flight::LogRow| (l.pos[1] as f64, l.pos[0] as f64);
     plan.draw_series(LineSeries::new(
         window.iter().map(at),
