@@ -13,8 +13,8 @@
 //!   watchdog; the reset cause at boot (MCU only).
 //! * `log`: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
-//! * `param_flash`: the parameter sector (flash sector 11), erased and programmed through the
-//!   flash interface; the `protocol::params::RecordStore` of both boards (MCU only).
+//! * `param_flash`: the two parameter slots (flash sectors 11 and 10), erased and programmed
+//!   through the flash interface; the `protocol::params::RecordStore` of both boards (MCU only).
 //! * `stack`: stack painting and the low-water headroom of the main stack (MCU only).
 //! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
 //!
