@@ -3,7 +3,8 @@
 //!
 //! * [`link`]: the board-to-board link's baud rate, one constant both boards use (host too).
 //! * `clocks`: clock tree and link constants per flavour (MCU only).
-//! * `clock`: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
+//! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only), and
+//!   the extender that carries its 32-bit millisecond tick on across the wrap.
 //! * `uart_dma`: UART receive by circular DMA with the IDLE-line interrupt, for the `hil`
 //!   flavour's 921,600 Bd host links (MCU only).
 //! * `uart_rx`: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
@@ -24,7 +25,6 @@
 
 #[cfg(not(target_os = "none"))]
 pub mod build;
-#[cfg(target_os = "none")]
 pub mod clock;
 #[cfg(target_os = "none")]
 pub mod clocks;
