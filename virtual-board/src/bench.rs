@@ -76,12 +76,6 @@ pub trait Probe<B: BenchBoard>: Send + 'static {
     /// Called at every stop; says whether to go on.
     fn at(&mut self, at: &mut At<'_, B>) -> Flow;
 
-    /// Called once before the first instruction, for watches a test needs from power-on (the
-    /// arrival at `main`, say). Nothing by default.
-    fn start(&mut self, session: &mut Session<B>) {
-        let _ = session;
-    }
-
     /// Called at every hit on what the test itself watches (`session.watch`), between two
     /// instructions, with the core's memory: a fault injected at an exact instruction. Nothing
     /// by default.
@@ -391,7 +385,7 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
     let Setup {
         board,
         firmware,
-        mut probe,
+        probe,
     } = setup;
     let part = board.soc().part;
     firmware.check_memory(part)?;
@@ -413,7 +407,6 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
     }
     let mut session = Session::new(Box::new(board), 0, VirtualNanos(options.step_ns))
         .map_err(|e| format!("session: {e}"))?;
-    probe.start(&mut session);
     let mut handlers = Vec::new();
     for (name, address) in firmware.symbols_containing("rust_begin_unwind") {
         handlers.push((address, name.to_owned()));

@@ -16,16 +16,8 @@
 //! * `both_boards_hover_in_the_world`: both real images, their links joined; the camera
 //!   board's DCMI captures frames rendered from the world ([`virtual_board::world::Rendered`])
 //!   and its Edge-FS estimates are what the autopilot flies on.
-//! * `the_autopilot_hovers_across_its_clock_wrap`: the truth-camera flight with the image's
-//!   32-bit millisecond tick started 6 s before its wrap (the 49.7 days of uptime it takes on
-//!   a board, in virtual time: [`NearWrap`] sets the RTIC monotonic's count as the core
-//!   arrives at `main`), so the wrap falls in the hover window.
 
 use std::sync::Arc;
-
-use rigless::emulator::{Hit, Host, Watch};
-use rigless::session::Session;
-use rigless::soc::Width;
 
 use protocol::Heartbeat;
 use protocol::{
@@ -66,8 +58,6 @@ struct Flight {
     ground: GroundStation,
     /// The host playing the camera board, or `None` when the camera board runs.
     camera: Option<TruthCamera>,
-    /// When the host's camera goes silent (bench time, ns), if it does.
-    camera_cut_at: Option<u64>,
     param: Once,
     /// The user's `Arm` when no height fixes are sent (the ground station arms otherwise),
     /// and the ground tool's heartbeat beside it.
@@ -90,7 +80,6 @@ impl Flight {
             plant,
             ground: GroundStation::arming_at(ARM_AT, 0.0),
             camera: truth_camera.then(|| TruthCamera::new(25.0, 0.05, 20, horizon_us, cfg.seed)),
-            camera_cut_at: None,
             param: Once::at(PARAM_AT),
             arm: (!cfg.mocap).then(|| (Once::at(ARM_AT), Every::ns(HEARTBEAT_PERIOD_NS))),
             telemetry: Decoder::new_mid_stream(),
@@ -131,9 +120,7 @@ impl Probe<Autopilot> for Flight {
             });
             board.telemetry.rx.send_at(now, &host::frame(&set));
         }
-        if let Some(camera) = &mut self.camera
-            && self.camera_cut_at.is_none_or(|cut| now < cut)
-        {
+        if let Some(camera) = &mut self.camera {
             camera.step(now, &self.plant, &board.link.rx);
         }
         let bytes = board.telemetry.tx.sent_bytes_from(self.telemetry_read);
@@ -145,55 +132,6 @@ impl Probe<Autopilot> for Flight {
             _ => {}
         });
         Flow::Continue
-    }
-}
-
-/// A probe whose image's 32-bit millisecond tick (the RTIC SysTick monotonic's count) starts
-/// `before_wrap_ms` below its wrap: written as the core arrives at `main` (after the reset
-/// handler zeroed the statics, before `init` starts the monotonic).
-struct NearWrap<P> {
-    inner: P,
-    main: u64,
-    count: u64,
-    start: u32,
-    written: bool,
-}
-
-impl<P> NearWrap<P> {
-    fn new(inner: P, firmware: &Firmware, before_wrap_ms: u32) -> Self {
-        let mut counts = firmware.symbols_containing("SYSTICK_CNT");
-        let (_, count) = counts.next().expect("the monotonic's count in the image");
-        assert!(counts.next().is_none(), "one monotonic count");
-        Self {
-            inner,
-            main: firmware.symbol("main").expect("main"),
-            count,
-            start: u32::MAX - before_wrap_ms + 1,
-            written: false,
-        }
-    }
-}
-
-impl<P: Probe<Autopilot>> Probe<Autopilot> for NearWrap<P> {
-    fn start(&mut self, session: &mut Session<Autopilot>) {
-        session.watch(Watch::Instruction(self.main));
-        self.inner.start(session);
-    }
-
-    fn at(&mut self, at: &mut At<'_, Autopilot>) -> Flow {
-        assert!(self.written, "the tick was set at main");
-        self.inner.at(at)
-    }
-
-    fn hit(&mut self, hit: &Hit, session: &mut Session<Autopilot>, host: &mut dyn Host) {
-        if hit.address == self.main && !self.written {
-            host.write(self.count, Width::W32, u64::from(self.start))
-                .expect("the count is in RAM");
-            session.unwatch(Watch::Instruction(self.main));
-            self.written = true;
-        } else {
-            self.inner.hit(hit, session, host);
-        }
     }
 }
 
@@ -360,104 +298,6 @@ fn the_autopilot_hovers_in_the_world_on_a_truth_camera() {
         outcome.end_ns,
         outcome.wall_s,
         &report,
-    );
-}
-
-#[test]
-#[ignore = "not yet run on the bench: run with --ignored"]
-fn the_autopilot_hovers_across_its_clock_wrap() {
-    let cfg = world(11);
-    let firmware = Firmware::real("autopilot").expect("the autopilot image");
-    // The wrap 7 s into the run: inside the hover window.
-    let wrap_ms = 7_000;
-    let probe = NearWrap::new(Flight::new(&cfg, true), &firmware, wrap_ms);
-    let outcome = run(
-        Setup {
-            board: Autopilot::new(cfg.seed).expect("the board"),
-            firmware,
-            probe,
-        },
-        Options {
-            until_ns: hover_window().1,
-            step_ns: QUANTUM_NS,
-        },
-    )
-    .expect("the run");
-    let report = outcome.report();
-    outcome.assert_clean();
-    let flight = &outcome.probe.inner;
-    assert!(
-        (hover_window().0..hover_window().1).contains(&(u64::from(wrap_ms) * MS)),
-        "the wrap falls in the hover window"
-    );
-    judge(
-        "autopilot image, clock tick wrapping at 7 s",
-        &cfg,
-        flight,
-        outcome.end_ns,
-        outcome.wall_s,
-        &report,
-    );
-}
-
-/// Inputs that go stale just before the tick's wrap stay stale across it: the host's camera
-/// falls silent 200 ms before the wrap, and the firmware stops flying on estimates (hovers
-/// without them) once its estimate timeout has passed, as it would at any other time.
-#[test]
-#[ignore = "not yet run on the bench: run with --ignored"]
-fn an_estimate_lost_just_before_the_clock_wrap_times_out() {
-    let cfg = world(11);
-    let firmware = Firmware::real("autopilot").expect("the autopilot image");
-    let wrap_ms = 7_000;
-    let cut_at = u64::from(wrap_ms) * MS - 200 * MS;
-    let timeout_ns = cfg.autopilot.failsafe.estimate_timeout_us * 1_000;
-    let mut flight = Flight::new(&cfg, true);
-    flight.camera_cut_at = Some(cut_at);
-    let probe = NearWrap::new(flight, &firmware, wrap_ms);
-    let outcome = run(
-        Setup {
-            board: Autopilot::new(cfg.seed).expect("the board"),
-            firmware,
-            probe,
-        },
-        Options {
-            until_ns: cut_at + timeout_ns + 1_000 * MS,
-            step_ns: QUANTUM_NS,
-        },
-    )
-    .expect("the run");
-    let report = outcome.report();
-    outcome.assert_clean();
-    let modes = &outcome.probe.inner.telemetries;
-    let mode_at = |from: u64| {
-        modes
-            .iter()
-            .filter(|(at, _)| *at >= from)
-            .map(|(at, t)| (*at, t.flight_mode))
-            .collect::<Vec<_>>()
-    };
-    assert!(
-        mode_at(cut_at - 500 * MS)
-            .iter()
-            .take_while(|(at, _)| *at < cut_at)
-            .all(|(_, m)| *m == FlightMode::Flying),
-        "flying before the cut: {:?}\n{report}",
-        mode_at(cut_at - 500 * MS)
-    );
-    // The failsafe acts at the first guidance step past the timeout; telemetry shows it
-    // within two of its periods.
-    let by = cut_at + timeout_ns + 2 * u64::from(autopilot::app::TELEMETRY_PERIOD_US) * 1_000;
-    let after = mode_at(by);
-    assert!(
-        !after.is_empty() && after.iter().all(|(_, m)| *m != FlightMode::Flying),
-        "no longer flying on estimates by {:.2} s: {:?}\n{report}",
-        by as f64 / 1e9,
-        mode_at(cut_at)
-    );
-    println!(
-        "clock wrap: camera cut at {:.2} s, 200 ms before the wrap; modes after the timeout {:?}",
-        cut_at as f64 / 1e9,
-        after.iter().map(|(_, m)| *m).collect::<Vec<_>>()
     );
 }
 

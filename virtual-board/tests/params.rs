@@ -237,7 +237,6 @@ fn crc32(bytes: &[u8]) -> u32 {
 /// number, whichever slot holds it; a save cut short in one slot (half its words programmed,
 /// the rest erased) leaves the other slot's record in use, not the defaults and no block.
 #[test]
-#[ignore = "not yet run on the bench: run with --ignored"]
 fn the_image_boots_on_the_newest_complete_record_of_its_two_slots() {
     let older = numbered(saved(&with_target_height(0.8)), 1);
     let newer = numbered(saved(&with_target_height(0.6)), 2);
