@@ -1,25 +1,102 @@
 //! The board's microsecond clock: the RTIC SysTick monotonic (1 kHz ticks) refined with the
 //! SysTick down-counter, so timestamps have core-clock resolution without another timer
 //! (QEMU emulates SysTick faithfully, unlike the DWT cycle counter).
+//!
+//! The monotonic counts milliseconds in a `u32`, which wraps after 2^32 ms (49.7 days of
+//! uptime); [`TickExtender`] carries the count on in 64 bits, so the microseconds the flight
+//! libraries are handed never go back and an input's age stays its age across the wrap.
 
-use cortex_m::peripheral::{SCB, SYST};
+/// Extends a wrapping 32-bit tick count onto 64 bits: a count below the previous one is a wrap.
+/// It must see the count at least once per wrap period (49.7 days at 1 kHz; the boards read
+/// their clock hundreds of times a second).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TickExtender {
+    last: u32,
+    wraps: u32,
+}
 
-/// Microseconds since boot. `ms_ticks` reads the 1 kHz monotonic's tick count (RTIC's
-/// `systick_monotonic!` type is generated in each firmware); `systick_hz` is its input clock.
-/// Wraps after 49 days with a 32-bit millisecond tick.
+impl TickExtender {
+    /// An extender that has seen no count (the first one maps to itself).
+    pub const fn new() -> Self {
+        Self { last: 0, wraps: 0 }
+    }
+
+    /// `ticks` on the 64-bit count.
+    pub fn extend(&mut self, ticks: u32) -> u64 {
+        if ticks < self.last {
+            self.wraps = self.wraps.wrapping_add(1);
+        }
+        self.last = ticks;
+        (u64::from(self.wraps) << 32) | u64::from(ticks)
+    }
+}
+
+/// The extender of the board's millisecond tick (one clock per board).
+#[cfg(target_os = "none")]
+static MS_EXTENDER: cortex_m::interrupt::Mutex<core::cell::Cell<TickExtender>> =
+    cortex_m::interrupt::Mutex::new(core::cell::Cell::new(TickExtender::new()));
+
+/// Microseconds since boot, 64-bit (it does not wrap). `ms_ticks` reads the 1 kHz monotonic's
+/// tick count (RTIC's `systick_monotonic!` type is generated in each firmware); `systick_hz` is
+/// its input clock. Runs with interrupts masked for a few dozen cycles, so that callers at
+/// every priority extend the tick count in the order they read it.
+#[cfg(target_os = "none")]
 pub fn now_us(ms_ticks: impl Fn() -> u32, systick_hz: u32) -> u64 {
+    use cortex_m::peripheral::{SCB, SYST};
     let ticks_per_ms = (systick_hz / 1_000).max(1);
-    loop {
+    cortex_m::interrupt::free(|cs| loop {
         let ms = ms_ticks();
         let val = SYST::get_current();
-        // A SysTick wrap whose interrupt has not run yet (we may be above its priority).
+        // A SysTick wrap whose interrupt has not run yet (masked here, or we are above its
+        // priority).
         let pending = SCB::is_pendst_pending();
         if ms_ticks() != ms {
             continue;
         }
         let into_tick = (ticks_per_ms - 1).saturating_sub(val);
         let sub_us = u64::from(into_tick) * 1_000 / u64::from(ticks_per_ms);
-        let ms = u64::from(ms) + u64::from(pending && val > ticks_per_ms / 2);
+        let cell = MS_EXTENDER.borrow(cs);
+        let mut extender = cell.get();
+        let ms = extender.extend(ms) + u64::from(pending && val > ticks_per_ms / 2);
+        cell.set(extender);
         return ms * 1_000 + sub_us;
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tick_count_carries_on_across_its_wrap() {
+        let mut x = TickExtender::new();
+        // Started just before the wrap, read every millisecond or so across it, twice.
+        let start = u32::MAX - 5;
+        let mut previous = x.extend(start);
+        assert_eq!(previous, u64::from(start));
+        let mut ticks = start;
+        for step in [1u32, 2, 1, 3, 1, 1].iter().cycle().take(20) {
+            ticks = ticks.wrapping_add(*step);
+            let t = x.extend(ticks);
+            assert_eq!(t - previous, u64::from(*step), "{ticks}");
+            previous = t;
+        }
+        assert_eq!(previous, (1 << 32) + u64::from(ticks));
+        // A second wrap, after 2^32 ms more, read at least once on the way.
+        x.extend(u32::MAX / 2);
+        assert_eq!(x.extend(3), (2 << 32) + 3);
+        // The same count twice is no wrap.
+        assert_eq!(x.extend(3), (2 << 32) + 3);
+    }
+
+    #[test]
+    fn an_age_across_the_wrap_is_the_time_elapsed() {
+        // An input stamped 40 ms before the wrap, read 60 ms after it: 100 ms old, not fresh
+        // (a `saturating_sub` of the raw counts would make it 0 ms old).
+        let mut x = TickExtender::new();
+        let stamped = x.extend(u32::MAX - 39);
+        let now = x.extend(60);
+        assert_eq!(now - stamped, 100);
+        assert_eq!(60u32.saturating_sub(u32::MAX - 39), 0);
     }
 }

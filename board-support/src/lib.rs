@@ -3,7 +3,8 @@
 //!
 //! * [`link`]: the board-to-board link's baud rate, one constant both boards use (host too).
 //! * `clocks`: clock tree and link constants per flavour (MCU only).
-//! * `clock`: the board's microsecond clock from the RTIC SysTick monotonic (MCU only).
+//! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only), and
+//!   the extender that carries its 32-bit millisecond tick on across the wrap.
 //! * `uart_dma`: UART receive by circular DMA with the IDLE-line interrupt, for the `hil`
 //!   flavour's 921,600 Bd host links (MCU only).
 //! * `uart_rx`: UART receive by the RXNE interrupt into a queue, with back-pressure (MCU only).
@@ -13,8 +14,8 @@
 //!   watchdog; the reset cause at boot (MCU only).
 //! * `log`: `info!` (defmt, plus semihosting in the `qemu` flavour), `fatal`, the QEMU panic
 //!   handler (MCU only).
-//! * `param_flash`: the parameter sector (flash sector 11), erased and programmed through the
-//!   flash interface; the `protocol::params::RecordStore` of both boards (MCU only).
+//! * `param_flash`: the two parameter slots (flash sectors 11 and 10), erased and programmed
+//!   through the flash interface; the `protocol::params::RecordStore` of both boards (MCU only).
 //! * `stack`: stack painting and the low-water headroom of the main stack (MCU only).
 //! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
 //!
@@ -24,7 +25,6 @@
 
 #[cfg(not(target_os = "none"))]
 pub mod build;
-#[cfg(target_os = "none")]
 pub mod clock;
 #[cfg(target_os = "none")]
 pub mod clocks;

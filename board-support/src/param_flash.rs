@@ -1,9 +1,13 @@
-//! The parameter sector: the last sector of the 1 MiB flash of both boards' parts (sector 11,
-//! 128 KiB at `0x080E_0000`, RM0090 table 5), kept out of the firmware by each `memory.x`, and
-//! erased and programmed through the flash interface's registers (RM0090 sections 3.5-3.6).
+//! The parameter sectors: the last two sectors of the 1 MiB flash of both boards' parts
+//! (sectors 11 and 10, 128 KiB each at `0x080E_0000` and `0x080C_0000`, RM0090 table 5), kept
+//! out of the firmware by each `memory.x`, and erased and programmed through the flash
+//! interface's registers (RM0090 sections 3.5-3.6).
 //!
-//! [`ParamSector`] is a [`protocol::params::RecordStore`]: the board's library decides what is
-//! written and checks what reads back. A write erases the sector (x32 parallelism, the 2.7-3.6 V
+//! [`ParamSector`] is a two-slot [`protocol::params::RecordStore`] (slot 0 is sector 11, slot 1
+//! sector 10; erase is per sector, so each slot erases alone): the board's library decides which
+//! slot a save writes (the one not holding the newest record), numbers the record and checks
+//! what reads back, so a power loss at any point of a save leaves the last complete record in
+//! the other sector. A write erases its sector (x32 parallelism, the 2.7-3.6 V
 //! row of RM0090 table 13; DS8626 / DS8597: 1 s typical, 2 s at most for a 128 KiB sector) and
 //! programs the record a word at a time (16 µs typical each). While the flash erases or programs
 //! no code or data can be fetched from it (RM0090 3.5.4 / 3.6.3): the whole core stalls, every
@@ -20,12 +24,15 @@ use stm32f4xx_hal::pac::FLASH;
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
 
-/// First address of the parameter sector (RM0090 table 5, sector 11).
+/// First address of slot 0, sector 11 (RM0090 table 5).
 pub const BASE: usize = 0x080E_0000;
-/// Bytes of the parameter sector.
+/// Bytes of each slot (one 128 KiB sector).
 pub const SIZE: usize = 128 * 1024;
-/// The sector's number (`FLASH_CR.SNB`).
+/// Slot 0's sector number (`FLASH_CR.SNB`).
 pub const SECTOR: u8 = 11;
+/// The slots: (first address, sector number), slot 0 first. Sector 11 is slot 0 so a record
+/// saved in it before the second slot existed is still found.
+pub const SLOTS: [(usize, u8); 2] = [(BASE, SECTOR), (0x080C_0000, 10)];
 
 /// Independent-watchdog timeout while a save erases and programs the sector, ms. The core
 /// stalls for the whole erase (2 s at most at x32, see above), so no task feeds the watchdog
@@ -62,7 +69,7 @@ pub enum FlashError {
     Operation,
 }
 
-/// The parameter sector and the flash interface that writes it.
+/// The two parameter sectors and the flash interface that writes them.
 pub struct ParamSector {
     flash: FLASH,
     /// The flash error of the last write, for the log.
@@ -121,9 +128,13 @@ impl ParamSector {
         }
     }
 
-    /// Erases the sector and programs `record` at its start, a word at a time; `LOCK` is set
-    /// again whatever happened.
-    fn erase_and_program(&mut self, record: &[u8]) -> Result<(), FlashError> {
+    /// Erases sector `sector` and programs `record` at its start `base`, a word at a time;
+    /// `LOCK` is set again whatever happened.
+    fn erase_and_program(
+        &mut self,
+        (base, sector): (usize, u8),
+        record: &[u8],
+    ) -> Result<(), FlashError> {
         if record.len() > SIZE || !record.len().is_multiple_of(4) {
             return Err(FlashError::Length);
         }
@@ -133,18 +144,18 @@ impl ParamSector {
         self.flash
             .sr()
             .write(|w| unsafe { w.bits(SR_ERRORS | SR_EOP) });
-        let result = self.erase().and_then(|()| self.program(record));
+        let result = self.erase(sector).and_then(|()| self.program(base, record));
         self.flash.cr().modify(|_, w| w.lock().set_bit());
         self.reset_data_cache();
         result
     }
 
-    fn erase(&mut self) -> Result<(), FlashError> {
+    fn erase(&mut self, sector: u8) -> Result<(), FlashError> {
         // `modify`, never `write`: a write starts from CR's reset value, whose LOCK is set.
-        // SAFETY: SNB takes a sector number; 11 is the parameter sector, which holds no code.
+        // SAFETY: SNB takes a sector number; `sector` is one of SLOTS', which hold no code.
         self.flash.cr().modify(|_, w| unsafe {
             w.pg().clear_bit().mer().clear_bit().psize().psize32();
-            w.ser().set_bit().snb().bits(SECTOR)
+            w.ser().set_bit().snb().bits(sector)
         });
         self.flash.cr().modify(|_, w| w.strt().set_bit());
         self.wait();
@@ -152,16 +163,17 @@ impl ParamSector {
         self.error().map_or(Ok(()), Err)
     }
 
-    fn program(&mut self, record: &[u8]) -> Result<(), FlashError> {
+    fn program(&mut self, base: usize, record: &[u8]) -> Result<(), FlashError> {
         self.flash
             .cr()
             .modify(|_, w| w.ser().clear_bit().psize().psize32().pg().set_bit());
         for (i, word) in record.chunks_exact(4).enumerate() {
             let value = u32::from_le_bytes([word[0], word[1], word[2], word[3]]);
-            // SAFETY: the address is word-aligned and inside the parameter sector (the length
-            // was checked against SIZE), which memory.x keeps free of code and data; with PG set
+            // SAFETY: the address is word-aligned and inside a parameter sector (`base` is one of
+            // SLOTS', the length was checked against SIZE), which memory.x keeps free of code
+            // and data; with PG set
             // a word store there is a program operation (RM0090 3.6.4), at the PSIZE set above.
-            unsafe { core::ptr::write_volatile((BASE + 4 * i) as *mut u32, value) };
+            unsafe { core::ptr::write_volatile((base + 4 * i) as *mut u32, value) };
             self.wait();
             if let Some(e) = self.error() {
                 self.flash.cr().modify(|_, w| w.pg().clear_bit());
@@ -187,14 +199,32 @@ impl ParamSector {
 
 impl RecordStore for ParamSector {
     fn bytes(&self) -> &[u8] {
-        // SAFETY: the sector is always mapped (RM0090 2.3), memory.x places nothing in it, and it
-        // only changes in `write`, which takes `&mut self` and so cannot run while this borrow
-        // lives.
-        unsafe { core::slice::from_raw_parts(BASE as *const u8, SIZE) }
+        self.slot(0)
     }
 
     fn write(&mut self, record: &[u8]) -> Result<(), ParamError> {
-        let result = self.erase_and_program(record);
+        self.write_slot(0, record)
+    }
+
+    fn slots(&self) -> usize {
+        SLOTS.len()
+    }
+
+    fn slot(&self, slot: usize) -> &[u8] {
+        match SLOTS.get(slot) {
+            // SAFETY: the sectors are always mapped (RM0090 2.3), memory.x places nothing in
+            // them, and they only change in `write_slot`, which takes `&mut self` and so cannot
+            // run while this borrow lives.
+            Some(&(base, _)) => unsafe { core::slice::from_raw_parts(base as *const u8, SIZE) },
+            None => &[],
+        }
+    }
+
+    fn write_slot(&mut self, slot: usize, record: &[u8]) -> Result<(), ParamError> {
+        let Some(&sector) = SLOTS.get(slot) else {
+            return Err(ParamError::SaveFailed);
+        };
+        let result = self.erase_and_program(sector, record);
         self.last_error = result.err();
         result.map_err(|_| ParamError::SaveFailed)
     }
@@ -228,8 +258,20 @@ impl RecordStore for WatchedSector<'_> {
     }
 
     fn write(&mut self, record: &[u8]) -> Result<(), ParamError> {
+        self.write_slot(0, record)
+    }
+
+    fn slots(&self) -> usize {
+        self.sector.slots()
+    }
+
+    fn slot(&self, slot: usize) -> &[u8] {
+        self.sector.slot(slot)
+    }
+
+    fn write_slot(&mut self, slot: usize, record: &[u8]) -> Result<(), ParamError> {
         set_watchdog(self.watchdog, SAVE_WATCHDOG_MS);
-        let result = self.sector.write(record);
+        let result = self.sector.write_slot(slot, record);
         set_watchdog(self.watchdog, self.timeout_ms);
         result
     }

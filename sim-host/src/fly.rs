@@ -338,8 +338,16 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
             if args.live {
                 recorder.pace_to_wall_clock();
             }
+            let interrupted = crate::interrupt_flag()?;
+            recorder.interrupt_on(interrupted.clone());
             let r = run_flight_observed(&cfg, &mut |t| pb.set_position(t as u64), &mut recorder)?;
             pb.finish_and_clear();
+            if interrupted.load(Ordering::SeqCst) {
+                eprintln!(
+                    "interrupted at {:.1} s: writing the logs of the flight so far",
+                    r.duration_s
+                );
+            }
             let secs = wall.elapsed().as_secs_f64();
             let mcap = recorder.finish()?;
             output::write_log_csv(&r, &args.out.join("log.csv"))?;

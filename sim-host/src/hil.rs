@@ -250,6 +250,9 @@ pub struct HilConfig {
     /// board's passed on by the autopilot) and read back; a refusal, silence or a different
     /// read-back ends the run before the world starts, naming the key.
     pub params: Option<(String, Vec<FileSection>)>,
+    /// Set (by `hil`'s Ctrl-C handler) to end the flight at the next IMU period; the result
+    /// covers the world time flown, so the logs are still written.
+    pub interrupt: Option<Arc<AtomicBool>>,
 }
 
 impl Default for HilConfig {
@@ -264,6 +267,7 @@ impl Default for HilConfig {
             frame_timeout: Duration::from_secs(60),
             boot_timeout: Duration::from_secs(60),
             params: None,
+            interrupt: None,
         }
     }
 }
@@ -336,6 +340,9 @@ pub struct HilResult {
     pub log: Vec<HilRow>,
     /// Why the MCAP flight log stopped being written, if it did.
     pub log_error: Option<String>,
+    /// Why the flight ended before its duration (interrupted, a board's link closed), if it
+    /// did: the result and its log cover the world time flown until then.
+    pub ended_early: Option<String>,
 }
 
 impl HilResult {
@@ -361,7 +368,7 @@ impl HilResult {
              camera            {} frames, {} estimates ({} valid; flag bits set {:?}), {} timeouts, world held {:.1} s\n\
              link errors       autopilot host {}, camera host {}, board-to-board relay {}, autopilot's own {}\n\
              relayed messages  camera->autopilot {}, autopilot->camera {}\n\
-             final mode        {}",
+             final mode        {}{}",
             self.sim_s,
             self.wall_s,
             if self.wall_s > 0.0 { self.sim_s / self.wall_s } else { 0.0 },
@@ -387,6 +394,9 @@ impl HilResult {
             self.relayed_messages[0],
             self.relayed_messages[1],
             mode,
+            self.ended_early
+                .as_ref()
+                .map_or(String::new(), |why| format!("\nended early       {why}")),
         )
     }
 }
@@ -687,7 +697,15 @@ fn lockstep(
     let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
     let mut out = Vec::new();
 
-    while t < end_us {
+    'flight: while t < end_us {
+        if cfg
+            .interrupt
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+        {
+            r.ended_early = Some("interrupted".into());
+            break;
+        }
         // Camera: hold the world at the exposure time until the previous frame is answered.
         if t >= next_frame {
             if let Some((_, sent)) = in_flight {
@@ -707,7 +725,8 @@ fn lockstep(
                         Ok(_) => {}
                         Err(RecvTimeoutError::Timeout) => {}
                         Err(RecvTimeoutError::Disconnected) => {
-                            bail!("the camera board's link closed")
+                            r.ended_early = Some("the camera board's link closed".into());
+                            break 'flight;
                         }
                     }
                 }
@@ -715,9 +734,13 @@ fn lockstep(
             }
             world.render(&mut frame);
             let capture = t as u32;
-            frame_tx
+            if frame_tx
                 .send(encode_frame(&frame, frame_id, capture)?)
-                .map_err(|_| anyhow!("the camera board's link closed"))?;
+                .is_err()
+            {
+                r.ended_early = Some("the camera board's link closed".into());
+                break;
+            }
             rec.frame(t, &frame);
             in_flight = Some((capture, Instant::now()));
             frame_id = frame_id.wrapping_add(1);
@@ -760,7 +783,10 @@ fn lockstep(
             }),
             &mut out,
         )?;
-        ap_tx.write_all(&out).context("writing to the autopilot")?;
+        if let Err(e) = ap_tx.write_all(&out) {
+            r.ended_early = Some(format!("writing to the autopilot: {e}"));
+            break;
+        }
         r.imu_samples += 1;
         let waiting = Instant::now();
         let deadline = waiting + cfg.reply_timeout;
@@ -788,7 +814,10 @@ fn lockstep(
                     r.reply_timeouts += 1;
                     break;
                 }
-                Err(RecvTimeoutError::Disconnected) => bail!("the autopilot's link closed"),
+                Err(RecvTimeoutError::Disconnected) => {
+                    r.ended_early = Some("the autopilot's link closed".into());
+                    break 'flight;
+                }
             }
         }
         r.imu_wait_s += waiting.elapsed().as_secs_f64();
@@ -1125,6 +1154,7 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
             )),
             None => None,
         },
+        interrupt: Some(crate::interrupt_flag()?),
         ..HilConfig::default()
     };
     let stereo = open_link(&args.stereo, args.baud)?;
@@ -1161,7 +1191,17 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
             eprint!("\rworld time {t:.0} s");
         },
         mcap.as_mut(),
-    )?;
+    );
+    let r = match r {
+        Ok(r) => r,
+        Err(e) => {
+            // What was recorded before the failure stays readable.
+            if let Some(log) = mcap {
+                let _ = log.finish();
+            }
+            return Err(e);
+        }
+    };
     eprintln!();
     if let Some((file, sections)) = &cfg.params {
         let n: usize = sections.iter().map(|s| s.values.len()).sum();
@@ -1180,6 +1220,10 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
             summary.total(),
             summary.counts.len()
         );
+    }
+    match r.ended_early.as_deref() {
+        None | Some("interrupted") => {}
+        Some(why) => bail!("the flight ended early ({why}); its logs are written"),
     }
     if let Some(e) = &r.log_error {
         bail!("the flight log stopped early: {e}");
@@ -1417,6 +1461,106 @@ mod tests {
             e.contains("p.toml: [camera] stereo_shift: set to -3, but the board reads back 4"),
             "{e}"
         );
+    }
+
+    /// Flies the software boards for up to 30 s of world time, calling `at_one_second` with
+    /// the autopilot's host end once world time passes 1 s; returns the result, the CSV and
+    /// the MCAP file's bytes.
+    fn fly_until(
+        name: &str,
+        interrupt: Option<Arc<AtomicBool>>,
+        at_one_second: impl FnOnce(&TcpStream),
+    ) -> (HilResult, String, Vec<u8>) {
+        let (cam_host, ap_host) = software_boards();
+        let ap_host_end = ap_host.try_clone().unwrap();
+        let cfg = HilConfig {
+            duration_s: 30.0,
+            fps: 10.0,
+            reply_timeout: Duration::from_secs(2),
+            interrupt,
+            ..HilConfig::default()
+        };
+        let dir = std::env::temp_dir().join(format!("hil-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut log = FlightLog::create(&dir.join("flight.mcap")).unwrap();
+        let mut once = Some(at_one_second);
+        let r = run_logged(
+            &cfg,
+            Box::new(cam_host),
+            Box::new(ap_host),
+            None,
+            &mut |t| {
+                if t >= 1.0 {
+                    if let Some(f) = once.take() {
+                        f(&ap_host_end);
+                    }
+                }
+            },
+            Some(&mut log),
+        )
+        .expect("the flight ends with a result");
+        drop(ap_host_end);
+        log.finish().expect("the log is finished");
+        write_log_csv(&r, &dir.join("hil_log.csv")).unwrap();
+        let csv = std::fs::read_to_string(dir.join("hil_log.csv")).unwrap();
+        let mcap = std::fs::read(dir.join("flight.mcap")).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        (r, csv, mcap)
+    }
+
+    /// The CSV's last row is whole (as many fields as the header) and its time is `sim_s`'s.
+    fn assert_whole_csv(csv: &str, r: &HilResult) {
+        assert!(csv.ends_with('\n'), "{csv}");
+        let mut lines = csv.lines();
+        let columns = lines.next().unwrap().split(',').count();
+        let last = lines.last().expect("rows");
+        assert_eq!(last.split(',').count(), columns, "{last}");
+        let t: f64 = last.split(',').next().unwrap().parse().unwrap();
+        assert!(t <= r.sim_s && t > r.sim_s - 0.05, "{t} {}", r.sim_s);
+    }
+
+    /// The MCAP file has its summary and footer, and every message reads.
+    fn assert_finished_mcap(bytes: &[u8]) -> usize {
+        let summary = mcap::Summary::read(bytes).expect("a summary section");
+        assert!(summary.is_some_and(|s| !s.channels.is_empty()));
+        let mut n = 0;
+        for m in mcap::MessageStream::new(bytes).unwrap() {
+            m.expect("a whole message");
+            n += 1;
+        }
+        n
+    }
+
+    #[test]
+    fn an_interrupt_ends_the_flight_with_its_logs_whole() {
+        let flag = Arc::new(AtomicBool::new(false));
+        let set = Arc::clone(&flag);
+        let (r, csv, mcap) = fly_until("interrupt", Some(flag), move |_| {
+            set.store(true, Ordering::SeqCst)
+        });
+        assert_eq!(
+            r.ended_early.as_deref(),
+            Some("interrupted"),
+            "{}",
+            r.summary()
+        );
+        assert!(r.sim_s >= 1.0 && r.sim_s < 1.1, "{}", r.summary());
+        assert!(r.summary().contains("ended early       interrupted"));
+        assert_whole_csv(&csv, &r);
+        assert!(assert_finished_mcap(&mcap) > 100);
+    }
+
+    #[test]
+    fn a_closed_link_ends_the_flight_with_its_logs_whole() {
+        // The autopilot's host link closed under the flight (a USB adapter unplugged).
+        let (r, csv, mcap) = fly_until("closed", None, |autopilot| {
+            autopilot.shutdown(std::net::Shutdown::Both).unwrap()
+        });
+        let why = r.ended_early.clone().unwrap_or_default();
+        assert!(why.contains("autopilot"), "{}", r.summary());
+        assert!(r.sim_s >= 1.0 && r.sim_s < 1.1, "{}", r.summary());
+        assert_whole_csv(&csv, &r);
+        assert!(assert_finished_mcap(&mcap) > 100);
     }
 
     #[test]

@@ -29,8 +29,8 @@ use protocol::{
 use std::fmt::Write as _;
 use std::io::{IsTerminal as _, Write as _};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::atomic::Ordering;
+use std::sync::mpsc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// Options of `sim-host monitor`.
@@ -519,12 +519,7 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         )?);
     }
     let mut view3d = board_view3d();
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
-            .context("installing the Ctrl-C handler")?;
-    }
+    let stop = crate::interrupt_flag()?;
     // The host's heartbeat goes out on the same link: the autopilot counts a silent host as a
     // lost telemetry link (it lands) and refuses to arm without one.
     let mut heartbeat_out = link

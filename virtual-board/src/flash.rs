@@ -1,6 +1,6 @@
-//! The boards' flash beside the firmware: the parameter sector (sector 11, 128 KiB at
-//! `0x080E_0000`, reserved by both firmwares' `memory.x`), and what of the flash interface
-//! the bench models.
+//! The boards' flash beside the firmware: the two parameter slots (sector 11, 128 KiB at
+//! `0x080E_0000`, and sector 10 at `0x080C_0000`, reserved by both firmwares' `memory.x`), and
+//! what of the flash interface the bench models.
 //!
 //! rigless 0.4.0's flash interface model (`soc::stm32f427::peripherals::flash`) answers the
 //! registers: the `KEYR` unlock sequence (a wrong key locks `CR` until reset, told to the
@@ -20,9 +20,11 @@
 //! (encoded by the board library's own `params::encode_record`, the bytes its save programs),
 //! or a corrupted one, and check what the unmodified image boots with.
 
-/// First address of the parameter sector.
+/// First address of the parameter sector (the first slot, sector 11).
 pub const PARAM_SECTOR: u64 = 0x080E_0000;
-/// Bytes of the parameter sector.
+/// First address of the second parameter slot (sector 10).
+pub const PARAM_SECTOR_2: u64 = 0x080C_0000;
+/// Bytes of each parameter sector.
 pub const PARAM_SECTOR_BYTES: usize = 128 * 1024;
 
 /// What a board's flash holds at power-on beside the firmware image.
@@ -50,6 +52,22 @@ impl FlashContents {
         Self {
             placed: vec![(PARAM_SECTOR, sector)],
         }
+    }
+
+    /// Both parameter slots: sector 11 holding `first` from its start and sector 10 holding
+    /// `second`, each erased (`0xFF`) after its bytes (what a save into one slot, complete or
+    /// cut short, leaves beside the other).
+    ///
+    /// # Panics
+    /// If either is longer than a sector (a test bug).
+    #[must_use]
+    pub fn param_slots(first: &[u8], second: &[u8]) -> Self {
+        assert!(second.len() <= PARAM_SECTOR_BYTES, "longer than the sector");
+        let mut slots = Self::param_sector(first);
+        let mut sector = vec![0xff; PARAM_SECTOR_BYTES];
+        sector[..second.len()].copy_from_slice(second);
+        slots.placed.push((PARAM_SECTOR_2, sector));
+        slots
     }
 
     /// Every range placed, `(address, bytes)`.

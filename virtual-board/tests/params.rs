@@ -206,6 +206,77 @@ fn a_saved_record_is_what_the_firmware_boots_with() {
     );
 }
 
+/// `record` renumbered as save number `sequence` (the header's sequence word, the CRC-32 over
+/// everything before it recomputed): what the `sequence`-th save programs.
+fn numbered(mut record: Vec<u8>, sequence: u32) -> Vec<u8> {
+    record[12..16].copy_from_slice(&sequence.to_le_bytes());
+    let n = record.len();
+    let crc = crc32(&record[..n - 4]);
+    record[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    record
+}
+
+/// CRC-32 (ISO-HDLC: reflected polynomial 0xEDB88320, all-ones start and final XOR), the
+/// record's.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = u32::MAX;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+/// Two slots (sectors 11 and 10): the image boots on the good record with the higher save
+/// number, whichever slot holds it; a save cut short in one slot (half its words programmed,
+/// the rest erased) leaves the other slot's record in use, not the defaults and no block.
+#[test]
+fn the_image_boots_on_the_newest_complete_record_of_its_two_slots() {
+    let older = numbered(saved(&with_target_height(0.8)), 1);
+    let newer = numbered(saved(&with_target_height(0.6)), 2);
+    assert_eq!(
+        crc32(&saved(&AutopilotConfig::default())[..params::RECORD_BYTES - 4]).to_le_bytes(),
+        saved(&AutopilotConfig::default())[params::RECORD_BYTES - 4..],
+        "the test's CRC is the record's"
+    );
+    let s = param_on(
+        FlashContents::param_slots(&older, &newer),
+        &["get", "target_height"],
+    );
+    assert!(s.ok, "{}", s.out);
+    assert!(
+        s.out.contains(" 0.6 "),
+        "the second slot's newer record: {}",
+        s.out
+    );
+
+    let mut cut = newer.clone();
+    let half = (params::RECORD_BYTES / 8) * 4;
+    cut[half..].fill(0xff);
+    let s = param_on(
+        FlashContents::param_slots(&older, &cut),
+        &["get", "target_height"],
+    );
+    assert!(s.ok, "{}", s.out);
+    assert!(
+        s.out.contains(" 0.8 "),
+        "the last complete record: {}",
+        s.out
+    );
+    assert!(
+        s.log.contains("parameters: the saved record is in use"),
+        "{}",
+        s.log
+    );
+    println!("two slots: newest record (slot 2) in use; a save cut mid-program boots on slot 1");
+}
+
 #[test]
 fn a_corrupted_or_missing_record_means_the_defaults_and_says_why() {
     let mut record = saved(&with_target_height(0.8));

@@ -12,6 +12,8 @@ use autopilot::app::Autopilot;
 use autopilot::ms5611::BaroReading;
 use protocol::{Estimate, STEREO_FRAME_BYTES};
 use std::io::{Seek, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use stereo_board::edge_fs::Diagnostics;
 
 /// Rates of the channels that are thinned out.
@@ -46,6 +48,8 @@ pub struct SimRecorder<W: Write + Seek> {
     view: View3d,
     /// Wall-clock instant of world time 0, when the flight is paced to real time.
     pace: Option<std::time::Instant>,
+    /// Set (by a Ctrl-C handler) to end the flight early; the log is still finished.
+    interrupt: Option<Arc<AtomicBool>>,
 }
 
 impl<W: Write + Seek> SimRecorder<W> {
@@ -58,6 +62,7 @@ impl<W: Write + Seek> SimRecorder<W> {
             images: Thinner::new(rates.image_hz),
             last_status_uptime: None,
             pace: None,
+            interrupt: None,
             view: View3d::new(
                 rates.view,
                 CameraMount {
@@ -81,6 +86,12 @@ impl<W: Write + Seek> SimRecorder<W> {
     /// the wall clock has caught up with world time.
     pub fn pace_to_wall_clock(&mut self) {
         self.pace = Some(std::time::Instant::now());
+    }
+
+    /// Ends the flight at the next event once `flag` is set (a Ctrl-C handler sets it): the
+    /// flight returns what it flew, and [`SimRecorder::finish`] closes the log as usual.
+    pub fn interrupt_on(&mut self, flag: Arc<AtomicBool>) {
+        self.interrupt = Some(flag);
     }
 
     fn with_view(&mut self, f: impl FnOnce(&mut View3d, &mut FlightLog<W>) -> anyhow::Result<()>) {
@@ -120,6 +131,12 @@ fn true_pose(ap: &Autopilot, row: &LogRow) -> BodyPose {
 }
 
 impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
+    fn interrupted(&self) -> bool {
+        self.interrupt
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+
     fn on_scene(&mut self, scene: &Scene, camera: &CameraParams) {
         let mount = CameraMount {
             forward_m: camera.forward_offset_m,

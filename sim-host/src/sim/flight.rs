@@ -321,6 +321,11 @@ pub trait FlightObserver {
         _counters: &FlightCounters,
     ) {
     }
+    /// Asked before each event of the flight: true ends it there (Ctrl-C), and the result
+    /// covers the time flown.
+    fn interrupted(&self) -> bool {
+        false
+    }
 }
 
 /// An observer that ignores everything.
@@ -404,7 +409,12 @@ pub fn run_flight_observed(
     let mut next_progress = 1_000_000u64;
 
     let mut t = 0u64;
+    let mut flown_us = end_us;
     while t < end_us {
+        if observer.interrupted() {
+            flown_us = t;
+            break;
+        }
         // Next event.
         let mut next = end_us.min(t + cfg.physics_dt_us);
         next = next
@@ -627,8 +637,14 @@ pub fn run_flight_observed(
     };
     Ok(FlightResult {
         seed: cfg.seed,
-        duration_s: cfg.duration_s,
-        flight_time_s: world.first_contact_s.unwrap_or(cfg.duration_s),
+        duration_s: if flown_us < end_us {
+            flown_us as f64 * 1e-6
+        } else {
+            cfg.duration_s
+        },
+        flight_time_s: world
+            .first_contact_s
+            .unwrap_or(cfg.duration_s.min(flown_us as f64 * 1e-6)),
         end_reason: EndReason::of(&ap, armed, world.first_contact_s.is_some()),
         collisions: world.collisions,
         vel_rmse_mps: rms(filt_err2, n_filt),

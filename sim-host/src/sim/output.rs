@@ -49,6 +49,8 @@ pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             l.tilt_err_deg[1]
         )?;
     }
+    // Explicitly, so a failed write is an error rather than lost when the writer drops.
+    f.flush()?;
     Ok(())
 }
 
