@@ -1287,7 +1287,7 @@ impl EdgeFs {
             up_mps: 0.0,
             forward_sigma: slope_sigma,
             up_sigma: f32::INFINITY,
-            r2: line.r2 as f32,
+            r2: line.r2,
             up_flags,
         };
         let d = usize::from(p.vertical_search_px);
