@@ -1040,6 +1040,9 @@ proptest! {
                     quality: 255, flags: EstimateFlags(fl & 0x01), processing_us: 0,
                     depth_coverage: 255, near_columns: 0,
                     fit: (fl & 0x01 == 0).then_some(FrameFit { forward_mps: f, sideways_mps: s, quality: 255 }),
+                    up_mps: 0.0,
+                    up_flags: EstimateFlags::NO_FLOW_MATCH,
+                    fit_r2: 0,
                 }, now),
                 Input::Pos(z) => ap.on_external_position(&ExternalPosition {
                     timestamp_us: WireTime(now as u32), position_m: [0.0, 0.0, z],

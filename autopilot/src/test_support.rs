@@ -29,6 +29,9 @@ pub fn estimate(velocity_mps: [f32; 2], obstacle_m: Option<f32>) -> Estimate {
             sideways_mps: velocity_mps[1],
             quality: 200,
         }),
+        up_mps: 0.0,
+        up_flags: EstimateFlags::NO_FLOW_MATCH,
+        fit_r2: 0,
     }
 }
 

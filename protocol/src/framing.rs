@@ -473,6 +473,9 @@ mod tests {
                 sideways_mps: -0.04,
                 quality: 150,
             }),
+            up_mps: 0.0,
+            up_flags: EstimateFlags::NO_FLOW_MATCH,
+            fit_r2: 0,
         }
     }
 

@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 9;
+pub const PROTOCOL_VERSION: u8 = 10;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -172,6 +172,15 @@ pub struct Estimate {
     /// as outliers, so the filtered velocity lags and can stay wrong; the fit of one frame is
     /// noisier but describes exactly its flow window.
     pub fit: Option<FrameFit>,
+    /// Vertical velocity, m/s (positive: climbing), from the vertical flow of the image rows
+    /// (0 when not estimated). Valid on its own terms: see [`Estimate::up_flags`].
+    pub up_mps: f32,
+    /// Why [`Estimate::up_mps`] must not be used (empty: valid); the forward and sideways
+    /// velocity's validity is [`Estimate::flags`].
+    pub up_flags: EstimateFlags,
+    /// Coefficient of determination R² of the frame's coupled three-axis flow fit, 0 (the
+    /// flow model explains nothing, e.g. no motion) ..= 255 (all of the flow).
+    pub fit_r2: u8,
 }
 
 /// One frame's Edge-FS velocity fit, before any filtering across frames (see

@@ -36,6 +36,9 @@ fn random_estimate(rng: &mut ChaCha8Rng) -> Estimate {
             sideways_mps: random_f32(rng),
             quality: rng.random(),
         }),
+        up_mps: random_f32(rng),
+        up_flags: EstimateFlags(rng.random()),
+        fit_r2: rng.random(),
     }
 }
 

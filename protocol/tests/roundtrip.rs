@@ -102,11 +102,24 @@ fn estimate() -> impl Strategy<Value = Estimate> {
         any::<u8>(),
         any::<u8>(),
         any::<u16>(),
-        any::<[u8; 2]>(),
+        any::<[u8; 4]>(),
         proptest::option::of((finite(), finite(), any::<u8>())),
+        finite(),
     )
         .prop_map(
-            |(seq, capture_us, f, s, obstacle_m, quality, flags, processing_us, [dc, nc], fit)| {
+            |(
+                seq,
+                capture_us,
+                f,
+                s,
+                obstacle_m,
+                quality,
+                flags,
+                processing_us,
+                [dc, nc, up_flags, fit_r2],
+                fit,
+                up_mps,
+            )| {
                 Estimate {
                     seq,
                     capture_us: WireTime(capture_us),
@@ -123,6 +136,9 @@ fn estimate() -> impl Strategy<Value = Estimate> {
                         sideways_mps,
                         quality,
                     }),
+                    up_mps,
+                    up_flags: EstimateFlags(up_flags),
+                    fit_r2,
                 }
             },
         )
@@ -388,6 +404,9 @@ proptest! {
             forward_mps: f32::from_bits(bits[0]), sideways_mps: f32::from_bits(bits[1]),
             obstacle_m: None, quality: 0, flags: EstimateFlags::NONE, processing_us: 0,
             depth_coverage: 0, near_columns: 0, fit: None,
+            up_mps: 0.0,
+            up_flags: EstimateFlags::NO_FLOW_MATCH,
+            fit_r2: 0,
         };
         let (_, out, _) = through_the_wire::<_, { StereoToAutopilot::MAX_FRAME_BYTES }>(&StereoToAutopilot::Estimate(est));
         match out.as_slice() {
@@ -433,10 +452,10 @@ proptest! {
     }
 }
 
-/// The wire-size budget: an `Estimate` fits in 46 bytes on the wire, whatever its values
-/// (1,150 B/s at 25 fps, a tenth of the 115,200 Bd link).
+/// The wire-size budget: an `Estimate` fits in 52 bytes on the wire, whatever its values
+/// (1,300 B/s at 25 fps, under an eighth of the 115,200 Bd link).
 #[test]
-fn estimate_worst_case_fits_in_46_bytes() {
+fn estimate_worst_case_fits_in_52_bytes() {
     let worst = Estimate {
         seq: u16::MAX,
         capture_us: WireTime(u32::MAX),
@@ -453,13 +472,16 @@ fn estimate_worst_case_fits_in_46_bytes() {
             sideways_mps: f32::MIN,
             quality: u8::MAX,
         }),
+        up_mps: f32::MIN,
+        up_flags: EstimateFlags(u8::MAX),
+        fit_r2: u8::MAX,
     };
     let mut wire = [0u8; 64];
     let n = encode(&StereoToAutopilot::Estimate(worst), &mut wire).unwrap();
-    assert!(n <= 46, "worst-case Estimate takes {n} bytes on the wire");
+    assert!(n <= 52, "worst-case Estimate takes {n} bytes on the wire");
     let n = encode(&BoardToHost::Estimate(worst), &mut wire).unwrap();
     assert!(
-        n <= 46,
+        n <= 52,
         "worst-case mirrored Estimate takes {n} bytes on the wire"
     );
 }

@@ -414,6 +414,9 @@ impl StereoBoardApp {
             depth_coverage: out.depth_coverage,
             near_columns: out.near_columns,
             fit: out.fit,
+            up_mps: out.up_mps,
+            up_flags: out.up_flags,
+            fit_r2: out.fit_r2,
         };
         self.seq = self.seq.wrapping_add(1);
         self.counters.frames_processed = self.counters.frames_processed.wrapping_add(1);

@@ -410,6 +410,9 @@ impl TruthCamera {
                     sideways_mps,
                     quality: 200,
                 }),
+                up_mps: 0.0,
+                up_flags: EstimateFlags::NO_FLOW_MATCH,
+                fit_r2: 0,
             };
             self.pending
                 .push_back((now_ns + self.processing_ns, estimate));

@@ -137,6 +137,9 @@ impl CameraStandIn {
                     sideways_mps: 0.0,
                     quality: 200,
                 }),
+                up_mps: 0.0,
+                up_flags: EstimateFlags::NO_FLOW_MATCH,
+                fit_r2: 0,
             }));
         }
     }

@@ -69,6 +69,9 @@ impl CameraStandIn {
                 depth_coverage: 255,
                 near_columns: 0,
                 fit: Some(fit),
+                up_mps: 0.0,
+                up_flags: EstimateFlags::NO_FLOW_MATCH,
+                fit_r2: 0,
             }));
         }
     }

@@ -34,6 +34,8 @@ const REPORT_ORDER: &[&str] = &[
     "edge_fs_frame_default",
     "edge_fs_frame_paper",
     "edge_histograms",
+    "row_histogram",
+    "flow_row_vertical",
     "stereo_match",
     "flow_match",
     "stereo_row",

@@ -9,11 +9,14 @@
 //! configuration's outputs for images `i <= 2H` are set to 0; the estimator gets the OptiTrack
 //! yaw (converted to the body convention: `yaw_body = -yaw_optitrack`) as its attitude and the
 //! image times as capture times; its sideways output (positive right) is compared with the
-//! data set's lateral velocity, which is positive to the left, so it is negated here. Every
+//! data set's lateral velocity, which is positive to the left, so it is negated here; its
+//! vertical output is compared with OptiTrack's vertical velocity (Y, up positive). Every
 //! estimate is scored as it is, flagged or not (the flags are kept in [`Series::flags`]); the
 //! default configuration is scored on the board's raw output (its temporal filter is part of
 //! the estimator; no autopilot-side filter is applied here). The data set has no gyro rates,
-//! so the attitude carries the yaw only and the rates are zero.
+//! so the attitude carries the yaw only and the rates are zero (the rigid body's OptiTrack
+//! pitch is not the camera's: derotating the vertical flow by it, with either sign, raised the
+//! vertical MSE on every take).
 
 pub mod camera_calib;
 pub mod dataset;
@@ -50,7 +53,9 @@ pub enum Config {
 pub enum Format {
     /// Human-readable table with a summary.
     Table,
-    /// `board,take,frames,nmxm_x,mse_x,var_x,nmxm_y,mse_y,var_y`, full precision.
+    /// `board,take,frames,nmxm_x,mse_x,var_x,nmxm_y,mse_y,var_y,nmxm_z,mse_z,var_z,mse_z_zero`,
+    /// full precision (`z`: vertical, up positive; `mse_z_zero`: the MSE of a zero-velocity
+    /// predictor on the same frames).
     Csv,
 }
 
@@ -75,6 +80,12 @@ pub struct EvalArgs {
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Table)]
     pub format: Format,
+    /// Default configuration only: run the vertical flow with this search range, px (the
+    /// board's default has it off, `EdgeFsParams::vertical_search_px`; 8 is
+    /// `EdgeFsParams::VERTICAL_SEARCH_PX`). Without it the vertical columns score a zero
+    /// estimate.
+    #[arg(long)]
+    pub vertical_search_px: Option<u8>,
 }
 
 /// Estimates and ground truth of one take for images `1..=N-1` (index 0 = image 1).
@@ -90,6 +101,11 @@ pub struct Series {
     pub gt_x: Vec<f64>,
     /// Ground-truth lateral velocity, m/s.
     pub gt_y: Vec<f64>,
+    /// Estimated vertical velocity (up positive), m/s; 0 where the board does not estimate it
+    /// (paper configuration).
+    pub est_z: Vec<f64>,
+    /// Ground-truth vertical velocity (up positive), m/s.
+    pub gt_z: Vec<f64>,
     /// Validity flags of each estimate ([`protocol::EstimateFlags`] bits).
     pub flags: Vec<u8>,
     /// First and last evaluated index (0-based, inclusive).
@@ -109,6 +125,10 @@ pub struct TakeResult {
     pub x: Metrics,
     /// Sideways-velocity metrics.
     pub y: Metrics,
+    /// Vertical-velocity metrics (up positive).
+    pub z: Metrics,
+    /// MSE of a zero-velocity predictor of the vertical velocity, (m/s)².
+    pub z_zero_mse: f64,
     /// The series behind the metrics.
     pub series: Series,
 }
@@ -168,12 +188,17 @@ pub fn evaluate_take_with(
     let (a, b) = s.window;
     let x = metrics(&s.est_x[a..=b], &s.gt_x[a..=b]);
     let y = metrics(&s.est_y[a..=b], &s.gt_y[a..=b]);
+    let z = metrics(&s.est_z[a..=b], &s.gt_z[a..=b]);
+    let zero = vec![0.0; b + 1 - a];
+    let z_zero_mse = metrics(&zero, &s.gt_z[a..=b]).mse;
     Ok(TakeResult {
         board: take.board,
         take: take.take,
         frames: n,
         x,
         y,
+        z,
+        z_zero_mse,
         series: s,
     })
 }
@@ -199,6 +224,7 @@ pub fn estimate_series(
         time_s: truth.time_s.clone(),
         gt_x: truth.fwd.clone(),
         gt_y: truth.side.clone(),
+        gt_z: truth.up.clone(),
         window: (9, n - 12),
         ..Series::default()
     };
@@ -216,9 +242,11 @@ pub fn estimate_series(
         let out = fs.process(&frame, capture_us, Some(&motion));
         s.flags.push(out.flags.0);
         let (mut ex, mut ey) = (f64::from(out.forward_mps), -f64::from(out.sideways_mps));
+        let mut ez = f64::from(out.up_mps);
         if zero_first_2h && i <= 2 * h {
-            (ex, ey) = (0.0, 0.0);
+            (ex, ey, ez) = (0.0, 0.0, 0.0);
         }
+        s.est_z.push(ez);
 
         s.est_x.push(ex);
         s.est_y.push(ey);
@@ -267,6 +295,10 @@ pub fn select_takes(takes: Vec<Take>, list: Option<&str>) -> Result<Vec<Take>> {
 
 /// Runs `sim-host eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
+    ensure!(
+        args.vertical_search_px.is_none() || args.config == Config::Default,
+        "--vertical-search-px applies to --config default only"
+    );
     let takes = select_takes(discover_takes(&args.dataset)?, args.takes.as_deref())?;
     let total: usize = takes
         .iter()
@@ -281,10 +313,14 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let results: Vec<(Take, Result<TakeResult>)> = takes
         .par_iter()
         .map(|t| {
-            (
-                t.clone(),
-                evaluate_take(t, args.config, args.alignment, &tick),
-            )
+            let r = match (args.config, args.vertical_search_px) {
+                (Config::Default, Some(d)) => params_for(args.config, t).and_then(|mut p| {
+                    p.vertical_search_px = d;
+                    evaluate_take_with(t, p, false, args.alignment, &tick)
+                }),
+                _ => evaluate_take(t, args.config, args.alignment, &tick),
+            };
+            (t.clone(), r)
         })
         .collect();
     bar.finish_and_clear();
@@ -322,11 +358,25 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 
 /// The CSV output (header and one row per take, full-precision floats).
 pub fn csv(results: &[TakeResult]) -> String {
-    let mut s = String::from("board,take,frames,nmxm_x,mse_x,var_x,nmxm_y,mse_y,var_y\n");
+    let mut s = String::from(
+        "board,take,frames,nmxm_x,mse_x,var_x,nmxm_y,mse_y,var_y,nmxm_z,mse_z,var_z,mse_z_zero\n",
+    );
     for r in results {
         s += &format!(
-            "{},{},{},{},{},{},{},{},{}\n",
-            r.board, r.take, r.frames, r.x.nmxm, r.x.mse, r.x.var, r.y.nmxm, r.y.mse, r.y.var
+            "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            r.board,
+            r.take,
+            r.frames,
+            r.x.nmxm,
+            r.x.mse,
+            r.x.var,
+            r.y.nmxm,
+            r.y.mse,
+            r.y.var,
+            r.z.nmxm,
+            r.z.mse,
+            r.z.var,
+            r.z_zero_mse
         );
     }
     s
@@ -389,11 +439,23 @@ pub fn wins(results: &[TakeResult]) -> Wins {
 /// The table output with summary.
 pub fn table(results: &[TakeResult], config: Config, alignment: Alignment) -> String {
     let mut s = format!("Edge-FS config {config:?}, alignment {alignment:?}\n");
-    s += "board take frames |  nmxm_x   mse_x   var_x |  nmxm_y   mse_y   var_y | paper Edge-FS mse_x mse_y | Farneback mse_x mse_y\n";
+    s += "board take frames |  nmxm_x   mse_x   var_x |  nmxm_y   mse_y   var_y |  nmxm_z   mse_z   var_z  zero_z | paper Edge-FS mse_x mse_y | Farneback mse_x mse_y\n";
     for r in results {
         s += &format!(
-            "{:>5} {:>4} {:>6} | {:>7.4} {:>7.4} {:>7.4} | {:>7.4} {:>7.4} {:>7.4}",
-            r.board, r.take, r.frames, r.x.nmxm, r.x.mse, r.x.var, r.y.nmxm, r.y.mse, r.y.var
+            "{:>5} {:>4} {:>6} | {:>7.4} {:>7.4} {:>7.4} | {:>7.4} {:>7.4} {:>7.4} | {:>7.4} {:>7.4} {:>7.4} {:>7.4}",
+            r.board,
+            r.take,
+            r.frames,
+            r.x.nmxm,
+            r.x.mse,
+            r.x.var,
+            r.y.nmxm,
+            r.y.mse,
+            r.y.var,
+            r.z.nmxm,
+            r.z.mse,
+            r.z.var,
+            r.z_zero_mse
         );
         if let Some(p) = paper_row(r.board, r.take) {
             s += &format!(

@@ -26,6 +26,8 @@ pub struct Truth {
     pub side: Vec<f64>,
     /// OptiTrack yaw, deg (data set convention: about the vertical axis, up).
     pub yaw_deg: Vec<f64>,
+    /// Vertical velocity, m/s (OptiTrack Y: positive up).
+    pub up: Vec<f64>,
 }
 
 /// MATLAB `smooth(x, span)`: centred moving average whose span shrinks at the ends.
@@ -82,8 +84,9 @@ pub fn paper_truth(take: &Take, n_images: usize) -> Result<Truth> {
     let pos = read_table(&take.dir.join("position.dat"), 8, true)?;
     let t: Vec<f64> = pos.rows.iter().map(|r| r[0]).collect();
     let col = |c: usize| -> Vec<f64> { pos.rows.iter().map(|r| r[c]).collect() };
-    let (x, z, yaw) = (
+    let (x, y, z, yaw) = (
         matlab_smooth(&col(2), 5),
+        matlab_smooth(&col(3), 5),
         matlab_smooth(&col(4), 5),
         matlab_smooth(&col(7), 15),
     );
@@ -99,7 +102,7 @@ pub fn paper_truth(take: &Take, n_images: usize) -> Result<Truth> {
             })
             .collect()
     };
-    let (vx, vz) = (diff(&x), diff(&z));
+    let (vx, vy, vz) = (diff(&x), diff(&y), diff(&z));
     let sign = if take.board == 2 { -1.0 } else { 1.0 };
     let mut truth = Truth::default();
     for (i, &tf) in t_frame.iter().take(m).enumerate() {
@@ -117,6 +120,7 @@ pub fn paper_truth(take: &Take, n_images: usize) -> Result<Truth> {
             sign * (vz[k] * c + vx[k] * s)
         });
         truth.yaw_deg.push(if zeroed { 0.0 } else { yaw[k] });
+        truth.up.push(if zeroed { 0.0 } else { vy[k] });
     }
     Ok(truth)
 }
@@ -238,13 +242,14 @@ impl MocapTrack {
 pub fn corrected_truth(take: &Take, n_images: usize) -> Result<Truth> {
     let times = image_times(take, n_images)?;
     let track = MocapTrack::read(take)?;
-    let (t, x, z, yaw) = (&track.t, &track.x, &track.z, &track.yaw);
+    let (t, x, y, z, yaw) = (&track.t, &track.x, &track.y, &track.z, &track.yaw);
     let sign = if take.board == 2 { -1.0 } else { 1.0 };
     let h = 0.05;
     let mut truth = Truth::default();
     for &tf in &times {
         let vx = (interp(t, x, tf + h) - interp(t, x, tf - h)) / (2.0 * h);
         let vz = (interp(t, z, tf + h) - interp(t, z, tf - h)) / (2.0 * h);
+        let vy = (interp(t, y, tf + h) - interp(t, y, tf - h)) / (2.0 * h);
         let yd = interp(t, yaw, tf);
         let psi = yd.to_radians();
         let (c, s) = (psi.cos(), psi.sin());
@@ -252,6 +257,7 @@ pub fn corrected_truth(take: &Take, n_images: usize) -> Result<Truth> {
         truth.side.push(vx * c - vz * s);
         truth.fwd.push(sign * (vz * c + vx * s));
         truth.yaw_deg.push(yd);
+        truth.up.push(vy);
     }
     Ok(truth)
 }

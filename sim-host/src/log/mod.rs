@@ -418,6 +418,9 @@ mod tests {
             depth_coverage: 255,
             near_columns: 0,
             fit: None,
+            up_mps: 0.0,
+            up_flags: EstimateFlags::NO_FLOW_MATCH,
+            fit_r2: 0,
         };
         log.write(1_000, &EstimateRecord::from(&e)).unwrap();
         log.write(

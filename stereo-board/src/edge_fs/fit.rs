@@ -121,7 +121,9 @@ const START_GROUPS: usize = 5;
 /// a wrong stripe then spoils at most its groups, while a least-squares start would be pulled
 /// by all of it and Huber weights only bound each point's pull. `scratch` holds at least
 /// `points.len()` values. `None`: fewer than 2 groups with points (the caller keeps `ls`).
-fn resistant_start(
+/// With `COUNT`, a candidate is first tested by counting its residuals below the best cost so
+/// far, which settles most candidates without a selection (same result: tests).
+fn resistant_start<const COUNT: bool>(
     points: &[(f32, f32, f32)],
     scratch: &mut [f32],
     ls: LineFit,
@@ -171,6 +173,12 @@ fn resistant_start(
         select_median(residuals, scratch, magnitude_key).unwrap_or(f32::MAX)
     };
     let mut best_cost = lmeds(scratch, best);
+    // Residuals the median is taken over (`select_median` keeps at most `scratch.len()`).
+    let counted = points
+        .iter()
+        .filter(|p| p.2 > 0.0)
+        .count()
+        .min(scratch.len());
     for i in 0..n_centres {
         for j in i + 1..n_centres {
             let ((x0, v0), (x1, v1)) = (centres[i], centres[j]);
@@ -179,6 +187,21 @@ fn resistant_start(
             }
             let a = (v1 - v0) / (x1 - x0);
             let line = (a, v0 - a * x0);
+            // The median (sorted index `counted / 2`) is below the best cost exactly when more
+            // than `counted / 2` residuals are: a count settles most lines without selecting.
+            let below = if !COUNT {
+                0
+            } else {
+                points
+                    .iter()
+                    .filter(|p| p.2 > 0.0)
+                    .take(counted)
+                    .filter(|p| (p.1 - (line.0 * p.0 + line.1)).abs() < best_cost)
+                    .count()
+            };
+            if COUNT && below <= counted / 2 {
+                continue;
+            }
             let cost = lmeds(scratch, line);
             if cost < best_cost {
                 (best, best_cost) = (line, cost);
@@ -191,12 +214,12 @@ fn resistant_start(
 /// Residuals beyond this many robust scales get no weight: Huber weights alone bound each
 /// point's pull but not the sum of a block's, and a quarter of the points a stripe period off
 /// drags a Huber fit most of the way to least squares.
-const REJECT_SCALES: f32 = 6.0;
+pub(super) const REJECT_SCALES: f32 = 6.0;
 
 /// The weight of a point of residual `r` and prior weight `w0`: Huber's (`w0` within `cut`,
 /// `w0 · cut / r` beyond), none beyond `reject`.
 #[inline]
-fn reweight(r: f32, w0: f32, cut: f32, reject: f32) -> f32 {
+pub(super) fn reweight(r: f32, w0: f32, cut: f32, reject: f32) -> f32 {
     if r <= cut {
         w0
     } else if r <= reject {
@@ -262,7 +285,7 @@ pub fn robust_line_fit(
         *w = p.2;
     }
     let mut fit = weighted_line_fit(points)?;
-    if let Some((slope, intercept)) = resistant_start(points, scratch, fit) {
+    if let Some((slope, intercept)) = resistant_start::<true>(points, scratch, fit) {
         fit.slope = f64::from(slope);
         fit.intercept = f64::from(intercept);
     }
@@ -320,7 +343,7 @@ mod tests {
         let prior: [f32; 128] = core::array::from_fn(|i| points.get(i).map_or(0.0, |p| p.2));
         let mut fit = weighted_line_fit(points)?;
         let mut scratch = [0.0f32; 128];
-        if let Some((slope, intercept)) = resistant_start(points, &mut scratch, fit) {
+        if let Some((slope, intercept)) = resistant_start::<false>(points, &mut scratch, fit) {
             fit.slope = f64::from(slope);
             fit.intercept = f64::from(intercept);
         }
@@ -389,6 +412,16 @@ mod tests {
             let n = raw.len();
             let mut want_pts = pts;
             let want = robust_line_fit_sorting(&mut want_pts[..n], iterations, huber_k);
+            // The counting shortcut of the resistant start changes nothing.
+            if let Some(ls) = weighted_line_fit(&pts[..n]) {
+                let mut scratch = [0.0f32; 128];
+                let counted = resistant_start::<true>(&pts[..n], &mut scratch, ls);
+                let plain = resistant_start::<false>(&pts[..n], &mut scratch, ls);
+                prop_assert_eq!(
+                    counted.map(|(a, b)| (a.to_bits(), b.to_bits())),
+                    plain.map(|(a, b)| (a.to_bits(), b.to_bits()))
+                );
+            }
             let (mut prior, mut scratch) = ([0.0f32; 128], [0.0f32; 128]);
             let before = pts;
             let got = robust_line_fit(&mut pts[..n], &mut prior, &mut scratch, iterations, huber_k);

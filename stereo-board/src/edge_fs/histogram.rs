@@ -273,6 +273,84 @@ fn absdiff_u8x4(a: u32, b: u32) -> u32 {
     ab | ba
 }
 
+/// Computes the row edge histogram of a stereo frame into the first [`IMG_H`] bins of `rows`
+/// (the rest are 0), for the vertical flow.
+///
+/// Bin `r` is `sum over the columns c ≡ 0, 1 (mod 4) of both images of |I(r+1, c) -
+/// I(r-1, c)|`: the vertical gradient summed along the row over half of its pixels (the
+/// stereo pair shares the vertical motion, so both images add texture; 128 pixels per bin
+/// are more than the 96 of a column bin, at half the cost of all 256). The border rows and
+/// the rows next to a dead (all-zero) sensor row get 0: a dead row is a fixed edge that would
+/// read as "no vertical motion". At most `128 * 255`, so `u16` is exact.
+///
+/// One `USADA8` (sum of four absolute byte differences) per word of every other word pair on
+/// the Cortex-M4.
+pub fn row_histogram(frame: &[u8; protocol::STEREO_FRAME_BYTES], rows: &mut EdgeHistogram) {
+    const ROW: usize = 2 * IMG_W;
+    *rows = [0; IMG_W];
+    let row = |r: usize| -> Option<&[[u8; 4]; ROW / 4]> {
+        frame
+            .get(r * ROW..(r + 1) * ROW)?
+            .as_chunks::<4>()
+            .0
+            .try_into()
+            .ok()
+    };
+    let mut dead = [false; IMG_H];
+    for (r, d) in dead.iter_mut().enumerate() {
+        // Short-circuits at the first lit pixel: a few instructions for a live row.
+        *d = row(r).is_some_and(|w| w.iter().all(|&b| b == [0; 4]));
+    }
+    for r in 1..IMG_H - 1 {
+        if dead[r - 1] || dead[r] || dead[r + 1] {
+            continue;
+        }
+        let (Some(up), Some(down)) = (row(r - 1), row(r + 1)) else {
+            continue;
+        };
+        let mut acc = 0u32;
+        // Words 4k and 4k + 2: columns 8k, 8k + 1 and 8k + 4, 8k + 5 of both images.
+        for (u, d) in up.as_chunks::<4>().0.iter().zip(down.as_chunks::<4>().0) {
+            acc = sad_u8x4_acc(acc, u32::from_le_bytes(u[0]), u32::from_le_bytes(d[0]));
+            acc = sad_u8x4_acc(acc, u32::from_le_bytes(u[2]), u32::from_le_bytes(d[2]));
+        }
+        if let Some(bin) = rows.get_mut(r) {
+            *bin = acc.min(u32::from(u16::MAX)) as u16;
+        }
+    }
+}
+
+/// `acc` plus the sum of the four absolute byte differences of `a` and `b`.
+#[cfg(not(target_arch = "arm"))]
+#[inline(always)]
+fn sad_u8x4_acc(acc: u32, a: u32, b: u32) -> u32 {
+    let (a, b) = (a.to_le_bytes(), b.to_le_bytes());
+    acc + a
+        .iter()
+        .zip(b.iter())
+        .map(|(&x, &y)| u32::from(x.abs_diff(y)))
+        .sum::<u32>()
+}
+
+/// `acc` plus the sum of the four absolute byte differences of `a` and `b`: one `USADA8`.
+#[cfg(target_arch = "arm")]
+#[inline(always)]
+fn sad_u8x4_acc(acc: u32, a: u32, b: u32) -> u32 {
+    let r: u32;
+    // SAFETY: register arithmetic only, no flags.
+    unsafe {
+        core::arch::asm!(
+            "usada8 {r}, {a}, {b}, {acc}",
+            a = in(reg) a,
+            b = in(reg) b,
+            acc = in(reg) acc,
+            r = lateout(reg) r,
+            options(pure, nomem, nostack, preserves_flags),
+        );
+    }
+    r
+}
+
 /// Block grid of [`pixel_noise_dn`]: columns per block and rows per block (one sampled row,
 /// the middle one, per block).
 const NOISE_BLOCK_W: usize = 16;
@@ -537,5 +615,36 @@ mod tests {
         // Neighbours two apart have equal values: no interior gradient.
         assert!(l[1..IMG_W - 1].iter().all(|&v| v == 0));
         assert_eq!(mean_intensity(&frame), 127);
+    }
+
+    /// The row histogram equals its per-pixel definition, and a dead row blanks its
+    /// neighbours (a fixed black band is no texture that stands still).
+    #[test]
+    fn row_histogram_equals_definition_and_skips_dead_rows() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut frame = [0u8; STEREO_FRAME_BYTES];
+        for v in frame.iter_mut() {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            *v = (x >> 24) as u8;
+        }
+        // Rows 94 and 95 black, as in board 1's forward takes.
+        frame[94 * 2 * IMG_W..].fill(0);
+        let mut rows = [1; IMG_W];
+        row_histogram(&frame, &mut rows);
+        let px = |r: usize, k: usize| i32::from(frame[r * 2 * IMG_W + k]);
+        for r in 0..IMG_W {
+            let want = if (1..93).contains(&r) {
+                (0..2 * IMG_W)
+                    .filter(|k| k % 8 < 4)
+                    .map(|k| (px(r + 1, k) - px(r - 1, k)).unsigned_abs())
+                    .sum::<u32>() as u16
+            } else {
+                0
+            };
+            assert_eq!(rows[r], want, "row {r}");
+        }
+        assert!(rows[50] > 0);
     }
 }

@@ -231,11 +231,22 @@ pub fn column_costs(
 /// Valid reference columns `lo..=hi` of a whole-row search (see [`column_costs`]), `None` when
 /// there is none or nothing to search.
 fn valid_columns(delta0: isize, n: usize, w: usize) -> Option<(usize, usize)> {
-    let last = IMG_W as isize - 1;
+    valid_columns_in(delta0, n, w, 0, IMG_W - 1)
+}
+
+/// [`valid_columns`] for windows within the bins `first..=last` (`last < IMG_W`).
+fn valid_columns_in(
+    delta0: isize,
+    n: usize,
+    w: usize,
+    first: usize,
+    last: usize,
+) -> Option<(usize, usize)> {
+    let (first, last) = (first as isize, last.min(IMG_W - 1) as isize);
     let (wi, ni) = (w.min(IMG_W) as isize, n as isize);
-    // Valid columns: c - w >= 0, c + w <= last, c + delta0 - w >= 0,
+    // Valid columns: c - w >= first, c + w <= last, c + delta0 - w >= first,
     // c + delta0 + (n - 1) + w <= last.
-    let lo = wi.max(wi - delta0);
+    let lo = (first + wi).max(first + wi - delta0);
     let hi = (last - wi).min(last - wi - delta0 - (ni - 1));
     (n > 0 && lo <= hi).then_some((lo as usize, hi as usize))
 }
@@ -478,10 +489,26 @@ pub fn column_matches(
     delta0: isize,
     n: usize,
     w: usize,
+    f: impl FnMut(usize, RowMatch<'_>),
+) {
+    column_matches_in(reference, target, delta0, n, w, 0, IMG_W - 1, f);
+}
+
+/// [`column_matches`] of the columns whose windows (reference and every candidate) lie
+/// within the bins `first..=last`.
+#[allow(clippy::too_many_arguments)]
+fn column_matches_in(
+    reference: &EdgeHistogram,
+    target: &EdgeHistogram,
+    delta0: isize,
+    n: usize,
+    w: usize,
+    first: usize,
+    last: usize,
     mut f: impl FnMut(usize, RowMatch<'_>),
 ) {
     let n = n.min(MAX_CANDIDATES);
-    let Some((lo, hi)) = valid_columns(delta0, n, w) else {
+    let Some((lo, hi)) = valid_columns_in(delta0, n, w, first, last) else {
         return;
     };
     if w > MAX_W {
@@ -556,6 +583,32 @@ pub fn flow_row(
         offset as isize - d as isize,
         d.saturating_mul(2).saturating_add(1),
         w,
+        f,
+    );
+}
+
+/// [`flow_row`] of the bins `first..=last` only: the positions whose windows, in `older` and
+/// at every candidate in `current`, lie within them (for row histograms, whose bins beyond
+/// the image height and at its border hold no gradient).
+#[allow(clippy::too_many_arguments)]
+pub fn flow_row_within(
+    older: &EdgeHistogram,
+    current: &EdgeHistogram,
+    d: usize,
+    offset: i32,
+    w: usize,
+    first: usize,
+    last: usize,
+    f: impl FnMut(usize, RowMatch<'_>),
+) {
+    column_matches_in(
+        older,
+        current,
+        offset as isize - d as isize,
+        d.saturating_mul(2).saturating_add(1),
+        w,
+        first,
+        last,
         f,
     );
 }

@@ -37,10 +37,20 @@
 //!   flow belong to the same scene point (the paper-era code mixes left-image flow with
 //!   right-indexed depth). Integer SAD, f32 elsewhere (no f64 in the hot path).
 //!
+//!   Vertical flow ([`EdgeFsParams::vertical_search_px`]): row edge histograms of the frame
+//!   ([`row_histogram`]), flow per row against the same history and horizon, searched around
+//!   the pitch rotation and derotated by it ([`flow_row_within`]), and a coupled fit of the
+//!   three axes: the rows' depth-scaled flow `Z̄·v = F·y + f·U` shares the forward velocity
+//!   `F` with the columns' `Z·u = F·x - f·S`, so the forward velocity comes from the
+//!   divergence of both axes, with the fit's R² ([`EdgeFsOutput::fit_r2`]) and the vertical
+//!   velocity's own validity ([`EdgeFsOutput::up_flags`]).
+//!
 //! Conventions: column `x` is 0-based from the left of the image (in docs "1-based" is said
 //! where the MATLAB index is meant). Image motion is positive towards larger `x`. The yaw in
 //! [`protocol::GyroAttitude::attitude_rad`]`[2]` is the body-frame yaw (z down: positive turns
-//! right), so a yaw increase moves the scene towards smaller `x`. Outputs follow
+//! right), so a yaw increase moves the scene towards smaller `x`; `attitude_rad[1]` is the
+//! pitch (positive nose up), and a pitch increase moves the scene down the image (towards
+//! larger rows). Outputs follow
 //! [`protocol::Estimate`]: forward positive towards the scene, sideways positive to the right.
 //!
 //! How the default parameters were chosen: see [`EdgeFsParams::default_config`].
@@ -52,11 +62,12 @@ mod temporal;
 
 pub use fit::{line_fit, robust_line_fit, weighted_line_fit, LineFit};
 pub use histogram::{
-    edge_histograms, edge_histograms_and_mean, mean_intensity, pixel_noise_dn, EdgeHistogram,
+    edge_histograms, edge_histograms_and_mean, mean_intensity, pixel_noise_dn, row_histogram,
+    EdgeHistogram,
 };
 pub use matching::{
-    best_match, column_costs, flow_match, flow_row, match_column, parabola, sad, stereo_match,
-    stereo_row, ColumnMatch, RowMatch,
+    best_match, column_costs, flow_match, flow_row, flow_row_within, match_column, parabola, sad,
+    stereo_match, stereo_row, ColumnMatch, RowMatch,
 };
 pub use temporal::{AxisFilter, Update};
 
@@ -80,6 +91,8 @@ const RING: usize = EdgeFsConfig::MAX_HORIZON as usize + 1;
 const MEDIAN_MAX: usize = 5;
 /// Largest rotation the flow search is centred on, px.
 const MAX_ROTATION_PX: f32 = 40.0;
+/// Largest vertical flow search range, px.
+const MAX_VERTICAL_SEARCH: u8 = 20;
 
 /// Which Edge-FS variant runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -211,9 +224,23 @@ pub struct EdgeFsParams {
     /// most of its windows have 3.5 to 7 times noise's shape; windows of noise alone reach 2.4.
     /// 0: off.
     pub noise_structure_ratio: f32,
+    /// Default mode: vertical flow search range, px (rows move -D..=D around the pitch
+    /// rotation over the horizon); 0: no vertical flow (the vertical velocity is flagged
+    /// [`EstimateFlags::NO_FLOW_MATCH`] and the fit is the columns' alone). Up to 20.
+    /// [`Self::VERTICAL_SEARCH_PX`] turns it on. Off in [`EdgeFsParams::default_config`]: it
+    /// costs about 72,000 Cortex-M4 instructions a frame (row histograms 12,000, row search
+    /// 23,000, the rest per-row matches and the coupled fit), which the frame's budget of
+    /// 250,000 does not hold yet, and on the recorded takes (which barely move vertically)
+    /// its MSE is above a zero predictor's.
+    pub vertical_search_px: u8,
 }
 
 impl EdgeFsParams {
+    /// The vertical search range that turns the vertical flow on
+    /// ([`Self::vertical_search_px`]): ±8 px over the horizon, 1 m/s at 1 m at 25 fps over
+    /// 0.25 s.
+    pub const VERTICAL_SEARCH_PX: u8 = 8;
+
     /// The configuration that produced the paper's per-take table: W=8, D=15, H=5, FOV 60°,
     /// baseline 6 cm, paper mode. Set `stereo_shift_px` per board (+5 / -2).
     pub const fn paper() -> Self {
@@ -251,6 +278,7 @@ impl EdgeFsParams {
             prior_window_px: 0.0,
             noise_texture_ratio: 0.0,
             noise_structure_ratio: 0.0,
+            vertical_search_px: 0,
         }
     }
 
@@ -322,6 +350,7 @@ impl EdgeFsParams {
             prior_window_px: 2.0,
             noise_texture_ratio: 1.85,
             noise_structure_ratio: 3.0,
+            vertical_search_px: 0,
         }
     }
 
@@ -358,6 +387,7 @@ impl EdgeFsParams {
         self.max_horizon = clamp_u8(self.max_horizon, 1, EdgeFsConfig::MAX_HORIZON);
         self.output_median = clamp_u8(self.output_median, 1, MEDIAN_MAX as u8);
         self.stereo_range = clamp_u8(self.stereo_range, 1, 2 * EdgeFsConfig::MAX_SEARCH_RANGE);
+        self.vertical_search_px = clamp_u8(self.vertical_search_px, 0, MAX_VERTICAL_SEARCH);
         if self.stereo_shift_px > 20 {
             self.stereo_shift_px = 20;
         } else if self.stereo_shift_px < -20 {
@@ -447,6 +477,14 @@ pub struct EdgeFsOutput {
     /// Default mode: the frame's own velocity fit before the temporal filter, when it is valid
     /// (`None` otherwise, and always in paper mode); see [`protocol::Estimate::fit`].
     pub fit: Option<FrameFit>,
+    /// Default mode: vertical velocity, m/s (positive: climbing), from the coupled fit of the
+    /// row flow; 0 when not estimated.
+    pub up_mps: f32,
+    /// Why [`Self::up_mps`] must not be used (empty: valid): the frame's flags (the vertical
+    /// velocity needs the same depth and texture) and the row fit's own.
+    pub up_flags: EstimateFlags,
+    /// Default mode: R² of the coupled three-axis fit, 0..=255 (paper mode: 0).
+    pub fit_r2: u8,
 }
 
 impl EdgeFsOutput {
@@ -459,6 +497,9 @@ impl EdgeFsOutput {
         depth_coverage: 0,
         near_columns: 0,
         fit: None,
+        up_mps: 0.0,
+        up_flags: EstimateFlags::NO_FLOW_MATCH,
+        fit_r2: 0,
     };
 }
 
@@ -475,6 +516,11 @@ pub struct Diagnostics {
     pub confidence: [f32; IMG_W],
     /// Column used in the velocity fit.
     pub used: [bool; IMG_W],
+    /// Derotated vertical image motion per row (index = 0-based row, positive downwards),
+    /// px/s; 0 where not computed.
+    pub row_flow_pxps: [f32; IMG_H],
+    /// Rows used in the vertical fit.
+    pub fit_rows: u8,
     /// Flow horizon of the last frame, frames.
     pub horizon: u8,
     /// Columns used in the fit.
@@ -495,6 +541,8 @@ impl Diagnostics {
         flow_pxps: [0.0; IMG_W],
         confidence: [0.0; IMG_W],
         used: [false; IMG_W],
+        row_flow_pxps: [0.0; IMG_H],
+        fit_rows: 0,
         horizon: 0,
         fit_columns: 0,
         guided: false,
@@ -506,6 +554,10 @@ impl Diagnostics {
 #[derive(Debug, Clone, Copy)]
 struct Slot {
     hist: EdgeHistogram,
+    /// Row edge histogram ([`row_histogram`]; default mode with vertical flow only).
+    rows: EdgeHistogram,
+    /// Pitch, rad (body: positive nose up; 0 when unknown).
+    pitch_rad: f32,
     capture_us: u64,
     yaw_rad: f32,
     /// Body yaw rate, rad/s (0 when unknown).
@@ -516,6 +568,8 @@ struct Slot {
 impl Slot {
     const EMPTY: Self = Self {
         hist: [0; IMG_W],
+        rows: [0; IMG_W],
+        pitch_rad: 0.0,
         capture_us: 0,
         yaw_rad: 0.0,
         yaw_rate: 0.0,
@@ -538,8 +592,8 @@ pub struct EdgeFs {
     diag: Diagnostics,
     recent: [(f32, f32); MEDIAN_MAX],
     recent_len: usize,
-    /// Temporal filters of the forward and sideways velocity.
-    filter: [AxisFilter; 2],
+    /// Temporal filters of the forward, sideways and vertical velocity.
+    filter: [AxisFilter; 3],
     /// The previous frame's guided search missed most columns: search the whole range once.
     prior_doubted: bool,
 }
@@ -558,7 +612,7 @@ impl EdgeFs {
             diag: Diagnostics::EMPTY,
             recent: [(0.0, 0.0); MEDIAN_MAX],
             recent_len: 0,
-            filter: [AxisFilter::new(), AxisFilter::new()],
+            filter: [AxisFilter::new(), AxisFilter::new(), AxisFilter::new()],
             prior_doubted: false,
         }
     }
@@ -606,6 +660,11 @@ impl EdgeFs {
                 .filter(|r| r.is_finite())
                 .unwrap_or(0.0);
             slot.has_yaw = yaw.is_some();
+            // The pitch only with a yaw (one attitude sample): rotation needs both ends.
+            slot.pitch_rad = motion
+                .map(|m| m.attitude_rad[1])
+                .filter(|p| p.is_finite() && yaw.is_some())
+                .unwrap_or(0.0);
             slot.hist = [0; IMG_W];
         }
         self.diag = Diagnostics::EMPTY;
@@ -632,6 +691,11 @@ impl EdgeFs {
     /// Returns the mean intensity of the left image in the default mode (computed in the same
     /// pass, [`edge_histograms_and_mean`]); the paper mode does not use it and gets 0.
     fn compute_histograms(&mut self, frame: &[u8; STEREO_FRAME_BYTES]) -> u8 {
+        if self.params.mode == Mode::Default && self.params.vertical_search_px > 0 {
+            if let Some(slot) = self.ring.get_mut(self.head) {
+                row_histogram(frame, &mut slot.rows);
+            }
+        }
         // Written in place (every bin is overwritten): no copies of the histograms.
         let mut unused;
         let tracked = match self.ring.get_mut(self.head) {
@@ -649,6 +713,7 @@ impl EdgeFs {
             }
             Mode::Default => {
                 let mean = edge_histograms_and_mean(frame, other, tracked);
+
                 // The zero-padded border bins hold image intensity, not edges: drop them.
                 for h in [tracked, other] {
                     h[0] = 0;
@@ -800,14 +865,21 @@ impl EdgeFs {
         let dt_s = now.wrapping_sub(before) as f32 * 1e-6;
         if self.frames < 2 || !(dt_s > 1e-4 && dt_s < 1.0) {
             // First frame, a gap or a clock jump: the track is lost.
-            self.filter = [AxisFilter::new(), AxisFilter::new()];
+            self.filter = [AxisFilter::new(), AxisFilter::new(), AxisFilter::new()];
         }
         let q = p.filter_accel_mps2;
         let mut rejected = false;
-        let z = [out.forward_mps, out.sideways_mps];
+        let mut up_rejected = false;
+        let z = [out.forward_mps, out.sideways_mps, out.up_mps];
         for (k, f) in self.filter.iter_mut().enumerate() {
             f.predict(dt_s, q, p.filter_accel_tau_s);
-            if let Some(sig) = sigma {
+            // The vertical axis takes only valid vertical fits, and its rejection flags only
+            // the vertical velocity.
+            if k == 2 && p.vertical_search_px == 0 {
+                break;
+            }
+            let measured = k < 2 || out.up_flags.is_valid();
+            if let (Some(sig), true) = (sigma, measured) {
                 let s = p.filter_noise_scale * sig[k];
                 // Fits of consecutive frames share all but one frame of their horizon, so
                 // their errors are correlated: one independent measurement per horizon, i.e.
@@ -815,7 +887,12 @@ impl EdgeFs {
                 // filter's response the same in seconds at 7 Hz and at 25 Hz.
                 let span = f32::from(self.diag.horizon.max(1));
                 let r = span * (s * s + p.filter_noise_floor_mps * p.filter_noise_floor_mps);
-                rejected |= f.update(z[k], r, p.filter_gate, q) == Update::Rejected;
+                let outlier = f.update(z[k], r, p.filter_gate, q) == Update::Rejected;
+                if k < 2 {
+                    rejected |= outlier;
+                } else {
+                    up_rejected = outlier;
+                }
             }
         }
         if rejected {
@@ -826,16 +903,22 @@ impl EdgeFs {
             out.forward_mps = self.filter[0].velocity();
             out.sideways_mps = self.filter[1].velocity();
         }
+        if up_rejected {
+            out.up_flags.insert(EstimateFlags::POOR_FIT);
+        }
+        if self.filter[2].is_initialised() && p.vertical_search_px > 0 {
+            out.up_mps = self.filter[2].velocity();
+        }
         out
     }
 
-    /// The frame's own estimate (no temporal filter) and the standard errors of its forward
-    /// and sideways velocity (m/s), `None` when nothing was fitted.
+    /// The frame's own estimate (no temporal filter) and the standard errors of its forward,
+    /// sideways and vertical velocity (m/s), `None` when nothing was fitted.
     fn fit_default(
         &mut self,
         frame: &[u8; STEREO_FRAME_BYTES],
         has_gyro: bool,
-    ) -> (EdgeFsOutput, Option<[f32; 2]>) {
+    ) -> (EdgeFsOutput, Option<[f32; 3]>) {
         let p = self.params;
         let (w, d, h) = (
             p.half_window as usize,
@@ -1159,11 +1242,179 @@ impl EdgeFs {
         }
         let rot_sigma = z_sum / n * derot_err_px / (dt_s * f);
         let side = rms_mps / libm::sqrtf(n);
-        let sigma = [
+        let mut sigma = [
             sigma_res / libm::sqrtf(spread),
             libm::sqrtf(side * side + rot_sigma * rot_sigma),
+            f32::INFINITY,
         ];
+        let coupled = self.coupled_fit(pts, &fit, sigma[0], dt_s);
+        out.fit_r2 = (coupled.r2.clamp(0.0, 1.0) * 255.0) as u8;
+        out.up_flags = out.flags | coupled.up_flags;
+        if coupled.up_flags.is_valid() && k == 1 {
+            out.forward_mps = coupled.forward_mps;
+            out.sideways_mps = coupled.sideways_mps;
+            out.up_mps = coupled.up_mps;
+            sigma[0] = coupled.forward_sigma;
+            sigma[2] = coupled.up_sigma;
+        }
         (out, Some(sigma))
+    }
+
+    /// The vertical flow of the rows against the frame `self.diag.horizon` back, and the
+    /// coupled fit of the three axes with the columns' fit (`cols`: its points `(x, Z·u, w)`;
+    /// `line`: its slope and intercept; `slope_sigma`: the slope's standard error).
+    ///
+    /// The rows share one depth `Z̄`, the harmonic mean of the used columns' (a row's flow
+    /// averages `1/Z` along it), and centred on the image `Z̄·v = F·y + f·U` (`y` downwards, `U`
+    /// up), the columns `Z·u = F·x - f·S`: one forward velocity `F` from the divergence of
+    /// both axes. The least squares of both blocks with the shared slope: each block's slope,
+    /// combined by inverse variance, each intercept moved with it through its block's
+    /// centroid. The rows' fit takes one Huber round (MAD scale) after least squares.
+    fn coupled_fit(
+        &mut self,
+        cols: &[(f32, f32, f32)],
+        line: &LineFit,
+        slope_sigma: f32,
+        dt_s: f32,
+    ) -> Coupled {
+        let p = self.params;
+        let f = p.focal_px();
+        let (a, b) = (line.slope as f32, line.intercept as f32);
+        // The columns' own fit (its R² under the robust fit's final weights).
+        let columns_only = |up_flags: EstimateFlags| Coupled {
+            forward_mps: a,
+            sideways_mps: -b / f,
+            up_mps: 0.0,
+            forward_sigma: slope_sigma,
+            up_sigma: f32::INFINITY,
+            r2: line.r2,
+            up_flags,
+        };
+        let d = usize::from(p.vertical_search_px);
+        if d == 0 {
+            return columns_only(EstimateFlags::NO_FLOW_MATCH);
+        }
+        let (i0, i1) = (self.idx(0), self.idx(usize::from(self.diag.horizon.max(1))));
+        let (cur, older) = (&self.ring[i0], &self.ring[i1]);
+        // The rows' depth: harmonic mean over the columns of the fit.
+        let (mut inv_sum, mut used) = (0.0f32, 0usize);
+        for (&u, &z) in self.diag.used.iter().zip(self.diag.depth_m.iter()) {
+            if u && z > 0.0 {
+                inv_sum += 1.0 / z;
+                used += 1;
+            }
+        }
+        // Nose up moves the scene down the image (towards larger rows).
+        let rot_px = if cur.has_yaw && older.has_yaw {
+            (cur.pitch_rad - older.pitch_rad) * f
+        } else {
+            0.0
+        };
+        if inv_sum <= 0.0 || rot_px.is_nan() || rot_px.abs() > p.max_rotation_px {
+            return columns_only(EstimateFlags::NO_FLOW_MATCH);
+        }
+        let z_bar = used as f32 / inv_sum;
+        let w = usize::from(p.half_window);
+        let offset = libm::roundf(rot_px) as i32;
+        let mut texture = [0u32; IMG_W];
+        window_sums(&cur.rows, w, &mut texture);
+        // A row bin sums 2·128 pixels, a column bin 96: the same texture per pixel.
+        let min_texture = p.min_texture.saturating_mul(8) / 3;
+        let mut rows = [(0.0f32, 0.0f32, 1.0f32); IMG_H];
+        let mut nr = 0;
+        let row_flow = &mut self.diag.row_flow_pxps;
+        // Windows inside rows 1..=IMG_H-2 (the border bins hold no gradient) in both frames.
+        flow_row_within(
+            &older.rows,
+            &cur.rows,
+            d,
+            offset,
+            w,
+            1,
+            IMG_H - 2,
+            |r, m| {
+                let usable = texture[r] >= min_texture
+                    && m.best > 0
+                    && m.best < 2 * d
+                    && m.confidence() >= p.min_flow_confidence;
+                if !usable {
+                    return;
+                }
+                let motion = offset as f32 + m.best as f32 - d as f32 + m.subpixel();
+                let v = (motion - rot_px) / dt_s;
+                if let (Some(slot), Some(pt)) = (row_flow.get_mut(r), rows.get_mut(nr)) {
+                    *slot = v;
+                    *pt = (r as f32 - 0.5 * (IMG_H - 1) as f32, z_bar * v, 1.0);
+                    nr += 1;
+                }
+            },
+        );
+        self.diag.fit_rows = nr as u8;
+        let rows = rows.get_mut(..nr).unwrap_or(&mut []);
+        if nr < usize::from(p.min_fit_columns).max(3) {
+            return columns_only(EstimateFlags::NO_FLOW_MATCH);
+        }
+        let Some(first) = weighted_line_fit(rows) else {
+            return columns_only(EstimateFlags::NO_FLOW_MATCH);
+        };
+        let (a0, b0) = (first.slope as f32, first.intercept as f32);
+        let mut res = [0.0f32; IMG_H];
+        for (r, pt) in res.iter_mut().zip(rows.iter()) {
+            *r = (pt.1 - (a0 * pt.0 + b0)).abs();
+        }
+        let scale = (1.4826 * median(res.get_mut(..nr).unwrap_or(&mut []))).max(1e-6);
+        let (cut, reject) = (p.huber_k * scale, fit::REJECT_SCALES * scale);
+        for pt in rows.iter_mut() {
+            let r = (pt.1 - (a0 * pt.0 + b0)).abs();
+            pt.2 = if p.huber_k > 0.0 {
+                fit::reweight(r, 1.0, cut, reject)
+            } else {
+                1.0
+            };
+        }
+        let Some(row_fit) = weighted_line_fit(rows) else {
+            return columns_only(EstimateFlags::NO_FLOW_MATCH);
+        };
+        let (ar, br) = (row_fit.slope as f32, row_fit.intercept as f32);
+        let (mut sw, mut sy, mut syy) = (0.0f32, 0.0f32, 0.0f32);
+        let (mut y_lo, mut y_hi) = (f32::MAX, f32::MIN);
+        for pt in rows.iter().filter(|pt| pt.2 > 0.0) {
+            sw += pt.2;
+            sy += pt.2 * pt.0;
+            syy += pt.2 * pt.0 * pt.0;
+            y_lo = y_lo.min(pt.0);
+            y_hi = y_hi.max(pt.0);
+        }
+        let y_mean = sy / sw.max(1e-6);
+        let row_var = scale * scale;
+        let var_ar = row_var / (syy - sy * y_mean).max(1.0);
+        let var_a = (slope_sigma * slope_sigma).max(1e-12);
+        // The shared slope and both intercepts through their blocks' centroids.
+        let x_mean = cols.iter().map(|pt| pt.0).sum::<f32>() / cols.len().max(1) as f32;
+        let var_f = 1.0 / (1.0 / var_a + 1.0 / var_ar);
+        let forward = var_f * (a / var_a + ar / var_ar);
+        let (bc, brc) = (b + (a - forward) * x_mean, br + (ar - forward) * y_mean);
+        let mut up_flags = EstimateFlags::NONE;
+        if scale / f > p.max_fit_rms_mps || y_hi - y_lo < p.min_fit_spread_px {
+            up_flags.insert(EstimateFlags::POOR_FIT);
+        }
+        let r2 = match (block_r2(cols, forward, bc), block_r2(rows, forward, brc)) {
+            (Some((rc, tc)), Some((rr, tr))) => 1.0 - (rc + rr) / (tc + tr),
+            _ => 0.0,
+        };
+        let up_sigma = libm::sqrtf(row_var / sw.max(1e-6) + y_mean * y_mean * var_f) / f;
+        if !(forward.is_finite() && bc.is_finite() && brc.is_finite() && up_sigma.is_finite()) {
+            return columns_only(EstimateFlags::POOR_FIT);
+        }
+        Coupled {
+            forward_mps: forward,
+            sideways_mps: -bc / f,
+            up_mps: brc / f,
+            forward_sigma: libm::sqrtf(var_f),
+            up_sigma,
+            r2,
+            up_flags,
+        }
     }
 
     /// The temporal filter's velocity to guide this frame's flow search, if it has a track
@@ -1174,7 +1425,7 @@ impl EdgeFs {
         let now = self.ring[self.idx(0)].capture_us;
         let before = self.ring[self.idx(1)].capture_us;
         let gap_s = now.wrapping_sub(before) as f32 * 1e-6;
-        let [fw, sw] = &self.filter;
+        let [fw, sw, _] = &self.filter;
         let usable = self.params.prior_window_px > 0.0
             && self.params.filter_accel_mps2 > 0.0
             && !self.prior_doubted
@@ -1233,6 +1484,42 @@ const MIN_TEXTURED_WINDOWS: usize = 3;
 /// neighbouring bins share no pixel, so their difference has variance 4·IMG_H·σ²(1 - 2/π),
 /// and its absolute value averages √(2/π) of its spread: 0.798 · √(4 · 96 · 0.3634) = 9.43.
 const NOISE_STEP_PER_SIGMA: f32 = 9.43;
+
+/// The coupled three-axis fit of a frame ([`EdgeFs::coupled_fit`]).
+#[derive(Debug, Clone, Copy)]
+struct Coupled {
+    forward_mps: f32,
+    sideways_mps: f32,
+    up_mps: f32,
+    /// Standard errors of the forward and vertical velocity, m/s.
+    forward_sigma: f32,
+    up_sigma: f32,
+    /// Coefficient of determination of both blocks together.
+    r2: f32,
+    /// The vertical velocity's own invalidity.
+    up_flags: EstimateFlags,
+}
+
+/// The weighted residual and total sums of squares of `points` `(x, v, w)` about the line
+/// `v = a·x + b` and about their weighted mean; `None` without weight or spread.
+fn block_r2(points: &[(f32, f32, f32)], a: f32, b: f32) -> Option<(f32, f32)> {
+    let (mut sw, mut sv) = (0.0f32, 0.0f32);
+    for pt in points {
+        sw += pt.2;
+        sv += pt.2 * pt.1;
+    }
+    if sw <= 0.0 {
+        return None;
+    }
+    let mean = sv / sw;
+    let (mut res, mut tot) = (0.0f32, 0.0f32);
+    for pt in points {
+        let r = pt.1 - (a * pt.0 + b);
+        res += pt.2 * r * r;
+        tot += pt.2 * (pt.1 - mean) * (pt.1 - mean);
+    }
+    (tot > 0.0).then_some((res, tot))
+}
 
 /// The velocity that guides the flow search ([`EdgeFsParams::prior_window_px`]), m/s.
 #[derive(Debug, Clone, Copy)]

@@ -27,8 +27,8 @@ mod bench {
         StereoToAutopilot, STEREO_FRAME_BYTES,
     };
     use stereo_board::edge_fs::{
-        edge_histograms, flow_match, flow_row, line_fit, robust_line_fit, stereo_match, stereo_row,
-        EdgeFs, EdgeFsParams, EdgeHistogram,
+        edge_histograms, flow_match, flow_row, flow_row_within, line_fit, robust_line_fit,
+        row_histogram, stereo_match, stereo_row, EdgeFs, EdgeFsParams, EdgeHistogram,
     };
     use stm32f4xx_hal as _;
 
@@ -119,6 +119,19 @@ mod bench {
             edge_histograms(a, &mut old_left, &mut old_right);
             measure("edge_histograms", || {
                 edge_histograms(b, &mut left, &mut right)
+            });
+            let (mut old_rows, mut rows): (EdgeHistogram, EdgeHistogram) = ([0; 128], [0; 128]);
+            row_histogram(a, &mut old_rows);
+            measure("row_histogram", || row_histogram(b, &mut rows));
+            let dp = EdgeFsParams::default_config();
+            measure("flow_row_vertical", || {
+                let mut sum = 0u32;
+                let w = usize::from(dp.half_window);
+                let d = usize::from(EdgeFsParams::VERTICAL_SEARCH_PX);
+                flow_row_within(&old_rows, &rows, d, 0, w, 1, 94, |_, m| {
+                    sum = sum.wrapping_add(m.best as u32);
+                });
+                sum
             });
         }
         let (w, d) = (8usize, 15usize);
@@ -274,6 +287,9 @@ mod bench {
                 sideways_mps: -0.03,
                 quality: 170,
             }),
+            up_mps: 0.0,
+            up_flags: EstimateFlags::NO_FLOW_MATCH,
+            fit_r2: 0,
         }
     }
 
