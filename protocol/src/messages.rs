@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 9;
+pub const PROTOCOL_VERSION: u8 = 10;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -436,6 +436,10 @@ pub enum PilotCommand {
     Land,
     /// Motors off immediately.
     Kill,
+    /// Lockstep (`hil`) images only: drive the PWM outputs with the motor command (`true`) or
+    /// hold them at 0 (`false`, the state at boot; the command still goes back to the host).
+    /// Enabling is accepted only while the motors are off; other images ignore it.
+    HilOutputs(bool),
 }
 
 /// Messages from a host (HIL bridge, simulator, ground tool) to a board.
@@ -453,7 +457,7 @@ pub enum HostToBoard {
     Imu(ImuSample),
     /// An external position / height fix (autopilot).
     ExternalPosition(ExternalPosition),
-    /// Arm, land or kill (autopilot).
+    /// Arm, land, kill, or the `hil` image's PWM outputs on or off (autopilot).
     Command(PilotCommand),
     /// List, read, write or save a board's parameters (answered with
     /// [`BoardToHost::Param`]).
