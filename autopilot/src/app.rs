@@ -406,6 +406,8 @@ pub struct Autopilot {
     failsafe: Failsafe,
     rc_kill_latched: bool,
     arm_refused: u32,
+    /// The lockstep images' PWM gate ([`PilotCommand::HilOutputs`]); off at boot.
+    hil_outputs: bool,
     /// When the host's last heartbeat arrived, µs.
     last_host_us: Option<u64>,
     /// The supply voltage: filter, sag compensation, verdict.
@@ -460,6 +462,7 @@ impl Autopilot {
             failsafe: Failsafe::new(config.failsafe),
             rc_kill_latched: false,
             arm_refused: 0,
+            hil_outputs: false,
             last_host_us: None,
             battery: BatteryMonitor::new(config.battery),
             storage: None,
@@ -817,8 +820,15 @@ impl Autopilot {
     /// initialised attitude estimate (an accelerometer sample near 1 g), no
     /// [`Autopilot::arm_blocker`], and the drone on the ground (disarmed, killed or after an IMU
     /// fault). Every `Arm` that does not leave the drone flying is counted in
-    /// [`Autopilot::arm_refused`].
+    /// [`Autopilot::arm_refused`]. [`PilotCommand::HilOutputs`] sets
+    /// [`Autopilot::hil_outputs`] (enabling only while the motors are off).
     pub fn on_command(&mut self, cmd: PilotCommand, now_us: u64) {
+        if let PilotCommand::HilOutputs(on) = cmd {
+            if !on || !self.failsafe.mode().motors_enabled() {
+                self.hil_outputs = on;
+            }
+            return;
+        }
         if cmd == PilotCommand::Arm && (!self.att.initialised() || self.arm_blocker().is_some()) {
             self.arm_refused = self.arm_refused.wrapping_add(1);
             return;
@@ -880,6 +890,13 @@ impl Autopilot {
     /// counted.
     pub fn arm_refused(&self) -> u32 {
         self.arm_refused
+    }
+
+    /// Whether a lockstep (`hil`) image drives its PWM outputs with the motor command: off at
+    /// boot, on only after the host's [`PilotCommand::HilOutputs`]`(true)` while the motors
+    /// were off. The images on their own sensors ignore it.
+    pub fn hil_outputs(&self) -> bool {
+        self.hil_outputs
     }
 
     /// A barometer reading (pressure, temperature) taken at `now_us`, fused by the vertical

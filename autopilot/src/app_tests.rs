@@ -1562,3 +1562,29 @@ fn a_critical_battery_lands_at_once_at_the_fast_descent_rate() {
     fly_on_battery(&mut r, 3.1, 4.0);
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
 }
+
+#[test]
+fn hil_outputs_are_off_at_boot_and_enabled_only_with_the_motors_off() {
+    let mut r = Run::new(AutopilotConfig::default());
+    assert!(!r.ap.hil_outputs(), "off at boot");
+    r.ap.on_command(PilotCommand::HilOutputs(true), r.now);
+    assert!(r.ap.hil_outputs());
+    r.ap.on_command(PilotCommand::HilOutputs(false), r.now);
+    assert!(!r.ap.hil_outputs());
+    r.takeoff();
+    r.fly(1.0);
+    // Flying: enabling is refused (the outputs would jump to the flight's duty), the flight
+    // goes on untouched.
+    r.ap.on_command(PilotCommand::HilOutputs(true), r.now);
+    assert!(!r.ap.hil_outputs());
+    assert_eq!(r.ap.mode(), FlightMode::Flying);
+    // Disabling is always taken.
+    r.ap.on_command(PilotCommand::Kill, r.now);
+    r.ap.on_command(PilotCommand::HilOutputs(true), r.now);
+    assert!(r.ap.hil_outputs(), "the motors are off again");
+    r.takeoff();
+    r.fly(0.5);
+    r.ap.on_command(PilotCommand::HilOutputs(false), r.now);
+    assert!(!r.ap.hil_outputs());
+    assert_eq!(r.ap.mode(), FlightMode::Flying, "the gate is not a kill");
+}

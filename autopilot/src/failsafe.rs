@@ -230,6 +230,8 @@ impl Failsafe {
                     self.holding = false;
                 }
             }
+            // The PWM gate of the lockstep images: no change of mode.
+            PilotCommand::HilOutputs(_) => {}
         }
         self.mode
     }

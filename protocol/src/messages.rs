@@ -445,6 +445,10 @@ pub enum PilotCommand {
     Land,
     /// Motors off immediately.
     Kill,
+    /// Lockstep (`hil`) images only: drive the PWM outputs with the motor command (`true`) or
+    /// hold them at 0 (`false`, the state at boot; the command still goes back to the host).
+    /// Enabling is accepted only while the motors are off; other images ignore it.
+    HilOutputs(bool),
 }
 
 /// Messages from a host (HIL bridge, simulator, ground tool) to a board.
@@ -462,7 +466,7 @@ pub enum HostToBoard {
     Imu(ImuSample),
     /// An external position / height fix (autopilot).
     ExternalPosition(ExternalPosition),
-    /// Arm, land or kill (autopilot).
+    /// Arm, land, kill, or the `hil` image's PWM outputs on or off (autopilot).
     Command(PilotCommand),
     /// List, read, write or save a board's parameters (answered with
     /// [`BoardToHost::Param`]).

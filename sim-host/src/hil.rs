@@ -45,6 +45,11 @@
 //!   with at most one frame period of latency, however slow the link.
 //! * Arming: a `PilotCommand::Arm` at [`HilConfig::arm_at_s`]; a host `Heartbeat` every
 //!   second of world time from the start (without it the autopilot refuses to arm, and lands).
+//! * PWM outputs: the autopilot's `hil` image holds its motor outputs at 0 and flies on the
+//!   commands it sends back (the simulated drone flies, nothing on the bench turns). Only with
+//!   `--outputs` ([`HilConfig::outputs`]) does the host send `PilotCommand::HilOutputs(true)`
+//!   at world time 0, before the arm: the outputs then follow the commands, and go to 0 within
+//!   60 ms of board time once the host's samples stop (`docs/hardware.md`, "HIL outputs").
 //! * Parameters (`--params FILE`, [`HilConfig::params`]): after both heartbeats and before the
 //!   world starts, every value of the file is set with a parameter request on the autopilot's
 //!   host link (a `[camera]` one passed on by the autopilot to the camera board) and read
@@ -253,6 +258,10 @@ pub struct HilConfig {
     /// Set (by `hil`'s Ctrl-C handler) to end the flight at the next IMU period; the result
     /// covers the world time flown, so the logs are still written.
     pub interrupt: Option<Arc<AtomicBool>>,
+    /// Enable the autopilot's PWM outputs (`hil --outputs`): the motors on the bench turn with
+    /// the commands. Off by default: the outputs stay at 0, the commands come back over the
+    /// link only.
+    pub outputs: bool,
 }
 
 impl Default for HilConfig {
@@ -268,6 +277,7 @@ impl Default for HilConfig {
             boot_timeout: Duration::from_secs(60),
             params: None,
             interrupt: None,
+            outputs: false,
         }
     }
 }
@@ -690,6 +700,7 @@ fn lockstep(
     let mut next_log = 0u64;
     let mut next_progress = 1_000_000u64;
     let mut armed = false;
+    let mut outputs_pending = cfg.outputs;
     let mut motors = [0.0f32; 4];
     let mut frame_id = 0u16;
     // Exposure time (wire) of the frame whose estimate is awaited, and when it was sent.
@@ -766,6 +777,13 @@ fn lockstep(
             next_height += height_period_us;
             push_msg(
                 &HostToBoard::ExternalPosition(world.height_fix(t)),
+                &mut out,
+            )?;
+        }
+        if outputs_pending {
+            outputs_pending = false;
+            push_msg(
+                &HostToBoard::Command(PilotCommand::HilOutputs(true)),
                 &mut out,
             )?;
         }
@@ -1133,6 +1151,10 @@ pub struct HilArgs {
     /// mismatch stops the run before arming.
     #[arg(long)]
     pub params: Option<PathBuf>,
+    /// Drive the autopilot's PWM outputs with its motor commands (motors on the bench turn).
+    /// Without it they stay at 0 and the commands are seen in the `Motors` replies and the log.
+    #[arg(long)]
+    pub outputs: bool,
 }
 
 /// Runs `sim-host hil`.
@@ -1146,6 +1168,7 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
         duration_s: args.duration,
         fps: args.fps,
         arm_at_s: args.arm_at,
+        outputs: args.outputs,
         reply_timeout: Duration::from_secs_f64(args.reply_timeout.max(0.01)),
         params: match &args.params {
             Some(path) => Some((

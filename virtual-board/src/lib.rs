@@ -40,6 +40,7 @@ pub mod inject;
 pub mod link;
 pub mod motors;
 pub mod mpu6000;
+pub mod ms5611;
 pub mod pilot;
 pub mod pins;
 pub mod rtt;

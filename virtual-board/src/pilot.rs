@@ -100,6 +100,7 @@ pub struct GroundStation {
     height_m: f64,
     height_after_arm_m: f64,
     silent: bool,
+    send_fixes: bool,
 }
 
 impl GroundStation {
@@ -114,6 +115,16 @@ impl GroundStation {
             height_m: 0.0,
             height_after_arm_m,
             silent: false,
+            send_fixes: true,
+        }
+    }
+
+    /// The same without height fixes: the autopilot flies on its barometer.
+    #[must_use]
+    pub fn without_fixes(self) -> Self {
+        Self {
+            send_fixes: false,
+            ..self
         }
     }
 
@@ -154,7 +165,7 @@ impl GroundStation {
             let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, uptime_ms));
             telemetry.send_at(now_ns, &host::frame(&hb));
         }
-        if self.fixes.due(now_ns) {
+        if self.send_fixes && self.fixes.due(now_ns) {
             let fix = HostToBoard::ExternalPosition(ExternalPosition {
                 timestamp_us: protocol::WireTime((now_ns / 1_000) as u32),
                 position_m: [0.0, 0.0, -self.height_m as f32],

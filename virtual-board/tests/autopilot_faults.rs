@@ -16,10 +16,14 @@
 //! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
 //! | link cut | the camera board's estimates stop | [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
 //! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::app::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
+//! | telemetry link cut | flying on the barometer (no height fixes, as without motion capture), the host's heartbeats stop | [`autopilot::app::AutopilotConfig::host_loss_motors_off_us`] (`fs_host_timeout_us`, land, touch down), the landing reported as `telemetry-lost` |
+//! | host kill | a `PilotCommand::Kill` on the telemetry port | [`KILL_AFTER_LAST_BYTE_NS`]: the next 512 Hz step after the command's last byte reached the board |
+//! | frozen barometer | flying on the barometer (no height fixes), the MS5611 answers every conversion with its last word ([`virtual_board::ms5611::Barometer::set_frozen`]) | [`baro_frozen_promise_ns`]: `baro_stuck_us`, the height timeout, the blind landing; the landing reported as `baro-frozen` |
 
 use protocol::{
-    BoardToHost, CaptureCounts, Decoder, Estimate, EstimateFlags, FlightMode, FrameFit, Heartbeat,
-    LinkErrorCounts, Message, Node, StereoStatus, StereoToAutopilot,
+    BoardToHost, CaptureCounts, Decoder, Estimate, EstimateFlags, FailsafeReason, FlightMode,
+    FrameFit, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, PilotCommand, StereoStatus,
+    StereoToAutopilot,
 };
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
@@ -48,6 +52,14 @@ const GYRO_ZOUT_H: u8 = 0x47;
 /// SPI2's registers (RM0090 table 1) and its CR1's SPE bit (section 28.5.1).
 const SPI2: (u64, u64) = (0x4000_3800, 0x4000_3C00);
 const SPI_CR1_SPE: u64 = 1 << 6;
+/// A host `Kill` stops every motor at the next 512 Hz step (the library's promise,
+/// `kill_stops_motors_at_once`: the step after the command gives 0): one loop period after the
+/// command's last byte reached the board, and the bench's stop of [`KILL_STEP_US`].
+const KILL_AFTER_LAST_BYTE_NS: u64 =
+    1_000_000_000 / autopilot::board::LOOP_RATE_HZ as u64 + KILL_STEP_US * 1_000;
+/// The bench's stop period of the kill run, µs (finer than the 1 ms of the others: the
+/// promise is a few ms).
+const KILL_STEP_US: u64 = 100;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Fault {
@@ -61,6 +73,9 @@ enum Fault {
     Hang,
     LinkCut,
     CameraStopped,
+    TelemetryCut,
+    HostKill,
+    BaroFrozen,
 }
 
 /// The camera board as the autopilot hears it: a valid estimate (hovering still) per 25 fps
@@ -164,6 +179,10 @@ struct Pilot {
     landing: bool,
     /// The first telemetry (its last byte's stop) reporting the blind hover after the fault.
     hover_seen_at: Option<u64>,
+    /// The first telemetry after the fault reporting a landing, and its failsafe reason.
+    landing_seen: Option<(u64, Option<FailsafeReason>)>,
+    /// The stop at which the fault was injected (the kill's last byte went on the wire).
+    injected_at: Option<u64>,
     last_ns: u64,
     running_before: bool,
     /// First stop after the fault with every duty 0, and the first after that with one not 0.
@@ -178,7 +197,11 @@ impl Pilot {
     fn new(fault: Fault, logger_taken: Option<u64>, runaway: Option<RunawayRecursion>) -> Self {
         Self {
             fault,
-            ground: GroundStation::arming_at(ARM_AT, HOVER_M),
+            ground: if matches!(fault, Fault::BaroFrozen | Fault::TelemetryCut) {
+                GroundStation::arming_at(ARM_AT, HOVER_M).without_fixes()
+            } else {
+                GroundStation::arming_at(ARM_AT, HOVER_M)
+            },
             camera: CameraStandIn::new(),
             fault_at: Once::at(FAULT_AT),
             logger_taken,
@@ -188,6 +211,8 @@ impl Pilot {
             telemetry_read: 0,
             landing: false,
             hover_seen_at: None,
+            landing_seen: None,
+            injected_at: None,
             last_ns: 0,
             running_before: false,
             off_at: None,
@@ -203,6 +228,9 @@ impl Pilot {
         for &byte in sent.get(self.telemetry_read..).unwrap_or(&[]) {
             if let Some(BoardToHost::Telemetry(t)) = self.telemetry.push(byte) {
                 self.landing = t.flight_mode == FlightMode::Landing;
+                if self.landing && now > FAULT_AT && self.landing_seen.is_none() {
+                    self.landing_seen = Some((now, t.failsafe_reason));
+                }
                 if t.flight_mode == FlightMode::HoverNoEstimate
                     && now > FAULT_AT
                     && self.hover_seen_at.is_none()
@@ -246,6 +274,7 @@ impl Probe<Autopilot> for Pilot {
             self.stack_bottom_word = at.host.read(bottom, rigless::soc::Width::W32).ok();
         }
         if self.fault_at.due(now) {
+            self.injected_at = Some(now);
             match self.fault {
                 Fault::ImuFrozen => at.board().imu().set_frozen(true),
                 Fault::ImuUnplugged => at.board().imu().set_unplugged(true),
@@ -275,6 +304,13 @@ impl Probe<Autopilot> for Pilot {
                 }
                 Fault::LinkCut => {}
                 Fault::CameraStopped => self.camera.stop_camera(),
+                Fault::TelemetryCut => self.ground.set_silent(true),
+                Fault::BaroFrozen => at.board().barometer().set_frozen(true),
+                Fault::HostKill => {
+                    let kill = HostToBoard::Command(PilotCommand::Kill);
+                    let line = &at.board().telemetry.rx;
+                    line.send_at(now, &virtual_board::host::frame(&kill));
+                }
             }
         }
         let board = at.board();
@@ -287,7 +323,10 @@ impl Probe<Autopilot> for Pilot {
         if !(self.fault == Fault::LinkCut && now >= FAULT_AT) {
             self.camera.step(now, &board.link.rx);
         }
-        if matches!(self.fault, Fault::LinkCut | Fault::CameraStopped) {
+        if matches!(
+            self.fault,
+            Fault::LinkCut | Fault::CameraStopped | Fault::TelemetryCut | Fault::BaroFrozen
+        ) {
             self.follow_the_landing(now, board);
         }
         self.ground.step(now, &board.telemetry.rx);
@@ -348,10 +387,17 @@ fn runaway_in_the_loop(firmware: &Firmware) -> RunawayRecursion {
     panic!("no function of the loop to return from: {tried:?}");
 }
 
+/// What a fault run saw: the outcome's report, the time to stop, ns, when the telemetry first
+/// reported the blind hover after the fault, and when it first reported a landing and why.
+type FaultRun = (
+    String,
+    u64,
+    Option<u64>,
+    Option<(u64, Option<FailsafeReason>)>,
+);
+
 /// Runs `fault` and checks the motors stop within `promise_ns` of it and stay stopped.
-/// Returns the outcome's report, the time to stop, ns, and when the telemetry first reported
-/// the blind hover after the fault.
-fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String, u64, Option<u64>) {
+fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> FaultRun {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let logger = (fault == Fault::Panic).then(|| logger_taken_flag(&firmware));
     let runaway = (fault == Fault::StackOverflow).then(|| runaway_in_the_loop(&firmware));
@@ -361,7 +407,11 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
             firmware,
             probe: Pilot::new(fault, logger, runaway),
         },
-        Options::seconds(run_s),
+        if fault == Fault::HostKill {
+            Options::seconds(run_s).step_us(KILL_STEP_US)
+        } else {
+            Options::seconds(run_s)
+        },
     )
     .expect("the run");
     let report = outcome.report();
@@ -373,7 +423,12 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
     let off_at = pilot
         .off_at
         .unwrap_or_else(|| panic!("{fault:?}: the motors never all stopped\n{report}"));
-    let took = off_at - FAULT_AT;
+    // From the stop the fault went in at (the kill's last byte on the wire), else its instant.
+    let took = if fault == Fault::HostKill {
+        off_at - pilot.injected_at.expect("the kill went out")
+    } else {
+        off_at - FAULT_AT
+    };
     println!(
         "{fault:?}: every motor at 0 {:.1} ms after the fault (promised {:.1} ms)",
         took as f64 / 1e6,
@@ -543,7 +598,7 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> (String,
             "{fault:?}: no re-configuration read back right\n{report}"
         );
     }
-    (report, took, pilot.hover_seen_at)
+    (report, took, pilot.hover_seen_at, pilot.landing_seen)
 }
 
 /// No valid IMU sample for this long while armed -> motors off.
@@ -635,7 +690,8 @@ fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
     let cfg = autopilot::app::AutopilotConfig::default();
     let promise = cfg.camera_stopped_motors_off_us() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
-    let (report, _, hover_seen_at) = fault_stops_the_motors(Fault::CameraStopped, promise, run_s);
+    let (report, _, hover_seen_at, _) =
+        fault_stops_the_motors(Fault::CameraStopped, promise, run_s);
     // Telemetry goes out at 10 Hz: the hover is seen within two of its periods (the mode
     // changes at the next 50 Hz guidance step), well inside the estimate timeout.
     let hover_by = FAULT_AT + 2 * u64::from(autopilot::app::TELEMETRY_PERIOD_US) * 1_000;
@@ -646,5 +702,109 @@ fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
     assert!(
         hover_seen_at.is_some_and(|at| at <= hover_by),
         "blind hover reported at {hover_seen_at:?} ns, expected by {hover_by}\n{report}"
+    );
+}
+
+/// The telemetry link is cut in flight, the drone flying on its barometer (with height fixes
+/// over the same link, their loss lands it first, as `height-lost`): after
+/// `fs_host_timeout_us` the autopilot lands, reporting `telemetry-lost`, and every motor is at 0
+/// within the host-loss promise (the timeout, the landing at the slower landing rate from the
+/// target height, the touchdown confirmation, one guidance period).
+#[test]
+fn a_cut_telemetry_link_lands_and_stops_the_motors() {
+    let cfg = autopilot::app::AutopilotConfig::default();
+    let promise = cfg.host_loss_motors_off_us() * 1_000;
+    let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
+    let (report, took, _, landing) = fault_stops_the_motors(Fault::TelemetryCut, promise, run_s);
+    let (landing_at, reason) =
+        landing.unwrap_or_else(|| panic!("no landing reported after the cut\n{report}"));
+    assert_eq!(
+        reason,
+        Some(FailsafeReason::TelemetryLost),
+        "the landing's reason\n{report}"
+    );
+    // Not before the host timeout from the last heartbeat (one a second): the link's silence,
+    // not another failsafe, landed it.
+    let period = virtual_board::pilot::HEARTBEAT_PERIOD_NS;
+    let last_heartbeat = (FAULT_AT - 1) / period * period;
+    let timeout = cfg.failsafe.host_timeout_us * 1_000;
+    assert!(
+        landing_at >= last_heartbeat + timeout,
+        "landing reported {:.2} s after the last heartbeat, before the {:.1} s timeout\n{report}",
+        (landing_at - last_heartbeat) as f64 / 1e9,
+        timeout as f64 / 1e9
+    );
+    println!(
+        "TelemetryCut: landing reported {:.2} s after the cut, motors at 0 after {:.2} s (promised {:.2} s)",
+        (landing_at - FAULT_AT) as f64 / 1e9,
+        took as f64 / 1e9,
+        promise as f64 / 1e9
+    );
+}
+
+/// Time on the telemetry line of what the kill run sends at the kill's stop, ns: the height fix
+/// due at the same instant, then the kill (the kill's last byte reaches the board after both).
+fn kill_wire_ns() -> u64 {
+    let wire = |m: &HostToBoard| {
+        virtual_board::host::frame(m).len() as u64 * 10 * 1_000_000_000
+            / u64::from(autopilot::board::TELEMETRY_BAUD)
+    };
+    let fix = HostToBoard::ExternalPosition(protocol::ExternalPosition {
+        timestamp_us: protocol::WireTime((FAULT_AT / 1_000) as u32),
+        position_m: [0.0, 0.0, -HOVER_M as f32],
+    });
+    wire(&fix) + wire(&HostToBoard::Command(PilotCommand::Kill))
+}
+
+/// A host `Kill` on the telemetry port: every motor at 0 within one 512 Hz step of the
+/// command's last byte reaching the board (at the telemetry baud, after the height fix sent at
+/// the same instant).
+#[test]
+fn a_host_kill_stops_the_motors_within_a_loop_period() {
+    let wire = kill_wire_ns();
+    let (_, took, _, _) =
+        fault_stops_the_motors(Fault::HostKill, wire + KILL_AFTER_LAST_BYTE_NS, 3.0);
+    println!(
+        "HostKill: every motor at 0 {:.2} ms after the kill was sent (bound: {:.2} ms on the line, then {:.2} ms)",
+        took as f64 / 1e6,
+        wire as f64 / 1e6,
+        KILL_AFTER_LAST_BYTE_NS as f64 / 1e6
+    );
+}
+
+/// A frozen barometer is caught after `baro_stuck_us`, its readings are no longer fused, the
+/// height goes stale after the height timeout and the drone lands blind; one guidance period,
+/// and a barometer cycle (two OSR 4096 conversions) and a bench stop of slack.
+fn baro_frozen_promise_ns() -> u64 {
+    let cfg = autopilot::app::AutopilotConfig::default();
+    let cycle_us = 2 * u64::from(autopilot::ms5611::Osr::X4096.conversion_time_us());
+    (cfg.baro_stuck_us
+        + cfg.failsafe.height_timeout_us
+        + cfg.blind_land_time_us
+        + u64::from(autopilot::app::GUIDANCE_PERIOD_US)
+        + cycle_us)
+        * 1_000
+        + MS
+}
+
+/// The barometer freezes while the drone flies on it: caught, the landing reported as
+/// `baro-frozen`, every motor at 0 within [`baro_frozen_promise_ns`].
+#[test]
+fn a_frozen_barometer_lands_and_stops_the_motors() {
+    let promise = baro_frozen_promise_ns();
+    let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
+    let (report, took, _, landing) = fault_stops_the_motors(Fault::BaroFrozen, promise, run_s);
+    let (landing_at, reason) =
+        landing.unwrap_or_else(|| panic!("no landing reported after the freeze\n{report}"));
+    assert_eq!(
+        reason,
+        Some(FailsafeReason::BaroFrozen),
+        "the landing's reason\n{report}"
+    );
+    println!(
+        "BaroFrozen: landing reported {:.2} s after the freeze, motors at 0 after {:.2} s (promised {:.2} s)",
+        (landing_at - FAULT_AT) as f64 / 1e9,
+        took as f64 / 1e9,
+        promise as f64 / 1e9
     );
 }

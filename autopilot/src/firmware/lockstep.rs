@@ -8,6 +8,11 @@
 //! * The board's own IMU and barometer are not read, and the RC receiver is not listened to.
 //! * The world clock may stall while the host computes, so the 1 Hz heartbeat (board clock)
 //!   feeds a 2 s watchdog.
+//! * The PWM outputs stay at 0 unless the host enabled them
+//!   ([`protocol::PilotCommand::HilOutputs`], see [`autopilot::app::Autopilot::hil_outputs`]),
+//!   and go to 0 when no host sample arrived for [`SAMPLES_TIMEOUT_US`] of board time
+//!   ([`outputs_live`], checked every [`OUTPUTS_CHECK_US`]): world time stops with the samples, so
+//!   no failsafe of the library fires then.
 
 use core::cell::Cell;
 use core::sync::atomic::AtomicU32;
@@ -26,14 +31,36 @@ pub static HOST_SENSOR_REJECTED: AtomicU32 = AtomicU32::new(0);
 
 /// World time, µs (set by the host link's IMU samples).
 static WORLD_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
+/// Board time of the last host IMU sample, µs (`None` before the first).
+static LAST_SAMPLE_BOARD_US: Mutex<Cell<Option<u64>>> = Mutex::new(Cell::new(None));
+
+/// Board time without a host sample after which the PWM outputs go to 0, µs. The host sends
+/// 512 samples per world second; a world that runs near real time leaves gaps of a few ms.
+pub const SAMPLES_TIMEOUT_US: u64 = 50_000;
+/// Period of the board-clock check of [`SAMPLES_TIMEOUT_US`], µs: with it, the outputs are at
+/// 0 at most 60 ms of board time after the last sample (the 100 ms promise of
+/// `docs/hardware.md`, "HIL outputs").
+pub const OUTPUTS_CHECK_US: u32 = 10_000;
 
 /// A host IMU sample: its timestamp moves the world clock; returns the world time to run the
 /// control loop at.
 pub fn host_imu(world: &mut autopilot::lockstep::WorldClock, sample: &ImuSample) -> Option<u64> {
     let at = world.observe(sample.timestamp_us);
     let now = world.now_us();
-    cortex_m::interrupt::free(|cs| WORLD_US.borrow(cs).set(now));
+    let board_now = super::clock::now_us();
+    cortex_m::interrupt::free(|cs| {
+        WORLD_US.borrow(cs).set(now);
+        LAST_SAMPLE_BOARD_US.borrow(cs).set(Some(board_now));
+    });
     Some(at)
+}
+
+/// Whether the PWM outputs follow the motor command at board time `board_now_us`: the host
+/// `enabled` them and its last sample is at most [`SAMPLES_TIMEOUT_US`] old. Otherwise every
+/// output is held at 0.
+pub fn outputs_live(enabled: bool, board_now_us: u64) -> bool {
+    let last = cortex_m::interrupt::free(|cs| LAST_SAMPLE_BOARD_US.borrow(cs).get());
+    enabled && last.is_some_and(|t| board_now_us.saturating_sub(t) <= SAMPLES_TIMEOUT_US)
 }
 
 /// The time the flight library sees, µs: the host's world time.

@@ -11,7 +11,8 @@
 //! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]) |
 //! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour) | half/full buffer: pends `telemetry_uart` |
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors |
-//! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors, releases the periodic tasks |
+//! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors (only once the host enabled them), releases the periodic tasks |
+//! | `outputs_watch` | 5 | 100 Hz, board clock (lockstep) | the PWM outputs to 0 when the host's samples stopped or it never enabled them (`flavour::outputs_live`) |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `telemetry_uart` | position / command / parameter requests from the host (the camera board's passed on over the link; IMU samples: lockstep only) |
 //! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms (only with `board::RC_RECEIVER`) | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
@@ -324,6 +325,7 @@ mod app {
             rc_rx::spawn().ok();
         }
         baro::spawn().ok();
+        outputs_watch::spawn().ok();
 
         (
             Shared {
@@ -547,16 +549,37 @@ mod app {
         }
     }
 
-    /// One control step on a valid sample: the library's 512 Hz loop, then the motors.
+    /// One control step on a valid sample: the library's 512 Hz loop, then the motors (held at
+    /// 0 where the flavour's outputs are not live, see `flavour::outputs_live`). Returns the
+    /// motor command.
     fn fly(
         ap: &mut impl rtic::Mutex<T = &'static mut Autopilot>,
         motors: &mut impl rtic::Mutex<T = hw::Motors>,
         imu: &ImuSample,
         now: u64,
     ) -> [f32; 4] {
-        let throttle = ap.lock(|ap| ap.on_imu(imu, now));
-        motors.lock(|m| m.set(throttle));
+        let (throttle, enabled) = ap.lock(|ap| (ap.on_imu(imu, now), ap.hil_outputs()));
+        let live = flavour::outputs_live(enabled, clock::now_us());
+        motors.lock(|m| m.set(if live { throttle } else { [0.0; 4] }));
         throttle
+    }
+
+    /// Lockstep flavours: every `flavour::OUTPUTS_CHECK_US` of board time, the PWM outputs to
+    /// 0 unless they are live (enabled by the host, and its samples still coming: world time,
+    /// and with it every failsafe of the library, stops with them). Ends at once in the real
+    /// flavour.
+    #[task(priority = 5, shared = [ap, motors])]
+    async fn outputs_watch(mut cx: outputs_watch::Context) {
+        if flavour::OUTPUTS_CHECK_US == 0 {
+            return;
+        }
+        loop {
+            Mono::delay(Duration::from_ticks(ticks(flavour::OUTPUTS_CHECK_US))).await;
+            let enabled = cx.shared.ap.lock(|ap| ap.hil_outputs());
+            if !flavour::outputs_live(enabled, clock::now_us()) {
+                cx.shared.motors.lock(|m| m.set([0.0; 4]));
+            }
+        }
     }
 
     /// The lockstep flavours' control step: a host IMU sample (and its world time, µs) ->

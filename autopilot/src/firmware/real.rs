@@ -29,6 +29,16 @@ pub fn host_imu(_world: &mut autopilot::lockstep::WorldClock, _sample: &ImuSampl
     None
 }
 
+/// No board-clock check of the outputs (0): the library's IMU failsafe watches the board's
+/// own samples.
+pub const OUTPUTS_CHECK_US: u32 = 0;
+
+/// Whether the PWM outputs follow the motor command: always (the host's
+/// [`protocol::PilotCommand::HilOutputs`] gates only the lockstep flavours).
+pub fn outputs_live(_enabled: bool, _board_now_us: u64) -> bool {
+    true
+}
+
 /// The time the flight library sees, µs: the board clock.
 pub fn lib_now_us() -> u64 {
     clock::now_us()

@@ -32,6 +32,7 @@ use crate::flash::FlashContents;
 use crate::link::WireEnd;
 use crate::motors::{self, MotorPin, Output};
 use crate::mpu6000::{self, Mpu6000};
+use crate::ms5611::Barometer;
 use crate::pins::{Mode, Wired};
 use crate::soc::{Part, Soc};
 
@@ -259,7 +260,7 @@ impl Autopilot {
             },
         );
         soc.mcu.spi[SPI2].attach_selected(
-            Ms5611::new(),
+            Barometer::new(),
             Select {
                 port: "GPIOC",
                 pin: Pin::new(13).expect("a pin"),
@@ -313,8 +314,13 @@ impl Autopilot {
 
     /// The barometer.
     pub fn baro(&mut self) -> &mut Ms5611 {
+        self.barometer().chip()
+    }
+
+    /// The barometer and its freeze ([`Barometer::set_frozen`]).
+    pub fn barometer(&mut self) -> &mut Barometer {
         self.soc.mcu.spi[SPI2]
-            .chip_mut::<Ms5611>(BARO)
+            .chip_mut::<Barometer>(BARO)
             .expect("the MS5611 is on SPI2")
     }
 
