@@ -160,6 +160,9 @@ impl Host {
                     sideways_mps: 0.0,
                     quality: 200,
                 }),
+                up_mps: 0.0,
+                up_flags: EstimateFlags::NO_FLOW_MATCH,
+                fit_r2: 0,
             }));
         }
     }
