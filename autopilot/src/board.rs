@@ -342,8 +342,9 @@ pub const TELEMETRY_BAUD: u32 = board_support::link::HOST_BAUD;
 /// `board_support::fault`), before it has dropped noticeably or flown far on its last command.
 /// The 50 Hz guidance task feeds it (every 20 ms): a task hung at the guidance priority or
 /// above (the control loop included) starves it. The watchdog runs on the LSI, 17 to 47 kHz
-/// on this part (datasheet, LSI characteristics), so the 50 ms nominal at 32 kHz is 34 ms at
-/// worst: still above the feeding period with room for a delayed guidance step. In the
+/// on this part (datasheet, LSI characteristics), and the timeout is programmed for 32 kHz:
+/// 34 ms on the fastest LSI, still above the feeding period with room for a delayed guidance
+/// step, and 94 ms on the slowest (the virtual boards measure both corners). In the
 /// lockstep flavours (`hil`, `qemu`) the world clock may stall while the host computes, so the
 /// 1 Hz heartbeat feeds a 2 s watchdog there.
 #[cfg(not(any(feature = "hil", feature = "qemu")))]

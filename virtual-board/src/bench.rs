@@ -21,6 +21,7 @@ use rigless::time::VirtualNanos;
 use crate::firmware::Firmware;
 use crate::rtt::RttLog;
 use crate::soc::Soc;
+use crate::stack::{StackScan, StackUse};
 
 /// A board the bench can run: a rigless board whose one target is our [`Soc`].
 pub trait BenchBoard: Board + Sized + 'static {
@@ -160,6 +161,8 @@ pub struct Outcome<B: BenchBoard, P> {
     pub end_ns: u64,
     /// Wall time of the run, s.
     pub wall_s: f64,
+    /// The stack's low-water mark over the run ([`crate::stack`]), if it was ever seen painted.
+    pub stack: Option<StackUse>,
 }
 
 impl<B: BenchBoard, P> Outcome<B, P> {
@@ -197,13 +200,31 @@ impl<B: BenchBoard, P> Outcome<B, P> {
         out
     }
 
-    /// Panics with the report if the run faulted or broke the part's limits.
+    /// Panics with the report if the run faulted or broke the part's limits, or if a `real`
+    /// image went deeper into its stack than `xtask/budgets.toml` records ([`crate::stack`]).
     pub fn assert_clean(&self) {
         assert!(
             self.faults.is_empty() && self.violations.is_empty(),
             "the firmware faulted or reached what its part lacks\n{}",
             self.report()
         );
+        if let Some(stack) = &self.stack
+            && let Some(package) = &stack.real_image
+        {
+            let recorded = crate::stack::recorded_use(package).unwrap_or_else(|e| panic!("{e}"));
+            println!(
+                "stack: {package} used {} of {} B (recorded {recorded} B)",
+                stack.used(),
+                stack.reserve
+            );
+            assert!(
+                stack.used() <= recorded,
+                "{package} used {} B of stack, xtask/budgets.toml records {recorded} B: record \
+                 the new figure there (its margin is `cargo xtask size`'s)\n{}",
+                stack.used(),
+                self.report()
+            );
+        }
     }
 
     /// Whether any log line contains `text`.
@@ -273,6 +294,7 @@ struct BenchDriver<B: BenchBoard, P> {
     end_ns: u64,
     lockstep: Option<Arc<Lockstep>>,
     on_barrier: Vec<Arc<dyn OnBarrier>>,
+    stack: Option<StackScan>,
     marker: std::marker::PhantomData<fn() -> B>,
 }
 
@@ -356,6 +378,9 @@ impl<B: BenchBoard, P: Probe<B>> Driver<B> for BenchDriver<B, P> {
         }
         // The next multiple of the step: a stop lands a little after its instant (an
         // instruction boundary), and the next is not pushed later by that.
+        if let Some(stack) = &mut self.stack {
+            stack.at_stop(now, host, !go_on);
+        }
         let step = self.step_ns.max(1);
         let next = (now / step + 1) * step;
         go_on.then(|| VirtualNanos(next.min(self.until_ns)))
@@ -427,6 +452,7 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
         length: missing_ram.size,
     });
     let log = RttLog::new(firmware.symbol("_SEGGER_RTT"), firmware.defmt_table()?);
+    let stack = StackScan::new(&firmware);
     let driver = BenchDriver {
         probe,
         log,
@@ -439,6 +465,7 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
         end_ns: 0,
         lockstep,
         on_barrier,
+        stack,
         marker: std::marker::PhantomData,
     };
     images.insert(0, firmware.image);
@@ -458,6 +485,7 @@ fn finish<B: BenchBoard, P: Probe<B>>(
         violations: driver.violations,
         end_ns: driver.end_ns,
         wall_s,
+        stack: driver.stack.as_ref().and_then(StackScan::result),
     }
 }
 

@@ -11,7 +11,7 @@
 //!   generates a clock, woken only when something can see its events.
 //! * [`link`]: two boards' UARTs joined byte for byte, [`bench`](mod@bench): the harness that loads the
 //!   ELFs, runs them in virtual time (two boards in lockstep), reads their defmt logs over RTT
-//!   ([`rtt`]) and watches for panics and faults; [`motors`] reads PWM duties off timer channels.
+//!   ([`rtt`]) and watches for panics and faults, and the stack's low-water mark ([`stack`]); [`motors`] reads PWM duties off timer channels.
 //! * [`pilot`]: what a user does to fly the autopilot (height fixes, `Arm`), and schedules on
 //!   the bench's stops.
 //!
@@ -23,7 +23,8 @@
 //!   dynamics.
 //!
 //! Virtual time is rigless's: 4 ns per instruction at 168 MHz by default (250 M instructions per
-//! virtual second), and a core in WFI skips to its next event.
+//! virtual second; [`timing`] sets the pessimistic 8.93 ns and the watchdog's LSI corners), and
+//! a core in WFI skips to its next event.
 
 pub mod bench;
 pub mod boards;
@@ -46,6 +47,8 @@ pub mod pins;
 pub mod rtt;
 pub mod serve;
 pub mod soc;
+pub mod stack;
 pub mod syscfg;
 pub mod tcm8230;
+pub mod timing;
 pub mod world;

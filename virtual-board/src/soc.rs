@@ -234,6 +234,8 @@ static DMA2_LAST_DATA: [Wire; 1] = [Wire {
 pub struct Soc {
     /// The part the board really carries.
     pub part: Part,
+    /// How fast its core retires instructions ([`crate::timing`]).
+    pub core_rate: crate::timing::CoreRate,
     /// rigless's STM32F427: clock tree, ports, serial ports and interfaces, timers, DMA, IWDG...
     pub mcu: Stm32f427,
     /// The external interrupt controller, RM0090 section 12.
@@ -276,6 +278,7 @@ impl Soc {
         };
         Ok(Self {
             part,
+            core_rate: crate::timing::CoreRate::Default,
             mcu,
             exti: Exti::default(),
             syscfg: Syscfg,

@@ -14,6 +14,12 @@
 //! | stack overflow | a runaway recursion: one function of the 512 Hz loop returns into two instructions that push without end ([`virtual_board::inject::RunawayRecursion`]) until the stack leaves SRAM (flip-link: the stack is the bottom of SRAM) | the same: the HardFault path stops the motors although the stack is used up |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
 //! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
+//!
+//! The HardFault and panic paths' motor-off latency is measured to the instruction: after the
+//! fault the bench watches every store to the motor timers and pins and reads the outputs at
+//! each. The hard fault runs at both core rates ([`CoreRate`]), the hung loop at the typical,
+//! slowest and fastest LSI (the watchdog's timeout scales with it).
+//!
 //! | link cut | the camera board's estimates stop | [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
 //! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::app::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
 //! | telemetry link cut | flying on the barometer (no height fixes, as without motion capture), the host's heartbeats stop | [`autopilot::app::AutopilotConfig::host_loss_motors_off_us`] (`fs_host_timeout_us`, land, touch down), the landing reported as `telemetry-lost` |
@@ -30,6 +36,7 @@ use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
 use virtual_board::inject::RunawayRecursion;
 use virtual_board::pilot::{Every, GroundStation, MS, Once};
+use virtual_board::timing::{CoreRate, LSI_HZ_FASTEST, LSI_HZ_SLOWEST, LSI_HZ_TYPICAL};
 
 const ARM_AT: u64 = 1_500 * MS;
 const FAULT_AT: u64 = 2_500 * MS;
@@ -60,6 +67,14 @@ const KILL_AFTER_LAST_BYTE_NS: u64 =
 /// The bench's stop period of the kill run, µs (finer than the 1 ms of the others: the
 /// promise is a few ms).
 const KILL_STEP_US: u64 = 100;
+/// What a store can stop a motor with (RM0090 table 1): TIM3's and TIM5's registers (CCMR1,
+/// CCR1, CCR2) and the motor pins' ports' MODER to BSRR (GPIOA, GPIOC).
+const MOTOR_REGISTERS: [(u64, u64); 4] = [
+    (0x4000_0400, 0x40),
+    (0x4000_0C00, 0x40),
+    (0x4002_0000, 0x1C),
+    (0x4002_0800, 0x1C),
+];
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Fault {
@@ -187,6 +202,9 @@ struct Pilot {
     running_before: bool,
     /// First stop after the fault with every duty 0, and the first after that with one not 0.
     off_at: Option<u64>,
+    /// The first store after the fault that left every duty at 0, ns (the motor registers are
+    /// watched from the fault on).
+    off_exact: Option<u64>,
     came_back_at: Option<u64>,
     /// The first stop after the fault at which the MPU-6000 is awake with the firmware's
     /// gyro range again.
@@ -216,6 +234,7 @@ impl Pilot {
             last_ns: 0,
             running_before: false,
             off_at: None,
+            off_exact: None,
             came_back_at: None,
             imu_back_at: None,
         }
@@ -260,6 +279,15 @@ impl Probe<Autopilot> for Pilot {
         if let Some(runaway) = &mut self.runaway {
             runaway.hit(hit, session, host);
         }
+        if hit.kind == rigless::emulator::HitKind::Write
+            && self.off_exact.is_none()
+            && MOTOR_REGISTERS
+                .iter()
+                .any(|&(base, len)| (base..base + len).contains(&hit.address))
+            && session.board().motors().iter().all(|m| m.duty == 0.0)
+        {
+            self.off_exact = Some(hit.at.0);
+        }
     }
 
     fn at(&mut self, at: &mut At<'_, Autopilot>) -> Flow {
@@ -275,6 +303,10 @@ impl Probe<Autopilot> for Pilot {
         }
         if self.fault_at.due(now) {
             self.injected_at = Some(now);
+            for (address, length) in MOTOR_REGISTERS {
+                at.session
+                    .watch(rigless::emulator::Watch::Writes { address, length });
+            }
             match self.fault {
                 Fault::ImuFrozen => at.board().imu().set_frozen(true),
                 Fault::ImuUnplugged => at.board().imu().set_unplugged(true),
@@ -397,13 +429,28 @@ type FaultRun = (
 );
 
 /// Runs `fault` and checks the motors stop within `promise_ns` of it and stay stopped.
+/// Returns what the run saw ([`FaultRun`]).
 fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> FaultRun {
+    fault_stops_the_motors_at(fault, promise_ns, run_s, CoreRate::Default, LSI_HZ_TYPICAL)
+}
+
+/// [`fault_stops_the_motors`] with the core at `rate` and the LSI at `lsi_hz`.
+fn fault_stops_the_motors_at(
+    fault: Fault,
+    promise_ns: u64,
+    run_s: f64,
+    rate: CoreRate,
+    lsi_hz: u64,
+) -> FaultRun {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let logger = (fault == Fault::Panic).then(|| logger_taken_flag(&firmware));
     let runaway = (fault == Fault::StackOverflow).then(|| runaway_in_the_loop(&firmware));
+    let mut board = Autopilot::new(11).expect("the board");
+    board.soc.set_core_rate(rate);
+    board.soc.set_lsi_hz(lsi_hz);
     let mut outcome = run(
         Setup {
-            board: Autopilot::new(11).expect("the board"),
+            board,
             firmware,
             probe: Pilot::new(fault, logger, runaway),
         },
@@ -430,9 +477,15 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> FaultRun
         off_at - FAULT_AT
     };
     println!(
-        "{fault:?}: every motor at 0 {:.1} ms after the fault (promised {:.1} ms)",
+        "{fault:?} ({}, LSI {lsi_hz} Hz): every motor at 0 {:.1} ms after the fault (promised \
+         {:.1} ms)",
+        rate.label(),
         took as f64 / 1e6,
         promise_ns as f64 / 1e6
+    );
+    assert!(
+        outcome.session.resets().iter().all(|r| r.at.0 > FAULT_AT),
+        "{fault:?}: the part was reset before the fault\n{report}"
     );
     assert!(
         took <= promise_ns,
@@ -479,18 +532,42 @@ fn fault_stops_the_motors(fault: Fault, promise_ns: u64, run_s: f64) -> FaultRun
                 first.handler.contains(handler),
                 "{fault:?}: the first fault was {first:?}\n{report}"
             );
-            // The handler stops the motors first: off at the first stop after it ran.
-            assert!(
-                off_at <= first.at_ns + MS,
-                "{fault:?}: handler at {:.3} ms, motors off at {:.3} ms\n{report}",
+            // The handler stops the motors first: every output off within the promise of its
+            // arrival, to the instruction.
+            let off_exact = pilot.off_exact.unwrap_or_else(|| {
+                panic!("{fault:?}: no store after the fault stopped the motors\n{report}")
+            });
+            let latency_ns = off_exact.saturating_sub(first.at_ns);
+            println!(
+                "{fault:?} ({}): {} reached at {:.6} ms, every motor at 0 {:.2} us later \
+                 (promised {} us)",
+                rate.label(),
+                first.handler,
                 first.at_ns as f64 / 1e6,
-                off_at as f64 / 1e6
+                latency_ns as f64 / 1e3,
+                autopilot::board::FAULT_MOTORS_OFF_US
+            );
+            assert!(
+                off_exact >= first.at_ns
+                    && latency_ns <= autopilot::board::FAULT_MOTORS_OFF_US * 1_000,
+                "{fault:?}: handler at {:.6} ms, motors off at {:.6} ms\n{report}",
+                first.at_ns as f64 / 1e6,
+                off_exact as f64 / 1e6
             );
         }
         Fault::Hang => {
-            assert!(
-                !outcome.session.resets().is_empty(),
-                "{fault:?}: the watchdog never reset the part\n{report}"
+            let reset = outcome.session.resets().first().unwrap_or_else(|| {
+                panic!("{fault:?}: the watchdog never reset the part\n{report}")
+            });
+            assert_eq!(
+                reset.cause,
+                rigless::device::ResetCause::Model("IWDG"),
+                "{fault:?}: the reset is the watchdog's\n{report}"
+            );
+            println!(
+                "{fault:?} (LSI {lsi_hz} Hz): the watchdog reset the part {:.2} ms after the \
+                 hang",
+                (reset.at.0 - FAULT_AT) as f64 / 1e6
             );
             assert!(
                 outcome
@@ -644,6 +721,22 @@ fn a_hard_fault_stops_the_motors_at_once() {
     );
 }
 
+/// The same at 1.5 cycles per instruction: the handler's few dozen instructions still stop the
+/// motors within its 10 µs of its arrival. The bus error comes at SPI2's next access, which
+/// the 512 Hz loop makes within a loop period of the injection (at this rate, the loop's phase
+/// against the bench's stops differs).
+#[test]
+fn a_hard_fault_stops_the_motors_at_once_on_a_slow_core() {
+    let loop_period_ns = 1_000_000_000u64.div_ceil(u64::from(autopilot::board::LOOP_RATE_HZ));
+    fault_stops_the_motors_at(
+        Fault::BusError,
+        loop_period_ns + autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        3.0,
+        CoreRate::Pessimistic,
+        LSI_HZ_TYPICAL,
+    );
+}
+
 /// A stack overflow (flip-link): a runaway recursion uses up the stack, the
 /// push that leaves SRAM faults, and the HardFault path stops the motors first, on a stack
 /// that has no room left.
@@ -668,8 +761,36 @@ fn a_panic_stops_the_motors_at_once() {
 /// (the board boots disarmed and nobody arms it again).
 #[test]
 fn a_hung_loop_is_reset_by_the_watchdog_and_the_motors_stay_off() {
-    let promise = u64::from(autopilot::board::WATCHDOG_MS) * MS + MS;
-    fault_stops_the_motors(Fault::Hang, promise, 3.5);
+    hung_loop_at(LSI_HZ_TYPICAL);
+}
+
+/// The same on the slowest LSI the datasheet allows (17 kHz): the firmware programs its timeout
+/// for the typical 32 kHz, so it stretches by 32/17 (50 ms -> 94 ms).
+#[test]
+fn a_hung_loop_is_reset_by_the_watchdog_on_the_slowest_lsi() {
+    hung_loop_at(LSI_HZ_SLOWEST);
+}
+
+/// The same on the fastest LSI (47 kHz): the timeout shrinks by 32/47 (50 ms -> 34 ms), still
+/// above the 20 ms feeding period, so the flight before the hang is not reset.
+#[test]
+fn a_hung_loop_is_reset_by_the_watchdog_on_the_fastest_lsi() {
+    hung_loop_at(LSI_HZ_FASTEST);
+}
+
+/// The watchdog's timeout at `lsi_hz` (the firmware's figure is for the typical LSI) from the
+/// hang, which begins at the loop's next SPI transfer (within a loop period of the injection;
+/// the guidance task may feed the watchdog meanwhile), plus a stop of the bench.
+fn hung_loop_at(lsi_hz: u64) {
+    let timeout_ns = u64::from(autopilot::board::WATCHDOG_MS) * MS * LSI_HZ_TYPICAL / lsi_hz;
+    let loop_period_ns = 1_000_000_000u64.div_ceil(u64::from(autopilot::board::LOOP_RATE_HZ));
+    fault_stops_the_motors_at(
+        Fault::Hang,
+        timeout_ns + loop_period_ns + MS,
+        3.5,
+        CoreRate::Default,
+        lsi_hz,
+    );
 }
 
 /// The camera link goes silent: the estimate failsafe hovers, then lands, then stops the motors

@@ -6,6 +6,10 @@
 //! only once the firmware has brought it up as the original board does; the DCMI captures them
 //! into memory through DMA2; the firmware's estimates leave on UART4. The host reference is the
 //! same `stereo-board` library fed the same frames with the capture times the firmware reported.
+//!
+//! It runs at both core rates ([`CoreRate`]): the worst frame's processing time (the board's
+//! own `max_processing_us`, in virtual time) against the 40 ms period of 25 fps, and the link's
+//! queues (nothing received lost, nothing to send dropped).
 
 use std::path::PathBuf;
 
@@ -16,6 +20,10 @@ use virtual_board::bench::{Options, Setup, Watching, run};
 use virtual_board::boards::camera::CameraBoard;
 use virtual_board::firmware::Firmware;
 use virtual_board::frames::Recorded;
+use virtual_board::timing::CoreRate;
+
+/// The frame period the processing must fit, µs: 25 fps.
+const FRAME_PERIOD_US: u32 = 40_000;
 
 /// Recorded frames streamed: three seconds of the camera's output (the 1 Hz status reports
 /// come in too).
@@ -45,10 +53,21 @@ fn same(a: &Estimate, b: &Estimate) -> bool {
 
 #[test]
 fn estimates_over_the_link_equal_the_host_library_on_recorded_frames() {
+    estimates_at(CoreRate::Default);
+}
+
+/// The same at 1.5 cycles per instruction: every frame still processed within its period.
+#[test]
+fn estimates_keep_up_with_the_camera_on_a_slow_core() {
+    estimates_at(CoreRate::Pessimistic);
+}
+
+fn estimates_at(rate: CoreRate) {
     let recorded = Recorded::from_take(&take(), FRAMES).expect("the data set's take 1");
     let images = recorded.images().to_vec();
     let firmware = Firmware::real("stereo-board").expect("the camera-board image");
-    let board = CameraBoard::new(Box::new(recorded)).expect("the board");
+    let mut board = CameraBoard::new(Box::new(recorded)).expect("the board");
+    board.soc.set_core_rate(rate);
     // Boot and camera bring-up, then the frames at 40.56 ms each, and one frame of slack.
     let outcome = run(
         Setup {
@@ -100,6 +119,32 @@ fn estimates_over_the_link_equal_the_host_library_on_recorded_frames() {
         .collect();
     let last = statuses.last().expect("the board reports its status");
     assert!(statuses.len() >= 3, "a status a second\n{}", report());
+    // The worst frame of each second after the first (the first status line may cover none).
+    let worst_us = statuses[1..]
+        .iter()
+        .map(|s| s.max_processing_us)
+        .max()
+        .unwrap_or(0);
+    println!(
+        "{}: worst frame {worst_us} us of the {FRAME_PERIOD_US} us frame period ({:.1} %), {} \
+         statuses",
+        rate.label(),
+        f64::from(worst_us) / f64::from(FRAME_PERIOD_US) * 100.0,
+        statuses.len()
+    );
+    assert!(
+        worst_us > 0 && worst_us < FRAME_PERIOD_US,
+        "worst frame {worst_us} us, period {FRAME_PERIOD_US} us\n{}",
+        report()
+    );
+    for queue in ["rx_lost", "link_tx_dropped"] {
+        assert_eq!(
+            outcome.log.status(queue),
+            Some(0),
+            "{queue} in the last status line\n{}",
+            report()
+        );
+    }
     assert!(
         last.frames_dropped == 0
             && !last.camera_stopped

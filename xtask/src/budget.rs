@@ -41,6 +41,10 @@ pub struct Budgets {
     pub insns: BTreeMap<String, Expectation>,
     /// `cargo xtask size` figures per firmware.
     pub size: BTreeMap<String, BTreeMap<String, Expectation>>,
+    /// The deepest stack use of each `real` firmware, bytes, measured on the virtual boards
+    /// (`virtual-board/src/stack.rs`, which checks every clean run against it); `cargo xtask
+    /// size` prints the margin it leaves in the stack reserve.
+    pub stack: BTreeMap<String, u64>,
 }
 
 /// Where the expectations live.
@@ -199,6 +203,7 @@ mod tests {
                     "size.{firmware}.{figure} missing"
                 );
             }
+            assert!(b.stack.contains_key(firmware), "stack.{firmware} missing");
         }
         assert!(parse("[insns]\nx = { expected = 1 }\n[size]\n").is_err());
     }

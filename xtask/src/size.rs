@@ -12,7 +12,10 @@
 //! the `RAM` region of the flavour's memory map (`memory.x`, or `memory-qemu.x` for `qemu`)
 //! leaves, `stack` = RAM length - ram; for the real flavour it is checked against a floor. How
 //! much of it the firmware actually uses is measured at run time (`stack_free=` in each board's
-//! status log line, see `board_support::stack`).
+//! status log line, see `board_support::stack`), and on the virtual boards: for the real flavour
+//! the line goes on with `stack_bound=BYTES stack_margin=BYTES`, the bound on the use the bench
+//! measures (`xtask/budgets.toml`'s `[stack]`, which every clean bench run is checked against)
+//! and what it leaves of the reserve.
 
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -66,8 +69,20 @@ pub fn run(args: &[String]) -> Result<()> {
             std::fs::read_to_string(&map).with_context(|| format!("reading {}", map.display()))?;
         let ram_len = ram_length(&text).with_context(|| format!("parsing {}", map.display()))?;
         let stack = ram_len.saturating_sub(usage.ram);
+        // The bound on the use the virtual boards measure (real flavour), and what it leaves.
+        let stack_use = match flavour {
+            Flavour::Real => crate::budget::load()?.stack.get(name).copied(),
+            _ => None,
+        }
+        .map(|used| {
+            format!(
+                " stack_bound={used} stack_margin={}",
+                stack as i64 - used as i64
+            )
+        })
+        .unwrap_or_default();
         println!(
-            "{name} flash={} ram={} ccm={} stack={stack}",
+            "{name} flash={} ram={} ccm={} stack={stack}{stack_use}",
             usage.flash, usage.ram, usage.ccm
         );
         if flavour == Flavour::Real {

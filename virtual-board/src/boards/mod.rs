@@ -11,7 +11,8 @@ use rigless::mcu::{Mcu, Operate};
 use crate::soc::Soc;
 
 /// The Cortex-M4F core of both parts at 168 MHz (RM0090 section 6.2; PM0214 for the core: FPv4-SP,
-/// eight MPU regions, four priority bits), as rigless runs it.
+/// eight MPU regions, four priority bits), as rigless runs it, at the SoC's
+/// [`crate::timing::CoreRate`].
 pub(crate) fn target<'a>(name: &'static str, soc: &'a mut Soc) -> Target<'a> {
     let core = armv7m::Core {
         variant: armv7m::Variant::M4,
@@ -21,7 +22,7 @@ pub(crate) fn target<'a>(name: &'static str, soc: &'a mut Soc) -> Target<'a> {
         priority_bits: 4,
         // SysTick's external reference is HCLK / 8 (RM0090 figure 21).
         refclk_divider: NonZeroU32::new(8).expect("a divider divides"),
-        instructions_per_second: armv7m::INSTRUCTIONS_PER_SECOND,
+        instructions_per_second: soc.core_rate.instructions_per_second(),
         boot: "flash",
     }
     .spec_with_parts(
