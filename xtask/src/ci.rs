@@ -10,9 +10,10 @@
 //!    virtual-board bench, its own workspace) and on thumbv7em, builds the docs of both
 //!    workspaces with rustdoc's warnings denied (a link to a renamed item fails), runs all host
 //!    tests, builds both firmwares in release, runs them (and their `hil` images) on the virtual
-//!    boards (`cargo xtask vboard`), and fuzzes the protocol decoder and encoder briefly (after
-//!    fmt and clippy in `fuzz/`, its own workspace).
-//! 3. Prints a one-line summary and a closing `N passed, N failed` line.
+//!    boards (`cargo xtask vboard`), and, beside the virtual boards, fuzzes the protocol
+//!    decoder and encoder briefly (after fmt and clippy in `fuzz/`, its own workspace).
+//! 3. Prints a one-line summary, each step's wall time and a closing `N passed, N failed`
+//!    line.
 //!
 //! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
 
@@ -45,10 +46,10 @@ pub fn run(args: &[String]) -> Result<()> {
         }
     }
     let started = Instant::now();
-    let mut steps: Vec<String> = Vec::new();
+    let mut steps = Steps::new();
 
     install_prerequisites(fuzz_seconds > 0)?;
-    steps.push("install".into());
+    steps.done("install");
 
     cargo(&["fmt", "--all", "--", "--check"]).context("cargo fmt --check failed: run cargo fmt")?;
     // The virtual-board bench is its own workspace (rigless builds on our toolchain only with
@@ -60,7 +61,7 @@ pub fn run(args: &[String]) -> Result<()> {
             .current_dir(&bench),
     )
     .context("cargo fmt --check failed in virtual-board/: run cargo fmt there")?;
-    steps.push("fmt(workspace, virtual-board)".into());
+    steps.done("fmt(workspace, virtual-board)");
 
     cargo(&[
         "clippy",
@@ -83,7 +84,7 @@ pub fn run(args: &[String]) -> Result<()> {
             .current_dir(&bench),
     )
     .context("clippy failed in virtual-board/ (its own workspace)")?;
-    steps.push("clippy(host, virtual-board)".into());
+    steps.done("clippy(host, virtual-board)");
     // One invocation per firmware package: each selects its own part's HAL feature, and cargo
     // unifies features within an invocation (insns-firmware builds both libraries for QEMU's
     // STM32F405).
@@ -101,7 +102,7 @@ pub fn run(args: &[String]) -> Result<()> {
             cargo(&clippy)?;
         }
     }
-    steps.push("clippy(thumbv7em: real, qemu, hil)".into());
+    steps.done("clippy(thumbv7em: real, qemu, hil)");
 
     // Docs whose links point nowhere have drifted from the code: rustdoc's lints catch them.
     for dir in [crate::size::workspace_root(), bench.clone()] {
@@ -116,73 +117,142 @@ pub fn run(args: &[String]) -> Result<()> {
         }
         run_checked(&mut doc).with_context(|| format!("cargo doc failed in {}", dir.display()))?;
     }
-    steps.push("doc(workspace, virtual-board; rustdoc warnings denied)".into());
+    steps.done("doc(workspace, virtual-board; rustdoc warnings denied)");
 
     let (passed, failed) = cargo_test(&["test", "--workspace"])?;
-    steps.push(format!("tests({passed} passed)"));
+    steps.done(format!("tests({passed} passed)"));
 
     cargo(&["xtask", "fw"]).context("firmware build (cargo xtask fw) failed")?;
-    steps.push("firmware(stereo-board, autopilot)".into());
+    steps.done("firmware(stereo-board, autopilot)");
     for flavour in ["real", "qemu"] {
         run_checked(Command::new("cargo").args(["xtask", "size", "--flavour", flavour]))
             .with_context(|| format!("firmware layout or size check ({flavour}) failed"))?;
     }
-    steps.push("size and start-up layout (real, qemu)".into());
+    steps.done("size and start-up layout (real, qemu)");
 
+    // The fuzz targets (their own workspace and toolchain, one libFuzzer process at a time)
+    // run beside the virtual boards, whose emulators leave a core idle for much of their run.
+    let fuzz = (fuzz_seconds > 0).then(|| {
+        std::thread::spawn(move || {
+            let start = Instant::now();
+            fuzz_run(fuzz_seconds).map(|name| (name, start.elapsed().as_secs_f64()))
+        })
+    });
     // The virtual boards run the real images just built.
-    let (vb_passed, vb_failed) = crate::vboard::run_tests()?;
-    steps.push(format!("vboard({vb_passed} passed)"));
-    let (passed, failed) = (passed + vb_passed, failed + vb_failed);
-
-    if fuzz_seconds > 0 {
-        // The fuzz targets are a workspace of their own (nightly, sanitizers): formatted and
-        // linted there, with the lints of the main workspace (its `[lints]` table).
-        let fuzz = crate::size::workspace_root().join("fuzz");
-        run_checked(
-            Command::new("cargo")
-                .args(["fmt", "--all", "--", "--check"])
-                .current_dir(&fuzz),
-        )
-        .context("cargo fmt --check failed in fuzz/: run cargo fmt there")?;
-        run_checked(
-            Command::new("cargo")
-                .args([
-                    "+nightly",
-                    "clippy",
-                    "--all-targets",
-                    "--",
-                    "-D",
-                    "warnings",
-                ])
-                .current_dir(&fuzz),
-        )
-        .context("clippy failed in fuzz/ (its own workspace)")?;
-        for (target, seconds) in [("decoder", fuzz_seconds), ("encoder", fuzz_seconds / 2)] {
-            let max_time = format!("-max_total_time={seconds}");
-            run_checked(Command::new("cargo").args([
-                "+nightly",
-                "fuzz",
-                "run",
-                target,
-                "--",
-                &max_time,
-                "-max_len=4096",
-            ]))
-            .with_context(|| format!("fuzz target {target} failed"))?;
-        }
-        steps.push(format!(
-            "fmt, clippy and fuzz(decoder {fuzz_seconds} s, encoder {} s) in fuzz/",
-            fuzz_seconds / 2
-        ));
+    let vboard = crate::vboard::run_tests();
+    let fuzzed = fuzz.map(|handle| handle.join().expect("the fuzz thread does not panic"));
+    let (vb_passed, vb_failed) = vboard?;
+    steps.done(format!("vboard({vb_passed} passed)"));
+    if let Some(fuzzed) = fuzzed {
+        let (name, seconds) = fuzzed?;
+        steps.push_concurrent(name, seconds);
     }
+    let (passed, failed) = (passed + vb_passed, failed + vb_failed);
 
     println!(
         "xtask test: OK in {:.0} s: {}",
         started.elapsed().as_secs_f64(),
-        steps.join(", ")
+        steps.summary()
     );
+    steps.print_table();
     println!("{passed} passed, {failed} failed");
     Ok(())
+}
+
+/// The bounded fuzz run in `fuzz/`: fmt and clippy there, then both targets. Returns the step's
+/// name.
+fn fuzz_run(fuzz_seconds: u64) -> Result<String> {
+    // The fuzz targets are a workspace of their own (nightly, sanitizers): formatted and
+    // linted there, with the lints of the main workspace (its `[lints]` table).
+    let fuzz = crate::size::workspace_root().join("fuzz");
+    run_checked(
+        Command::new("cargo")
+            .args(["fmt", "--all", "--", "--check"])
+            .current_dir(&fuzz),
+    )
+    .context("cargo fmt --check failed in fuzz/: run cargo fmt there")?;
+    run_checked(
+        Command::new("cargo")
+            .args([
+                "+nightly",
+                "clippy",
+                "--all-targets",
+                "--",
+                "-D",
+                "warnings",
+            ])
+            .current_dir(&fuzz),
+    )
+    .context("clippy failed in fuzz/ (its own workspace)")?;
+    for (target, seconds) in [("decoder", fuzz_seconds), ("encoder", fuzz_seconds / 2)] {
+        let max_time = format!("-max_total_time={seconds}");
+        run_checked(Command::new("cargo").args([
+            "+nightly",
+            "fuzz",
+            "run",
+            target,
+            "--",
+            &max_time,
+            "-max_len=4096",
+        ]))
+        .with_context(|| format!("fuzz target {target} failed"))?;
+    }
+    Ok(format!(
+        "fmt, clippy and fuzz(decoder {fuzz_seconds} s, encoder {} s) in fuzz/",
+        fuzz_seconds / 2
+    ))
+}
+
+/// The CI's steps with their wall times.
+struct Steps {
+    /// Name, wall time in s, and whether it ran beside the others.
+    list: Vec<(String, f64, bool)>,
+    lap: Instant,
+}
+
+impl Steps {
+    fn new() -> Self {
+        Self {
+            list: Vec::new(),
+            lap: Instant::now(),
+        }
+    }
+
+    /// Ends the current step (it started when the previous one ended).
+    fn done(&mut self, name: impl Into<String>) {
+        let now = Instant::now();
+        let seconds = (now - self.lap).as_secs_f64();
+        let name = name.into();
+        eprintln!("xtask: step {name} took {seconds:.0} s");
+        self.list.push((name, seconds, false));
+        self.lap = now;
+    }
+
+    /// Records a step that ran beside the others for `seconds`.
+    fn push_concurrent(&mut self, name: String, seconds: f64) {
+        self.list.push((name, seconds, true));
+    }
+
+    /// `name (N s), ...`.
+    fn summary(&self) -> String {
+        self.list
+            .iter()
+            .map(|(name, seconds, concurrent)| {
+                let beside = if *concurrent { ", beside vboard" } else { "" };
+                format!("{name} ({seconds:.0} s{beside})")
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// One line per step: its wall time and its name.
+    fn print_table(&self) {
+        println!("xtask test: wall time per step");
+        for (name, seconds, concurrent) in &self.list {
+            let beside = if *concurrent { " (beside vboard)" } else { "" };
+            println!("{seconds:>8.0} s  {name}{beside}");
+        }
+    }
 }
 
 fn install_prerequisites(need_fuzz: bool) -> Result<()> {
