@@ -6,8 +6,12 @@
 //! carries the host's world time, and only a lockstep flavour (simulator, HIL) may run its
 //! control loop on it. It is therefore handed back as [`HostOutcome::Imu`]; a board with its
 //! own IMU refuses it and counts the refusal (the firmware's real flavour does).
+//!
+//! Every message passes [`crate::link_auth::LinkAuth::admit`] first: once a link key is set, a command that is
+//! not signed with it is refused and counted ([`crate::link_auth`]).
 
 use protocol::params::RecordStore;
+use protocol::signing::KeyRecord;
 use protocol::{
     AutopilotToStereo, BoardToHost, HostToBoard, ImuSample, Node, ParamError, ParamOp, ParamReply,
     ParamResponse,
@@ -57,6 +61,10 @@ impl Autopilot {
         now_us: u64,
         store: Option<&mut dyn RecordStore>,
     ) -> HostOutcome {
+        let motors_off = !self.mode().motors_enabled();
+        let Some(msg) = self.link_auth.admit(msg, motors_off, now_us) else {
+            return HostOutcome::Done;
+        };
         match msg {
             HostToBoard::ExternalPosition(pos) => {
                 self.on_external_position(&pos, now_us);
@@ -87,8 +95,23 @@ impl Autopilot {
                 }
                 HostOutcome::Done
             }
-            HostToBoard::FrameChunk(_) => HostOutcome::Done,
+            // Opened and provisioning consumed by `LinkAuth::admit`.
+            HostToBoard::FrameChunk(_) | HostToBoard::Signed(_) | HostToBoard::SetKey(_) => {
+                HostOutcome::Done
+            }
         }
+    }
+
+    /// Takes the link key stored at boot ([`crate::link_auth::LinkAuth::load`]): from then on every command
+    /// but `Kill` must be signed with it.
+    pub fn load_link_key(&mut self, record: KeyRecord) {
+        self.link_auth.load(record);
+    }
+
+    /// A key provisioned over the link since the last call, for the board to store (taken
+    /// once; [`crate::link_auth::LinkAuth::take_key_to_store`]).
+    pub fn take_link_key_to_store(&mut self) -> Option<KeyRecord> {
+        self.link_auth.take_key_to_store()
     }
 }
 
