@@ -223,6 +223,10 @@ fn provision(
     let mut buf = [0u8; 256];
     while Instant::now() < deadline {
         let n = match link.read(&mut buf) {
+            Ok(0) => {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            }
             Ok(n) => n,
             Err(e)
                 if matches!(
