@@ -140,6 +140,37 @@ mod tests {
     }
 
     #[test]
+    fn with_a_key_unsigned_commands_change_nothing_and_signed_ones_act() {
+        use protocol::signing::{LinkKey, Signer};
+        let key = LinkKey([1; 32]);
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        ap.load_link_key(KeyRecord {
+            key,
+            min_timestamp: 0,
+        });
+        let before = ap.telemetry(1_000).height_m;
+        ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
+        assert_eq!(
+            ap.telemetry(1_000).height_m,
+            before,
+            "an unsigned fix is ignored"
+        );
+        ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 1_000);
+        assert_eq!(
+            ap.arm_refused(),
+            0,
+            "an unsigned arm never reaches the arm checks"
+        );
+        assert_eq!(ap.telemetry(1_000).link_auth.unsigned, 2);
+        let signed = Signer::new(key, 1)
+            .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10)
+            .unwrap();
+        ap.on_host_message(signed, 1_000);
+        assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
+        assert_eq!(ap.telemetry(1_000).link_auth.accepted, 1);
+    }
+
+    #[test]
     fn a_parameter_request_is_answered_for_the_autopilot_table_only() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
         let ask = |board| {
