@@ -414,6 +414,8 @@ pub struct Autopilot {
     battery: BatteryMonitor,
     /// The parameter storage's state (`None`: a build without storage).
     storage: Option<StorageStatus>,
+    /// The host link's key, replay guard and refusal counts.
+    pub(crate) link_auth: crate::link_auth::LinkAuth,
 }
 
 /// Why an `Arm` command is refused before the flight-mode checks (see
@@ -466,6 +468,7 @@ impl Autopilot {
             last_host_us: None,
             battery: BatteryMonitor::new(config.battery),
             storage: None,
+            link_auth: crate::link_auth::LinkAuth::new(),
             cfg: config,
         }
     }
@@ -1102,6 +1105,7 @@ impl Autopilot {
             link_errors: self.camera.errors(),
             failsafe_reason: self.failsafe.reason(),
             battery: self.battery.telemetry(),
+            link_auth: self.link_auth.telemetry(),
         }
     }
 }

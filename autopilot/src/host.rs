@@ -6,8 +6,12 @@
 //! carries the host's world time, and only a lockstep flavour (simulator, HIL) may run its
 //! control loop on it. It is therefore handed back as [`HostOutcome::Imu`]; a board with its
 //! own IMU refuses it and counts the refusal (the firmware's real flavour does).
+//!
+//! Every message passes [`crate::link_auth::LinkAuth::admit`] first: once a link key is set, a command that is
+//! not signed with it is refused and counted ([`crate::link_auth`]).
 
 use protocol::params::RecordStore;
+use protocol::signing::KeyRecord;
 use protocol::{
     AutopilotToStereo, BoardToHost, HostToBoard, ImuSample, Node, ParamError, ParamOp, ParamReply,
     ParamResponse,
@@ -57,6 +61,10 @@ impl Autopilot {
         now_us: u64,
         store: Option<&mut dyn RecordStore>,
     ) -> HostOutcome {
+        let motors_off = !self.mode().motors_enabled();
+        let Some(msg) = self.link_auth.admit(msg, motors_off, now_us) else {
+            return HostOutcome::Done;
+        };
         match msg {
             HostToBoard::ExternalPosition(pos) => {
                 self.on_external_position(&pos, now_us);
@@ -87,8 +95,23 @@ impl Autopilot {
                 }
                 HostOutcome::Done
             }
-            HostToBoard::FrameChunk(_) => HostOutcome::Done,
+            // Opened and provisioning consumed by `LinkAuth::admit`.
+            HostToBoard::FrameChunk(_) | HostToBoard::Signed(_) | HostToBoard::SetKey(_) => {
+                HostOutcome::Done
+            }
         }
+    }
+
+    /// Takes the link key stored at boot ([`crate::link_auth::LinkAuth::load`]): from then on every command
+    /// but `Kill` must be signed with it.
+    pub fn load_link_key(&mut self, record: KeyRecord) {
+        self.link_auth.load(record);
+    }
+
+    /// A key provisioned over the link since the last call, for the board to store (taken
+    /// once; [`crate::link_auth::LinkAuth::take_key_to_store`]).
+    pub fn take_link_key_to_store(&mut self) -> Option<KeyRecord> {
+        self.link_auth.take_key_to_store()
     }
 }
 
@@ -114,6 +137,37 @@ mod tests {
         let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
         assert_eq!(out, HostOutcome::Done);
         assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
+    }
+
+    #[test]
+    fn with_a_key_unsigned_commands_change_nothing_and_signed_ones_act() {
+        use protocol::signing::{LinkKey, Signer};
+        let key = LinkKey([1; 32]);
+        let mut ap = Autopilot::new(AutopilotConfig::default());
+        ap.load_link_key(KeyRecord {
+            key,
+            min_timestamp: 0,
+        });
+        let before = ap.telemetry(1_000).height_m;
+        ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
+        assert_eq!(
+            ap.telemetry(1_000).height_m,
+            before,
+            "an unsigned fix is ignored"
+        );
+        ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 1_000);
+        assert_eq!(
+            ap.arm_refused(),
+            0,
+            "an unsigned arm never reaches the arm checks"
+        );
+        assert_eq!(ap.telemetry(1_000).link_auth.unsigned, 2);
+        let signed = Signer::new(key, 1)
+            .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10)
+            .unwrap();
+        ap.on_host_message(signed, 1_000);
+        assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
+        assert_eq!(ap.telemetry(1_000).link_auth.accepted, 1);
     }
 
     #[test]

@@ -30,6 +30,7 @@
 //!   arming, landing and critical thresholds.
 //! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
 //! * [`camera_link`]: the camera board's link: decoder, last heartbeat, status and answers.
+//! * [`link_auth`]: which host messages must be signed, the link key and the refusal counts.
 //! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
 //!   firmware, the simulator and every HIL board call.
 //! * [`params`]: the parameter table: every [`AutopilotConfig`] field by name, kind, unit
@@ -58,6 +59,7 @@ pub mod gyro_calibration;
 pub mod height;
 pub mod host;
 pub mod indi;
+pub mod link_auth;
 pub mod lockstep;
 pub mod median;
 pub mod mixer;

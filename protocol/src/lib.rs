@@ -5,6 +5,7 @@
 //!   encoder into a caller-provided buffer and a streaming [`Decoder`] with a bounded buffer
 //!   that never panics, resynchronises at the next delimiter and counts errors by kind.
 //! * [`params`]: named, typed parameter tables, their messages and their flash record.
+//! * [`signing`]: the signed envelope of host commands (keyed MAC, anti-replay timestamp).
 //!
 //! `no_std`, no heap. Enable the `defmt` feature for `defmt::Format` on every type.
 #![no_std]
@@ -12,6 +13,7 @@
 
 pub mod messages;
 pub mod params;
+pub mod signing;
 
 pub use params::{
     ParamEntry, ParamError, ParamKind, ParamName, ParamOp, ParamReply, ParamRequest, ParamResponse,

@@ -471,10 +471,15 @@ pub enum HostToBoard {
     /// List, read, write or save a board's parameters (answered with
     /// [`BoardToHost::Param`]).
     Param(crate::ParamRequest),
+    /// A message signed with the link key (see [`crate::signing`]).
+    Signed(crate::signing::SignedMessage),
+    /// Provision the link key (autopilot): accepted unsigned only while disarmed and no key is
+    /// set; a key already set is changed only by a signed `SetKey`, disarmed.
+    SetKey(crate::signing::LinkKey),
 }
 
 impl Message for HostToBoard {
-    const VARIANT_COUNT: u32 = 6;
+    const VARIANT_COUNT: u32 = 8;
     const MAX_FRAME_BYTES: usize = 560;
 }
 
@@ -655,6 +660,25 @@ pub struct Telemetry {
     pub failsafe_reason: Option<FailsafeReason>,
     /// The battery (`None`: no supply voltage read yet).
     pub battery: Option<BatteryTelemetry>,
+    /// The host link's authentication: whether a key is set and the refused commands.
+    pub link_auth: LinkAuthTelemetry,
+}
+
+/// The host link's authentication as telemetry reports it (counts since boot, saturating).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkAuthTelemetry {
+    /// A link key is set: commands must be signed. `false`: an unsigned link, anyone on it
+    /// can command the drone.
+    pub keyed: bool,
+    /// Signed messages accepted.
+    pub accepted: u32,
+    /// Commands refused because they were not signed (or a `SetKey` not allowed now).
+    pub unsigned: u32,
+    /// Signed messages refused for a wrong MAC or a bad payload (forged, or another key).
+    pub bad_signature: u32,
+    /// Signed messages refused for an old (replayed) or too new timestamp.
+    pub replayed: u32,
 }
 
 /// The flight battery as the autopilot judges it.
@@ -725,5 +749,5 @@ pub enum BoardToHost {
 
 impl Message for BoardToHost {
     const VARIANT_COUNT: u32 = 5;
-    const MAX_FRAME_BYTES: usize = 128;
+    const MAX_FRAME_BYTES: usize = 160;
 }

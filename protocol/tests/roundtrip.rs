@@ -2,6 +2,9 @@
 //! sizes stay inside the declared budgets, and the decoder never panics on arbitrary bytes.
 
 use proptest::prelude::*;
+use protocol::signing::{
+    LinkKey, SignedMessage, KEY_BYTES, MAC_BYTES, SIGNED_PAYLOAD_MAX, TIMESTAMP_MAX,
+};
 use protocol::*;
 
 /// Every [`FailsafeReason`], for the telemetry strategies.
@@ -277,6 +280,20 @@ fn host_to_board() -> impl Strategy<Value = HostToBoard> {
         ]
         .prop_map(HostToBoard::Command),
         param_request().prop_map(HostToBoard::Param),
+        (
+            any::<u8>(),
+            0..=TIMESTAMP_MAX,
+            proptest::collection::vec(any::<u8>(), 0..=SIGNED_PAYLOAD_MAX)
+        )
+            .prop_map(|(link_id, timestamp, payload)| {
+                HostToBoard::Signed(SignedMessage {
+                    link_id,
+                    timestamp,
+                    mac: [link_id; MAC_BYTES],
+                    payload: heapless::Vec::from_slice(&payload).unwrap(),
+                })
+            }),
+        any::<[u8; KEY_BYTES]>().prop_map(|k| HostToBoard::SetKey(LinkKey(k))),
     ]
 }
 fn board_to_host() -> impl Strategy<Value = BoardToHost> {
@@ -340,6 +357,13 @@ fn board_to_host() -> impl Strategy<Value = BoardToHost> {
                             resting_v,
                             state,
                         }),
+                        link_auth: LinkAuthTelemetry {
+                            keyed: timestamp_us % 2 == 0,
+                            accepted: timestamp_us,
+                            unsigned: timestamp_us / 3,
+                            bad_signature: timestamp_us / 5,
+                            replayed: timestamp_us / 7,
+                        },
                     })
                 }
             ),
@@ -555,8 +579,23 @@ fn declared_maximum_frame_sizes_hold() {
             resting_v: f32::MAX,
             state: BatteryState::Critical,
         }),
+        link_auth: LinkAuthTelemetry {
+            keyed: true,
+            accepted: u32::MAX,
+            unsigned: u32::MAX,
+            bad_signature: u32::MAX,
+            replayed: u32::MAX,
+        },
     });
     assert!(encode(&telemetry, &mut wire).unwrap() <= BoardToHost::MAX_FRAME_BYTES);
+    // The largest signed envelope: a full payload.
+    let signed = HostToBoard::Signed(SignedMessage {
+        link_id: u8::MAX,
+        timestamp: TIMESTAMP_MAX,
+        mac: [0xFF; MAC_BYTES],
+        payload: heapless::Vec::from_slice(&[0xFF; SIGNED_PAYLOAD_MAX]).unwrap(),
+    });
+    assert!(encode(&signed, &mut wire).unwrap() <= HostToBoard::MAX_FRAME_BYTES);
 }
 
 #[test]

@@ -262,6 +262,10 @@ pub struct HilConfig {
     /// the commands. Off by default: the outputs stay at 0, the commands come back over the
     /// link only.
     pub outputs: bool,
+    /// The link key (`hil --key FILE`): heartbeats, height fixes, the arm command and
+    /// parameter requests to the autopilot are signed with it. IMU samples and frames are not
+    /// (see `autopilot::link_auth`).
+    pub key: Option<protocol::signing::LinkKey>,
 }
 
 impl Default for HilConfig {
@@ -278,6 +282,7 @@ impl Default for HilConfig {
             params: None,
             interrupt: None,
             outputs: false,
+            key: None,
         }
     }
 }
@@ -534,6 +539,13 @@ impl BoardRx {
 }
 
 /// Encodes one host message into `out`.
+/// The signer of the host's messages to the autopilot (none without a key).
+fn host_signer(cfg: &HilConfig) -> crate::key::HostSigner {
+    cfg.key.map_or_else(crate::key::HostSigner::default, |k| {
+        crate::key::HostSigner::with_key(k, crate::key::link_id::HIL)
+    })
+}
+
 fn push_msg(msg: &HostToBoard, out: &mut Vec<u8>) -> anyhow::Result<()> {
     let mut buf = [0u8; HostToBoard::MAX_FRAME_BYTES];
     let n = encode(msg, &mut buf).map_err(|e| anyhow!("encoding a host message: {e:?}"))?;
@@ -631,7 +643,7 @@ pub fn run_logged(
         wait_heartbeat(&ap_rx, "autopilot", cfg.boot_timeout)?;
         wait_heartbeat(&cam_rx, "camera board", cfg.boot_timeout)?;
         if let Some((file, sections)) = &cfg.params {
-            send_params(file, sections, &mut ap_tx, &ap_rx, cfg.reply_timeout)?;
+            send_params(file, sections, &mut ap_tx, &ap_rx, cfg)?;
         }
         let recorder = HilRecorder::new(log, &world);
         lockstep(
@@ -650,8 +662,9 @@ fn send_params(
     sections: &[FileSection],
     ap_tx: &mut Box<dyn Link>,
     ap_rx: &BoardRx,
-    timeout: Duration,
+    cfg: &HilConfig,
 ) -> anyhow::Result<()> {
+    let timeout = cfg.reply_timeout;
     for section in sections {
         let source: MessageSource<'_> = Box::new(|wait| match ap_rx.rx.recv_timeout(wait) {
             Ok(m) => Ok(Some(m)),
@@ -660,6 +673,7 @@ fn send_params(
         });
         let mut c =
             ParamClient::with_source(Box::new(&mut **ap_tx), source, section.board, timeout);
+        c.sign_with(host_signer(cfg));
         section
             .send_and_verify(&mut c, file)
             .context("not flying: the boards do not run the parameter file")?;
@@ -703,6 +717,7 @@ fn lockstep(
     let mut outputs_pending = cfg.outputs;
     let mut motors = [0.0f32; 4];
     let mut frame_id = 0u16;
+    let mut signer = host_signer(cfg);
     // Exposure time (wire) of the frame whose estimate is awaited, and when it was sent.
     let mut in_flight: Option<(u32, Instant)> = None;
     let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
@@ -771,25 +786,28 @@ fn lockstep(
         if t >= next_heartbeat {
             next_heartbeat += u64::from(autopilot::app::HEARTBEAT_PERIOD_US);
             let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
-            push_msg(&HostToBoard::Heartbeat(hb), &mut out)?;
+            push_msg(&signer.wrap(HostToBoard::Heartbeat(hb))?, &mut out)?;
         }
         if t >= next_height {
             next_height += height_period_us;
             push_msg(
-                &HostToBoard::ExternalPosition(world.height_fix(t)),
+                &signer.wrap(HostToBoard::ExternalPosition(world.height_fix(t)))?,
                 &mut out,
             )?;
         }
         if outputs_pending {
             outputs_pending = false;
             push_msg(
-                &HostToBoard::Command(PilotCommand::HilOutputs(true)),
+                &signer.wrap(HostToBoard::Command(PilotCommand::HilOutputs(true)))?,
                 &mut out,
             )?;
         }
         if !armed && t >= arm_us {
             armed = true;
-            push_msg(&HostToBoard::Command(PilotCommand::Arm), &mut out)?;
+            push_msg(
+                &signer.wrap(HostToBoard::Command(PilotCommand::Arm))?,
+                &mut out,
+            )?;
         }
         let s = world.imu_sample();
         let stamp = WireTime(t as u32);
@@ -1155,6 +1173,9 @@ pub struct HilArgs {
     /// Without it they stay at 0 and the commands are seen in the `Motors` replies and the log.
     #[arg(long)]
     pub outputs: bool,
+    /// The link key file (`sim-host key new`): commands to the autopilot are signed with it.
+    #[arg(long)]
+    pub key: Option<PathBuf>,
 }
 
 /// Runs `sim-host hil`.
@@ -1178,6 +1199,7 @@ pub fn run_cli(args: &HilArgs) -> anyhow::Result<()> {
             None => None,
         },
         interrupt: Some(crate::interrupt_flag()?),
+        key: args.key.as_deref().map(crate::key::load_key).transpose()?,
         ..HilConfig::default()
     };
     let stereo = open_link(&args.stereo, args.baud)?;

@@ -5,6 +5,7 @@
 pub mod eval;
 pub mod fly;
 pub mod hil;
+pub mod key;
 pub mod log;
 pub mod monitor;
 pub mod param;

@@ -32,6 +32,9 @@ enum Command {
     /// List, read, write and save a board's parameters over its telemetry link (serial port or
     /// TCP).
     Param(sim_host::param::ParamArgs),
+    /// The host link's key: make a key file, provision it over the link, write its flash
+    /// record image for SWD.
+    Key(sim_host::key::KeyArgs),
     /// Room suites: merge the CSVs of a suite's shards into the suite's table or CSV.
     Suite(sim_host::suite::SuiteArgs),
 }
@@ -47,5 +50,6 @@ fn main() -> anyhow::Result<()> {
         Command::Monitor(args) => sim_host::monitor::run(args),
         Command::Param(args) => sim_host::param::run(args),
         Command::Suite(args) => sim_host::suite::run(args),
+        Command::Key(args) => sim_host::key::run(args),
     }
 }

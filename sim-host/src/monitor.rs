@@ -23,8 +23,8 @@ use crate::log::view3d::{View3d, ViewRates, ViewSample};
 use crate::log::{write_telemetry, FlightLog, TelemetryExtras};
 use anyhow::Context as _;
 use protocol::{
-    BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, HostToBoard, LinkErrorCounts,
-    Message as _, Node, Telemetry, PROTOCOL_VERSION,
+    BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, HostToBoard, LinkErrorCounts, Node,
+    Telemetry, PROTOCOL_VERSION,
 };
 use std::fmt::Write as _;
 use std::io::{IsTerminal as _, Write as _};
@@ -62,6 +62,10 @@ pub struct MonitorArgs {
     /// standard output is not a terminal).
     #[arg(long)]
     pub plain: bool,
+    /// The link key file (`sim-host key new`): the host heartbeat is signed with it (a board
+    /// with a key ignores unsigned heartbeats and counts them).
+    #[arg(long)]
+    pub key: Option<PathBuf>,
 }
 
 /// How the link to the board is doing.
@@ -303,6 +307,19 @@ impl BoardView {
                     )
                 });
                 let _ = writeln!(s, "battery     {battery}");
+                let a = t.link_auth;
+                let _ = if a.keyed {
+                    writeln!(
+                        s,
+                        "link        signed: {} accepted, refused {} unsigned, {} bad signature, {} replayed",
+                        a.accepted, a.unsigned, a.bad_signature, a.replayed
+                    )
+                } else {
+                    writeln!(
+                        s,
+                        "link        UNSIGNED: no key set, anyone on the link can command the drone"
+                    )
+                };
             }
         }
         if let Some(e) = &self.estimate {
@@ -526,6 +543,8 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         .try_clone_link()
         .context("cloning the link for writing")?;
     let mut next_heartbeat = 0.0;
+    let mut signer =
+        crate::key::HostSigner::from_file(args.key.as_deref(), crate::key::link_id::MONITOR)?;
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || reader(link, tx));
 
@@ -551,8 +570,7 @@ pub fn run(args: &MonitorArgs) -> anyhow::Result<()> {
         if now >= next_heartbeat {
             next_heartbeat = now + crate::param::HOST_HEARTBEAT_PERIOD.as_secs_f64();
             let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, (now * 1e3) as u32));
-            let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&hb)
-                .map_err(|e| anyhow::anyhow!("encoding the heartbeat: {e:?}"))?;
+            let frame = signer.frame(hb)?;
             match heartbeat_out.write_all(&frame) {
                 Ok(()) => {}
                 Err(e) if closed_by_peer(&e) => break "the link closed",
@@ -645,6 +663,7 @@ mod tests {
                 resting_v: 3.95,
                 state: protocol::BatteryState::Ok,
             }),
+            link_auth: protocol::LinkAuthTelemetry::default(),
         }
     }
 

@@ -30,8 +30,8 @@ use autopilot::app::AutopilotConfig;
 use autopilot::params as ap_params;
 use protocol::params::{ParamTable, RecordError, StorageStatus};
 use protocol::{
-    BoardToHost, BoardToHostDecoder, HostToBoard, Message as _, Node, ParamEntry, ParamError,
-    ParamKind, ParamName, ParamOp, ParamReply, ParamRequest, ParamValue,
+    BoardToHost, BoardToHostDecoder, HostToBoard, Node, ParamEntry, ParamError, ParamKind,
+    ParamName, ParamOp, ParamReply, ParamRequest, ParamValue,
 };
 use std::path::Path;
 use std::sync::mpsc;
@@ -73,6 +73,9 @@ pub struct ParamArgs {
     /// Seconds to wait for each answer.
     #[arg(long, default_value_t = 1.0)]
     pub timeout: f64,
+    /// The link key file (`sim-host key new`): requests and heartbeats are signed with it.
+    #[arg(long)]
+    pub key: Option<std::path::PathBuf>,
     /// What to do.
     #[command(subcommand)]
     pub action: ParamAction,
@@ -212,6 +215,8 @@ pub struct ParamClient<'a> {
     started: Instant,
     /// When the last host heartbeat was sent (`None`: none yet).
     last_heartbeat: Option<Instant>,
+    /// Signs what is sent when the host has the link key.
+    signer: crate::key::HostSigner,
 }
 
 /// How often a host tool sends its heartbeat: the autopilot's heartbeat rate (its host
@@ -287,6 +292,7 @@ impl<'a> ParamClient<'a> {
             timeout,
             started: Instant::now(),
             last_heartbeat: None,
+            signer: crate::key::HostSigner::default(),
         }
     }
 
@@ -302,12 +308,17 @@ impl<'a> ParamClient<'a> {
         self.last_heartbeat = Some(Instant::now());
         let uptime_ms = self.started.elapsed().as_millis() as u32;
         let msg = HostToBoard::Heartbeat(protocol::Heartbeat::new(Node::Host, uptime_ms));
-        let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&msg)
-            .map_err(|e| anyhow!("encoding: {e:?}"))?;
+        let frame = self.signer.frame(msg)?;
         self.out
             .write_all(&frame)
             .context("writing the heartbeat")?;
         self.out.flush().context("writing the heartbeat")
+    }
+
+    /// Signs every request and heartbeat from now on (a board with a link key refuses
+    /// unsigned writes and saves).
+    pub fn sign_with(&mut self, signer: crate::key::HostSigner) {
+        self.signer = signer;
     }
 
     fn send(&mut self, op: &ParamOp) -> anyhow::Result<()> {
@@ -316,8 +327,7 @@ impl<'a> ParamClient<'a> {
             board: self.board,
             op: op.clone(),
         });
-        let frame = protocol::encode_to_vec::<_, { HostToBoard::MAX_FRAME_BYTES }>(&msg)
-            .map_err(|e| anyhow!("encoding: {e:?}"))?;
+        let frame = self.signer.frame(msg)?;
         self.out.write_all(&frame).context("writing the request")?;
         self.out.flush().context("writing the request")
     }
@@ -473,6 +483,10 @@ pub fn run(args: &ParamArgs) -> anyhow::Result<()> {
         args.board.node(),
         Duration::from_secs_f64(args.timeout),
     )?;
+    c.sign_with(crate::key::HostSigner::from_file(
+        args.key.as_deref(),
+        crate::key::link_id::PARAM,
+    )?);
     match &args.action {
         ParamAction::List => {
             for e in c.list()? {

@@ -164,6 +164,7 @@ fn monitor_shows_a_board_and_records_what_it_received() {
         "/baro",
         "/battery",
         "/link",
+        "/link_auth",
         "/board_clock",
     ] {
         assert_eq!(

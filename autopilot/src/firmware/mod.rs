@@ -656,10 +656,17 @@ mod app {
                         cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
                     }
                     let started_us = clock::now_us();
-                    let outcome = cx.shared.ap.lock(|ap| match sector {
-                        Some(sector) => ap.on_host_message_stored(msg, now, sector),
-                        None => ap.on_host_message(msg, now),
+                    let (outcome, new_key) = cx.shared.ap.lock(|ap| {
+                        let outcome = match sector {
+                            Some(sector) => ap.on_host_message_stored(msg, now, sector),
+                            None => ap.on_host_message(msg, now),
+                        };
+                        (outcome, ap.take_link_key_to_store().is_some())
                     });
+                    if new_key {
+                        // Not written to flash (docs/protocol.md, "Limits").
+                        defmt::warn!("link key provisioned: kept in RAM until reset");
+                    }
                     if saving {
                         cx.shared.iwdg.lock(|w| set_watchdog(w, board::WATCHDOG_MS));
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;

@@ -349,6 +349,7 @@ pub fn write_telemetry<W: Write + Seek>(
     if let Some(battery) = &tel.battery {
         log.write(t_ns, &records::BatteryRecord::new(battery))?;
     }
+    log.write(t_ns, &records::LinkAuthRecord::new(&tel.link_auth))?;
     Ok(())
 }
 

@@ -284,6 +284,39 @@ impl Record for BatteryRecord {
     const SCHEMA: &'static str = "pocket_drone.Battery";
 }
 
+/// The host link's authentication: whether a key is set and the refused commands.
+#[derive(Debug, Clone, Copy, Serialize, JsonSchema)]
+pub struct LinkAuthRecord {
+    /// A link key is set (false: an unsigned link, anyone on it can command the drone).
+    pub keyed: bool,
+    /// Signed messages accepted since boot.
+    pub accepted: u32,
+    /// Commands refused unsigned since boot.
+    pub unsigned: u32,
+    /// Signed messages refused for a wrong signature since boot.
+    pub bad_signature: u32,
+    /// Signed messages refused as replays (or too far in the future) since boot.
+    pub replayed: u32,
+}
+
+impl LinkAuthRecord {
+    /// The record of a telemetry report.
+    pub fn new(a: &protocol::LinkAuthTelemetry) -> Self {
+        Self {
+            keyed: a.keyed,
+            accepted: a.accepted,
+            unsigned: a.unsigned,
+            bad_signature: a.bad_signature,
+            replayed: a.replayed,
+        }
+    }
+}
+
+impl Record for LinkAuthRecord {
+    const TOPIC: &'static str = "/link_auth";
+    const SCHEMA: &'static str = "pocket_drone.LinkAuth";
+}
+
 /// Height above the floor.
 #[derive(Debug, Clone, Serialize, JsonSchema)]
 pub struct HeightRecord {
