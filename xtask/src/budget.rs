@@ -194,6 +194,7 @@ mod tests {
     fn the_committed_file_parses_and_keeps_the_hard_limits() {
         let b = load().expect("xtask/budgets.toml");
         assert_eq!(b.insns["edge_fs_frame_default"].limit, Some(250_000.0));
+        assert_eq!(b.insns["edge_fs_frame_worst"].limit, Some(448_000.0));
         assert_eq!(b.insns["indi_step"].limit, Some(5_000.0));
         assert!(b.insns.contains_key("camera_board_frame_percent"));
         for firmware in ["stereo-board", "autopilot"] {

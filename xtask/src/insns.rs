@@ -10,7 +10,13 @@
 //!    repeated measurements; for whole Edge-FS frames, over the frames after the history is
 //!    full).
 //!
-//! 5. With the default take and frame count, compares every figure with its expectation in
+//! 5. Streams every frame of every shipped take (`../shared/data/stereoboard_testing`, each
+//!    take from an empty history) and adversarial sequences ([`adversarial`]: all texture, all
+//!    noise, saturated, every column usable) through a default-mode Edge-FS, one frame at a time
+//!    over semihosting from a host file, and reports the most expensive frame as
+//!    `edge_fs_frame_worst`, with the frame it was.
+//!
+//! 6. With the default take and frame count, compares every figure with its expectation in
 //!    `xtask/budgets.toml` and fails on a regression (or an unrecorded improvement) beyond the
 //!    stated tolerance, or on a hard limit (see [`crate::budget`]).
 //!
@@ -60,6 +66,161 @@ const CPU_HZ: f64 = 168e6;
 /// accelerator (see docs/performance.md).
 const CYCLES_PER_INSN: f64 = 1.5;
 
+/// Frames of each adversarial sequence (enough to fill the Edge-FS history and run on it).
+const ADVERSARIAL_FRAMES: usize = 16;
+
+/// The data set's takes.
+fn data_set() -> PathBuf {
+    workspace_root().join("../shared/data/stereoboard_testing")
+}
+
+#[path = "../insns-firmware/bmp.rs"]
+mod bmp;
+
+/// A sequence of interleaved stereo frames streamed to the benchmark from an empty history.
+struct Sequence {
+    /// Where it comes from (a take's directory, or the adversarial pattern's name).
+    name: String,
+    /// The frames, interleaved `[L0 R0 L1 R1 ...]`, 128x96.
+    frames: Vec<Vec<u8>>,
+}
+
+/// Every take of the data set (`*/forward_camera/take*`), each with all its frames in order.
+fn shipped_takes(root: &Path) -> Result<Vec<Sequence>> {
+    let mut takes = Vec::new();
+    for board in sorted_dirs(root)? {
+        let camera = board.join("forward_camera");
+        if !camera.is_dir() {
+            continue;
+        }
+        for take in sorted_dirs(&camera)? {
+            let mut numbered = Vec::new();
+            for entry in std::fs::read_dir(&take)? {
+                let path = entry?.path();
+                let number = path
+                    .extension()
+                    .filter(|e| *e == "bmp")
+                    .and(path.file_stem())
+                    .and_then(|s| s.to_str()?.parse::<u32>().ok());
+                if let Some(number) = number {
+                    numbered.push((number, path));
+                }
+            }
+            numbered.sort();
+            let mut frames = Vec::new();
+            for (_, path) in &numbered {
+                let bytes =
+                    std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+                frames.push(
+                    bmp::interleave(&bytes)
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
+                );
+            }
+            if !frames.is_empty() {
+                takes.push(Sequence {
+                    name: take
+                        .strip_prefix(root)
+                        .unwrap_or(&take)
+                        .display()
+                        .to_string(),
+                    frames,
+                });
+            }
+        }
+    }
+    if takes.is_empty() {
+        bail!("no take under {}", root.display());
+    }
+    Ok(takes)
+}
+
+fn sorted_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .filter_map(|e| Some(e.ok()?.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    Ok(dirs)
+}
+
+/// Frames made to be expensive, [`ADVERSARIAL_FRAMES`] each, moving one pixel a frame (so the
+/// flow has something to match) with the right camera 4 px behind the left (a disparity):
+///
+/// * all texture: alternate columns black and white, an edge at every column;
+/// * all noise: every pixel of every frame random;
+/// * saturated: every pixel 255;
+/// * every column usable: each column its own grey level (a random one, fixed), so every
+///   column's edge is distinct and matches once, in stereo and in flow.
+pub fn adversarial() -> Vec<(String, Vec<Vec<u8>>)> {
+    let (w, h) = (bmp::W, bmp::H);
+    let frame = |pixel: &mut dyn FnMut(usize, usize, bool) -> u8| {
+        let mut f = vec![0u8; 2 * w * h];
+        for row in 0..h {
+            for c in 0..w {
+                f[2 * (row * w + c)] = pixel(row, c, false);
+                f[2 * (row * w + c) + 1] = pixel(row, c, true);
+            }
+        }
+        f
+    };
+    // xorshift64*: a fixed sequence, so the figure is the same on every run.
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut random = move || {
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 56) as u8
+    };
+    let levels: Vec<u8> = (0..w + ADVERSARIAL_FRAMES + 8).map(|_| random()).collect();
+    let shift = |c: usize, k: usize, right: bool| c + k + if right { 4 } else { 0 };
+    let mut out = Vec::new();
+    let sequence = |pixel: &mut dyn FnMut(usize, usize, usize, bool) -> u8| {
+        (0..ADVERSARIAL_FRAMES)
+            .map(|k| frame(&mut |row, c, right| pixel(row, c, k, right)))
+            .collect::<Vec<_>>()
+    };
+    out.push((
+        "all texture".to_string(),
+        sequence(&mut |_, c, k, right| {
+            if shift(c, k, right) % 2 == 0 {
+                0
+            } else {
+                255
+            }
+        }),
+    ));
+    out.push((
+        "all noise".to_string(),
+        sequence(&mut |_, _, _, _| random()),
+    ));
+    out.push(("saturated".to_string(), sequence(&mut |_, _, _, _| 255)));
+    out.push((
+        "every column usable".to_string(),
+        sequence(&mut |_, c, k, right| levels[shift(c, k, right)]),
+    ));
+    out
+}
+
+/// Writes the worst-frame file the benchmark streams: per frame a flag byte (1: the first of
+/// its sequence) and the frame. Returns each record's label.
+fn write_worst_frames(path: &Path, sequences: &[Sequence]) -> Result<Vec<String>> {
+    use std::io::Write;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    let mut labels = Vec::new();
+    for sequence in sequences {
+        for (k, frame) in sequence.frames.iter().enumerate() {
+            out.write_all(&[u8::from(k == 0)])?;
+            out.write_all(frame)?;
+            labels.push(format!("{} frame {}", sequence.name, k + 1));
+        }
+    }
+    out.flush()?;
+    Ok(labels)
+}
+
 /// Runs `cargo xtask insns`.
 pub fn run(args: &[String]) -> Result<()> {
     let default_take = workspace_root()
@@ -87,9 +248,20 @@ pub fn run(args: &[String]) -> Result<()> {
         );
     }
     let plugin = build_plugin()?;
-    let elf = build_firmware(&take, frames)?;
+    let mut sequences = shipped_takes(&data_set())?;
+    let shipped: usize = sequences.iter().map(|s| s.frames.len()).sum();
+    let takes = sequences.len();
+    sequences.extend(
+        adversarial()
+            .into_iter()
+            .map(|(name, frames)| Sequence { name, frames }),
+    );
+    let worst_file = target_dir().join("insns/worst_frames.bin");
+    let labels = write_worst_frames(&worst_file, &sequences)?;
+    let elf = build_firmware(&take, frames, &worst_file)?;
     let (begin, end) = marker_addresses(&elf)?;
     let mut first: Option<BTreeMap<String, Vec<u64>>> = None;
+    let started = std::time::Instant::now();
     for run in 0..runs.max(1) {
         let samples = measure(&elf, &plugin, begin, end)?;
         match &first {
@@ -102,6 +274,7 @@ pub fn run(args: &[String]) -> Result<()> {
         }
     }
     let samples = first.context("no run")?;
+    let qemu_s = started.elapsed().as_secs_f64() / runs.max(1) as f64;
     let skip = frames / 2;
     let mut counts = BTreeMap::new();
     for name in REPORT_ORDER {
@@ -123,6 +296,31 @@ pub fn run(args: &[String]) -> Result<()> {
         + counts["estimate_encode"]
         + GYRO_PER_FRAME * counts["gyro_decode"];
     println!("camera_board_frame {per_frame}");
+    // The worst frame over every shipped frame and the adversarial ones.
+    let worst = samples
+        .get("edge_fs_frame_worst")
+        .context("no measurement named edge_fs_frame_worst")?;
+    if worst.len() != labels.len() {
+        bail!(
+            "{} worst-frame counts for {} frames streamed",
+            worst.len(),
+            labels.len()
+        );
+    }
+    let (at, &worst_count) = worst
+        .iter()
+        .enumerate()
+        .max_by_key(|(_, count)| **count)
+        .context("no frame streamed")?;
+    let shipped_worst = worst[..shipped].iter().max().copied().unwrap_or_default();
+    println!(
+        "edge_fs_frame_worst {worst_count} ({}; {shipped} frames of {takes} takes, worst \
+         {shipped_worst}, and {} adversarial; {:.0} s in QEMU for the whole run)",
+        labels[at],
+        labels.len() - shipped,
+        qemu_s
+    );
+    counts.insert("edge_fs_frame_worst", worst_count);
     let budget = CPU_HZ / FRAME_HZ;
     let percent = 100.0 * per_frame as f64 * CYCLES_PER_INSN / budget;
     println!(
@@ -187,7 +385,7 @@ fn build_plugin() -> Result<PathBuf> {
     Ok(out)
 }
 
-fn build_firmware(take: &Path, frames: usize) -> Result<PathBuf> {
+fn build_firmware(take: &Path, frames: usize, worst_frames: &Path) -> Result<PathBuf> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let status = Command::new(cargo)
         .current_dir(workspace_root())
@@ -204,6 +402,7 @@ fn build_firmware(take: &Path, frames: usize) -> Result<PathBuf> {
         .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld")
         .env("INSNS_TAKE_DIR", take)
         .env("INSNS_FRAMES", frames.to_string())
+        .env("INSNS_WORST_FRAMES", worst_frames)
         .status()
         .context("running cargo build")?;
     if !status.success() {

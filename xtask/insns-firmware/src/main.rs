@@ -80,6 +80,76 @@ mod bench {
         }
     }
 
+    /// One record of the worst-frame file: a flag byte (1: the first frame of a sequence, the
+    /// Edge-FS history starts afresh) and an interleaved stereo frame.
+    const RECORD_BYTES: usize = 1 + STEREO_FRAME_BYTES;
+
+    /// The record being processed (large: a static, as the frames are on the board).
+    static mut RECORD: [u8; RECORD_BYTES] = [0; RECORD_BYTES];
+
+    /// Every frame of the host file `INSNS_WORST_FRAMES` names (every frame of every shipped take
+    /// and the adversarial sequences `cargo xtask insns` writes), read over semihosting one
+    /// record at a time outside the markers, each measured as `edge_fs_frame_worst` in default
+    /// mode. Without the variable, nothing.
+    fn worst_frames(edge_fs: &mut EdgeFs) {
+        let Some(path) = option_env!("INSNS_WORST_FRAMES") else {
+            return;
+        };
+        let mut name = [0u8; 512];
+        let Some(slot) = name.get_mut(..path.len()) else {
+            hprintln!("error: worst-frame path too long: {}", path);
+            debug::exit(debug::EXIT_FAILURE);
+            return;
+        };
+        slot.copy_from_slice(path.as_bytes());
+        // SAFETY: semihosting OPEN of a NUL-terminated name in `name` (the length excludes
+        // the NUL); QEMU's host reads it, nothing else touches the buffer meanwhile.
+        let fd = unsafe {
+            cortex_m_semihosting::syscall!(
+                OPEN,
+                name.as_ptr(),
+                cortex_m_semihosting::nr::open::R_BINARY,
+                path.len()
+            )
+        } as isize;
+        if fd < 0 {
+            hprintln!("error: cannot open {}", path);
+            debug::exit(debug::EXIT_FAILURE);
+            return;
+        }
+        // SAFETY: single-threaded benchmark; this is the only reference to the static.
+        let record = unsafe { &mut *core::ptr::addr_of_mut!(RECORD) };
+        let mut k = 0usize;
+        loop {
+            // SAFETY: semihosting READ into `record`, `RECORD_BYTES` long; it answers how many
+            // bytes it did not read.
+            let unread = unsafe {
+                cortex_m_semihosting::syscall!(READ, fd, record.as_mut_ptr(), RECORD_BYTES)
+            };
+            if unread == RECORD_BYTES {
+                break;
+            }
+            if unread != 0 {
+                hprintln!("error: a truncated record in {}", path);
+                debug::exit(debug::EXIT_FAILURE);
+                return;
+            }
+            if record[0] == 1 {
+                edge_fs.reset();
+                k = 0;
+            }
+            let Ok(f) = <&[u8; STEREO_FRAME_BYTES]>::try_from(&record[1..]) else {
+                return;
+            };
+            let t = 40_000 * k as u64;
+            let g = gyro(k);
+            measure("edge_fs_frame_worst", || edge_fs.process(f, t, Some(&g)));
+            k += 1;
+        }
+        // SAFETY: semihosting CLOSE of the handle OPEN gave.
+        unsafe { cortex_m_semihosting::syscall!(CLOSE, fd) };
+    }
+
     #[entry]
     fn main() -> ! {
         let frames = FRAMES.len() / STEREO_FRAME_BYTES;
@@ -111,6 +181,8 @@ mod bench {
             let g = gyro(k);
             measure("edge_fs_frame_paper", || paper.process(f, t, Some(&g)));
         }
+
+        worst_frames(default);
 
         // The building blocks on the last two frames.
         let (mut left, mut right): (EdgeHistogram, EdgeHistogram) = ([0; 128], [0; 128]);
