@@ -246,3 +246,107 @@ mod tests {
         );
     }
 }
+
+/// The camera board as the autopilot hears it, without a camera: a valid estimate (hovering
+/// still) per 25 fps frame and a heartbeat a second, so that no camera failsafe lands the drone;
+/// after [`CameraStandIn::stop_camera`], no estimate and a `Status` with `camera_stopped` each
+/// second, as the camera board reports a stopped camera (heartbeats go on).
+#[derive(Debug, Clone)]
+pub struct CameraStandIn {
+    frames: Every,
+    heartbeats: Every,
+    statuses: Every,
+    seq: u16,
+    camera_stopped: bool,
+}
+
+impl Default for CameraStandIn {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl CameraStandIn {
+    /// A camera board with a working camera, its first heartbeat and estimate at 0.
+    #[must_use]
+    pub const fn new() -> Self {
+        Self {
+            frames: Every::ns(40 * MS),
+            heartbeats: Every::ns(1_000 * MS),
+            statuses: Every::ns(1_000 * MS),
+            seq: 0,
+            camera_stopped: false,
+        }
+    }
+
+    /// From the next stop on, the camera is reported stopped and no estimate is sent.
+    pub fn stop_camera(&mut self) {
+        self.camera_stopped = true;
+        self.statuses = Every::ns(1_000 * MS);
+    }
+
+    /// Estimates sent so far (the sequence number of the last one).
+    #[must_use]
+    pub fn estimates_sent(&self) -> u16 {
+        self.seq
+    }
+
+    /// Sends what is due at this stop (`now`, ns) on `link`, the autopilot's camera-link input.
+    pub fn step(&mut self, now: u64, link: &Line) {
+        use protocol::{
+            CaptureCounts, Estimate, EstimateFlags, FrameFit, LinkErrorCounts, Message,
+            StereoStatus, StereoToAutopilot,
+        };
+        let mut buffer = [0u8; StereoToAutopilot::MAX_FRAME_BYTES];
+        let mut send = |message: &StereoToAutopilot| {
+            if let Ok(n) = protocol::encode(message, &mut buffer) {
+                link.send_at(now, &buffer[..n]);
+            }
+        };
+        if self.heartbeats.due(now) {
+            send(&StereoToAutopilot::Heartbeat(Heartbeat::new(
+                Node::StereoBoard,
+                (now / MS) as u32,
+            )));
+        }
+        if self.camera_stopped {
+            if self.statuses.due(now) {
+                send(&StereoToAutopilot::Status(StereoStatus {
+                    uptime_ms: (now / MS) as u32,
+                    frame_rate_hz: 0.0,
+                    frames_processed: u32::from(self.seq),
+                    frames_dropped: 0,
+                    link_errors: LinkErrorCounts::default(),
+                    max_processing_us: 5_000,
+                    capture: CaptureCounts::default(),
+                    camera_stopped: true,
+                }));
+            }
+            return;
+        }
+        if self.frames.due(now) {
+            self.seq = self.seq.wrapping_add(1);
+            let still = FrameFit {
+                forward_mps: 0.0,
+                sideways_mps: 0.0,
+                quality: 200,
+            };
+            send(&StereoToAutopilot::Estimate(Estimate {
+                seq: self.seq,
+                capture_us: protocol::WireTime((now / 1_000) as u32),
+                forward_mps: 0.0,
+                sideways_mps: 0.0,
+                obstacle_m: None,
+                quality: 200,
+                flags: EstimateFlags::NONE,
+                processing_us: 5_000,
+                depth_coverage: 255,
+                near_columns: 0,
+                fit: Some(still),
+                up_mps: 0.0,
+                up_flags: EstimateFlags::NO_FLOW_MATCH,
+                fit_r2: 0,
+            }));
+        }
+    }
+}

@@ -27,15 +27,13 @@
 //! | frozen barometer | flying on the barometer (no height fixes), the MS5611 answers every conversion with its last word ([`virtual_board::ms5611::Barometer::set_frozen`]) | [`baro_frozen_promise_ns`]: `baro_stuck_us`, the height timeout, the blind landing; the landing reported as `baro-frozen` |
 
 use protocol::{
-    BoardToHost, CaptureCounts, Decoder, Estimate, EstimateFlags, FailsafeReason, FlightMode,
-    FrameFit, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, PilotCommand, StereoStatus,
-    StereoToAutopilot,
+    BoardToHost, Decoder, FailsafeReason, FlightMode, HostToBoard, Message, PilotCommand,
 };
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
 use virtual_board::inject::RunawayRecursion;
-use virtual_board::pilot::{Every, GroundStation, MS, Once};
+use virtual_board::pilot::{CameraStandIn, GroundStation, MS, Once};
 use virtual_board::timing::{CoreRate, LSI_HZ_FASTEST, LSI_HZ_SLOWEST, LSI_HZ_TYPICAL};
 
 const ARM_AT: u64 = 1_500 * MS;
@@ -91,88 +89,6 @@ enum Fault {
     TelemetryCut,
     HostKill,
     BaroFrozen,
-}
-
-/// The camera board as the autopilot hears it: a valid estimate (hovering still) per 25 fps
-/// frame and a heartbeat a second, until the link is cut; once its camera stopped, no more
-/// estimates and a `Status` with `camera_stopped` each second, as the camera board's 1 Hz
-/// status task sends it.
-struct CameraStandIn {
-    frames: Every,
-    heartbeats: Every,
-    statuses: Every,
-    seq: u16,
-    camera_stopped: bool,
-}
-
-impl CameraStandIn {
-    fn new() -> Self {
-        Self {
-            frames: Every::ns(40 * MS),
-            heartbeats: Every::ns(1_000 * MS),
-            statuses: Every::ns(1_000 * MS),
-            seq: 0,
-            camera_stopped: false,
-        }
-    }
-
-    /// From the next stop on, the camera is reported stopped and no estimate is sent.
-    fn stop_camera(&mut self) {
-        self.camera_stopped = true;
-        self.statuses = Every::ns(1_000 * MS);
-    }
-
-    fn step(&mut self, now: u64, link: &virtual_board::link::Line) {
-        let mut buffer = [0u8; StereoToAutopilot::MAX_FRAME_BYTES];
-        let mut send = |message: &StereoToAutopilot| {
-            let n = protocol::encode(message, &mut buffer).expect("a camera message fits");
-            link.send_at(now, &buffer[..n]);
-        };
-        if self.heartbeats.due(now) {
-            send(&StereoToAutopilot::Heartbeat(Heartbeat::new(
-                Node::StereoBoard,
-                (now / MS) as u32,
-            )));
-        }
-        if self.camera_stopped {
-            if self.statuses.due(now) {
-                send(&StereoToAutopilot::Status(StereoStatus {
-                    uptime_ms: (now / MS) as u32,
-                    frame_rate_hz: 0.0,
-                    frames_processed: u32::from(self.seq),
-                    frames_dropped: 0,
-                    link_errors: LinkErrorCounts::default(),
-                    max_processing_us: 5_000,
-                    capture: CaptureCounts::default(),
-                    camera_stopped: true,
-                }));
-            }
-            return;
-        }
-        if self.frames.due(now) {
-            self.seq = self.seq.wrapping_add(1);
-            send(&StereoToAutopilot::Estimate(Estimate {
-                seq: self.seq,
-                capture_us: protocol::WireTime((now / 1_000) as u32),
-                forward_mps: 0.0,
-                sideways_mps: 0.0,
-                obstacle_m: None,
-                quality: 200,
-                flags: EstimateFlags::NONE,
-                processing_us: 5_000,
-                depth_coverage: 255,
-                near_columns: 0,
-                fit: Some(FrameFit {
-                    forward_mps: 0.0,
-                    sideways_mps: 0.0,
-                    quality: 200,
-                }),
-                up_mps: 0.0,
-                up_flags: EstimateFlags::NO_FLOW_MATCH,
-                fit_r2: 0,
-            }));
-        }
-    }
 }
 
 struct Pilot {

@@ -8,14 +8,11 @@
 
 use autopilot::app::AutopilotConfig;
 use autopilot::battery::BatteryMonitor;
-use protocol::{
-    BatteryState, BoardToHost, Decoder, Estimate, EstimateFlags, FlightMode, FrameFit, Heartbeat,
-    Message, Node, StereoToAutopilot,
-};
+use protocol::{BatteryState, BoardToHost, Decoder, FlightMode, Message};
 use virtual_board::bench::{At, Flow, Options, Setup, run};
 use virtual_board::boards::autopilot::{Autopilot, BATTERY_V};
 use virtual_board::firmware::Firmware;
-use virtual_board::pilot::{Every, GroundStation, MS};
+use virtual_board::pilot::{CameraStandIn, GroundStation, MS};
 
 const ARM_AT: u64 = 1_500 * MS;
 /// The battery starts to fall, ns.
@@ -28,54 +25,6 @@ const HOVER_M: f64 = 0.5;
 const RESISTANCE_OHM: f64 = 0.12;
 /// How long the motors must stay off after they stopped.
 const STAY_OFF: u64 = 600 * MS;
-
-/// The camera board as the autopilot hears it: a valid estimate (hovering still) per 25 fps
-/// frame and a heartbeat a second, so that no failsafe but the battery's lands the drone.
-struct CameraStandIn {
-    frames: Every,
-    heartbeats: Every,
-    seq: u16,
-}
-
-impl CameraStandIn {
-    fn step(&mut self, now: u64, link: &virtual_board::link::Line) {
-        let mut buffer = [0u8; StereoToAutopilot::MAX_FRAME_BYTES];
-        let mut send = |message: &StereoToAutopilot| {
-            let n = protocol::encode(message, &mut buffer).expect("a camera message fits");
-            link.send_at(now, &buffer[..n]);
-        };
-        if self.heartbeats.due(now) {
-            send(&StereoToAutopilot::Heartbeat(Heartbeat::new(
-                Node::StereoBoard,
-                (now / MS) as u32,
-            )));
-        }
-        if self.frames.due(now) {
-            self.seq = self.seq.wrapping_add(1);
-            let fit = FrameFit {
-                forward_mps: 0.0,
-                sideways_mps: 0.0,
-                quality: 200,
-            };
-            send(&StereoToAutopilot::Estimate(Estimate {
-                seq: self.seq,
-                capture_us: protocol::WireTime((now / 1_000) as u32),
-                forward_mps: 0.0,
-                sideways_mps: 0.0,
-                obstacle_m: None,
-                quality: 200,
-                flags: EstimateFlags::NONE,
-                processing_us: 5_000,
-                depth_coverage: 255,
-                near_columns: 0,
-                fit: Some(fit),
-                up_mps: 0.0,
-                up_flags: EstimateFlags::NO_FLOW_MATCH,
-                fit_r2: 0,
-            }));
-        }
-    }
-}
 
 struct Pilot {
     /// The resting voltage at `now`, V.
@@ -107,11 +56,7 @@ impl Pilot {
         Self {
             resting_v,
             ground: GroundStation::arming_at(ARM_AT, HOVER_M),
-            camera: CameraStandIn {
-                frames: Every::ns(40 * MS),
-                heartbeats: Every::ns(1_000 * MS),
-                seq: 0,
-            },
+            camera: CameraStandIn::new(),
             telemetry: Decoder::new_mid_stream(),
             telemetry_read: 0,
             state: None,

@@ -14,14 +14,14 @@
 //!   check (`SAMPLES_TIMEOUT_US` 50 ms, checked every 10 ms) stops them.
 
 use protocol::{
-    BoardToHost, Decoder, Estimate, EstimateFlags, ExternalPosition, FrameFit, Heartbeat,
-    HostToBoard, ImuSample, Message, Node, PilotCommand, StereoToAutopilot, WireTime,
+    BoardToHost, Decoder, ExternalPosition, Heartbeat, HostToBoard, ImuSample, Message, Node,
+    PilotCommand, WireTime,
 };
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
 use virtual_board::host;
-use virtual_board::pilot::{Every, MS, Once};
+use virtual_board::pilot::{CameraStandIn, Every, MS, Once};
 
 /// The host enables the outputs (in the enabled run), ns.
 const ENABLE_AT: u64 = 200 * MS;
@@ -44,11 +44,9 @@ struct Host {
     heartbeats: Every,
     samples: Every,
     fixes: Every,
-    frames: Every,
-    stereo_heartbeats: Every,
+    camera: CameraStandIn,
     enable_at: Once,
     arm_at: Once,
-    seq: u16,
     /// The stop at which the last IMU sample went out.
     last_sample_at: Option<u64>,
     replies: Decoder<BoardToHost, { BoardToHost::MAX_FRAME_BYTES }>,
@@ -73,11 +71,9 @@ impl Host {
             heartbeats: Every::ns(1_000 * MS),
             samples: Every::ns(IMU_PERIOD_NS),
             fixes: Every::ns(20 * MS),
-            frames: Every::ns(40 * MS),
-            stereo_heartbeats: Every::ns(1_000 * MS),
+            camera: CameraStandIn::new(),
             enable_at: Once::at(ENABLE_AT),
             arm_at: Once::at(ARM_AT),
-            seq: 0,
             last_sample_at: None,
             replies: Decoder::new_mid_stream(),
             replies_read: 0,
@@ -129,44 +125,6 @@ impl Host {
         }
     }
 
-    /// The camera board's estimates and heartbeats on the image's link UART.
-    fn camera(&mut self, now: u64, board: &Autopilot) {
-        let mut buffer = [0u8; StereoToAutopilot::MAX_FRAME_BYTES];
-        let mut send = |message: &StereoToAutopilot| {
-            let n = protocol::encode(message, &mut buffer).expect("a camera message fits");
-            board.link.rx.send_at(now, &buffer[..n]);
-        };
-        if self.stereo_heartbeats.due(now) {
-            send(&StereoToAutopilot::Heartbeat(Heartbeat::new(
-                Node::StereoBoard,
-                (now / MS) as u32,
-            )));
-        }
-        if self.frames.due(now) {
-            self.seq = self.seq.wrapping_add(1);
-            send(&StereoToAutopilot::Estimate(Estimate {
-                seq: self.seq,
-                capture_us: WireTime((now / 1_000) as u32),
-                forward_mps: 0.0,
-                sideways_mps: 0.0,
-                obstacle_m: None,
-                quality: 200,
-                flags: EstimateFlags::NONE,
-                processing_us: 5_000,
-                depth_coverage: 255,
-                near_columns: 0,
-                fit: Some(FrameFit {
-                    forward_mps: 0.0,
-                    sideways_mps: 0.0,
-                    quality: 200,
-                }),
-                up_mps: 0.0,
-                up_flags: EstimateFlags::NO_FLOW_MATCH,
-                fit_r2: 0,
-            }));
-        }
-    }
-
     /// The `Motors` replies the image sent since the last stop.
     fn read_replies(&mut self, board: &Autopilot) {
         let sent = board.telemetry.tx.sent_bytes();
@@ -186,7 +144,7 @@ impl Probe<Autopilot> for Host {
         let board = at.board();
         if !self.silent(now) {
             self.send(now, board);
-            self.camera(now, board);
+            self.camera.step(now, &board.link.rx);
         }
         self.read_replies(board);
 

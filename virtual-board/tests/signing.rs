@@ -15,15 +15,15 @@
 
 use protocol::signing::{LinkKey, SignedMessage, Signer};
 use protocol::{
-    BoardToHost, Decoder, Estimate, EstimateFlags, ExternalPosition, FrameFit, Heartbeat,
-    HostToBoard, LinkAuthTelemetry, Message, Node, PilotCommand, StereoToAutopilot,
+    BoardToHost, Decoder, ExternalPosition, Heartbeat, HostToBoard, LinkAuthTelemetry, Message,
+    Node, PilotCommand,
 };
 use virtual_board::bench::{At, Flow, Options, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
 use virtual_board::host;
 use virtual_board::link::Line;
-use virtual_board::pilot::{Every, MS, Once};
+use virtual_board::pilot::{CameraStandIn, Every, MS, Once};
 
 const KEY: LinkKey = LinkKey([0x3C; 32]);
 const FORGER_KEY: LinkKey = LinkKey([0xC3; 32]);
@@ -53,9 +53,7 @@ struct Ground {
     signer: Signer,
     heartbeats: Every,
     fixes: Every,
-    frames: Every,
-    camera_heartbeats: Every,
-    seq: u16,
+    camera: CameraStandIn,
     provision: Once,
     unsigned_arm: Once,
     forged_arm: Once,
@@ -91,9 +89,7 @@ impl Ground {
             signer: Signer::new(KEY, 1),
             heartbeats: Every::ns(1_000 * MS),
             fixes: Every::ns(20 * MS),
-            frames: Every::ns(40 * MS),
-            camera_heartbeats: Every::ns(1_000 * MS),
-            seq: 0,
+            camera: CameraStandIn::new(),
             provision: Once::at(PROVISION_AT),
             unsigned_arm: Once::at(UNSIGNED_ARM_AT),
             forged_arm: Once::at(FORGED_ARM_AT),
@@ -118,43 +114,6 @@ impl Ground {
         self.signer
             .sign(msg, clock(now))
             .expect("a host message signs")
-    }
-
-    fn camera(&mut self, now: u64, link: &Line) {
-        let mut buffer = [0u8; StereoToAutopilot::MAX_FRAME_BYTES];
-        let mut send = |message: &StereoToAutopilot| {
-            let n = protocol::encode(message, &mut buffer).expect("a camera message fits");
-            link.send_at(now, &buffer[..n]);
-        };
-        if self.camera_heartbeats.due(now) {
-            send(&StereoToAutopilot::Heartbeat(Heartbeat::new(
-                Node::StereoBoard,
-                (now / MS) as u32,
-            )));
-        }
-        if self.frames.due(now) {
-            self.seq = self.seq.wrapping_add(1);
-            send(&StereoToAutopilot::Estimate(Estimate {
-                seq: self.seq,
-                capture_us: protocol::WireTime((now / 1_000) as u32),
-                forward_mps: 0.0,
-                sideways_mps: 0.0,
-                obstacle_m: None,
-                quality: 200,
-                flags: EstimateFlags::NONE,
-                processing_us: 5_000,
-                depth_coverage: 255,
-                near_columns: 0,
-                fit: Some(FrameFit {
-                    forward_mps: 0.0,
-                    sideways_mps: 0.0,
-                    quality: 200,
-                }),
-                up_mps: 0.0,
-                up_flags: EstimateFlags::NO_FLOW_MATCH,
-                fit_r2: 0,
-            }));
-        }
     }
 
     fn host(&mut self, now: u64, line: &Line) {
@@ -227,7 +186,7 @@ impl virtual_board::bench::Probe<Autopilot> for Ground {
         let now = at.now;
         let board = at.board();
         self.read_telemetry(now, board);
-        self.camera(now, &board.link.rx);
+        self.camera.step(now, &board.link.rx);
         self.host(now, &board.telemetry.rx);
         let duty = board
             .motors()
