@@ -1588,3 +1588,41 @@ fn hil_outputs_are_off_at_boot_and_enabled_only_with_the_motors_off() {
     assert!(!r.ap.hil_outputs());
     assert_eq!(r.ap.mode(), FlightMode::Flying, "the gate is not a kill");
 }
+
+/// A height fix goes through the vertical filter's innovation gate: one it refuses (a spoofed
+/// jump) reaches neither the height loop nor the arming check's freshness, and is counted;
+/// with `ext_pos_enable` off no fix is used at all.
+#[test]
+fn external_fixes_pass_the_vertical_gate_or_go_nowhere() {
+    let fix = |h: f32, t: u64| ExternalPosition {
+        timestamp_us: WireTime(t as u32),
+        position_m: [0.0, 0.0, -h],
+    };
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut t = 0;
+    for _ in 0..50 {
+        t += 10_000;
+        ap.on_external_position(&fix(0.0, t), t);
+    }
+    assert_eq!(ap.fixes_refused(), 0);
+    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    let taken = t;
+    t += 10_000;
+    ap.on_external_position(&fix(3.0, t), t);
+    assert_eq!(ap.fixes_refused(), 1);
+    assert!(
+        ap.height.height_m().abs() < 0.01,
+        "{}",
+        ap.height.height_m()
+    );
+    assert_eq!(ap.height.last_measurement_us(), Some(taken));
+    assert_eq!(ap.freshness().last_height_us, Some(taken));
+
+    let mut cfg = AutopilotConfig::default();
+    cfg.vertical.external_fixes = false;
+    let mut ap = Autopilot::new(cfg);
+    ap.on_external_position(&fix(0.0, 10_000), 10_000);
+    assert_eq!(ap.fixes_refused(), 1);
+    assert_eq!(ap.height.last_measurement_us(), None);
+    assert_eq!(ap.freshness().last_height_us, None);
+}
