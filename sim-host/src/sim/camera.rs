@@ -11,10 +11,8 @@
 
 use super::imu::gauss;
 use super::math::{Quat, V3};
-use super::normal_table::{normal_from_u16, normal_table};
 use super::scene::Scene;
 use protocol::STEREO_FRAME_BYTES;
-use rand::RngCore;
 use rand_chacha::ChaCha8Rng;
 
 /// Image width, px.
@@ -238,8 +236,6 @@ pub struct StereoCamera {
     offset_map: [Vec<f32>; 2],
     acc: Vec<f32>,
     tmp: Vec<f32>,
-    /// Random bytes of one image's noise: a 16-bit word per pixel.
-    noise_words: Vec<u8>,
     /// Exposure x gain, s (`None` until the first frame: then it starts settled).
     ae_product: Option<f32>,
     last: Exposure,
@@ -318,7 +314,6 @@ impl StereoCamera {
             offset_map,
             acc: vec![0.0; WIDTH * HEIGHT],
             tmp: vec![0.0; WIDTH * HEIGHT],
-            noise_words: vec![0; 2 * WIDTH * HEIGHT],
             ae_product: None,
             last: Exposure {
                 time_s: 0.0,
@@ -459,19 +454,12 @@ impl StereoCamera {
             let e_per_dn = p.electrons_per_dn / g;
             let read_dn = p.read_noise_e / e_per_dn;
             let (gain_map, offset_map) = (&self.gain_map[eye], &self.offset_map[eye]);
-            // One 16-bit random word per pixel, drawn in bulk: the index of its normal deviate.
-            let words = &mut self.noise_words;
-            if p.noise {
-                rng.fill_bytes(words);
-            }
-            let table = normal_table();
             let mut eye_sum = 0u32;
             for (px, a) in self.acc.iter().enumerate() {
                 let signal = a * dn_per_albedo * gain_map[px];
                 let n = if p.noise {
                     let sigma = (signal.max(0.0) / e_per_dn + read_dn * read_dn).sqrt();
-                    let word = u16::from_le_bytes([words[2 * px], words[2 * px + 1]]);
-                    normal_from_u16(table, word) * sigma
+                    gauss(rng) as f32 * sigma
                 } else {
                     0.0
                 };

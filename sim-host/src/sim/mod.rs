@@ -21,8 +21,6 @@
 //! * [`camera`]: the stereo camera renderer (two pinholes 6 cm apart, 128 x 96, 57.4 deg,
 //!   per-pixel rays from the true pose, supersampling, blur, gain mismatch, noise, 8 bit,
 //!   interleaved `[L0 R0 L1 R1 ...]`, optional misalignment).
-//! * [`normal_table`]: the camera noise's fast normal deviates (a table of equal-probability
-//!   interval means).
 //! * [`uart`]: one UART direction at a baud rate with bit errors, dropped bytes and outages.
 //! * [`sched`]: the virtual-clock scheduler that releases the periodic tasks of both boards'
 //!   task tables in time and priority order.
@@ -85,7 +83,6 @@ pub mod flight;
 pub mod imu;
 pub mod math;
 pub mod metrics;
-pub mod normal_table;
 pub mod output;
 pub mod scene;
 pub mod scene_spec;
