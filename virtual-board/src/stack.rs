@@ -78,7 +78,10 @@ impl StackScan {
             top,
             real_image,
             least_free: None,
-            next_ns: 0,
+            // Not before the firmware has painted: `init` paints bottom-up in its first
+            // fraction of a millisecond, and a scan in the middle of the painting would take
+            // the painting's progress for the deepest use.
+            next_ns: SCAN_PERIOD_NS,
         })
     }
 
