@@ -395,8 +395,6 @@ pub struct Autopilot {
     /// When the barometer's reading last changed, µs, and frozen readings refused since boot.
     baro_changed_us: u64,
     baro_frozen: u32,
-    /// External height fixes not used (gated, or fixes disabled).
-    fixes_refused: u32,
     height: HeightController,
     /// Horizontal velocity from the Edge-FS estimates.
     estimation: VelocityEstimation,
@@ -459,7 +457,6 @@ impl Autopilot {
             baro: None,
             baro_changed_us: 0,
             baro_frozen: 0,
-            fixes_refused: 0,
             height: HeightController::new(config.height),
             estimation: VelocityEstimation::new(&config),
             avoidance: Avoidance::new(config.fsm),
@@ -812,30 +809,13 @@ impl Autopilot {
         self.estimation.on_estimate(est, &ctx, &self.cfg);
     }
 
-    /// An external position fix (motion capture / simulator); only the height (`-z`) is used,
-    /// and only with `ext_pos_enable` set. A fix goes through the vertical estimator's
-    /// innovation gate first; one it takes is the height loop's measurement (as in the paper's
-    /// lab), one it refuses is counted and goes nowhere. The estimator keeps the height when
-    /// fixes stop.
+    /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
+    /// While fixes come the height loop flies on them directly, as in the paper's lab; the
+    /// vertical estimator takes them too, so that it holds the height when they stop.
     pub fn on_external_position(&mut self, pos: &ExternalPosition, now_us: u64) {
-        if !self.cfg.vertical.external_fixes {
-            self.fixes_refused = self.fixes_refused.wrapping_add(1);
-            return;
-        }
         let h = -pos.position_m[2];
-        // Only a fix the vertical filter takes (its innovation gate) reaches the height loop
-        // and makes the height fresh for arming.
-        if self.vertical.on_height_fix(h) {
-            self.height.on_measurement(h, now_us);
-        } else {
-            self.fixes_refused = self.fixes_refused.wrapping_add(1);
-        }
-    }
-
-    /// External height fixes not used: refused by the vertical filter's gate, or all of them
-    /// while `ext_pos_enable` is off.
-    pub fn fixes_refused(&self) -> u32 {
-        self.fixes_refused
+        self.vertical.on_height_fix(h);
+        self.height.on_measurement(h, now_us);
     }
 
     /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, a host
