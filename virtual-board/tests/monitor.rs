@@ -163,14 +163,14 @@ fn the_monitor_shows_and_records_the_virtual_autopilots_telemetry() {
     );
     assert_eq!(counts.get("/camera/frustum"), Some(&1), "{counts:?}");
     // Five records per telemetry message (state, attitude, setpoint, velocity, height) plus
-    // its link and board-clock records, one more where it has a barometer reading, one more
+    // its link, board-clock and link-authentication records, one more where it has a barometer reading, one more
     // where it has a battery reading, and one per heartbeat; then the 3D view (a pose per
     // telemetry, the frustum, and annotations and path pieces on the wall clock's rates).
     let view_3d: usize = ["/tf", "/camera/frustum", "/annotations", "/path"]
         .iter()
         .filter_map(|t| counts.get(*t))
         .sum();
-    let logged = 7 * telemetry + with_baro + with_battery + heartbeats + view_3d;
+    let logged = 8 * telemetry + with_baro + with_battery + heartbeats + view_3d;
     assert!(
         stdout.contains(&format!("({logged} messages on")),
         "{logged} records expected in the log:\n{stdout}"
