@@ -493,45 +493,15 @@ fn measure(elf: &Path, plugin: &Path, begin: u32, end: u32) -> Result<BTreeMap<S
 
 /// Addresses of the `insns_begin` and `insns_end` functions, from the ELF symbol table.
 fn marker_addresses(elf_path: &Path) -> Result<(u32, u32)> {
-    let elf = std::fs::read(elf_path).with_context(|| format!("reading {}", elf_path.display()))?;
-    let begin = symbol(&elf, "insns_begin")?;
-    let end = symbol(&elf, "insns_end")?;
+    let image =
+        std::fs::read(elf_path).with_context(|| format!("reading {}", elf_path.display()))?;
+    let symbol = |name: &str| -> Result<u32> {
+        crate::elf::symbol(&image, name)?.with_context(|| format!("symbol {name} not found"))
+    };
+    let begin = symbol("insns_begin")?;
+    let end = symbol("insns_end")?;
     if begin == end {
         bail!("insns_begin and insns_end share an address: the markers were folded");
     }
     Ok((begin, end))
-}
-
-/// Value of a symbol in an ELF32 little-endian file.
-fn symbol(elf: &[u8], wanted: &str) -> Result<u32> {
-    let u16_at = |at: usize| -> Result<usize> {
-        Ok(u16::from_le_bytes(elf.get(at..at + 2).context("ELF truncated")?.try_into()?) as usize)
-    };
-    let u32_at = |at: usize| -> Result<usize> {
-        Ok(u32::from_le_bytes(elf.get(at..at + 4).context("ELF truncated")?.try_into()?) as usize)
-    };
-    if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
-        bail!("not an ELF file");
-    }
-    let (shoff, shentsize, shnum) = (u32_at(0x20)?, u16_at(0x2e)?, u16_at(0x30)?);
-    const SHT_SYMTAB: usize = 2;
-    for i in 0..shnum {
-        let h = shoff + i * shentsize;
-        if u32_at(h + 0x04)? != SHT_SYMTAB {
-            continue;
-        }
-        let (offset, size, link) = (u32_at(h + 0x10)?, u32_at(h + 0x14)?, u32_at(h + 0x18)?);
-        let strtab = u32_at(shoff + link * shentsize + 0x10)?;
-        for entry in (offset..offset + size).step_by(16) {
-            let name_off = u32_at(entry)?;
-            let name = elf
-                .get(strtab + name_off..)
-                .and_then(|s| s.split(|&c| c == 0).next())
-                .unwrap_or_default();
-            if name == wanted.as_bytes() {
-                return Ok(u32_at(entry + 4)? as u32);
-            }
-        }
-    }
-    bail!("symbol {wanted} not found")
 }

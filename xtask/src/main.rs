@@ -15,6 +15,7 @@
 
 mod budget;
 mod ci;
+mod elf;
 mod fw;
 mod insns;
 mod qemu;

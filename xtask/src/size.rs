@@ -17,6 +17,7 @@
 //! measures (`xtask/budgets.toml`'s `[stack]`, which every clean bench run is checked against)
 //! and what it leaves of the reserve.
 
+use crate::elf::{sections, symbol};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -217,50 +218,23 @@ pub fn build_firmwares(flavour: Flavour, names: &[&str]) -> Result<()> {
 pub fn usage(elf: &[u8]) -> Result<Usage> {
     let mut u = Usage::default();
     for s in sections(elf)? {
-        const SHF_ALLOC: u32 = 0x2;
-        const SHT_NOBITS: u32 = 8;
-        if s.flags & SHF_ALLOC == 0 || s.size == 0 {
+        if !s.alloc || s.size == 0 {
             continue;
         }
-        let size = u64::from(s.size);
         let in_flash = (0x0800_0000..0x0810_0000).contains(&s.addr);
         if s.name.starts_with(".ccmram") || (0x1000_0000..0x1001_0000).contains(&s.addr) {
-            u.ccm += size;
+            u.ccm += s.size;
         } else if in_flash {
-            u.flash += size;
+            u.flash += s.size;
         } else {
-            u.ram += size;
+            u.ram += s.size;
             // Initialised data is also stored in flash (copied at start-up).
-            if s.kind != SHT_NOBITS {
-                u.flash += size;
+            if !s.nobits {
+                u.flash += s.size;
             }
         }
     }
     Ok(u)
-}
-
-/// Value of the named symbol in the ELF's symbol table (`None` when it is not there).
-pub fn symbol(elf: &[u8], wanted: &str) -> Result<Option<u32>> {
-    const SHT_SYMTAB: u32 = 2;
-    let secs = sections(elf)?;
-    let Some(symtab) = secs.iter().find(|s| s.kind == SHT_SYMTAB) else {
-        bail!("no symbol table");
-    };
-    let strtab = secs
-        .get(symtab.link as usize)
-        .context("symbol table without a string table")?;
-    for i in 0..(symtab.size / 16) as usize {
-        let at = symtab.offset as usize + 16 * i;
-        let name_off = rd_u32(elf, at)? as usize;
-        let name = elf
-            .get(strtab.offset as usize + name_off..)
-            .and_then(|s| s.split(|&c| c == 0).next())
-            .unwrap_or_default();
-        if name == wanted.as_bytes() {
-            return Ok(Some(rd_u32(elf, at + 4)?));
-        }
-    }
-    Ok(None)
 }
 
 /// Checks the start-up layout: flip-link's (the stack at the bottom of SRAM, `_stack_end <
@@ -339,86 +313,15 @@ pub fn ram_length(map: &str) -> Result<u64> {
     Ok(n * scale)
 }
 
-/// One section header (the fields used here).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Section {
-    /// Section name.
-    pub name: String,
-    /// `sh_type`.
-    pub kind: u32,
-    /// `sh_flags`.
-    pub flags: u32,
-    /// `sh_addr`.
-    pub addr: u32,
-    /// `sh_size`.
-    pub size: u32,
-    /// `sh_offset`: where the section's bytes start in the file.
-    pub offset: u32,
-    /// `sh_link`: for a symbol table, the index of its string table.
-    pub link: u32,
-}
-
-fn rd_u16(b: &[u8], at: usize) -> Result<u16> {
-    b.get(at..at + 2)
-        .and_then(|s| s.try_into().ok())
-        .map(u16::from_le_bytes)
-        .context("ELF truncated")
-}
-
-fn rd_u32(b: &[u8], at: usize) -> Result<u32> {
-    b.get(at..at + 4)
-        .and_then(|s| s.try_into().ok())
-        .map(u32::from_le_bytes)
-        .context("ELF truncated")
-}
-
-/// Section headers of an ELF32 little-endian file.
-pub fn sections(elf: &[u8]) -> Result<Vec<Section>> {
-    if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
-        bail!("not an ELF file");
-    }
-    if elf.get(4) != Some(&1) || elf.get(5) != Some(&1) {
-        bail!("not a 32-bit little-endian ELF");
-    }
-    let shoff = rd_u32(elf, 0x20)? as usize;
-    let shentsize = usize::from(rd_u16(elf, 0x2e)?);
-    let shnum = usize::from(rd_u16(elf, 0x30)?);
-    let shstrndx = usize::from(rd_u16(elf, 0x32)?);
-    if shentsize < 40 {
-        bail!("bad section header size {shentsize}");
-    }
-    let header = |i: usize| shoff + i * shentsize;
-    let strtab_off = rd_u32(elf, header(shstrndx) + 0x10)? as usize;
-    let mut out = Vec::with_capacity(shnum);
-    for i in 0..shnum {
-        let h = header(i);
-        let name_off = rd_u32(elf, h)? as usize;
-        let name = elf
-            .get(strtab_off + name_off..)
-            .and_then(|s| s.split(|&c| c == 0).next())
-            .map(|s| String::from_utf8_lossy(s).into_owned())
-            .unwrap_or_default();
-        out.push(Section {
-            name,
-            kind: rd_u32(elf, h + 0x04)?,
-            flags: rd_u32(elf, h + 0x08)?,
-            addr: rd_u32(elf, h + 0x0c)?,
-            size: rd_u32(elf, h + 0x14)?,
-            offset: rd_u32(elf, h + 0x10)?,
-            link: rd_u32(elf, h + 0x18)?,
-        });
-    }
-    Ok(out)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// A minimal ELF32 LE image with the given (name, type, flags, addr, size) sections.
+    /// A minimal ELF32 LE image with the given (name, type, flags, addr, size) sections, after
+    /// the null section and before the section-name table.
     fn elf(secs: &[(&str, u32, u32, u32, u32)]) -> Vec<u8> {
         let mut strtab = vec![0u8];
-        let mut names = Vec::new();
+        let mut names = vec![0];
         for (n, ..) in secs.iter().chain([(".shstrtab", 3, 0, 0, 0)].iter()) {
             names.push(strtab.len() as u32);
             strtab.extend_from_slice(n.as_bytes());
@@ -430,15 +333,16 @@ mod tests {
         b[..4].copy_from_slice(b"\x7fELF");
         b[4] = 1;
         b[5] = 1;
+        b[6] = 1;
         b[0x20..0x24].copy_from_slice(&shoff.to_le_bytes());
         b[0x2e..0x30].copy_from_slice(&40u16.to_le_bytes());
-        let n = secs.len() as u16 + 1;
+        let n = secs.len() as u16 + 2;
         b[0x30..0x32].copy_from_slice(&n.to_le_bytes());
         b[0x32..0x34].copy_from_slice(&(n - 1).to_le_bytes());
         b[52..52 + strtab.len()].copy_from_slice(&strtab);
-        let all: Vec<_> = secs
-            .iter()
-            .copied()
+        let all: Vec<_> = [("", 0, 0, 0, 0)]
+            .into_iter()
+            .chain(secs.iter().copied())
             .chain([(".shstrtab", 3u32, 0u32, 0u32, strtab.len() as u32)])
             .collect();
         for (i, (_, kind, flags, addr, size)) in all.iter().enumerate() {
