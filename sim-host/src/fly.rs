@@ -11,7 +11,7 @@ use crate::log::sim::{LogRates, SimRecorder};
 use crate::log::FlightLog;
 use crate::param::ParamFile;
 use crate::sim::battery::BatteryParams;
-use crate::sim::flight::{run_flight, run_flight_observed, FlightConfig, FlightResult, Fsm};
+use crate::sim::flight::{run_flight, run_flight_observed, FlightConfig, FlightResult};
 use crate::sim::output;
 use crate::sim::scene_spec::SceneSpec;
 use crate::sim::suite::{self, FlightFigures, SuiteRoom};
@@ -33,6 +33,24 @@ pub enum FsmArg {
     Paper,
     /// Check and turn merged: keep turning until the way ahead is clear.
     Improved,
+}
+
+impl FsmArg {
+    /// The autopilot's FSM variant this choice selects.
+    pub fn variant(self) -> FsmVariant {
+        match self {
+            Self::Paper => FsmVariant::Paper,
+            Self::Improved => FsmVariant::TurnUntilClear,
+        }
+    }
+
+    /// The command-line name of a variant.
+    pub fn name_of(variant: FsmVariant) -> &'static str {
+        match variant {
+            FsmVariant::Paper => "paper",
+            FsmVariant::TurnUntilClear => "improved",
+        }
+    }
 }
 
 /// The autopilot's horizontal velocity estimate.
@@ -208,15 +226,6 @@ impl FlyArgs {
             scene: scene.clone(),
             duration_s: self.duration,
             seed,
-            fsm: match (self.fsm, params) {
-                (Some(FsmArg::Paper), _) => Fsm::Paper,
-                (Some(FsmArg::Improved), _) => Fsm::Improved,
-                (None, Some(p)) if p.sets_fsm_variant => match p.autopilot.fsm.variant {
-                    FsmVariant::Paper => Fsm::Paper,
-                    FsmVariant::TurnUntilClear => Fsm::Improved,
-                },
-                (None, _) => Fsm::Paper,
-            },
             autopilot: params.map_or_else(AutopilotConfig::default, |p| p.autopilot),
             edge_fs: params.map_or_else(EdgeFsParams::default_config, |p| p.camera),
             baud: self.baud,
@@ -226,6 +235,9 @@ impl FlyArgs {
             mocap: self.mocap,
             ..FlightConfig::default()
         };
+        if let Some(fsm) = self.fsm {
+            cfg.autopilot.fsm.variant = fsm.variant();
+        }
         if let Some([x, y, yaw_deg]) = self.start {
             cfg.start_xy = Some([x, y]);
             cfg.start_yaw_rad = Some(yaw_deg.to_radians());
@@ -362,8 +374,10 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 }
                 Format::Table => {
                     println!(
-                        "scene           {}  (seed {}, fsm {:?})",
-                        scene.name, r.seed, cfg.fsm
+                        "scene           {}  (seed {}, fsm {})",
+                        scene.name,
+                        r.seed,
+                        FsmArg::name_of(cfg.autopilot.fsm.variant)
                     );
                     println!(
                         "duration        {:.1} s simulated in {:.1} s ({:.1}x real time)",

@@ -512,8 +512,6 @@ pub struct ParamFile {
     pub autopilot: AutopilotConfig,
     /// The camera board's Edge-FS configuration.
     pub camera: EdgeFsParams,
-    /// Whether the file set `fsm_variant` (which then wins over `fly --fsm`'s default).
-    pub sets_fsm_variant: bool,
 }
 
 impl Default for ParamFile {
@@ -521,7 +519,6 @@ impl Default for ParamFile {
         Self {
             autopilot: AutopilotConfig::default(),
             camera: EdgeFsParams::default_config(),
-            sets_fsm_variant: false,
         }
     }
 }
@@ -567,7 +564,6 @@ impl ParamFile {
                 "autopilot" => {
                     let s = apply_section(&ap_params::AUTOPILOT, &mut out.autopilot, table)
                         .map_err(|(key, problem)| anyhow!("{file}: [{board}] {key}: {problem}"))?;
-                    out.sets_fsm_variant |= s.iter().any(|(k, _)| k == "fsm_variant");
                     FileSection {
                         board: Node::Autopilot,
                         values: s,
@@ -722,7 +718,6 @@ mod tests {
         assert_eq!(f.autopilot.fsm.variant, FsmVariant::TurnUntilClear);
         assert!(!f.autopilot.indi.adapt);
         assert_eq!(f.autopilot.force_field.gain, 2.0);
-        assert!(f.sets_fsm_variant);
         let empty = ParamFile::parse("", "p.toml").unwrap();
         assert_eq!(empty, ParamFile::default());
 
@@ -734,7 +729,6 @@ mod tests {
         assert_eq!(f.camera.stereo_shift_px, -3);
         assert_eq!(f.camera.max_horizon, 4);
         assert_eq!(f.autopilot.guidance.kp, 0.25);
-        assert!(!f.sets_fsm_variant);
         let camera = sections
             .iter()
             .find(|s| s.board == Node::StereoBoard)

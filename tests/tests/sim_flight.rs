@@ -1,8 +1,9 @@
 //! Closed-loop simulation tests: both boards' real task logic in the loop, talking over the
 //! simulated UART (sim-host's `sim::flight`). Each test states the bound it checks.
 
+use autopilot::fsm::FsmVariant;
 use protocol::{FlightMode, FsmState};
-use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm, LogRow};
+use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, LogRow};
 use sim_host::sim::uart::LinkFaults;
 
 fn fly(cfg: &FlightConfig) -> FlightResult {
@@ -116,14 +117,17 @@ const ROOM_SEEDS: std::ops::RangeInclusive<u64> = 1..=6;
 /// of 600 s per FSM) give the rate over long flights.
 #[test]
 fn room_flights_without_collision() {
-    let fsms = [(Fsm::Paper, ROOM_SEEDS), (Fsm::Improved, ROOM_SEEDS)];
+    let fsms = [
+        (FsmVariant::Paper, ROOM_SEEDS),
+        (FsmVariant::TurnUntilClear, ROOM_SEEDS),
+    ];
     for (fsm, seeds) in fsms {
         for seed in seeds {
-            let cfg = FlightConfig {
+            let mut cfg = FlightConfig {
                 seed,
-                fsm,
                 ..FlightConfig::default()
             };
+            cfg.autopilot.fsm.variant = fsm;
             let r = fly(&cfg);
             println!(
                 "seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, {:.1} m flown",

@@ -7,8 +7,9 @@
 //! a drone that never saw) were tuned on seeds 101-104 and 501-510; these tests fly seeds
 //! 701-703, which were not used for tuning.
 
+use autopilot::fsm::FsmVariant;
 use protocol::FlightMode;
-use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, Fsm};
+use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult};
 use sim_host::sim::scene_spec::SceneSpec;
 
 const SEEDS: std::ops::RangeInclusive<u64> = 701..=703;
@@ -31,15 +32,15 @@ fn max_speed(r: &FlightResult) -> f32 {
 #[test]
 fn plain_room_flights_touch_no_wall() {
     let scene = SceneSpec::preset("plain-room").expect("plain-room preset");
-    for fsm in [Fsm::Paper, Fsm::Improved] {
+    for fsm in [FsmVariant::Paper, FsmVariant::TurnUntilClear] {
         for seed in SEEDS {
-            let cfg = FlightConfig {
+            let mut cfg = FlightConfig {
                 scene: scene.clone(),
                 seed,
-                fsm,
                 duration_s: 120.0,
                 ..FlightConfig::default()
             };
+            cfg.autopilot.fsm.variant = fsm;
             let r = fly(&cfg);
             let v = max_speed(&r);
             let last = r.log.last().expect("a log");

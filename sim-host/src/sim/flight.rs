@@ -16,7 +16,6 @@ use super::sched::{Board, Release, Scheduler};
 use super::uart::{LinkFaults, SimUart, UartStats};
 use super::world::World;
 use autopilot::app::{Autopilot, AutopilotConfig};
-use autopilot::fsm::FsmVariant;
 use autopilot::ms5611::BaroReading;
 use protocol::{
     AutopilotToStereo, Decoder, Estimate, FailsafeReason, FlightMode, FsmState, Heartbeat,
@@ -26,15 +25,6 @@ use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
 use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput, EdgeFsParams};
 use timebase::{Instant, WorldTime};
-
-/// Which avoidance logic the autopilot flies.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Fsm {
-    /// The paper's: check, forward, hover 1 s, turn 60 deg.
-    Paper,
-    /// Check and turn merged: turn until a clear path is seen.
-    Improved,
-}
 
 /// Everything that defines a flight.
 #[derive(Debug, Clone)]
@@ -50,8 +40,6 @@ pub struct FlightConfig {
     pub start_yaw_rad: Option<f64>,
     /// Start position (x, y), m; `None`: the scene's start.
     pub start_xy: Option<[f64; 2]>,
-    /// Avoidance FSM variant.
-    pub fsm: Fsm,
     /// UART baud rate between the boards, bit/s.
     pub baud: u32,
     /// Faults on the camera-board -> autopilot direction.
@@ -108,7 +96,6 @@ impl Default for FlightConfig {
             seed: 1,
             start_yaw_rad: None,
             start_xy: None,
-            fsm: Fsm::Paper,
             baud: 115_200,
             faults_s2a: LinkFaults::default(),
             faults_a2s: LinkFaults::default(),
@@ -357,12 +344,7 @@ pub fn run_flight_observed(
 ) -> anyhow::Result<FlightResult> {
     let mut world = World::new(cfg)?;
     observer.on_scene(&world.scene, &world.camera.params);
-    let mut ap_cfg = cfg.autopilot;
-    ap_cfg.fsm.variant = match cfg.fsm {
-        Fsm::Paper => FsmVariant::Paper,
-        Fsm::Improved => FsmVariant::TurnUntilClear,
-    };
-    let mut ap = Autopilot::try_new(ap_cfg)
+    let mut ap = Autopilot::try_new(cfg.autopilot)
         .map_err(|r| anyhow::anyhow!("autopilot configuration refused: {r}"))?;
     let mut cb = Box::new(StereoBoardApp::new(cfg.edge_fs));
     let mut s2a = SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a);
