@@ -21,7 +21,7 @@
 //! clock. Every check that fails says why ([`SignError`]), so the receiver counts it.
 //!
 //! The key is 32 bytes. It is provisioned while no key is set with [`HostToBoard::SetKey`], or
-//! written over SWD as a [`KeyRecord`] (see `docs/protocol.md`).
+//! written over SWD into the parameter record as a [`KeyRecord`] (see `docs/protocol.md`).
 //!
 //! Nothing here reads a clock: the signer's and the receiver's times are passed in.
 
@@ -337,8 +337,9 @@ pub enum KeyRecordError {
     Corrupt,
 }
 
-/// The link key as stored beside the parameter record (written over SWD by
-/// `cargo xtask key-record`, or by the board when a key is provisioned over the link).
+/// The link key as stored in the parameter record (`crate::params`, format
+/// `RECORD_FORMAT_KEYED`): written over SWD by `cargo xtask flash --key`, or by the board when
+/// a key is provisioned over the link, and with every parameter save.
 ///
 /// Layout, 48 bytes: `b"PDK1"`, the key (32 bytes), `min_timestamp` (u64 little endian), and a
 /// CRC-32/ISO-HDLC of the preceding 44 bytes (little endian).
