@@ -613,7 +613,9 @@ impl<C: Copy> ParamTable<C> {
     }
 
     /// The store's newest good record: its slot, sequence number and configuration; or why no
-    /// slot holds one.
+    /// slot holds one. One copy in a firmware, however many callers (each would otherwise
+    /// inline the whole table's decode).
+    #[inline(never)]
     fn newest(&self, store: &dyn RecordStore) -> Result<(usize, u32, C), RecordError> {
         let mut best: Option<(usize, u32, C)> = None;
         let mut why = RecordError::Blank;
