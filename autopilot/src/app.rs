@@ -512,10 +512,16 @@ impl Autopilot {
     /// A disarmed autopilot on the configuration saved in `store` ([`params::decode_record`]):
     /// the saved values when the record is good, otherwise the defaults; why is kept for
     /// [`ParamOp::Storage`] and returned (`Err`: the defaults are in use).
+    ///
+    /// The link key saved with the parameters ([`protocol::params::ParamTable::load_link_key`])
+    /// is loaded too: with one, every command but `Kill` must be signed from the first message.
     pub fn from_store(store: &impl RecordStore) -> (Self, Result<(), RecordError>) {
         let (config, status) = params::AUTOPILOT.load(store);
         let mut ap = Self::new(config);
         ap.storage = Some(status);
+        if let Some(key) = params::AUTOPILOT.load_link_key(store) {
+            ap.link_auth.load(key);
+        }
         (ap, status.loaded)
     }
 
@@ -534,7 +540,8 @@ impl Autopilot {
 
     /// Answers a host's parameter request, saving to `store` on `Save`: refused while the
     /// motors may run (`Armed`); otherwise the record of the configuration in use
-    /// ([`params::encode_record`]) is written and read back, and a failure of either is
+    /// ([`params::encode_record`], with the link key when there is one) is written and read
+    /// back, and a failure of either is
     /// `SaveFailed`. The write takes as long as the flash's erase (a second or two for a
     /// 128 KiB sector), which is why it waits for the ground.
     pub fn on_param_request_stored(
@@ -560,7 +567,8 @@ impl Autopilot {
         let cfg = self.cfg;
         // The status is counted on a copy, so that `set_config` can borrow the autopilot.
         let mut status = self.storage;
-        let storage = ParamStorage::of(store, status.as_mut());
+        let key = self.link_auth.stored_key();
+        let storage = ParamStorage::of(store, status.as_mut()).map(|s| s.with_key(key));
         let apply = |next| self.set_config(next);
         let response = params::AUTOPILOT.respond(Node::Autopilot, req, &cfg, apply, storage);
         self.storage = status;

@@ -10,7 +10,7 @@
 //! Every message passes [`crate::link_auth::LinkAuth::admit`] first: once a link key is set, a command that is
 //! not signed with it is refused and counted ([`crate::link_auth`]).
 
-use protocol::params::RecordStore;
+use protocol::params::{KeySaveError, RecordStore};
 use protocol::signing::KeyRecord;
 use protocol::{
     AutopilotToStereo, BoardToHost, HostToBoard, ImuSample, Node, ParamError, ParamOp, ParamReply,
@@ -108,10 +108,32 @@ impl Autopilot {
         self.link_auth.load(record);
     }
 
+    /// Whether the host link has a key (commands must then be signed).
+    pub fn link_keyed(&self) -> bool {
+        self.link_auth.telemetry().keyed
+    }
+
     /// A key provisioned over the link since the last call, for the board to store (taken
-    /// once; [`crate::link_auth::LinkAuth::take_key_to_store`]).
+    /// once; [`crate::link_auth::LinkAuth::take_key_to_store`]) with
+    /// [`Autopilot::save_link_key`].
     pub fn take_link_key_to_store(&mut self) -> Option<KeyRecord> {
         self.link_auth.take_key_to_store()
+    }
+
+    /// Writes the link key into `store` beside the saved parameters, which stay as saved
+    /// ([`protocol::params::ParamTable::save_link_key`]; unsaved changes stay unsaved), so that
+    /// the next boot loads it ([`Autopilot::from_store`]). Nothing to do on an unsigned link.
+    /// Refused while the motors may run, like a parameter save (the flash stalls the core for
+    /// the erase); `Record` when the storage holds only bad records (the key is then saved
+    /// with the next parameter save).
+    pub fn save_link_key(&self, store: &mut impl RecordStore) -> Result<(), KeySaveError> {
+        if self.mode().motors_enabled() {
+            return Err(KeySaveError::SaveFailed);
+        }
+        match self.link_auth.stored_key() {
+            Some(key) => crate::params::AUTOPILOT.save_link_key(store, &key),
+            None => Ok(()),
+        }
     }
 }
 
@@ -168,6 +190,50 @@ mod tests {
         ap.on_host_message(signed, 1_000);
         assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
         assert_eq!(ap.telemetry(1_000).link_auth.accepted, 1);
+    }
+
+    #[test]
+    fn a_key_provisioned_over_the_link_is_kept_across_a_reboot_and_a_save() {
+        use protocol::params::{MemSlots, ParamValue};
+        use protocol::signing::{LinkKey, Signer};
+        let key = LinkKey([7; 32]);
+        let param = |op| {
+            HostToBoard::Param(ParamRequest {
+                board: Node::Autopilot,
+                op,
+            })
+        };
+        let mut flash = MemSlots::<1024>::blank();
+        let (mut ap, _) = Autopilot::from_store(&flash);
+        assert!(!ap.telemetry(0).link_auth.keyed);
+        // A parameter set but not saved, then the key.
+        let gain = ParamOp::Set("guid_kp".try_into().unwrap(), ParamValue::F32(0.3));
+        ap.on_host_message_stored(param(gain), 0, &mut flash);
+        assert_eq!(ap.config().guidance.kp, 0.3);
+        ap.on_host_message_stored(HostToBoard::SetKey(key), 0, &mut flash);
+        assert!(ap.take_link_key_to_store().is_some());
+        assert_eq!(ap.save_link_key(&mut flash), Ok(()));
+        // The reboot loads the key, and the parameters as saved (the set was not).
+        let (mut ap, _) = Autopilot::from_store(&flash);
+        assert!(ap.telemetry(0).link_auth.keyed);
+        assert_eq!(ap.config(), &AutopilotConfig::default());
+        ap.on_host_message_stored(HostToBoard::SetKey(LinkKey([9; 32])), 0, &mut flash);
+        assert_eq!(ap.telemetry(0).link_auth.unsigned, 1, "the key is set");
+        // A signed save keeps the key in the record it writes.
+        let mut signer = Signer::new(key, 2);
+        let save = signer.sign(&param(ParamOp::Save), 100).unwrap();
+        let HostOutcome::Reply(BoardToHost::Param(r)) =
+            ap.on_host_message_stored(save, 0, &mut flash)
+        else {
+            panic!("a save is answered");
+        };
+        assert_eq!(r.reply, ParamReply::Saved);
+        let (mut ap, _) = Autopilot::from_store(&flash);
+        let arm = HostToBoard::Command(PilotCommand::Arm);
+        ap.on_host_message(arm.clone(), 0);
+        assert_eq!(ap.telemetry(0).link_auth.unsigned, 1);
+        ap.on_host_message(signer.sign(&arm, 200).unwrap(), 0);
+        assert_eq!(ap.telemetry(0).link_auth.accepted, 1);
     }
 
     #[test]

@@ -9,8 +9,9 @@
 //! storage status) are not signed: they change nothing and the key is not among them.
 //!
 //! The key is provisioned while the motors cannot run: unsigned with [`HostToBoard::SetKey`]
-//! while no key is set, later only by a `SetKey` signed with the current key (or over SWD, a
-//! [`KeyRecord`] loaded at boot with [`LinkAuth::load`]).
+//! while no key is set, later only by a `SetKey` signed with the current key, or over SWD into
+//! the parameter record. The board saves it in its parameter record ([`LinkAuth::stored_key`])
+//! and loads it at boot with [`LinkAuth::load`].
 
 use protocol::signing::{KeyRecord, LinkKey, ReplayGuard, SignError};
 use protocol::{HostToBoard, LinkAuthTelemetry, ParamOp, PilotCommand};
@@ -89,6 +90,16 @@ impl LinkAuth {
         self.key = Some(record.key);
         self.guard = ReplayGuard::new(record.min_timestamp);
         self.counts.keyed = true;
+    }
+
+    /// The key to save with the board's parameters (never sent over the link), its floor
+    /// raised to the newest timestamp accepted since boot: after a reboot, messages signed
+    /// before the save are refused ([`ReplayGuard::new`]). `None` on an unsigned link.
+    pub fn stored_key(&self) -> Option<KeyRecord> {
+        self.key.map(|key| KeyRecord {
+            key,
+            min_timestamp: self.guard.newest(),
+        })
     }
 
     /// The counts and whether a key is set.
@@ -259,6 +270,28 @@ mod tests {
         assert_eq!(a.admit(old, true, 0), None);
         let new = Signer::new(other, 1).sign(&ARM, 6_000).unwrap();
         assert_eq!(a.admit(new, true, 0), Some(ARM));
+    }
+
+    #[test]
+    fn the_stored_key_refuses_what_was_signed_before_the_save() {
+        let mut a = LinkAuth::new();
+        assert_eq!(a.stored_key(), None);
+        a.load(KeyRecord {
+            key: KEY,
+            min_timestamp: 100,
+        });
+        assert_eq!(a.stored_key().map(|r| r.min_timestamp), Some(100));
+        let signed = Signer::new(KEY, 1).sign(&ARM, 5_000).unwrap();
+        assert_eq!(a.admit(signed.clone(), true, 0), Some(ARM));
+        let stored = a.stored_key().unwrap();
+        assert_eq!((stored.key, stored.min_timestamp), (KEY, 5_000));
+        let mut rebooted = LinkAuth::new();
+        rebooted.load(stored);
+        assert_eq!(
+            rebooted.admit(signed, true, 0),
+            None,
+            "replayed after a reboot"
+        );
     }
 
     #[test]

@@ -433,6 +433,18 @@ pub fn decode_record(bytes: &[u8]) -> (AutopilotConfig, Result<(), protocol::par
     AUTOPILOT.decode_record(bytes)
 }
 
+/// The record that puts `key` into a board's parameter slots as they are (read over SWD by
+/// `cargo xtask flash --key`): the newest good record's values (the defaults on erased
+/// flash), numbered one after it, for the other slot ([`ParamTable::record_with_key`]).
+/// Returns the slot to write and the record's length in `out`.
+pub fn record_with_key(
+    slots: &dyn protocol::params::RecordStore,
+    key: &protocol::signing::KeyRecord,
+    out: &mut [u8],
+) -> Result<(usize, usize), protocol::params::RecordError> {
+    AUTOPILOT.record_with_key(slots, key, out)
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;

@@ -10,7 +10,12 @@
 //! The flash record ([`encode_record`], [`decode_record`]) holds the values in table order
 //! behind a magic, a format version, the table's [`table_hash`] (names and kinds) and a save
 //! sequence number, closed by a CRC-32: a blank, corrupt, older-format or other-table record
-//! decodes to an error. A board's storage is a [`RecordStore`] (its flash sectors in the
+//! decodes to an error. A board with a host link key saves it in every record
+//! ([`ParamStorage::key`], format [`RECORD_FORMAT_KEYED`]: the [`KeyRecord`] before the CRC);
+//! records without one keep format [`RECORD_FORMAT_VERSION`] and load as before. The key is
+//! read back with [`ParamTable::load_link_key`], and put beside the saved configuration
+//! without saving the one in use with [`ParamTable::save_link_key`] (the board, for a key
+//! provisioned over its link) or [`ParamTable::record_with_key`] (the SWD flashing tool). A board's storage is a [`RecordStore`] (its flash sectors in the
 //! firmware, a [`MemStore`] or [`MemSlots`] on the host) of one or two separately erased
 //! slots. [`ParamTable::load`] reads every slot at boot and takes the good record with the
 //! highest sequence number; [`ParamTable::save`] writes the next number into the slot that
@@ -22,6 +27,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::signing::{KeyRecord, KEY_RECORD_BYTES};
 use crate::Node;
 
 /// Longest parameter name, bytes.
@@ -585,7 +591,13 @@ impl<C: Copy> ParamTable<C> {
     /// returns its length,
     /// [`record_bytes`] of the table's length.
     pub fn encode_record(&self, cfg: &C, out: &mut [u8]) -> Result<usize, RecordError> {
-        encode_values(self.specs, self.access.iter().map(|a| (a.get)(cfg)), 0, out)
+        encode_values(
+            self.specs,
+            self.access.iter().map(|a| (a.get)(cfg)),
+            0,
+            None,
+            out,
+        )
     }
 
     /// The configuration saved in `store` ([`ParamTable::decode_record`]) and the storage's
@@ -601,7 +613,9 @@ impl<C: Copy> ParamTable<C> {
     }
 
     /// The store's newest good record: its slot, sequence number and configuration; or why no
-    /// slot holds one.
+    /// slot holds one. One copy in a firmware, however many callers (each would otherwise
+    /// inline the whole table's decode).
+    #[inline(never)]
     fn newest(&self, store: &dyn RecordStore) -> Result<(usize, u32, C), RecordError> {
         let mut best: Option<(usize, u32, C)> = None;
         let mut why = RecordError::Blank;
@@ -610,10 +624,7 @@ impl<C: Copy> ParamTable<C> {
             match self.decode_record(bytes) {
                 (cfg, Ok(())) => {
                     let seq = record_sequence(bytes).unwrap_or(0);
-                    // Sequence numbers wrap: the newer is the one the other is behind.
-                    let newer = best.as_ref().is_none_or(|&(_, b, _)| {
-                        i32::from_le_bytes(seq.wrapping_sub(b).to_le_bytes()) > 0
-                    });
+                    let newer = best.as_ref().is_none_or(|&(_, b, _)| is_newer(seq, b));
                     if newer {
                         best = Some((slot, seq, cfg));
                     }
@@ -637,14 +648,14 @@ impl<C: Copy> ParamTable<C> {
     /// on it. The write takes as long as the slot's erase (a second or two for a 128 KiB flash
     /// sector).
     pub fn save(&self, cfg: &C, storage: ParamStorage<'_>) -> ParamReply {
-        let ParamStorage { store, status } = storage;
+        let ParamStorage { store, status, key } = storage;
         let (slot, sequence) = match self.newest(store) {
             Ok((current, seq, _)) => ((current + 1) % store.slots().max(1), seq.wrapping_add(1)),
             Err(_) => (0, 1),
         };
         let mut record = [0u8; MAX_RECORD_BYTES];
         let values = self.access.iter().map(|a| (a.get)(cfg));
-        let written = match encode_values(self.specs, values, sequence, &mut record) {
+        let written = match encode_values(self.specs, values, sequence, key.as_ref(), &mut record) {
             Ok(n) => {
                 let record = record.get(..n).unwrap_or(&[]);
                 store.write_slot(slot, record).is_ok() && store.slot(slot).get(..n) == Some(record)
@@ -659,6 +670,73 @@ impl<C: Copy> ParamTable<C> {
         } else {
             status.failed_saves = status.failed_saves.saturating_add(1);
             ParamReply::Error(ParamError::SaveFailed)
+        }
+    }
+
+    /// The link key saved in `store`: the key of the record [`ParamTable::load`] takes (the
+    /// newest good one), or, when no record is good for this table (a firmware whose table
+    /// changed since the save), of the newest whole record (magic, format, CRC), so that a
+    /// board keeps its key across a firmware update. `None` when that record has no key or no
+    /// slot holds a whole record.
+    pub fn load_link_key(&self, store: &dyn RecordStore) -> Option<KeyRecord> {
+        if let Ok((slot, _, _)) = self.newest(store) {
+            return record_link_key(store.slot(slot)).ok().flatten();
+        }
+        let mut best: Option<(u32, Option<KeyRecord>)> = None;
+        for slot in 0..store.slots() {
+            let bytes = store.slot(slot);
+            if let (Ok(key), Some(seq)) = (record_link_key(bytes), record_sequence(bytes)) {
+                if best.is_none_or(|(b, _)| is_newer(seq, b)) {
+                    best = Some((seq, key));
+                }
+            }
+        }
+        best.and_then(|(_, key)| key)
+    }
+
+    /// The record that puts `key` beside the configuration `store` holds, written into `out`:
+    /// the newest good record's values (the defaults when every slot is blank), numbered one
+    /// after it, for the slot that does not hold it. Returns that slot and the record's length.
+    /// A store whose records are all bad (corrupt, another table) is refused with the first
+    /// slot's reason: its defaults would otherwise replace a configuration the board reports as
+    /// lost ([`StorageStatus::blocks_arming`]).
+    pub fn record_with_key(
+        &self,
+        store: &dyn RecordStore,
+        key: &KeyRecord,
+        out: &mut [u8],
+    ) -> Result<(usize, usize), RecordError> {
+        let (slot, sequence, cfg) = match self.newest(store) {
+            Ok((current, seq, cfg)) => (
+                (current + 1) % store.slots().max(1),
+                seq.wrapping_add(1),
+                cfg,
+            ),
+            Err(RecordError::Blank) => (0, 1, (self.defaults)()),
+            Err(e) => return Err(e),
+        };
+        let values = self.access.iter().map(|a| (a.get)(&cfg));
+        let n = encode_values(self.specs, values, sequence, Some(key), out)?;
+        Ok((slot, n))
+    }
+
+    /// Writes `key` into `store` beside the configuration it holds ([`ParamTable::record_with_key`]:
+    /// the parameters saved stay as they are, unsaved changes stay unsaved) and reads it back.
+    /// Like a save, it erases a slot (a second or two on a board's flash).
+    pub fn save_link_key(
+        &self,
+        store: &mut dyn RecordStore,
+        key: &KeyRecord,
+    ) -> Result<(), KeySaveError> {
+        let mut record = [0u8; MAX_RECORD_BYTES];
+        let (slot, n) = self
+            .record_with_key(store, key, &mut record)
+            .map_err(KeySaveError::Record)?;
+        let record = record.get(..n).unwrap_or(&[]);
+        if store.write_slot(slot, record).is_ok() && store.slot(slot).get(..n) == Some(record) {
+            Ok(())
+        } else {
+            Err(KeySaveError::SaveFailed)
         }
     }
 
@@ -856,6 +934,9 @@ pub struct ParamStorage<'a> {
     pub store: &'a mut dyn RecordStore,
     /// What the boot loaded, and the saves since.
     pub status: &'a mut StorageStatus,
+    /// The link key the board holds, written into every record it saves (`None`: records
+    /// without a key).
+    pub key: Option<KeyRecord>,
 }
 
 impl<'a> ParamStorage<'a> {
@@ -868,7 +949,13 @@ impl<'a> ParamStorage<'a> {
         Some(Self {
             store: store?,
             status: status?,
+            key: None,
         })
+    }
+
+    /// The same storage saving `key` with every record.
+    pub fn with_key(self, key: Option<KeyRecord>) -> Self {
+        Self { key, ..self }
     }
 }
 
@@ -1079,8 +1166,11 @@ pub struct ParamResponse {
 
 /// First word of a parameter record ("PDPR" little-endian).
 pub const RECORD_MAGIC: u32 = u32::from_le_bytes(*b"PDPR");
-/// Layout version of the record (header fields, value encoding, CRC).
+/// Layout version of a record without a link key (header fields, value encoding, CRC).
 pub const RECORD_FORMAT_VERSION: u16 = 2;
+/// Layout version of a record that carries the link key: version 2's layout with the
+/// [`KeyRecord`] ([`KEY_RECORD_BYTES`]) between the values and the CRC, which covers it too.
+pub const RECORD_FORMAT_KEYED: u16 = 3;
 /// Bytes before the values: magic, format version, count, table hash, sequence number.
 pub const RECORD_HEADER_BYTES: usize = 16;
 
@@ -1092,8 +1182,8 @@ pub const fn record_bytes(count: usize) -> usize {
 /// Most entries a table can have to be saved ([`ParamTable::save`] encodes into a buffer of
 /// [`MAX_RECORD_BYTES`] on the stack).
 pub const MAX_PARAMS: usize = 160;
-/// Bytes of the record of a table of [`MAX_PARAMS`] entries.
-pub const MAX_RECORD_BYTES: usize = record_bytes(MAX_PARAMS);
+/// Bytes of the record of a table of [`MAX_PARAMS`] entries with a link key.
+pub const MAX_RECORD_BYTES: usize = record_bytes(MAX_PARAMS) + KEY_RECORD_BYTES;
 
 /// Why a flash record was not loaded (the board keeps its defaults).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -1127,7 +1217,23 @@ pub fn encode_record(
     if values.len() != table.len() {
         return Err(RecordError::Length);
     }
-    encode_values(table, values.iter().copied(), 0, out)
+    encode_values(table, values.iter().copied(), 0, None, out)
+}
+
+/// Whether sequence number `seq` is newer than `than`: sequence numbers wrap, and the newer
+/// is the one the other is behind.
+fn is_newer(seq: u32, than: u32) -> bool {
+    i32::from_le_bytes(seq.wrapping_sub(than).to_le_bytes()) > 0
+}
+
+/// Why a link key was not written to a board's storage ([`ParamTable::save_link_key`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum KeySaveError {
+    /// No slot holds a good record to keep, and not every slot is blank (why).
+    Record(RecordError),
+    /// The flash refused the write, or holds other bytes after it.
+    SaveFailed,
 }
 
 /// The sequence number in the header of the record at the start of `bytes` (meaningful once
@@ -1138,20 +1244,27 @@ pub fn record_sequence(bytes: &[u8]) -> Option<u32> {
 }
 
 /// [`encode_record`] of values in table order as they come (one per entry of `table`),
-/// numbered `sequence`.
+/// numbered `sequence`, with `key` ([`RECORD_FORMAT_KEYED`]) or without.
 fn encode_values(
     table: &[ParamSpec],
     values: impl Iterator<Item = ParamValue>,
     sequence: u32,
+    key: Option<&KeyRecord>,
     out: &mut [u8],
 ) -> Result<usize, RecordError> {
-    let n = record_bytes(table.len());
+    let values_end = record_bytes(table.len()) - 4;
+    let n = record_len(key.is_some(), table.len());
     if out.len() < n || table.len() > usize::from(u16::MAX) {
         return Err(RecordError::Length);
     }
+    let format = if key.is_some() {
+        RECORD_FORMAT_KEYED
+    } else {
+        RECORD_FORMAT_VERSION
+    };
     let (head, rest) = out.split_at_mut(RECORD_HEADER_BYTES);
     head[0..4].copy_from_slice(&RECORD_MAGIC.to_le_bytes());
-    head[4..6].copy_from_slice(&RECORD_FORMAT_VERSION.to_le_bytes());
+    head[4..6].copy_from_slice(&format.to_le_bytes());
     head[6..8].copy_from_slice(&(table.len() as u16).to_le_bytes());
     head[8..12].copy_from_slice(&table_hash(table).to_le_bytes());
     head[12..16].copy_from_slice(&sequence.to_le_bytes());
@@ -1166,18 +1279,29 @@ fn encode_values(
     if written != table.len() {
         return Err(RecordError::Length);
     }
+    if let Some(key) = key {
+        out[values_end..values_end + KEY_RECORD_BYTES].copy_from_slice(&key.encode());
+    }
     let crc = RECORD_CRC.checksum(&out[..n - 4]);
     out[n - 4..n].copy_from_slice(&crc.to_le_bytes());
     Ok(n)
 }
 
-/// Reads a record written for `table` from `bytes` (which may extend past it), handing each
-/// value to `store(index, value)` only once the whole record has been checked.
-pub fn decode_record(
-    table: &[ParamSpec],
-    bytes: &[u8],
-    mut store: impl FnMut(usize, ParamValue),
-) -> Result<(), RecordError> {
+/// Bytes of a record of `count` values, with a link key or without.
+const fn record_len(keyed: bool, count: usize) -> usize {
+    record_bytes(count) + if keyed { KEY_RECORD_BYTES } else { 0 }
+}
+
+/// What a record's frame says, once its magic, format, length and CRC are checked.
+struct RecordFrame {
+    count: usize,
+    hash: u32,
+    key: Option<KeyRecord>,
+}
+
+/// Checks the frame of the record at the start of `bytes` (magic, format, length, CRC, and a
+/// keyed record's key), not its table or values.
+fn record_frame(bytes: &[u8]) -> Result<RecordFrame, RecordError> {
     let word = |at: usize| -> Option<u32> {
         let b = bytes.get(at..at + 4)?;
         Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
@@ -1191,17 +1315,48 @@ pub fn decode_record(
     }
     let head = bytes.get(4..12).ok_or(RecordError::Length)?;
     let format = u16::from_le_bytes([head[0], head[1]]);
-    if format != RECORD_FORMAT_VERSION {
-        return Err(RecordError::FormatVersion(format));
-    }
+    let keyed = match format {
+        RECORD_FORMAT_VERSION => false,
+        RECORD_FORMAT_KEYED => true,
+        other => return Err(RecordError::FormatVersion(other)),
+    };
     let count = usize::from(u16::from_le_bytes([head[2], head[3]]));
     let hash = u32::from_le_bytes([head[4], head[5], head[6], head[7]]);
-    let n = record_bytes(count);
-    let body = bytes.get(..n).ok_or(RecordError::Length)?;
+    let n = record_len(keyed, count);
+    let body = bytes.get(..n - 4).ok_or(RecordError::Length)?;
     let crc = word(n - 4).ok_or(RecordError::Length)?;
-    if RECORD_CRC.checksum(&body[..n - 4]) != crc {
+    if RECORD_CRC.checksum(body) != crc {
         return Err(RecordError::BadCrc);
     }
+    let key = if keyed {
+        let at = record_bytes(count) - 4;
+        let section = body.get(at..).ok_or(RecordError::Length)?;
+        // The CRC matched: a key that does not decode was written so (not by this code).
+        Some(KeyRecord::decode(section).map_err(|_| RecordError::BadCrc)?)
+    } else {
+        None
+    };
+    Ok(RecordFrame { count, hash, key })
+}
+
+/// The link key the record at the start of `bytes` carries (`None`: a record without one),
+/// once its frame (magic, format, length, CRC) is checked; its table and values are not.
+pub fn record_link_key(bytes: &[u8]) -> Result<Option<KeyRecord>, RecordError> {
+    record_frame(bytes).map(|f| f.key)
+}
+
+/// Reads a record written for `table` from `bytes` (which may extend past it), handing each
+/// value to `store(index, value)` only once the whole record has been checked.
+pub fn decode_record(
+    table: &[ParamSpec],
+    bytes: &[u8],
+    mut store: impl FnMut(usize, ParamValue),
+) -> Result<(), RecordError> {
+    let word = |at: usize| -> Option<u32> {
+        let b = bytes.get(at..at + 4)?;
+        Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let RecordFrame { count, hash, .. } = record_frame(bytes)?;
     if count != table.len() || hash != table_hash(table) {
         return Err(RecordError::TableChanged);
     }
@@ -1399,7 +1554,14 @@ mod tests {
     }
 
     fn save_to(store: &mut MemSlots<64>, status: &mut StorageStatus, c: &Cfg) -> ParamReply {
-        CFG_TABLE.save(c, ParamStorage { store, status })
+        CFG_TABLE.save(
+            c,
+            ParamStorage {
+                store,
+                status,
+                key: None,
+            },
+        )
     }
 
     fn with_shift(shift: i8) -> Cfg {
@@ -1470,6 +1632,131 @@ mod tests {
         }
     }
 
+    const LINK_KEY: KeyRecord = KeyRecord {
+        key: crate::signing::LinkKey([0x5A; 32]),
+        min_timestamp: 1_234,
+    };
+
+    #[test]
+    fn a_save_carries_the_link_key_and_a_record_without_one_still_loads() {
+        let t = CFG_TABLE;
+        let mut store = MemSlots::<128>::blank();
+        let mut status = StorageStatus::booted(Err(RecordError::Blank));
+        let storage = ParamStorage {
+            store: &mut store,
+            status: &mut status,
+            key: None,
+        };
+        assert_eq!(t.save(&with_shift(3), storage), ParamReply::Saved);
+        assert_eq!(t.load(&store).0, with_shift(3));
+        assert_eq!(
+            t.load_link_key(&store),
+            None,
+            "a format-2 record has no key"
+        );
+        let storage = ParamStorage {
+            store: &mut store,
+            status: &mut status,
+            key: None,
+        }
+        .with_key(Some(LINK_KEY));
+        assert_eq!(t.save(&with_shift(4), storage), ParamReply::Saved);
+        let (cfg, boot) = t.load(&store);
+        assert_eq!((cfg, boot.loaded), (with_shift(4), Ok(())));
+        assert_eq!(t.load_link_key(&store), Some(LINK_KEY));
+        assert_eq!(
+            record_link_key(store.slot(1)).map(|k| k.is_some()),
+            Ok(true)
+        );
+        // Every bit of the key is covered by the record's CRC.
+        let at = record_bytes(CFG_SPECS.len()) - 4;
+        for byte in at..at + KEY_RECORD_BYTES {
+            let mut damaged = store.clone();
+            damaged.bytes[1][byte] ^= 0x04;
+            assert_eq!(record_link_key(damaged.slot(1)), Err(RecordError::BadCrc));
+            // The older record (no key) is what boots then.
+            assert_eq!(t.load(&damaged).0, with_shift(3));
+            assert_eq!(t.load_link_key(&damaged), None);
+        }
+    }
+
+    #[test]
+    fn a_key_is_put_beside_the_saved_configuration_in_the_other_slot() {
+        let t = CFG_TABLE;
+        let mut store = MemSlots::<128>::blank();
+        // Erased flash: the defaults and the key, first slot, sequence 1.
+        let mut out = [0u8; MAX_RECORD_BYTES];
+        let (slot, n) = t.record_with_key(&store, &LINK_KEY, &mut out).unwrap();
+        assert_eq!((slot, n), (0, record_bytes(4) + KEY_RECORD_BYTES));
+        assert_eq!(record_sequence(&out), Some(1));
+        assert_eq!(t.decode_record(&out[..n]), (CFG_DEFAULT, Ok(())));
+        // A saved configuration (sequence 1 in slot 0) is kept; the key goes to slot 1 as 2.
+        let mut status = StorageStatus::booted(Ok(()));
+        assert_eq!(
+            save_to_slots(&mut store, &mut status, &with_shift(-5)),
+            ParamReply::Saved
+        );
+        assert_eq!(t.save_link_key(&mut store, &LINK_KEY), Ok(()));
+        assert_eq!(record_sequence(store.slot(1)), Some(2));
+        assert_eq!(t.load(&store).0, with_shift(-5));
+        assert_eq!(t.load_link_key(&store), Some(LINK_KEY));
+        // Only bad records: refused with why, nothing written.
+        let mut bad = MemSlots::<128>::blank();
+        bad.bytes[0][..n].copy_from_slice(&out[..n]);
+        bad.bytes[0][20] ^= 1;
+        let writes = bad.writes;
+        assert_eq!(
+            t.save_link_key(&mut bad, &LINK_KEY),
+            Err(KeySaveError::Record(RecordError::BadCrc))
+        );
+        assert_eq!(bad.writes, writes);
+    }
+
+    #[test]
+    fn the_key_survives_a_table_change_and_a_cut_key_save() {
+        let t = CFG_TABLE;
+        // A keyed record of another table: the board boots on its defaults but keeps the key.
+        let mut store = MemSlots::<128>::blank();
+        let narrower = &CFG_SPECS[..3];
+        let vals = [ParamValue::F32(1.0), ParamValue::I32(0), ParamValue::U32(1)];
+        let n = encode_values(
+            narrower,
+            vals.into_iter(),
+            7,
+            Some(&LINK_KEY),
+            &mut store.bytes[0],
+        );
+        assert!(n.is_ok(), "{n:?}");
+        assert_eq!(t.load(&store).1.loaded, Err(RecordError::TableChanged));
+        assert_eq!(t.load_link_key(&store), Some(LINK_KEY));
+        // A key save cut at any step leaves the configuration saved before, with the old key
+        // or the new one, never a mixture.
+        let mut saved = MemSlots::<128>::blank();
+        let mut status = StorageStatus::booted(Ok(()));
+        save_to_slots(&mut saved, &mut status, &with_shift(2));
+        let steps = MemSlots::<128>::steps_of(record_bytes(4) + KEY_RECORD_BYTES);
+        for cut in 0..=steps {
+            let mut store = saved.clone();
+            store.power_steps = Some(cut);
+            let result = t.save_link_key(&mut store, &LINK_KEY);
+            store.power_on();
+            assert_eq!(t.load(&store).0, with_shift(2), "cut at {cut}");
+            let key = t.load_link_key(&store);
+            assert_eq!(key.is_some(), result.is_ok(), "cut at {cut}: {result:?}");
+        }
+    }
+
+    fn save_to_slots(store: &mut MemSlots<128>, status: &mut StorageStatus, c: &Cfg) -> ParamReply {
+        CFG_TABLE.save(
+            c,
+            ParamStorage {
+                store,
+                status,
+                key: None,
+            },
+        )
+    }
+
     #[test]
     fn the_newest_sequence_number_wins_across_the_wrap() {
         let t = CFG_TABLE;
@@ -1479,7 +1766,7 @@ mod tests {
         for (slot, (seq, shift)) in [(u32::MAX, 4), (0, 6)].into_iter().enumerate() {
             t.values(&with_shift(shift), &mut vals);
             let values = vals.iter().copied();
-            let n = encode_values(CFG_SPECS, values, seq, &mut store.bytes[slot]).unwrap();
+            let n = encode_values(CFG_SPECS, values, seq, None, &mut store.bytes[slot]).unwrap();
             assert_eq!(n, record_bytes(4));
         }
         assert_eq!(t.load(&store).0, with_shift(6));
@@ -1514,6 +1801,7 @@ mod tests {
         let storage = ParamStorage {
             store: &mut store,
             status: &mut boot,
+            key: None,
         };
         let reply = t.answer(&cfg, &ParamOp::Acknowledge, |_| Ok(()), Some(storage));
         assert!(matches!(reply, ParamReply::Storage(s) if s.acknowledged));
@@ -1539,7 +1827,11 @@ mod tests {
             store: &mut MemStore<64>,
             status: &mut StorageStatus,
         ) -> ParamReply {
-            let storage = ParamStorage { store, status };
+            let storage = ParamStorage {
+                store,
+                status,
+                key: None,
+            };
             CFG_TABLE.answer(c, op, |_| Ok(()), Some(storage))
         }
         assert_eq!(

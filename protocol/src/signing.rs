@@ -21,7 +21,7 @@
 //! clock. Every check that fails says why ([`SignError`]), so the receiver counts it.
 //!
 //! The key is 32 bytes. It is provisioned while no key is set with [`HostToBoard::SetKey`], or
-//! written over SWD as a [`KeyRecord`] (see `docs/protocol.md`).
+//! written over SWD into the parameter record as a [`KeyRecord`] (see `docs/protocol.md`).
 //!
 //! Nothing here reads a clock: the signer's and the receiver's times are passed in.
 
@@ -53,6 +53,48 @@ pub struct LinkKey(pub [u8; KEY_BYTES]);
 impl core::fmt::Debug for LinkKey {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str("LinkKey(<secret>)")
+    }
+}
+
+/// Why a key's text (a key file's content) is not a link key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KeyTextError {
+    /// Not `2 * KEY_BYTES` characters once surrounding white space is trimmed (the number).
+    Length(usize),
+    /// The two characters at this position are not a hexadecimal byte.
+    NotHex(usize),
+}
+
+impl core::fmt::Display for KeyTextError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Length(n) => write!(
+                f,
+                "expected {} hexadecimal digits, found {n} characters",
+                2 * KEY_BYTES
+            ),
+            Self::NotHex(at) => write!(f, "the characters at position {at} are not hexadecimal"),
+        }
+    }
+}
+
+impl LinkKey {
+    /// The key written as `2 * KEY_BYTES` hexadecimal digits (a key file's one line),
+    /// surrounding white space ignored.
+    pub fn from_hex(text: &str) -> Result<Self, KeyTextError> {
+        let hex = text.trim().as_bytes();
+        if hex.len() != 2 * KEY_BYTES {
+            return Err(KeyTextError::Length(text.trim().chars().count()));
+        }
+        let digit = |c: u8| char::from(c).to_digit(16);
+        let mut key = [0u8; KEY_BYTES];
+        for (i, (byte, pair)) in key.iter_mut().zip(hex.chunks_exact(2)).enumerate() {
+            match (digit(pair[0]), digit(pair[1])) {
+                (Some(hi), Some(lo)) => *byte = (hi * 16 + lo) as u8,
+                _ => return Err(KeyTextError::NotHex(2 * i)),
+            }
+        }
+        Ok(Self(key))
     }
 }
 
@@ -337,8 +379,9 @@ pub enum KeyRecordError {
     Corrupt,
 }
 
-/// The link key as stored beside the parameter record (written over SWD by
-/// `cargo xtask key-record`, or by the board when a key is provisioned over the link).
+/// The link key as stored in the parameter record (`crate::params`, format
+/// `RECORD_FORMAT_KEYED`): written over SWD by `cargo xtask flash --key`, or by the board when
+/// a key is provisioned over the link, and with every parameter save.
 ///
 /// Layout, 48 bytes: `b"PDK1"`, the key (32 bytes), `min_timestamp` (u64 little endian), and a
 /// CRC-32/ISO-HDLC of the preceding 44 bytes (little endian).
@@ -592,6 +635,22 @@ mod tests {
             KeyRecord::decode(&bytes[..40]),
             Err(KeyRecordError::Corrupt)
         );
+    }
+
+    #[test]
+    fn a_key_reads_from_its_hexadecimal_text() {
+        let text = "  00ff10ABcdef0123456789abcdef0123456789abcdef0123456789abcdef0123\n";
+        let key = LinkKey::from_hex(text).unwrap();
+        assert_eq!(key.0[..4], [0x00, 0xff, 0x10, 0xab]);
+        assert_eq!(key.0[31], 0x23);
+        assert_eq!(LinkKey::from_hex("ab"), Err(KeyTextError::Length(2)));
+        let mut bad = [b'0'; 64];
+        bad[10] = b'g';
+        let bad = core::str::from_utf8(&bad).unwrap();
+        assert_eq!(LinkKey::from_hex(bad), Err(KeyTextError::NotHex(10)));
+        // A multi-byte character is not a digit, wherever it falls.
+        let wide = "é".repeat(32);
+        assert_eq!(LinkKey::from_hex(&wide), Err(KeyTextError::NotHex(0)));
     }
 
     #[test]

@@ -3,16 +3,17 @@
 //! A key file holds the 32-byte link key as 64 hexadecimal digits (one line), readable by its
 //! owner only. `key new FILE` makes one from the operating system's random source; `key
 //! provision` sends it to an autopilot that has no key yet (unsigned `SetKey`, accepted only
-//! disarmed and keyless) or, with `--old-key`, signed with the key it has; `key record` writes
-//! the 48-byte [`KeyRecord`] image for SWD flashing. `monitor`, `param` and `hil` take `--key
-//! FILE` and then sign every message they send ([`HostSigner`]).
+//! disarmed and keyless) or, with `--old-key`, signed with the key it has; the board saves it
+//! in its parameter flash. Over SWD, `cargo xtask flash autopilot --key FILE` writes it there.
+//! `monitor`, `param` and `hil` take `--key FILE` and then sign every message they send
+//! ([`HostSigner`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{anyhow, bail, Context};
-use protocol::signing::{timestamp_from_unix_us, KeyRecord, LinkKey, Signer, KEY_BYTES};
+use protocol::signing::{timestamp_from_unix_us, LinkKey, Signer, KEY_BYTES};
 use protocol::{BoardToHost, Decoder, HostToBoard, Message as _};
 
 /// `sim-host key` arguments.
@@ -51,14 +52,6 @@ pub enum KeyAction {
         #[arg(long, default_value_t = 3.0)]
         timeout: f64,
     },
-    /// Writes the key's flash record image (48 bytes, see docs/protocol.md) to OUT.
-    Record {
-        /// The key file.
-        #[arg(long)]
-        key: PathBuf,
-        /// The record image to write.
-        out: PathBuf,
-    },
 }
 
 /// Runs `sim-host key`.
@@ -76,12 +69,6 @@ pub fn run(args: &KeyArgs) -> anyhow::Result<()> {
             old_key,
             timeout,
         } => provision(port, *baud, key, old_key.as_deref(), *timeout),
-        KeyAction::Record { key, out } => {
-            let record = key_record(&load_key(key)?, now_timestamp());
-            std::fs::write(out, record).with_context(|| format!("writing {}", out.display()))?;
-            println!("wrote the key record image to {}", out.display());
-            Ok(())
-        }
     }
 }
 
@@ -113,21 +100,7 @@ pub fn load_key(file: &Path) -> anyhow::Result<LinkKey> {
 }
 
 fn parse_key(text: &str) -> anyhow::Result<LinkKey> {
-    let hex = text.trim();
-    if hex.len() != 2 * KEY_BYTES {
-        bail!(
-            "expected {} hexadecimal digits, found {} characters",
-            2 * KEY_BYTES,
-            hex.len()
-        );
-    }
-    let mut key = [0u8; KEY_BYTES];
-    for (i, byte) in key.iter_mut().enumerate() {
-        let digits = hex.get(2 * i..2 * i + 2).unwrap_or("");
-        *byte = u8::from_str_radix(digits, 16)
-            .map_err(|_| anyhow!("{digits:?} at position {} is not hexadecimal", 2 * i))?;
-    }
-    Ok(LinkKey(key))
+    LinkKey::from_hex(text).map_err(|e| anyhow!("{e}"))
 }
 
 /// The signing clock now: 10 µs units since 2015-01-01 UTC.
@@ -136,15 +109,6 @@ pub fn now_timestamp() -> u64 {
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64);
     timestamp_from_unix_us(unix_us)
-}
-
-/// The flash record image of `key`, with `min_timestamp` as its replay floor.
-pub fn key_record(key: &LinkKey, min_timestamp: u64) -> [u8; protocol::signing::KEY_RECORD_BYTES] {
-    KeyRecord {
-        key: *key,
-        min_timestamp,
-    }
-    .encode()
 }
 
 /// What a host tool does to each message it sends: nothing without a key, sign with one.
@@ -302,22 +266,5 @@ mod tests {
         let e = format!("{:#}", load_key(&bad).unwrap_err());
         assert!(e.contains("64 hexadecimal digits"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn the_record_image_is_what_the_autopilot_loads() {
-        let key = LinkKey([0x42; KEY_BYTES]);
-        let image = key_record(&key, 77);
-        let record = KeyRecord::decode(&image).unwrap();
-        let mut ap = autopilot::Autopilot::new(autopilot::AutopilotConfig::default());
-        ap.load_link_key(record);
-        assert!(ap.telemetry(0).link_auth.keyed);
-        let arm = HostToBoard::Command(protocol::PilotCommand::Arm);
-        ap.on_host_message(arm.clone(), 0);
-        assert_eq!(ap.telemetry(0).link_auth.unsigned, 1);
-        let signed = HostSigner::with_key(key, 1).wrap(arm).unwrap();
-        ap.on_host_message(signed, 0);
-        let t = ap.telemetry(0).link_auth;
-        assert_eq!((t.accepted, t.unsigned), (1, 1));
     }
 }

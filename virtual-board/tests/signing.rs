@@ -12,8 +12,15 @@
 //! * an unsigned `Kill` is taken (it always is), and the accepted `Arm` sent again byte for byte
 //!   afterwards is refused as a replay: the motors stay off;
 //! * telemetry reports the keyed link and each refusal by kind.
+//!
+//! A board whose parameter flash holds a record with the key (built by the autopilot
+//! library's `params::record_with_key`, the function `cargo xtask flash --key` writes over
+//! SWD with) boots keyed: an unsigned `SetKey` and an unsigned `Arm` are refused, an `Arm`
+//! signed before the key's stored floor is refused as a replay, a signed `Arm` spins the
+//! motors.
 
-use protocol::signing::{LinkKey, SignedMessage, Signer};
+use protocol::params::MemSlots;
+use protocol::signing::{KeyRecord, LinkKey, SignedMessage, Signer};
 use protocol::{
     BoardToHost, Decoder, ExternalPosition, Heartbeat, HostToBoard, LinkAuthTelemetry, Message,
     Node, PilotCommand,
@@ -21,6 +28,7 @@ use protocol::{
 use virtual_board::bench::{At, Flow, Options, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
+use virtual_board::flash::FlashContents;
 use virtual_board::host;
 use virtual_board::link::Line;
 use virtual_board::pilot::{CameraStandIn, Every, MS, Once};
@@ -252,5 +260,144 @@ fn only_signed_commands_move_the_motors() {
     );
     assert_eq!(a.bad_signature, 1, "the forged Arm\n{report}");
     assert_eq!(a.replayed, 2, "the stale and the replayed Arm\n{report}");
+    outcome.assert_clean();
+}
+
+/// The ground station of a board keyed in its flash: signed heartbeats and fixes, then an
+/// unsigned `SetKey`, an unsigned `Arm`, an `Arm` signed before the key's floor and a signed
+/// `Arm`.
+struct KeyedGround {
+    signer: Signer,
+    heartbeats: Every,
+    fixes: Every,
+    camera: CameraStandIn,
+    set_key: Once,
+    unsigned_arm: Once,
+    stale_arm: Once,
+    signed_arm: Once,
+    telemetry: Decoder<BoardToHost, { BoardToHost::MAX_FRAME_BYTES }>,
+    telemetry_read: usize,
+    max_duty_before_arm: f32,
+    max_duty_flying: f32,
+    link_auth: Option<LinkAuthTelemetry>,
+}
+
+/// The replay floor stored with the flashed key: below every signing time of [`clock`].
+const FLASHED_FLOOR: u64 = 900_000;
+
+impl virtual_board::bench::Probe<Autopilot> for KeyedGround {
+    fn at(&mut self, at: &mut At<'_, Autopilot>) -> Flow {
+        let now = at.now;
+        let board = at.board();
+        let sent = board.telemetry.tx.sent_bytes();
+        for &byte in sent.get(self.telemetry_read..).unwrap_or(&[]) {
+            if let Some(BoardToHost::Telemetry(t)) = self.telemetry.push(byte) {
+                self.link_auth = Some(t.link_auth);
+            }
+        }
+        self.telemetry_read = sent.len();
+        self.camera.step(now, &board.link.rx);
+        let line = &board.telemetry.rx;
+        let send = |m: &HostToBoard| line.send_at(now, &host::frame(m));
+        let mut signed = |m: &HostToBoard| self.signer.sign(m, clock(now)).expect("signs");
+        if self.heartbeats.due(now) {
+            let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, (now / MS) as u32));
+            send(&signed(&hb));
+        }
+        if self.fixes.due(now) {
+            let height = if now >= SIGNED_ARM_AT { HOVER_M } else { 0.0 };
+            let fix = HostToBoard::ExternalPosition(ExternalPosition {
+                timestamp_us: protocol::WireTime((now / 1_000) as u32),
+                position_m: [0.0, 0.0, -height],
+            });
+            send(&signed(&fix));
+        }
+        let arm = HostToBoard::Command(PilotCommand::Arm);
+        if self.set_key.due(now) {
+            send(&HostToBoard::SetKey(FORGER_KEY));
+        }
+        if self.unsigned_arm.due(now) {
+            send(&arm);
+        }
+        if self.stale_arm.due(now) {
+            let stale = SignedMessage::sign(&KEY, 7, FLASHED_FLOOR, &arm).expect("signs");
+            send(&HostToBoard::Signed(stale));
+        }
+        if self.signed_arm.due(now) {
+            send(&signed(&arm));
+        }
+        let duty = board
+            .motors()
+            .iter()
+            .map(|m| m.duty as f32)
+            .fold(0.0f32, f32::max);
+        if now < SIGNED_ARM_AT {
+            self.max_duty_before_arm = self.max_duty_before_arm.max(duty);
+        } else if now >= SIGNED_ARM_AT + 100 * MS {
+            self.max_duty_flying = self.max_duty_flying.max(duty);
+        }
+        Flow::Continue
+    }
+}
+
+#[test]
+fn a_key_in_the_parameter_flash_is_loaded_at_boot() {
+    let mut record = vec![0u8; protocol::params::MAX_RECORD_BYTES];
+    let key = KeyRecord {
+        key: KEY,
+        min_timestamp: FLASHED_FLOOR,
+    };
+    let (slot, n) =
+        autopilot::params::record_with_key(&MemSlots::<1024>::blank(), &key, &mut record)
+            .expect("a record for erased flash");
+    assert_eq!(slot, 0, "erased flash: the first slot");
+    let ground = KeyedGround {
+        signer: Signer::new(KEY, 1),
+        heartbeats: Every::ns(1_000 * MS),
+        fixes: Every::ns(20 * MS),
+        camera: CameraStandIn::new(),
+        set_key: Once::at(PROVISION_AT),
+        unsigned_arm: Once::at(UNSIGNED_ARM_AT),
+        stale_arm: Once::at(STALE_ARM_AT),
+        signed_arm: Once::at(SIGNED_ARM_AT),
+        telemetry: Decoder::new_mid_stream(),
+        telemetry_read: 0,
+        max_duty_before_arm: 0.0,
+        max_duty_flying: 0.0,
+        link_auth: None,
+    };
+    let outcome = run(
+        Setup {
+            board: Autopilot::new(43)
+                .expect("the board")
+                .with_flash(FlashContents::param_sector(&record[..n])),
+            firmware: Firmware::real("autopilot").expect("the autopilot image"),
+            probe: ground,
+        },
+        Options::seconds(3.0),
+    )
+    .expect("the run");
+    let report = outcome.report();
+    let g = &outcome.probe;
+    assert!(
+        outcome.log.text().contains("link key: loaded"),
+        "the boot did not load the key\n{report}"
+    );
+    assert_eq!(
+        g.max_duty_before_arm, 0.0,
+        "an unsigned or stale Arm ran a motor\n{report}"
+    );
+    assert!(
+        g.max_duty_flying > 0.0,
+        "the Arm signed with the flashed key did not spin the motors\n{report}"
+    );
+    let a = g
+        .link_auth
+        .unwrap_or_else(|| panic!("no telemetry\n{report}"));
+    println!("link_auth at the end: {a:?}");
+    assert!(a.keyed, "{report}");
+    assert_eq!(a.unsigned, 2, "the unsigned SetKey and Arm\n{report}");
+    assert_eq!(a.replayed, 1, "the Arm signed at the floor\n{report}");
+    assert_eq!(a.bad_signature, 0, "{report}");
     outcome.assert_clean();
 }

@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! cargo xtask fw [camera|autopilot] [--flavour real|qemu|hil]
-//! cargo xtask flash camera|autopilot [--no-build]
+//! cargo xtask flash camera|autopilot [--no-build] [--key FILE]
 //! ```
 //!
 //! Each board has its own part (the camera board an STM32F407VG, the autopilot an STM32F415RG)
@@ -12,10 +12,15 @@
 //! it builds both.
 //!
 //! `flash` builds the real flavour and runs `probe-rs run --chip <part>` on it: it flashes over
-//! SWD (ST-Link or CMSIS-DAP), resets the board and prints its defmt log over RTT.
+//! SWD (ST-Link or CMSIS-DAP), resets the board and prints its defmt log over RTT. With
+//! `--key FILE` (the autopilot only) it first writes the host link key in FILE (`sim-host key
+//! new`) into the board's parameter flash beside the saved parameters ([`crate::keyflash`]),
+//! so the firmware boots keyed.
 
+use crate::keyflash;
 use crate::size::{build_firmwares, firmware_elf, Flavour};
 use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
 use std::process::Command;
 
 /// A board of the drone.
@@ -87,15 +92,35 @@ pub fn run(args: &[String]) -> Result<()> {
 pub fn flash(args: &[String]) -> Result<()> {
     let mut board = None;
     let mut build = true;
-    for arg in args {
+    let mut key_file = None;
+    let mut it = args.iter();
+    while let Some(arg) = it.next() {
         match arg.as_str() {
             "--no-build" => build = false,
+            "--key" => key_file = Some(PathBuf::from(it.next().context("--key needs a file")?)),
             other => board = Some(Board::parse(other)?),
         }
     }
-    let board = board.context("usage: cargo xtask flash camera|autopilot [--no-build]")?;
+    let board =
+        board.context("usage: cargo xtask flash camera|autopilot [--no-build] [--key FILE]")?;
+    // The key file is read before anything is built or touched on the board.
+    let key = match &key_file {
+        Some(file) if board == Board::Autopilot => Some(keyflash::load_key_file(file)?),
+        Some(_) => bail!("--key: only the autopilot holds the host link key"),
+        None => None,
+    };
     if build {
         build_firmwares(Flavour::Real, &[board.package()])?;
+    }
+    if let Some(key) = key {
+        let chip = board.probe_rs_chip();
+        let slots = keyflash::read_slots(chip)?;
+        let write = keyflash::key_write(key, [&slots[0], &slots[1]], now_signing_timestamp())?;
+        keyflash::program(chip, &write)?;
+        println!(
+            "link key written into parameter slot {} ({:#010x}) as record {}, parameters kept",
+            write.slot, write.address, write.sequence
+        );
     }
     let elf = firmware_elf(Flavour::Real, board.package());
     let status = Command::new("probe-rs")
@@ -107,4 +132,13 @@ pub fn flash(args: &[String]) -> Result<()> {
         bail!("probe-rs run failed with {status}");
     }
     Ok(())
+}
+
+/// The signing clock now (10 µs units since 2015-01-01 UTC): the replay floor of a key written
+/// over SWD.
+fn now_signing_timestamp() -> u64 {
+    let unix_us = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64);
+    protocol::signing::timestamp_from_unix_us(unix_us)
 }

@@ -3,7 +3,9 @@
 //! * `cargo xtask test`: the CI test command (installs what a fresh machine lacks, then runs
 //!   fmt, clippy on host and thumbv7em, all host tests, firmware builds, a bounded fuzz run).
 //! * `cargo xtask fw [camera|autopilot]`: build the firmwares (one cargo invocation per board).
-//! * `cargo xtask flash camera|autopilot`: build and flash one board with probe-rs.
+//! * `cargo xtask flash camera|autopilot [--key FILE]`: build and flash one board with
+//!   probe-rs; `--key` first writes the host link key into the autopilot's parameter flash
+//!   ([`keyflash`]).
 //! * `cargo xtask size`: static flash/RAM/CCM use of each firmware, against its budget.
 //! * `cargo xtask qemu`: build a firmware flavour and run it in QEMU.
 //! * `cargo xtask vboard`: build both real firmwares and run them on the virtual boards
@@ -18,6 +20,7 @@ mod ci;
 mod elf;
 mod fw;
 mod insns;
+mod keyflash;
 mod qemu;
 mod size;
 mod vboard;

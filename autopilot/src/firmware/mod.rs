@@ -32,8 +32,10 @@
 //! or it is bad (logged, and answered to `ParamOp::Storage`). A save (`ParamOp::Save`, only
 //! with the motors off) erases and programs the sector in `host_rx` with the `ap` lock held:
 //! the core stalls for the erase anyway (a second or two), so the watchdog is given
-//! `board_support::param_flash::SAVE_WATCHDOG_MS` for it. The `qemu` flavour has no parameter
-//! storage.
+//! `board_support::param_flash::SAVE_WATCHDOG_MS` for it. A link key provisioned over the
+//! link is written the same way at once, beside the saved parameters
+//! (`Autopilot::save_link_key`), and every save carries it; the boot loads it with the
+//! parameters. The `qemu` flavour has no parameter storage.
 //!
 //! Faults: the panic and HardFault handlers force the motor outputs off at the timer and GPIO
 //! registers first ([`autopilot::board::hw::motors_off`]), then log, then wait for the
@@ -251,6 +253,9 @@ mod app {
                 match loaded {
                     Ok(()) => defmt::info!("parameters: the saved record is in use"),
                     Err(why) => defmt::warn!("parameters: defaults ({})", why),
+                }
+                if autopilot.link_keyed() {
+                    defmt::info!("link key: loaded, commands must be signed");
                 }
                 autopilot
             }
@@ -664,8 +669,29 @@ mod app {
                         (outcome, ap.take_link_key_to_store().is_some())
                     });
                     if new_key {
-                        // Not written to flash (docs/protocol.md, "Limits").
-                        defmt::warn!("link key provisioned: kept in RAM until reset");
+                        // Into the parameter sector at once, beside the saved parameters
+                        // (the motors are off: a key is only taken then).
+                        let started_us = clock::now_us();
+                        let saved = match cx.local.param_sector.as_mut() {
+                            Some(sector) => {
+                                cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
+                                let saved = cx.shared.ap.lock(|ap| ap.save_link_key(sector));
+                                cx.shared.iwdg.lock(|w| set_watchdog(w, board::WATCHDOG_MS));
+                                Some(saved)
+                            }
+                            None => None,
+                        };
+                        let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
+                        match saved {
+                            Some(Ok(())) => {
+                                defmt::info!("link key provisioned: saved in {=u32} ms", ms)
+                            }
+                            Some(Err(why)) => defmt::warn!(
+                                "link key provisioned: not saved ({}), kept in RAM until the next parameter save",
+                                why
+                            ),
+                            None => defmt::warn!("link key provisioned: no parameter storage, kept in RAM"),
+                        }
                     }
                     if saving {
                         cx.shared.iwdg.lock(|w| set_watchdog(w, board::WATCHDOG_MS));
