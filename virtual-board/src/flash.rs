@@ -315,7 +315,12 @@ mod tests {
         let mid = cut(PowerCut::MidErase);
         assert!(mid.sector(0)[..32].iter().all(|&b| b == 0x55));
         assert!(mid.sector(0)[32..].iter().all(|&b| b == 0xff));
-        assert!(cut(PowerCut::AfterErase).sector(0).iter().all(|&b| b == 0xff));
+        assert!(
+            cut(PowerCut::AfterErase)
+                .sector(0)
+                .iter()
+                .all(|&b| b == 0xff)
+        );
         let two = cut(PowerCut::AfterWords(2));
         assert_eq!(&two.sector(0)[..8], &record[..8]);
         assert!(two.sector(0)[8..].iter().all(|&b| b == 0xff));

@@ -665,7 +665,11 @@ fn a_save_cut_at_any_instant_leaves_the_last_complete_record() {
             } else {
                 previous
             };
-            assert_eq!(cfg, with_target_height(expected), "{cut:?} after {before:?}");
+            assert_eq!(
+                cfg,
+                with_target_height(expected),
+                "{cut:?} after {before:?}"
+            );
             assert_eq!(status.loaded, Ok(()), "{cut:?} after {before:?}");
             assert!(!status.blocks_arming());
         }
@@ -751,7 +755,8 @@ fn a_first_save_cut_short_boots_on_the_defaults_with_arming_blocked() {
     let s = param_on(array.contents(), &["storage"]);
     assert!(s.ok, "{}", s.out);
     assert!(
-        s.out.contains("defaults in use: nothing saved (erased flash)")
+        s.out
+            .contains("defaults in use: nothing saved (erased flash)")
             && !s.out.contains("arming blocked"),
         "{}",
         s.out
