@@ -8,11 +8,22 @@
 //! Saved parameters, on both boards: a record in the parameter sector at power-on (what an
 //! earlier save left, encoded by the board library's `params::encode_record`, the bytes the
 //! firmware's save programs) is what the firmware boots with; a corrupted one means the
-//! defaults, reported to the host and in the log. A save drives rigless's flash interface model through the unlock,
-//! the sector erase (its `BSY` held for the erase time) and the program sequence without a
-//! reset or a sequence error; rigless 0.4.0 does not put programmed bytes into the array (see
-//! [`virtual_board::flash`]), so the firmware's read-back finds the sector unchanged and the
-//! save is answered as failed there.
+//! defaults, reported to the host and in the log.
+//!
+//! Power cuts: the library's save (`ParamTable::save`, the code the images run: slot choice,
+//! sequence number, read-back) runs on the bench's flash array
+//! ([`virtual_board::flash::FlashArray`], erase to `0xFF`, programming only clears bits) with the
+//! supply cut at every instant of it; the library then loads the last complete record and never
+//! the defaults while one exists, and the unmodified autopilot image powered up on the array a
+//! cut left (mid-erase, after the erase, halfway, one word short, before the read-back) boots on
+//! it. A first save cut short leaves no complete record: the image runs on the defaults with
+//! arming blocked until `ack` or a save.
+//!
+//! A save on the image drives rigless's flash interface model through the unlock, the sector
+//! erase (its `BSY` held for the erase time) and the program sequence without a reset or a
+//! sequence error; rigless 0.4.0 does not put programmed bytes into the array and our SoC
+//! cannot (see [`virtual_board::flash`]), so the firmware's read-back finds the sector
+//! unchanged and the save is answered as failed there.
 //!
 //! The tool is `VBOARD_SIM_HOST` (set by `cargo xtask vboard`, which builds it), else the main
 //! workspace's `target/debug/sim-host`.
@@ -24,11 +35,12 @@ use std::process::{Child, Command};
 
 use autopilot::app::AutopilotConfig;
 use autopilot::params::{self, TABLE};
+use protocol::params::{ParamStorage, ParamTable, RecordError, StorageStatus};
 use protocol::{BoardToHost, ParamError, ParamReply, ParamValue};
 use virtual_board::bench::{Options, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
-use virtual_board::flash::FlashContents;
+use virtual_board::flash::{FlashArray, FlashContents, PowerCut};
 use virtual_board::host;
 use virtual_board::serve::TcpBridge;
 
@@ -588,4 +600,208 @@ fn a_camera_board_save_runs_the_flash_sequence_without_a_reset() {
         s.log
     );
     println!("camera save on the bench: flash sequence run, no reset");
+}
+
+/// Two slots after a library save (`ParamTable::save`, the images' code) of `table` for each
+/// of `saves` with the power kept, then one more of `last` with the supply cut at `cut`.
+fn cut_save_of<C: Copy>(table: &ParamTable<C>, saves: &[C], last: &C, cut: PowerCut) -> FlashArray {
+    let mut array = FlashArray::erased();
+    let mut status = StorageStatus::booted(Err(RecordError::Blank));
+    for cfg in saves {
+        let storage = ParamStorage {
+            store: &mut array,
+            status: &mut status,
+        };
+        assert_eq!(table.save(cfg, storage), ParamReply::Saved);
+    }
+    let mut array = array.cut_at(cut);
+    let storage = ParamStorage {
+        store: &mut array,
+        status: &mut status,
+    };
+    let reply = table.save(last, storage);
+    assert!(
+        !array.powered(),
+        "the cut {cut:?} fell inside the save: {reply:?}"
+    );
+    array
+}
+
+/// The autopilot's two slots after saves of each `target_height` of `saves`, then one of
+/// `last` cut at `cut` ([`cut_save_of`]).
+fn cut_save(saves: &[f32], last: f32, cut: PowerCut) -> FlashArray {
+    let saves: Vec<AutopilotConfig> = saves.iter().map(|&h| with_target_height(h)).collect();
+    cut_save_of(&params::AUTOPILOT, &saves, &with_target_height(last), cut)
+}
+
+/// Every instant of a save of a `words`-word record the supply can be cut at.
+fn every_cut(words: usize) -> Vec<PowerCut> {
+    let mut cuts = vec![
+        PowerCut::BeforeErase,
+        PowerCut::MidErase,
+        PowerCut::AfterErase,
+    ];
+    cuts.extend((1..words).map(PowerCut::AfterWords));
+    cuts.push(PowerCut::BeforeVerify);
+    cuts
+}
+
+/// The supply cut at every instant of a save (each word of the record): while a complete
+/// record is in the other slot the library boots on the last complete one, never the defaults,
+/// and nothing blocks arming; the record is complete once its last word is programmed. A first
+/// save cut after its first word leaves no complete record: the defaults, with arming blocked.
+#[test]
+fn a_save_cut_at_any_instant_leaves_the_last_complete_record() {
+    let words = params::RECORD_BYTES / 4;
+    // The second save writes slot 1 beside slot 0's record; the third erases slot 0's older
+    // record beside slot 1's newer one.
+    for (before, last) in [(&[0.8][..], 0.6), (&[0.8, 0.6][..], 0.7)] {
+        let previous = before[before.len() - 1];
+        for cut in every_cut(words) {
+            let array = cut_save(before, last, cut);
+            let (cfg, status) = params::AUTOPILOT.load(&array);
+            let expected = if cut == PowerCut::BeforeVerify {
+                last
+            } else {
+                previous
+            };
+            assert_eq!(
+                cfg,
+                with_target_height(expected),
+                "{cut:?} after {before:?}"
+            );
+            assert_eq!(status.loaded, Ok(()), "{cut:?} after {before:?}");
+            assert!(!status.blocks_arming());
+        }
+    }
+    let mut blocked = 0;
+    for cut in every_cut(words) {
+        let array = cut_save(&[], 0.6, cut);
+        let (cfg, status) = params::AUTOPILOT.load(&array);
+        match cut {
+            PowerCut::BeforeVerify => {
+                assert_eq!(cfg, with_target_height(0.6));
+                assert_eq!(status.loaded, Ok(()));
+            }
+            PowerCut::AfterWords(_) => {
+                assert_eq!(cfg, AutopilotConfig::default(), "{cut:?}");
+                assert!(
+                    status.blocks_arming(),
+                    "{cut:?}: a record that failed to load, {:?}",
+                    status.loaded
+                );
+                blocked += 1;
+            }
+            _ => {
+                assert_eq!(cfg, AutopilotConfig::default(), "{cut:?}");
+                assert_eq!(status.loaded, Err(RecordError::Blank), "{cut:?}");
+                assert!(!status.blocks_arming(), "{cut:?}: nothing was saved");
+            }
+        }
+    }
+    assert_eq!(blocked, words - 1);
+    println!(
+        "power cut at each of {} instants of a {words}-word save: the last complete record",
+        every_cut(words).len()
+    );
+}
+
+/// The unmodified autopilot image powered up on the flash a save cut short left: the last
+/// complete record is in use (mid-erase of the older slot, after the erase, halfway through
+/// and one word short of the record), the new one once its last word is programmed.
+#[test]
+fn the_image_boots_on_the_last_complete_record_after_a_save_cut_short() {
+    let words = params::RECORD_BYTES / 4;
+    let cases = [
+        (&[0.8, 0.6][..], 0.7, PowerCut::MidErase, " 0.6 "),
+        (&[0.8][..], 0.6, PowerCut::AfterErase, " 0.8 "),
+        (&[0.8][..], 0.6, PowerCut::AfterWords(words / 2), " 0.8 "),
+        (&[0.8][..], 0.6, PowerCut::AfterWords(words - 1), " 0.8 "),
+        (&[0.8][..], 0.6, PowerCut::BeforeVerify, " 0.6 "),
+    ];
+    for (before, last, cut, expected) in cases {
+        let array = cut_save(before, last, cut);
+        let s = param_on(array.contents(), &["get", "target_height"]);
+        assert!(s.ok, "{cut:?}: {}", s.out);
+        assert!(s.out.contains(expected), "{cut:?}: {}", s.out);
+        assert!(
+            s.log.contains("parameters: the saved record is in use"),
+            "{cut:?}\n{}",
+            s.log
+        );
+        println!("cut {cut:?} of the save after {before:?}: the image uses{expected}m");
+    }
+}
+
+/// The unmodified autopilot image powered up after its first save was cut short: half a
+/// record fails to load, so the defaults are in use and arming is blocked until `ack` or a
+/// save; a cut before the first word leaves erased flash, nothing saved, no block.
+#[test]
+fn a_first_save_cut_short_boots_on_the_defaults_with_arming_blocked() {
+    let words = params::RECORD_BYTES / 4;
+    let array = cut_save(&[], 0.6, PowerCut::AfterWords(words / 2));
+    let s = param_on(array.contents(), &["storage"]);
+    assert!(s.ok, "{}", s.out);
+    assert!(
+        s.out.contains("defaults in use: ")
+            && s.out.contains("; arming blocked until `ack` or a save"),
+        "{}",
+        s.out
+    );
+    assert!(s.log.contains("parameters: defaults ("), "{}", s.log);
+    println!("first save cut at word {}: {}", words / 2, s.out.trim());
+
+    let array = cut_save(&[], 0.6, PowerCut::AfterErase);
+    let s = param_on(array.contents(), &["storage"]);
+    assert!(s.ok, "{}", s.out);
+    assert!(
+        s.out
+            .contains("defaults in use: nothing saved (erased flash)")
+            && !s.out.contains("arming blocked"),
+        "{}",
+        s.out
+    );
+}
+
+fn with_stereo_shift(shift: i32) -> stereo_board::edge_fs::EdgeFsParams {
+    let mut p = stereo_board::edge_fs::EdgeFsParams::default_config();
+    stereo_board::params::CAMERA
+        .set_by_name(&mut p, "stereo_shift", ParamValue::I32(shift))
+        .expect("in bounds");
+    p
+}
+
+/// The camera board's save cut at every instant: the last complete record, as on the
+/// autopilot; and the camera-board image powered up beside a second save cut halfway through
+/// its record boots on the first.
+#[test]
+fn a_camera_board_save_cut_short_leaves_the_last_complete_record() {
+    use stereo_board::params::{CAMERA, RECORD_BYTES};
+    let words = RECORD_BYTES / 4;
+    let first = with_stereo_shift(-4);
+    let second = with_stereo_shift(3);
+    for cut in every_cut(words) {
+        let array = cut_save_of(&CAMERA, &[first], &second, cut);
+        let (p, status) = CAMERA.load(&array);
+        let expected = if cut == PowerCut::BeforeVerify {
+            second
+        } else {
+            first
+        };
+        assert_eq!(p, expected, "{cut:?}");
+        assert_eq!(status.loaded, Ok(()), "{cut:?}");
+    }
+    let array = cut_save_of(&CAMERA, &[first], &second, PowerCut::AfterWords(words / 2));
+    let s = camera_param(array.contents(), &["get", "stereo_shift"]);
+    assert!(s.ok, "{}", s.out);
+    assert!(s.out.contains(" -4 "), "{}", s.out);
+    assert!(
+        s.log.contains("parameters: the saved record is in use"),
+        "{}",
+        s.log
+    );
+    println!(
+        "camera board: save cut at word {} of {words}: stereo_shift -4 of the first record in use",
+        words / 2
+    );
 }
