@@ -611,6 +611,7 @@ fn cut_save_of<C: Copy>(table: &ParamTable<C>, saves: &[C], last: &C, cut: Power
         let storage = ParamStorage {
             store: &mut array,
             status: &mut status,
+            key: None,
         };
         assert_eq!(table.save(cfg, storage), ParamReply::Saved);
     }
@@ -618,6 +619,7 @@ fn cut_save_of<C: Copy>(table: &ParamTable<C>, saves: &[C], last: &C, cut: Power
     let storage = ParamStorage {
         store: &mut array,
         status: &mut status,
+        key: None,
     };
     let reply = table.save(last, storage);
     assert!(
