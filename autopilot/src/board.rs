@@ -337,21 +337,45 @@ pub const LINK_BAUD: u32 = board_support::link::LINK_BAUD;
 /// xml:268-270); 921,600 Bd in the `hil` flavour, where the HIL bridge sits there.
 pub const TELEMETRY_BAUD: u32 = board_support::link::HOST_BAUD;
 
-/// Independent-watchdog timeout, ms (real flavour). 50 ms: from rest a drone falls
-/// g t^2 / 2 = 1.2 cm in 50 ms, so a hung firmware is reset, motors off (see
-/// `board_support::fault`), before it has dropped noticeably or flown far on its last command.
-/// The 50 Hz guidance task feeds it (every 20 ms): a task hung at the guidance priority or
-/// above (the control loop included) starves it. The watchdog runs on the LSI, 17 to 47 kHz
-/// on this part (datasheet, LSI characteristics), and the timeout is programmed for 32 kHz:
-/// 34 ms on the fastest LSI, still above the feeding period with room for a delayed guidance
-/// step, and 94 ms on the slowest (the virtual boards measure both corners). In the
-/// lockstep flavours (`hil`, `qemu`) the world clock may stall while the host computes, so the
-/// 1 Hz heartbeat feeds a 2 s watchdog there.
+/// The longest a hung task keeps the motors live before the independent watchdog resets the
+/// part (motors off, see `board_support::fault`), ms, at any LSI of the datasheet (17 to 47 kHz,
+/// DS8626 table 41; real flavour). 50 ms: from rest a drone falls g t^2 / 2 = 1.2 cm in 50 ms,
+/// so a hung firmware is reset before it has dropped noticeably or flown far on its last
+/// command. The 512 Hz control loop feeds the watchdog, and only while the guidance task ran
+/// within [`GUIDANCE_ALIVE_US`] and the heartbeat within [`HEARTBEAT_ALIVE_US`]: a hang in the
+/// loop or at any priority above starves it at once; one at the guidance priority or above
+/// starves it within [`GUIDANCE_ALIVE_US`]; one below (telemetry, gyro, barometer, heartbeat)
+/// within [`HEARTBEAT_ALIVE_US`]. [`WATCHDOG`] is programmed so that the guidance window plus
+/// the timeout at the slowest LSI is at most this. In the lockstep flavours (`hil`, `qemu`)
+/// the world clock may stall while the host computes, so the 1 Hz heartbeat feeds a 2 s
+/// watchdog there.
 #[cfg(not(any(feature = "hil", feature = "qemu")))]
 pub const WATCHDOG_MS: u32 = 50;
-/// Independent-watchdog timeout of the lockstep flavours, ms (see the real flavour's).
+/// Independent-watchdog timeout of the lockstep flavours, ms at the typical LSI (see the real
+/// flavour's): 1.36 s at the fastest LSI, above the heartbeat's 1 s feeding period.
 #[cfg(any(feature = "hil", feature = "qemu"))]
 pub const WATCHDOG_MS: u32 = 2_000;
+/// How recently the 50 Hz guidance task must have run for the control loop to feed the
+/// watchdog, µs: its 20 ms period and 5 ms for a release delayed by the tasks above it.
+pub const GUIDANCE_ALIVE_US: u32 = 25_000;
+/// How recently the 1 Hz heartbeat (the lowest priority) must have run for the control loop to
+/// feed the watchdog, µs: its period and half a period of delay.
+pub const HEARTBEAT_ALIVE_US: u32 = 1_500_000;
+/// The independent watchdog's programmed timeout (real flavour): [`WATCHDOG_MS`] less the
+/// guidance window at the slowest LSI (24.9 ms there, 9.0 ms at the fastest, where the 512 Hz
+/// loop feeds it every 1.95 ms).
+#[cfg(not(any(feature = "hil", feature = "qemu")))]
+pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
+    WATCHDOG_MS - GUIDANCE_ALIVE_US / 1_000,
+    board_support::watchdog::LSI_HZ_SLOWEST,
+);
+/// The independent watchdog's programmed timeout (lockstep flavours): [`WATCHDOG_MS`] at the
+/// typical LSI.
+#[cfg(any(feature = "hil", feature = "qemu"))]
+pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
+    WATCHDOG_MS,
+    board_support::watchdog::LSI_HZ_TYPICAL,
+);
 
 /// The longest time from the IMU failing (frozen, unplugged, asleep, gone) to every motor at 0,
 /// µs, with the failsafe timings `failsafe`: a frozen sensor's samples still pass for

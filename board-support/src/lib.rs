@@ -18,6 +18,8 @@
 //!   through the flash interface; the `protocol::params::RecordStore` of both boards (MCU only).
 //! * `stack`: stack painting and the low-water headroom of the main stack (MCU only).
 //! * [`build`]: the linker set-up both firmwares' `build.rs` run (host, build scripts).
+//! * [`watchdog`]: the independent watchdog's timeout across the LSI's spread, and the task
+//!   liveness stamps its feeder checks (programming it: MCU only).
 //!
 //! Each board keeps what is its own: pin map, crystal, drivers, the RTIC app.
 #![cfg_attr(target_os = "none", no_std)]
@@ -43,3 +45,4 @@ pub mod uart_dma;
 pub mod uart_rx;
 #[cfg(target_os = "none")]
 pub mod uart_tx;
+pub mod watchdog;

@@ -13,7 +13,7 @@
 //! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF_US`] |
 //! | stack overflow | a runaway recursion: one function of the 512 Hz loop returns into two instructions that push without end ([`virtual_board::inject::RunawayRecursion`]) until the stack leaves SRAM (flip-link: the stack is the bottom of SRAM) | the same: the HardFault path stops the motors although the stack is used up |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
-//! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] (the watchdog resets the part) |
+//! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] at every LSI (the watchdog resets the part; its programmed [`autopilot::board::WATCHDOG`] at the run's LSI) |
 //!
 //! The HardFault and panic paths' motor-off latency is measured to the instruction: after the
 //! fault the bench watches every store to the motor timers and pins and reads the outputs at
@@ -680,33 +680,36 @@ fn a_hung_loop_is_reset_by_the_watchdog_and_the_motors_stay_off() {
     hung_loop_at(LSI_HZ_TYPICAL);
 }
 
-/// The same on the slowest LSI the datasheet allows (17 kHz): the firmware programs its timeout
-/// for the typical 32 kHz, so it stretches by 32/17 (50 ms -> 94 ms).
+/// The same on the slowest LSI the datasheet allows (17 kHz), where the firmware's programmed
+/// timeout is longest (24.9 ms).
 #[test]
 fn a_hung_loop_is_reset_by_the_watchdog_on_the_slowest_lsi() {
     hung_loop_at(LSI_HZ_SLOWEST);
 }
 
-/// The same on the fastest LSI (47 kHz): the timeout shrinks by 32/47 (50 ms -> 34 ms), still
-/// above the 20 ms feeding period, so the flight before the hang is not reset.
+/// The same on the fastest LSI (47 kHz): the timeout shrinks to 9.0 ms, still above the
+/// 512 Hz loop's 1.95 ms feeding period, so the flight before the hang is not reset.
 #[test]
 fn a_hung_loop_is_reset_by_the_watchdog_on_the_fastest_lsi() {
     hung_loop_at(LSI_HZ_FASTEST);
 }
 
-/// The watchdog's timeout at `lsi_hz` (the firmware's figure is for the typical LSI) from the
-/// hang, which begins at the loop's next SPI transfer (within a loop period of the injection;
-/// the guidance task may feed the watchdog meanwhile), plus a stop of the bench.
+/// The programmed timeout at `lsi_hz` from the hang, which begins at the loop's next SPI
+/// transfer (within a loop period of the injection; the loop fed the watchdog last before it),
+/// plus a stop of the bench; and within the design's [`autopilot::board::WATCHDOG_MS`] of the
+/// injection at every LSI.
 fn hung_loop_at(lsi_hz: u64) {
-    let timeout_ns = u64::from(autopilot::board::WATCHDOG_MS) * MS * LSI_HZ_TYPICAL / lsi_hz;
+    let lsi = u32::try_from(lsi_hz).expect("an LSI in hertz");
+    let timeout_ns = u64::from(autopilot::board::WATCHDOG.us_at(lsi)) * 1_000;
     let loop_period_ns = 1_000_000_000u64.div_ceil(u64::from(autopilot::board::LOOP_RATE_HZ));
-    fault_stops_the_motors_at(
-        Fault::Hang,
-        timeout_ns + loop_period_ns + MS,
-        3.5,
-        CoreRate::Default,
-        lsi_hz,
+    let promise_ns = timeout_ns + loop_period_ns + MS;
+    assert!(
+        promise_ns <= u64::from(autopilot::board::WATCHDOG_MS) * MS,
+        "LSI {lsi_hz} Hz: a {:.1} ms timeout does not meet the design's {} ms",
+        timeout_ns as f64 / 1e6,
+        autopilot::board::WATCHDOG_MS
     );
+    fault_stops_the_motors_at(Fault::Hang, promise_ns, 3.5, CoreRate::Default, lsi_hz);
 }
 
 /// The camera link goes silent: the estimate failsafe hovers, then lands, then stops the motors

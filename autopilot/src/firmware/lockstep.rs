@@ -22,7 +22,7 @@ use protocol::ImuSample;
 /// The host sends the sensor data; the board's own sensors stay unused.
 pub const OWN_SENSORS: bool = false;
 /// The heartbeat feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
-pub const FEED_WATCHDOG_IN_GUIDANCE: bool = false;
+pub const FEED_WATCHDOG_IN_LOOP: bool = false;
 /// Motor commands also go to the host (the simulated drone flies on them).
 pub const MOTORS_TO_HOST: bool = true;
 

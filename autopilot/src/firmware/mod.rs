@@ -10,17 +10,17 @@
 //! |---|---|---|---|
 //! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]) |
 //! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour) | half/full buffer: pends `telemetry_uart` |
-//! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors |
+//! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors; feeds the watchdog while `guidance` and `heartbeat` run |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors (only once the host enabled them), releases the periodic tasks |
 //! | `outputs_watch` | 5 | 100 Hz, board clock (lockstep) | the PWM outputs to 0 when the host's samples stopped or it never enabled them (`flavour::outputs_live`) |
 //! | `stereo_rx` | 4 | woken by `link_uart` | `Autopilot::on_stereo_bytes` |
 //! | `host_rx` | 4 | woken by `telemetry_uart` | position / command / parameter requests from the host (the camera board's passed on over the link; IMU samples: lockstep only) |
 //! | `rc_rx` | 4 | woken by `rc_uart`, and every 20 ms (only with `board::RC_RECEIVER`) | [`autopilot::rc`]: SBUS frames -> commands and the RC kill latch |
-//! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`, watchdog (real) |
+//! | `guidance` | 3 | 50 Hz | `Autopilot::guidance_step`, `motor_safety`; its liveness stamp for the watchdog's feeder (real) |
 //! | `gyro_tx` | 2 | 128 Hz | `Autopilot::gyro_attitude` to the camera board |
 //! | `baro` | 2 | its conversions (real) | MS5611 on SPI2 -> `Autopilot::on_baro` |
 //! | `telemetry` | 1 | 10 Hz | the supply voltage (real: ADC1 on PC4, `board::hw::BatteryInput`) -> `Autopilot::on_battery`; `Autopilot::telemetry` to the host |
-//! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog (lockstep), status line |
+//! | `heartbeat` | 1 | 1 Hz | heartbeats to both links, LED, watchdog (lockstep; real: its liveness stamp), status line |
 //! | `idle` | 0 | nothing else to run | `WFI`: the core sleeps until the next interrupt (SysTick, TIM2, a UART); the watchdog, the timers and the UARTs run on in Sleep mode (RM0090 5.3.3) |
 //!
 //! No task ever waits for a UART: frames are queued whole or dropped and counted
@@ -36,6 +36,11 @@
 //! link is written the same way at once, beside the saved parameters
 //! (`Autopilot::save_link_key`), and every save carries it; the boot loads it with the
 //! parameters. The `qemu` flavour has no parameter storage.
+//!
+//! Watchdog (real flavour): [`autopilot::board::WATCHDOG`], at most 25 ms at the slowest LSI,
+//! is fed by the 512 Hz control loop, and only while the guidance task and the heartbeat have
+//! run recently (their [`board_support::watchdog::Liveness`] stamps): a hang anywhere starves
+//! it (see [`autopilot::board::WATCHDOG_MS`]).
 //!
 //! Faults: the panic and HardFault handlers force the motor outputs off at the timer and GPIO
 //! registers first ([`autopilot::board::hw::motors_off`]), then log, then wait for the
@@ -82,6 +87,11 @@ static IMU_INVALID: AtomicU32 = AtomicU32::new(0);
 static IMU_RECONFIGURED: AtomicU32 = AtomicU32::new(0);
 /// Largest deviation of the control loop's start from its period, µs (real flavour).
 static LOOP_JITTER_MAX_US: AtomicU32 = AtomicU32::new(0);
+/// When the guidance task last completed a step (the watchdog's feeder checks it).
+static GUIDANCE_ALIVE: board_support::watchdog::Liveness = board_support::watchdog::Liveness::new();
+/// When the heartbeat, the lowest-priority task, last ran (the watchdog's feeder checks it).
+static HEARTBEAT_ALIVE: board_support::watchdog::Liveness =
+    board_support::watchdog::Liveness::new();
 
 /// The telemetry port's receiver: its RXNE interrupt, or in the `hil` flavour a circular DMA
 /// (921,600 Bd: a byte lasts less than logging holds the interrupts off, see
@@ -156,8 +166,8 @@ mod app {
     use super::flavour::{self, Releases, Tick};
     use super::sensors::SensorBus;
     use super::{clock, send, ticks, HostRx, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
+    use super::{GUIDANCE_ALIVE, HEARTBEAT_ALIVE, RC_FLOW, RX_LOST};
     use super::{HOST_FLOW, IMU_INVALID, IMU_RECONFIGURED, LINK_FLOW, LOOP_JITTER_MAX_US};
-    use super::{RC_FLOW, RX_LOST};
     use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
     use autopilot::board::{self, hw};
     use autopilot::mpu6000::{Reconfigure, SampleCheck};
@@ -303,7 +313,10 @@ mod app {
         let battery = flavour::OWN_SENSORS.then(|| hw::BatteryInput::new(b.battery, &mut b.rcc));
 
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
-        iwdg.start(board::WATCHDOG_MS.millis());
+        board_support::watchdog::set(&mut iwdg, board::WATCHDOG);
+        let started = clock::now_us();
+        GUIDANCE_ALIVE.ran(started);
+        HEARTBEAT_ALIVE.ran(started);
 
         // Last, after the sensors' start-up waits: what the peers sent while the receivers
         // were not served yet is dropped here, not counted as lost in flight (`rx_lost`).
@@ -492,7 +505,7 @@ mod app {
     /// invalid sample is not flown on: the IMU failsafe counts from the last valid one. A
     /// sensor found reset (asleep) is configured again ([`Reconfigure`]); its samples count
     /// again once it is awake, which it is only with its configuration read back right.
-    #[task(binds = TIM2, priority = 5, shared = [ap, motors, sensors], local = [
+    #[task(binds = TIM2, priority = 5, shared = [ap, motors, sensors, iwdg], local = [
         loop_timer,
         imu_check,
         reconfigure: Reconfigure = Reconfigure::new(),
@@ -551,6 +564,12 @@ mod app {
                     cx.shared.motors.lock(|m| m.set(off));
                 }
             }
+        }
+        if flavour::FEED_WATCHDOG_IN_LOOP
+            && GUIDANCE_ALIVE.within(now, board::GUIDANCE_ALIVE_US)
+            && HEARTBEAT_ALIVE.within(now, board::HEARTBEAT_ALIVE_US)
+        {
+            cx.shared.iwdg.lock(|w| w.feed());
         }
     }
 
@@ -694,7 +713,13 @@ mod app {
                         }
                     }
                     if saving {
-                        cx.shared.iwdg.lock(|w| set_watchdog(w, board::WATCHDOG_MS));
+                        cx.shared
+                            .iwdg
+                            .lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
+                        // The save held every task: they run again from here.
+                        let saved = clock::now_us();
+                        GUIDANCE_ALIVE.ran(saved);
+                        HEARTBEAT_ALIVE.ran(saved);
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
                         let error = cx.local.param_sector.as_ref().and_then(|s| s.last_error());
                         log_save(&outcome, error, ms);
@@ -736,9 +761,9 @@ mod app {
         }
     }
 
-    /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be; the
-    /// watchdog in the real flavour.
-    #[task(priority = 3, shared = [ap, motors, host_tx, iwdg], local = [guidance_tick])]
+    /// 50 Hz: FSM, force field, velocity and height loops; motors off when they must be; then
+    /// its liveness stamp (the watchdog's feeder checks it).
+    #[task(priority = 3, shared = [ap, motors, host_tx], local = [guidance_tick])]
     async fn guidance(mut cx: guidance::Context) {
         loop {
             let now = cx.local.guidance_tick.wait().await;
@@ -750,9 +775,7 @@ mod app {
                 cx.shared.motors.lock(|m| m.set(throttle));
                 motors_to_host(&mut cx.shared.host_tx, now, throttle);
             }
-            if flavour::FEED_WATCHDOG_IN_GUIDANCE {
-                cx.shared.iwdg.lock(|w| w.feed());
-            }
+            GUIDANCE_ALIVE.ran(clock::now_us());
         }
     }
 
@@ -860,7 +883,8 @@ mod app {
         }
     }
 
-    /// 1 Hz: heartbeats to both links, LED, watchdog (lockstep flavours), a status log line.
+    /// 1 Hz: heartbeats to both links, LED, watchdog (lockstep flavours; real: the liveness
+    /// stamp its feeder checks), a status log line.
     #[task(priority = 1, shared = [ap, link_tx, host_tx, stereo_msgs, iwdg], local = [led])]
     async fn heartbeat(mut cx: heartbeat::Context) {
         loop {
@@ -870,7 +894,8 @@ mod app {
             send::<_, A2S>(&mut cx.shared.link_tx, &AutopilotToStereo::Heartbeat(hb));
             send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Heartbeat(hb));
             cx.local.led.toggle();
-            if !flavour::FEED_WATCHDOG_IN_GUIDANCE {
+            HEARTBEAT_ALIVE.ran(now);
+            if !flavour::FEED_WATCHDOG_IN_LOOP {
                 cx.shared.iwdg.lock(|w| w.feed());
             }
             let msgs = cx.shared.stereo_msgs.lock(|c| *c);

@@ -6,7 +6,8 @@
 //!   SysTick periods ([`Tick`]).
 //! * Sensor data from the host link is refused and counted ([`host_imu`]): the telemetry port
 //!   carries commands and the motion-capture position, never IMU samples.
-//! * The 50 Hz guidance task feeds the 50 ms watchdog.
+//! * The 512 Hz control loop feeds the watchdog while the guidance task and the heartbeat run
+//!   ([`autopilot::board::WATCHDOG_MS`]).
 
 use super::{clock, Mono};
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -15,8 +16,8 @@ use rtic_monotonics::Timebase as _;
 
 /// The board reads its own IMU and barometer and listens to its RC receiver.
 pub const OWN_SENSORS: bool = true;
-/// The guidance task feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
-pub const FEED_WATCHDOG_IN_GUIDANCE: bool = true;
+/// The control loop feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
+pub const FEED_WATCHDOG_IN_LOOP: bool = true;
 /// Motor commands go to the PWM outputs only.
 pub const MOTORS_TO_HOST: bool = false;
 
