@@ -695,7 +695,13 @@ mod app {
                             Some(sector) => {
                                 cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
                                 let saved = cx.shared.ap.lock(|ap| ap.save_link_key(sector));
-                                cx.shared.iwdg.lock(|w| set_watchdog(w, board::WATCHDOG_MS));
+                                cx.shared
+                                    .iwdg
+                                    .lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
+                                // The write held every task: they run again from here.
+                                let done = clock::now_us();
+                                GUIDANCE_ALIVE.ran(done);
+                                HEARTBEAT_ALIVE.ran(done);
                                 Some(saved)
                             }
                             None => None,
