@@ -7,7 +7,7 @@
 //!
 //! It fails (records a violation in [`Outcome::violations`]) a run that reaches a peripheral the
 //! board's real part lacks or stores into memory it lacks, and records every arrival at the
-//! panic handler or the HardFault handler in [`Outcome::faults`].
+//! panic handler, the HardFault handler, the NMI handler or the `DefaultHandler` in [`Outcome::faults`].
 
 use std::sync::{Arc, Condvar, Mutex};
 
@@ -153,7 +153,7 @@ pub struct Outcome<B: BenchBoard, P> {
     pub probe: P,
     /// The firmware's defmt log.
     pub log: RttLog,
-    /// Arrivals at the panic or HardFault handler.
+    /// Arrivals at the panic, HardFault, NMI or default (unbound exception) handler.
     pub faults: Vec<FirmwareFault>,
     /// Accesses the real part could not have made.
     pub violations: Vec<String>,
@@ -436,7 +436,13 @@ fn prepare<B: BenchBoard, P: Probe<B>>(
     for (name, address) in firmware.symbols_containing("rust_begin_unwind") {
         handlers.push((address, name.to_owned()));
     }
-    for name in ["HardFault", "HardFault_", "HardFaultTrampoline"] {
+    for name in [
+        "HardFault",
+        "HardFault_",
+        "HardFaultTrampoline",
+        "NonMaskableInt",
+        "DefaultHandler",
+    ] {
         if let Some(address) = firmware.symbol(name) {
             handlers.push((address, name.to_owned()));
         }

@@ -1,18 +1,23 @@
 //! Faults the bench injects at an exact instruction of an unmodified image.
 //!
-//! [`RunawayRecursion`]: a stack overflow. The bench has no hold on the core's registers, only
-//! on its memory, so it makes one function return into a runaway: at the next arrival at the
-//! function's entry (a `PUSH` that saves `LR`), once that push has landed, the saved return
-//! address is replaced with the address of two instructions the bench writes into dead stack
-//! (`PUSH {r0-r7}`, `B` back to it: 32 bytes of stack a turn, without end) when the core gets
-//! there. When the function
-//! returns, the context it ran in descends through the whole stack region until a push leaves
-//! SRAM. Linked with flip-link, the stack region is the bottom of SRAM, so that push is a bus
-//! fault (nothing is mapped below `0x2000_0000`) and the statics above the stack are never
-//! touched; what the firmware's HardFault path does with a stack that is used up is what a
-//! test then watches.
+//! The bench has no hold on the core's registers, only on its memory, so a [`ReturnHijack`]
+//! makes one function return into a few instructions of the bench's: at the next arrival at
+//! the function's entry (a `PUSH` that saves `LR`), once that push has landed, the saved return
+//! address is replaced with the address of the instructions, which the bench writes into dead
+//! stack when the core gets there. Two payloads ([`Payload`]):
 //!
-//! The two instructions go near the top of the stack region, in the frames of the contexts the
+//! - [`Payload::RunawayRecursion`], a stack overflow: `PUSH {r0-r7}`, `B` back to it (32 bytes
+//!   of stack a turn, without end). When the function returns, the context it ran in descends
+//!   through the whole stack region until a push leaves SRAM. Linked with flip-link, the stack region is the bottom of SRAM, so that push is a bus
+//!   fault (nothing is mapped below `0x2000_0000`) and the statics above the stack are never
+//!   touched; what the firmware's HardFault path does with a stack that is used up is what a
+//!   test then watches.
+//! - [`Payload::UnboundInterrupt`]: enables and pends IRQ 0 (the window watchdog, `WWDG`, which
+//!   neither firmware uses) in the NVIC (`ISER0`, `ISPR0`, ARMv7-M ARM B3.4), then spins. At its
+//!   reset priority (0, the highest) it is taken at once, through whatever vector the image's
+//!   table holds for it: what a test then watches is the `DefaultHandler` path.
+//!
+//! The instructions go near the top of the stack region, in the frames of the contexts the
 //! hijacked one interrupted (they never resume: the runaway never returns, and it starts below
 //! them and only descends); they are written as the core arrives there.
 
@@ -25,7 +30,41 @@ use crate::firmware::Firmware;
 
 /// `PUSH {r0-r7}` (T1, ARMv7-M ARM A7.7.99) then `B` to it (T2, A7.7.12: imm11 = -3, to
 /// PC + 4 - 6), as one little-endian word.
-const RUNAWAY: u32 = 0xE7FD_B4FF;
+const RUNAWAY: [u32; 1] = [0xE7FD_B4FF];
+
+/// Pends IRQ 0, as little-endian words (Thumb, ARMv7-M ARM A7.7):
+///
+/// ```text
+/// +0   4802      LDR   r0, [pc, #8]      ; the literal at +12: NVIC_ISER0
+/// +2   2101      MOVS  r1, #1            ; IRQ 0's bit
+/// +4   6001      STR   r1, [r0]          ; enabled (ISER0)
+/// +6   f8c0 1100 STR.W r1, [r0, #0x100]  ; pending (ISPR0, 0xE000_E200)
+/// +10  e7fe      B     .                 ; spins (never reached: the IRQ is taken first)
+/// +12  e000e100                          ; NVIC_ISER0
+/// ```
+const PEND_IRQ0: [u32; 4] = [0x2101_4802, 0xF8C0_6001, 0xE7FE_1100, 0xE000_E100];
+
+/// The number of the exception an IRQ 0 is taken as (the exception number the firmware's
+/// `DefaultHandler` reports: 16 plus the IRQ number).
+pub const UNBOUND_IRQ_VECTOR: u32 = 16;
+
+/// What the hijacked return runs into.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Payload {
+    /// A push without end: the stack overflows.
+    RunawayRecursion,
+    /// IRQ 0, which has no handler of the image's own, enabled and pended.
+    UnboundInterrupt,
+}
+
+impl Payload {
+    fn words(self) -> &'static [u32] {
+        match self {
+            Self::RunawayRecursion => &RUNAWAY,
+            Self::UnboundInterrupt => &PEND_IRQ0,
+        }
+    }
+}
 
 /// Where the injection stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -43,9 +82,10 @@ enum State {
     Installed(u64),
 }
 
-/// A stack overflow injected through one function's saved return address.
+/// A payload injected through one function's saved return address.
 #[derive(Debug, Clone)]
-pub struct RunawayRecursion {
+pub struct ReturnHijack {
+    payload: Payload,
     entry: u64,
     /// Bytes from the push's lowest address to the saved `LR`, and the push's size.
     lr_offset: u64,
@@ -55,13 +95,13 @@ pub struct RunawayRecursion {
     state: State,
 }
 
-impl RunawayRecursion {
-    /// A runaway through the function whose symbol is `name` (exactly), found in `firmware`
+impl ReturnHijack {
+    /// `payload` through the function whose symbol is `name` (exactly), found in `firmware`
     /// with flip-link's stack region (`_stack_end` up to `_stack_start`).
     ///
     /// # Errors
     /// No such symbol, no stack region, or the function does not begin with a push of `LR`.
-    pub fn new(firmware: &Firmware, name: &str) -> Result<Self, String> {
+    pub fn new(firmware: &Firmware, name: &str, payload: Payload) -> Result<Self, String> {
         let entry = firmware
             .symbol(name)
             .ok_or_else(|| format!("no symbol {name}"))?;
@@ -93,6 +133,7 @@ impl RunawayRecursion {
             ));
         };
         Ok(Self {
+            payload,
             entry,
             lr_offset,
             push_bytes,
@@ -108,7 +149,7 @@ impl RunawayRecursion {
         (self.stack_bottom, self.stack_top)
     }
 
-    /// Where the runaway's two instructions go.
+    /// Where the payload's instructions go: the top 16 bytes of the stack region.
     fn runaway_at(&self) -> u64 {
         (self.stack_top - 16) & !3
     }
@@ -131,7 +172,7 @@ impl RunawayRecursion {
         }
     }
 
-    /// When the runaway began, ns.
+    /// When the payload began to run, ns.
     #[must_use]
     pub fn installed_at(&self) -> Option<u64> {
         match self.state {
@@ -186,8 +227,11 @@ impl RunawayRecursion {
             // the function's frame hold the interrupted contexts' frames, whose floating-point
             // part is stacked lazily, at the handler's first floating-point instruction.)
             (State::Returning, HitKind::Instruction) if hit.address == self.runaway_at() => {
-                let placed = host.write(self.runaway_at(), Width::W32, u64::from(RUNAWAY));
-                if placed.is_ok() {
+                let placed = self.payload.words().iter().zip(0u64..).all(|(&word, i)| {
+                    host.write(self.runaway_at() + 4 * i, Width::W32, u64::from(word))
+                        .is_ok()
+                });
+                if placed {
                     session.unwatch(Watch::Instruction(self.runaway_at()));
                     self.state = State::Installed(hit.at.0);
                 }

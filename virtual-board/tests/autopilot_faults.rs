@@ -11,7 +11,8 @@
 //! | IMU at full scale | a body rate beyond the gyro's +-2000 deg/s range: one axis reads +32767 (the model saturates, RM 4.19), the others stay live | the same |
 //! | IMU reset | the MPU-6000 resets (a brown-out): registers at their defaults, asleep, silent for its reset time; the firmware must configure it again | the same; the chip configured and sampling again within [`IMU_BACK_NS`], the motors off until a new `Arm` |
 //! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF_US`] |
-//! | stack overflow | a runaway recursion: one function of the 512 Hz loop returns into two instructions that push without end ([`virtual_board::inject::RunawayRecursion`]) until the stack leaves SRAM (flip-link: the stack is the bottom of SRAM) | the same: the HardFault path stops the motors although the stack is used up |
+//! | stack overflow | a runaway recursion: one function of the 512 Hz loop returns into two instructions that push without end ([`virtual_board::inject::Payload::RunawayRecursion`]) until the stack leaves SRAM (flip-link: the stack is the bottom of SRAM) | the same: the HardFault path stops the motors although the stack is used up |
+//! | unbound interrupt | one function of the 512 Hz loop returns into instructions that enable and pend IRQ 0 (`WWDG`), which the image has no handler for ([`virtual_board::inject::Payload::UnboundInterrupt`]) | the same, from the `DefaultHandler`'s arrival; it names the vector |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
 //! | hung task | SPI2's SPE cleared under the firmware (its register file, at a stop): the 512 Hz loop's blocking transfer never ends | [`autopilot::board::WATCHDOG_MS`] at every LSI (the watchdog resets the part; its programmed [`autopilot::board::WATCHDOG`] at the run's LSI) |
 //!
@@ -32,7 +33,7 @@ use protocol::{
 use virtual_board::bench::{At, Flow, Options, Probe, Setup, run};
 use virtual_board::boards::autopilot::Autopilot;
 use virtual_board::firmware::Firmware;
-use virtual_board::inject::RunawayRecursion;
+use virtual_board::inject::{Payload, ReturnHijack, UNBOUND_IRQ_VECTOR};
 use virtual_board::pilot::{CameraStandIn, GroundStation, MS, Once};
 use virtual_board::timing::{CoreRate, LSI_HZ_FASTEST, LSI_HZ_SLOWEST, LSI_HZ_TYPICAL};
 
@@ -82,6 +83,7 @@ enum Fault {
     ImuReset,
     BusError,
     StackOverflow,
+    UnboundInterrupt,
     Panic,
     Hang,
     LinkCut,
@@ -99,7 +101,7 @@ struct Pilot {
     /// Where the logger's "taken" flag lives (the panic injection).
     logger_taken: Option<u64>,
     /// The stack-overflow injection.
-    runaway: Option<RunawayRecursion>,
+    runaway: Option<ReturnHijack>,
     /// The word 32 bytes above the bottom of the stack region at the first stop after a fault
     /// handler ran (the stack-overflow run: the runaway's pushes reached it).
     stack_bottom_word: Option<u64>,
@@ -128,7 +130,7 @@ struct Pilot {
 }
 
 impl Pilot {
-    fn new(fault: Fault, logger_taken: Option<u64>, runaway: Option<RunawayRecursion>) -> Self {
+    fn new(fault: Fault, logger_taken: Option<u64>, runaway: Option<ReturnHijack>) -> Self {
         Self {
             fault,
             ground: if matches!(fault, Fault::BaroFrozen | Fault::TelemetryCut) {
@@ -209,6 +211,7 @@ impl Probe<Autopilot> for Pilot {
     fn at(&mut self, at: &mut At<'_, Autopilot>) -> Flow {
         let now = at.now;
         if let Some(runaway) = &self.runaway
+            && self.fault == Fault::StackOverflow
             && !at.faults.is_empty()
             && self.stack_bottom_word.is_none()
         {
@@ -229,7 +232,7 @@ impl Probe<Autopilot> for Pilot {
                 Fault::ImuFullScale => at.board().imu().set_rate(FULL_SCALE_RATE),
                 Fault::ImuReset => at.board().imu().power_reset(now),
                 Fault::BusError => at.session.fail_next(SPI2.0, SPI2.1),
-                Fault::StackOverflow => {
+                Fault::StackOverflow | Fault::UnboundInterrupt => {
                     if let Some(runaway) = &mut self.runaway {
                         runaway.arm(at.session);
                     }
@@ -320,13 +323,13 @@ fn logger_taken_flag(firmware: &Firmware) -> u64 {
 /// board_support::stack::PATTERN: the word the firmware paints its unused stack with.
 const STACK_PAINT: u32 = 0x57AC_C0DE;
 
-/// The function the stack-overflow injection returns from: the MPU-6000 sample check, called
-/// once per 512 Hz step (`autopilot::mpu6000::SampleCheck::check`, not inlined: it is a
-/// library function the loop calls).
-fn runaway_in_the_loop(firmware: &Firmware) -> RunawayRecursion {
+/// The function the stack-overflow and unbound-interrupt injections return from: the MPU-6000
+/// sample check, called once per 512 Hz step (`autopilot::mpu6000::SampleCheck::check`, not
+/// inlined: it is a library function the loop calls).
+fn hijack_in_the_loop(firmware: &Firmware, payload: Payload) -> ReturnHijack {
     let mut tried = Vec::new();
     for (name, _) in firmware.symbols_containing("SampleCheck") {
-        match RunawayRecursion::new(firmware, name) {
+        match ReturnHijack::new(firmware, name, payload) {
             Ok(runaway) if name.contains("5check") => return runaway,
             Ok(_) => {}
             Err(e) => tried.push(e),
@@ -360,7 +363,11 @@ fn fault_stops_the_motors_at(
 ) -> FaultRun {
     let firmware = Firmware::real("autopilot").expect("the autopilot image");
     let logger = (fault == Fault::Panic).then(|| logger_taken_flag(&firmware));
-    let runaway = (fault == Fault::StackOverflow).then(|| runaway_in_the_loop(&firmware));
+    let runaway = match fault {
+        Fault::StackOverflow => Some(hijack_in_the_loop(&firmware, Payload::RunawayRecursion)),
+        Fault::UnboundInterrupt => Some(hijack_in_the_loop(&firmware, Payload::UnboundInterrupt)),
+        _ => None,
+    };
     let mut board = Autopilot::new(11).expect("the board");
     board.soc.set_core_rate(rate);
     board.soc.set_lsi_hz(lsi_hz);
@@ -414,7 +421,23 @@ fn fault_stops_the_motors_at(
         "{fault:?}: a motor ran again without a new arm\n{report}"
     );
     match fault {
-        Fault::BusError | Fault::Panic | Fault::StackOverflow => {
+        Fault::BusError | Fault::Panic | Fault::StackOverflow | Fault::UnboundInterrupt => {
+            if fault == Fault::UnboundInterrupt {
+                assert!(
+                    pilot
+                        .runaway
+                        .as_ref()
+                        .and_then(ReturnHijack::installed_at)
+                        .is_some(),
+                    "{fault:?}: the injection never ran\n{report}"
+                );
+                let named =
+                    format!("unhandled exception or interrupt: vector {UNBOUND_IRQ_VECTOR}");
+                assert!(
+                    outcome.logged(&named),
+                    "{fault:?}: the DefaultHandler did not report vector {UNBOUND_IRQ_VECTOR}\n{report}"
+                );
+            }
             if fault == Fault::StackOverflow {
                 let runaway = pilot.runaway.as_ref().expect("the injection");
                 assert!(
@@ -435,10 +458,10 @@ fn fault_stops_the_motors_at(
                     pilot.stack_bottom_word
                 );
             }
-            let handler = if fault == Fault::Panic {
-                "rust_begin_unwind"
-            } else {
-                "HardFault"
+            let handler = match fault {
+                Fault::Panic => "rust_begin_unwind",
+                Fault::UnboundInterrupt => "DefaultHandler",
+                _ => "HardFault",
             };
             let first = outcome
                 .faults
@@ -660,6 +683,18 @@ fn a_hard_fault_stops_the_motors_at_once_on_a_slow_core() {
 fn a_stack_overflow_faults_and_stops_the_motors_at_once() {
     fault_stops_the_motors(
         Fault::StackOverflow,
+        autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        3.0,
+    );
+}
+
+/// An interrupt the image has no handler for (IRQ 0, enabled and pended from the 512 Hz loop):
+/// the `DefaultHandler` stops the motors first, names the vector, and leaves the part to the
+/// watchdog.
+#[test]
+fn an_unbound_interrupt_stops_the_motors_at_once() {
+    fault_stops_the_motors(
+        Fault::UnboundInterrupt,
         autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
         3.0,
     );
