@@ -82,7 +82,7 @@ pub struct FlightConfig {
     pub keep_image_every: u32,
     /// Stop at the first collision.
     pub stop_on_collision: bool,
-    /// Autopilot configuration (its FSM variant is set from [`FlightConfig::fsm`]).
+    /// Autopilot configuration (its FSM variant is the avoidance logic the flight flies).
     pub autopilot: AutopilotConfig,
     /// Edge-FS parameters of the camera board.
     pub edge_fs: EdgeFsParams,
