@@ -153,9 +153,7 @@ pub fn encode_to_vec<M: Serialize + ?Sized, const N: usize>(
         .map_err(|_| EncodeError::BufferTooSmall)
 }
 
-/// COBS-encodes `buf[src..src + len]` into `buf[0..]`, returning the encoded length. (The
-/// `cobs` crate encodes only into a second buffer, which would cost the firmware a frame's
-/// worth of stack; decoding uses the crate.)
+/// COBS-encodes `buf[src..src + len]` into `buf[0..]`, returning the encoded length.
 ///
 /// Requires `src >= cobs_overhead(len)` so that the write index never passes the read index;
 /// returns `None` (instead of panicking) if the buffer is too short.
@@ -190,16 +188,29 @@ fn cobs_encode_in_place(buf: &mut [u8], src: usize, len: usize) -> Option<usize>
     Some(write)
 }
 
-/// Decodes a COBS block (no delimiters inside) in place, returning the decoded length. An empty
-/// block decodes to nothing (rejected as too short by the caller); a delimiter inside is invalid.
+/// Decodes a COBS block (no delimiters inside) in place, returning the decoded length.
 fn cobs_decode_in_place(buf: &mut [u8]) -> Result<usize, FrameError> {
-    if buf.is_empty() {
-        return Ok(0);
+    let len = buf.len();
+    let (mut read, mut write) = (0usize, 0usize);
+    while read < len {
+        let code = buf[read];
+        if code == 0 {
+            return Err(FrameError::Cobs);
+        }
+        read += 1;
+        let run = usize::from(code) - 1;
+        if read + run > len {
+            return Err(FrameError::Cobs);
+        }
+        buf.copy_within(read..read + run, write);
+        read += run;
+        write += run;
+        if code != 0xFF && read < len {
+            buf[write] = 0;
+            write += 1;
+        }
     }
-    if buf.contains(&DELIMITER) {
-        return Err(FrameError::Cobs);
-    }
-    cobs::decode_in_place(buf).map_err(|_| FrameError::Cobs)
+    Ok(write)
 }
 
 /// Checks the COBS, length, CRC and version of a frame received in `buf` (delimiter removed)
