@@ -695,13 +695,7 @@ mod app {
                             Some(sector) => {
                                 cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
                                 let saved = cx.shared.ap.lock(|ap| ap.save_link_key(sector));
-                                cx.shared
-                                    .iwdg
-                                    .lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
-                                // The write held every task: they run again from here.
-                                let done = clock::now_us();
-                                GUIDANCE_ALIVE.ran(done);
-                                HEARTBEAT_ALIVE.ran(done);
+                                resume_after_flash(&mut cx.shared.iwdg);
                                 Some(saved)
                             }
                             None => None,
@@ -719,13 +713,7 @@ mod app {
                         }
                     }
                     if saving {
-                        cx.shared
-                            .iwdg
-                            .lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
-                        // The save held every task: they run again from here.
-                        let saved = clock::now_us();
-                        GUIDANCE_ALIVE.ran(saved);
-                        HEARTBEAT_ALIVE.ran(saved);
+                        resume_after_flash(&mut cx.shared.iwdg);
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
                         let error = cx.local.param_sector.as_ref().and_then(|s| s.last_error());
                         log_save(&outcome, error, ms);
@@ -745,6 +733,15 @@ mod app {
                 }
             }
         }
+    }
+
+    /// Back from a flash write that held every task (a save, a key): the loop-fed watchdog's
+    /// own timeout again, and its fed tasks counted alive from here.
+    fn resume_after_flash(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>) {
+        iwdg.lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
+        let now = clock::now_us();
+        GUIDANCE_ALIVE.ran(now);
+        HEARTBEAT_ALIVE.ran(now);
     }
 
     /// The log line of a save: done, or why not, and how long the flash held it.
