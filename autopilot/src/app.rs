@@ -370,6 +370,11 @@ pub const GROUND_MAX_RATE_RADPS: f32 = 0.5;
 /// sampled from the latest IMU sample (a time constant of about 0.1 s at 50 Hz).
 const GROUND_LP_ALPHA: f32 = 0.2;
 
+/// External height fixes the vertical estimator must take in a row before they are the height
+/// loop's measurement (100 ms of a 50 Hz motion-capture stream): one fix, even one the gate
+/// takes, makes no height fresh for arming.
+pub const FIXES_TO_LEAD: u8 = 5;
+
 /// The whole autopilot state (fixed size, no heap): the stages in data-flow order.
 #[derive(Debug, Clone)]
 pub struct Autopilot {
@@ -395,6 +400,11 @@ pub struct Autopilot {
     /// When the barometer's reading last changed, µs, and frozen readings refused since boot.
     baro_changed_us: u64,
     baro_frozen: u32,
+    /// External height fixes not used (gated, or fixes disabled).
+    fixes_refused: u32,
+    /// External height fixes the vertical estimator took in a row (see
+    /// [`Autopilot::on_external_position`]).
+    fixes_in_row: u8,
     height: HeightController,
     /// Horizontal velocity from the Edge-FS estimates.
     estimation: VelocityEstimation,
@@ -457,6 +467,8 @@ impl Autopilot {
             baro: None,
             baro_changed_us: 0,
             baro_frozen: 0,
+            fixes_refused: 0,
+            fixes_in_row: 0,
             height: HeightController::new(config.height),
             estimation: VelocityEstimation::new(&config),
             avoidance: Avoidance::new(config.fsm),
@@ -817,13 +829,47 @@ impl Autopilot {
         self.estimation.on_estimate(est, &ctx, &self.cfg);
     }
 
-    /// An external position fix (motion capture / simulator); only the height (`-z`) is used.
-    /// While fixes come the height loop flies on them directly, as in the paper's lab; the
-    /// vertical estimator takes them too, so that it holds the height when they stop.
+    /// An external position fix (motion capture / simulator); only the height (`-z`) is used
+    /// (the horizontal position is not: nothing here flies on it), and only with
+    /// `ext_pos_enable` set. A fix goes through the vertical estimator's innovation gate
+    /// first; one it refuses is counted ([`Autopilot::fixes_refused`]) and goes nowhere. Taken
+    /// fixes become the height loop's measurement (as in the paper's lab), and so make the
+    /// height fresh for arming, only once [`FIXES_TO_LEAD`] in a row have been taken: a lone
+    /// fix moves the estimate but neither the height loop nor the arming check. The estimator
+    /// keeps the height when fixes stop.
     pub fn on_external_position(&mut self, pos: &ExternalPosition, now_us: u64) {
+        if !self.cfg.vertical.external_fixes {
+            self.fixes_refused = self.fixes_refused.wrapping_add(1);
+            return;
+        }
         let h = -pos.position_m[2];
-        self.vertical.on_height_fix(h);
-        self.height.on_measurement(h, now_us);
+        let in_stream = self.vertical.has_recent_fix();
+        if !self.vertical.on_height_fix(h) {
+            self.fixes_refused = self.fixes_refused.wrapping_add(1);
+            self.fixes_in_row = 0;
+            return;
+        }
+        self.fixes_in_row = if in_stream {
+            self.fixes_in_row.saturating_add(1)
+        } else {
+            1
+        };
+        if self.fixes_lead() {
+            self.height.on_measurement(h, now_us);
+        }
+    }
+
+    /// Whether the external fixes are the height loop's measurement now: a stream of
+    /// [`FIXES_TO_LEAD`] taken in a row, the last within the estimator's fix hold time.
+    /// Otherwise the barometer's estimate is.
+    fn fixes_lead(&self) -> bool {
+        self.fixes_in_row >= FIXES_TO_LEAD && self.vertical.has_recent_fix()
+    }
+
+    /// External height fixes not used: refused by the vertical filter's gate, or all of them
+    /// while `ext_pos_enable` is off.
+    pub fn fixes_refused(&self) -> u32 {
+        self.fixes_refused
     }
 
     /// A pilot command (RC or host). Kill always wins; arm needs fresh IMU and height, a host
@@ -926,9 +972,7 @@ impl Autopilot {
                 return;
             }
             let running = self.motors.iter().any(|&m| m > 0.0);
-            if self.vertical.on_pressure(reading.pressure_pa, running)
-                && !self.vertical.has_recent_fix()
-            {
+            if self.vertical.on_pressure(reading.pressure_pa, running) && !self.fixes_lead() {
                 self.height.on_measurement(self.vertical.height_m(), now_us);
             }
         }

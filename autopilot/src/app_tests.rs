@@ -599,17 +599,20 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
     assert_eq!(ap.mode(), FlightMode::Flying);
 }
 
-/// An autopilot told (one motion-capture fix) that it is at 1 m, above
-/// [`AutopilotConfig::min_vision_height_m`], so that it uses the estimates for its velocity.
+/// An autopilot told (a stream of motion-capture fixes, the fewest the height loop takes) that
+/// it is at 1 m, above [`AutopilotConfig::min_vision_height_m`], so that it uses the estimates
+/// for its velocity.
 fn autopilot_at_height() -> Autopilot {
     let mut ap = Autopilot::new(AutopilotConfig::default());
-    ap.on_external_position(
-        &ExternalPosition {
-            timestamp_us: WireTime(0),
-            position_m: [0.0, 0.0, -1.0],
-        },
-        0,
-    );
+    for _ in 0..FIXES_TO_LEAD {
+        ap.on_external_position(
+            &ExternalPosition {
+                timestamp_us: WireTime(0),
+                position_m: [0.0, 0.0, -1.0],
+            },
+            0,
+        );
+    }
     ap
 }
 
@@ -791,8 +794,11 @@ fn every_refused_arm_is_counted() {
     ap.on_command(PilotCommand::Arm, t);
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     assert_eq!(ap.arm_refused(), 2);
-    // Height fresh, IMU stale (its last sample 21 ms ago, the timeout 20 ms): refused.
-    ap.on_external_position(&floor(t), t);
+    // Height fresh (a stream of fixes), IMU stale (its last sample 21 ms ago, the timeout
+    // 20 ms): refused.
+    for _ in 0..FIXES_TO_LEAD {
+        ap.on_external_position(&floor(t), t);
+    }
     let stale = t + AutopilotConfig::default().failsafe.imu_timeout_us + 1_000;
     ap.on_external_position(&floor(stale), stale);
     ap.on_command(PilotCommand::Arm, stale);
@@ -1587,4 +1593,151 @@ fn hil_outputs_are_off_at_boot_and_enabled_only_with_the_motors_off() {
     r.ap.on_command(PilotCommand::HilOutputs(false), r.now);
     assert!(!r.ap.hil_outputs());
     assert_eq!(r.ap.mode(), FlightMode::Flying, "the gate is not a kill");
+}
+
+/// A motion-capture fix of height `h` m taken at `t` µs.
+fn height_fix(h: f32, t: u64) -> ExternalPosition {
+    ExternalPosition {
+        timestamp_us: WireTime(t as u32),
+        position_m: [0.0, 0.0, -h],
+    }
+}
+
+/// A level, still IMU sample at `t` µs.
+fn still_imu(t: u64) -> ImuSample {
+    ImuSample {
+        timestamp_us: WireTime(t as u32),
+        gyro_radps: [0.0; 3],
+        accel_mps2: [0.0, 0.0, -GRAVITY],
+    }
+}
+
+/// A height fix goes through the vertical filter's innovation gate: one it refuses (a spoofed
+/// jump) reaches neither the height loop nor the arming check's freshness, and is counted;
+/// with `ext_pos_enable` off no fix is used at all.
+#[test]
+fn external_fixes_pass_the_vertical_gate_or_go_nowhere() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut t = 0;
+    for _ in 0..50 {
+        t += 10_000;
+        ap.on_external_position(&height_fix(0.0, t), t);
+    }
+    assert_eq!(ap.fixes_refused(), 0);
+    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    let taken = t;
+    t += 10_000;
+    ap.on_external_position(&height_fix(3.0, t), t);
+    assert_eq!(ap.fixes_refused(), 1);
+    assert!(
+        ap.vertical.height_m().abs() < 0.01,
+        "{}",
+        ap.vertical.height_m()
+    );
+    assert!(
+        ap.height.height_m().abs() < 0.01,
+        "{}",
+        ap.height.height_m()
+    );
+    assert_eq!(ap.height.last_measurement_us(), Some(taken));
+    assert_eq!(ap.freshness().last_height_us, Some(taken));
+
+    let mut cfg = AutopilotConfig::default();
+    cfg.vertical.external_fixes = false;
+    let mut ap = Autopilot::new(cfg);
+    for k in 1..=50 {
+        ap.on_external_position(&height_fix(0.5, k * 20_000), k * 20_000);
+    }
+    assert_eq!(ap.fixes_refused(), 50);
+    assert_eq!(ap.vertical.height_m(), 0.0, "the estimator never saw them");
+    assert_eq!(ap.height.last_measurement_us(), None);
+    assert_eq!(ap.freshness().last_height_us, None);
+}
+
+/// What a motion-capture system reports of a drone taking off: 50 Hz fixes on the floor, then
+/// climbing at the take-off climb rate to 1 m and holding, while the IMU (512 Hz) feels no
+/// vertical acceleration (the worst case for the filter: the climb starts and stops at once).
+/// Every fix passes the gate, and the height loop flies on them.
+#[test]
+fn a_motion_capture_take_off_passes_the_gate_fix_by_fix() {
+    let cfg = AutopilotConfig::default();
+    let mut ap = Autopilot::new(cfg);
+    let (mut t, mut next_fix, mut h) = (0u64, 0u64, 0.0f32);
+    let mut worst = 0.0f32;
+    while t < 6_000_000 {
+        t += IMU_US;
+        ap.on_imu(&still_imu(t), t);
+        if t >= next_fix {
+            next_fix += 20_000;
+            let climbing = t > 1_000_000;
+            if climbing {
+                h = (h + cfg.climb_rate_mps * 0.02).min(1.0);
+            }
+            ap.on_external_position(&height_fix(h, t), t);
+            worst = worst.max((ap.height.height_m() - h).abs());
+        }
+    }
+    std::println!(
+        "motion-capture take-off: {} fixes refused, height loop within {worst:.4} m of the fixes",
+        ap.fixes_refused()
+    );
+    assert_eq!(ap.fixes_refused(), 0);
+    assert!(worst < 1e-6, "the height loop flies on the fixes: {worst}");
+    assert!((ap.vertical.height_m() - 1.0).abs() < 0.01);
+}
+
+/// One fix (even one the gate takes) does not make the height fresh for arming on a drone
+/// with no other height source; a stream of [`FIXES_TO_LEAD`] does.
+#[test]
+fn a_single_fix_does_not_satisfy_the_arming_check() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut t = 0;
+    for _ in 0..100 {
+        t += IMU_US;
+        ap.on_imu(&still_imu(t), t);
+    }
+    ap.on_host_heartbeat(t);
+    ap.on_external_position(&height_fix(0.0, t), t);
+    assert_eq!(ap.fixes_refused(), 0, "the gate took it");
+    assert_eq!(ap.freshness().last_height_us, None);
+    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.mode(), FlightMode::Disarmed);
+    assert_eq!(ap.arm_refused(), 1);
+    for k in 1..FIXES_TO_LEAD {
+        let at = t + u64::from(k) * 20_000;
+        while t < at {
+            t += IMU_US;
+            ap.on_imu(&still_imu(t), t);
+        }
+        ap.on_external_position(&height_fix(0.0, t), t);
+    }
+    assert_eq!(ap.freshness().last_height_us, Some(t));
+    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.mode(), FlightMode::Flying);
+    assert_eq!(ap.arm_refused(), 1);
+}
+
+/// A fix stream that pauses longer than the estimator's fix hold time starts again: its first
+/// fix after the pause does not refresh the height loop.
+#[test]
+fn a_fix_stream_that_pauses_must_build_up_again() {
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    let mut t = 0;
+    let fix_every = |ap: &mut Autopilot, t: &mut u64, fixes: u32, period: u64| {
+        for _ in 0..fixes {
+            for _ in 0..period / IMU_US {
+                *t += IMU_US;
+                ap.on_imu(&still_imu(*t), *t);
+            }
+            ap.on_external_position(&height_fix(0.0, *t), *t);
+        }
+    };
+    fix_every(&mut ap, &mut t, 10, 20_000);
+    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    let before_pause = t;
+    fix_every(&mut ap, &mut t, 1, 1_000_000);
+    assert_eq!(ap.height.last_measurement_us(), Some(before_pause));
+    fix_every(&mut ap, &mut t, u32::from(FIXES_TO_LEAD) - 1, 20_000);
+    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    assert_eq!(ap.fixes_refused(), 0);
 }

@@ -154,10 +154,12 @@ mod tests {
     }
 
     #[test]
-    fn a_position_fix_reaches_the_height_estimate() {
+    fn a_stream_of_position_fixes_reaches_the_height() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
-        let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
-        assert_eq!(out, HostOutcome::Done);
+        for _ in 0..crate::app::FIXES_TO_LEAD {
+            let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
+            assert_eq!(out, HostOutcome::Done);
+        }
         assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
     }
 
@@ -184,12 +186,16 @@ mod tests {
             "an unsigned arm never reaches the arm checks"
         );
         assert_eq!(ap.telemetry(1_000).link_auth.unsigned, 2);
-        let signed = Signer::new(key, 1)
-            .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10)
-            .unwrap();
-        ap.on_host_message(signed, 1_000);
+        let mut signer = Signer::new(key, 1);
+        let fixes = crate::app::FIXES_TO_LEAD;
+        for k in 0..u64::from(fixes) {
+            let signed = signer
+                .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10 + k)
+                .unwrap();
+            ap.on_host_message(signed, 1_000);
+        }
         assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
-        assert_eq!(ap.telemetry(1_000).link_auth.accepted, 1);
+        assert_eq!(ap.telemetry(1_000).link_auth.accepted, u32::from(fixes));
     }
 
     #[test]

@@ -139,6 +139,7 @@ protocol::param_table! {
     "vert_ground_effect_h": F32 ["m"] 0.0, 2.0, true => |c| c.vertical.ground_effect_height_m;
     "vert_ground_effect_k": F32 ["-"] 1.0, 100.0, true => |c| c.vertical.ground_effect_noise_factor;
     "vert_gate_sigma": F32 ["-"] 1.0, 100.0, true => |c| c.vertical.gate_sigma;
+    "ext_pos_enable": Bool ["-"] false, true, true => |c| c.vertical.external_fixes;
     "guid_kp": F32 ["rad s/m"] 0.0, 2.0, true => |c| c.guidance.kp;
     "guid_ki": F32 ["rad/m"] 0.0, 2.0, true => |c| c.guidance.ki;
     "guid_max_bank": F32 ["rad"] 0.0, 0.6, true => |c| c.guidance.max_bank_rad;

@@ -38,6 +38,10 @@ pub struct VerticalConfig {
     pub ground_effect_noise_factor: f32,
     /// Innovation gate, standard deviations.
     pub gate_sigma: f32,
+    /// Whether external height fixes (`ExternalPosition`: motion capture, the HIL bench) are
+    /// used at all. Off on a drone that flies without motion capture: then nothing a host sends
+    /// moves its height, signed or not.
+    pub external_fixes: bool,
 }
 
 impl Default for VerticalConfig {
@@ -50,6 +54,7 @@ impl Default for VerticalConfig {
             ground_effect_height_m: 0.3,
             ground_effect_noise_factor: 5.0,
             gate_sigma: 5.0,
+            external_fixes: true,
         }
     }
 }

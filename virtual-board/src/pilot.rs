@@ -1,7 +1,7 @@
 //! What a user does to fly the autopilot, done on the bench: the ground tool's heartbeat, height
 //! fixes and pilot commands over the telemetry port, as `sim-host hil` sends them (a host
-//! `Heartbeat` a second, an `ExternalPosition` at 50 Hz, a `PilotCommand::Arm` when the user
-//! arms), and events scheduled on the bench's stops.
+//! `Heartbeat` a second, an `ExternalPosition` at 50 Hz of a drone that climbs as one does, a
+//! `PilotCommand::Arm` when the user arms), and events scheduled on the bench's stops.
 //!
 //! A stop lands a little after the instant it was asked for (rigless stops at an instruction
 //! boundary, or where a sleeping core wakes), so a schedule never compares a stop's time for
@@ -89,31 +89,47 @@ pub const HEIGHT_FIX_PERIOD_NS: u64 = 20 * MS;
 /// The ground tool's heartbeat period (every host tool sends one a second), ns.
 pub const HEARTBEAT_PERIOD_NS: u64 = 1_000 * MS;
 
+/// The take-off climb rate the ground station's drone flies at: the firmware's own
+/// (`climb_rate_mps`, the rate its height setpoint ramps at), m/s.
+#[must_use]
+pub fn take_off_climb_mps() -> f64 {
+    f64::from(autopilot::app::AutopilotConfig::default().climb_rate_mps)
+}
+
 /// The user at the ground tool: a host heartbeat every [`HEARTBEAT_PERIOD_NS`] and height fixes
 /// every [`HEIGHT_FIX_PERIOD_NS`] on the telemetry port from boot, and an `Arm` at the instant
 /// the test chooses.
+///
+/// The fixes are a motion-capture system's: they report where the drone is, which moves as a
+/// drone does. On the floor until the `Arm`, then climbing at the firmware's take-off climb rate
+/// ([`take_off_climb_mps`]) to the hover height, until the test's own world takes the height
+/// over ([`GroundStation::set_height`]).
 #[derive(Debug, Clone)]
 pub struct GroundStation {
     heartbeats: Every,
     fixes: Every,
     arm: Once,
     height_m: f64,
-    height_after_arm_m: f64,
+    /// The height the drone climbs to once armed, m (`None`: the test's world sets it).
+    climb_to_m: Option<f64>,
+    last_ns: Option<u64>,
     silent: bool,
     send_fixes: bool,
 }
 
 impl GroundStation {
-    /// Fixes of 0 m (on the floor) until the `Arm` at `arm_at_ns`, then `height_after_arm_m`
-    /// (the bench flies no world: the drone reports as if hovering there once armed).
+    /// Fixes of 0 m (on the floor) until the `Arm` at `arm_at_ns`, then climbing at the take-off
+    /// climb rate to `hover_m` and holding there (the bench flies no world: the drone reports
+    /// as if it took off and hovered there once armed).
     #[must_use]
-    pub fn arming_at(arm_at_ns: u64, height_after_arm_m: f64) -> Self {
+    pub fn arming_at(arm_at_ns: u64, hover_m: f64) -> Self {
         Self {
             heartbeats: Every::ns(HEARTBEAT_PERIOD_NS),
             fixes: Every::ns(HEIGHT_FIX_PERIOD_NS),
             arm: Once::at(arm_at_ns),
             height_m: 0.0,
-            height_after_arm_m,
+            climb_to_m: Some(hover_m),
+            last_ns: None,
             silent: false,
             send_fixes: true,
         }
@@ -140,9 +156,11 @@ impl GroundStation {
         self.height_m
     }
 
-    /// The height the next fixes report, m above the floor.
+    /// The height the next fixes report, m above the floor: the test's world has the height
+    /// from now on (the take-off climb stops).
     pub fn set_height(&mut self, height_m: f64) {
         self.height_m = height_m;
+        self.climb_to_m = None;
     }
 
     /// Stops (or resumes) sending anything: the ground link lost.
@@ -154,8 +172,15 @@ impl GroundStation {
     /// telemetry port). Returns whether the `Arm` went out at this stop.
     pub fn step(&mut self, now_ns: u64, telemetry: &Line) -> bool {
         let arming = self.arm.due(now_ns);
-        if arming {
-            self.height_m = self.height_after_arm_m;
+        let dt_s = self
+            .last_ns
+            .map_or(0.0, |t| now_ns.saturating_sub(t) as f64 / 1e9);
+        self.last_ns = Some(now_ns);
+        if let Some(hover_m) = self.climb_to_m
+            && self.arm.fired()
+            && !arming
+        {
+            self.height_m = (self.height_m + take_off_climb_mps() * dt_s).min(hover_m);
         }
         if self.silent {
             return false;
@@ -214,7 +239,7 @@ mod tests {
     fn the_ground_station_sends_fixes_and_one_arm() {
         let line = Line::open();
         let mut ground = GroundStation::arming_at(40 * MS, 0.5);
-        let arms: usize = (0..61u64)
+        let arms: usize = (0..1_500u64)
             .map(|k| ground.step(k * MS + 7, &line))
             .filter(|&armed| armed)
             .count();
@@ -233,17 +258,36 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(heights, vec![0.0, 0.0, 0.5, 0.5]);
+        assert_eq!(heights.len(), 75, "50 a second");
+        assert_eq!(
+            &heights[..3],
+            &[0.0, 0.0, 0.0],
+            "on the floor until the arm"
+        );
+        // Then the take-off: 0.5 m/s, 1 cm per 20 ms fix, to the hover height.
+        let step = (take_off_climb_mps() * 0.02) as f32;
+        for (k, pair) in heights.windows(2).enumerate().skip(2) {
+            let climb = pair[1] - pair[0];
+            assert!(
+                (climb - step).abs() < 1e-4 || (pair[1] == 0.5 && climb <= step + 1e-4),
+                "fix {k}: {pair:?}"
+            );
+        }
+        assert_eq!(*heights.last().unwrap(), 0.5, "holding at the hover height");
         let heartbeats = messages
             .iter()
             .filter(|m| matches!(m, HostToBoard::Heartbeat(h) if h.node == Node::Host))
             .count();
-        assert_eq!(heartbeats, 1, "one a second, the first at boot");
+        assert_eq!(heartbeats, 2, "one a second, the first at boot");
         assert!(
             messages
                 .iter()
                 .any(|m| *m == HostToBoard::Command(PilotCommand::Arm))
         );
+        // The test's world takes the height over: no more climb.
+        ground.set_height(0.2);
+        ground.step(1_600 * MS + 7, &line);
+        assert_eq!(ground.height_m(), 0.2);
     }
 }
 

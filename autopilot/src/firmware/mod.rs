@@ -904,17 +904,19 @@ mod app {
             let msgs = cx.shared.stereo_msgs.lock(|c| *c);
             let tx_dropped = cx.shared.link_tx.lock(|t| t.dropped_frames())
                 + cx.shared.host_tx.lock(|t| t.dropped_frames());
-            let (errors, estimates, peer, refused, blocked) = cx.shared.ap.lock(|ap| {
-                (
-                    ap.link_errors(),
-                    ap.estimates_received(),
-                    ap.stereo_heartbeat().map(|(_, h)| h.uptime_ms),
-                    ap.arm_refused(),
-                    ap.arm_blocker().is_some(),
-                )
-            });
+            let (errors, estimates, peer, refused, blocked, fixes_refused) =
+                cx.shared.ap.lock(|ap| {
+                    (
+                        ap.link_errors(),
+                        ap.estimates_received(),
+                        ap.stereo_heartbeat().map(|(_, h)| h.uptime_ms),
+                        ap.arm_refused(),
+                        ap.arm_blocker().is_some(),
+                        ap.fixes_refused(),
+                    )
+                });
             log::info!(
-                "status uptime_ms={} stereo_rx_ok={} link_errors={} version_mismatch={} estimates={} stereo_uptime_ms={} imu_invalid={} imu_reconfigured={} rx_lost={} tx_dropped={} host_sensor_rejected={} arm_refused={} arm_blocked={} loop_jitter_max_us={} stack_free={}",
+                "status uptime_ms={} stereo_rx_ok={} link_errors={} version_mismatch={} estimates={} stereo_uptime_ms={} imu_invalid={} imu_reconfigured={} rx_lost={} tx_dropped={} host_sensor_rejected={} arm_refused={} arm_blocked={} fixes_refused={} loop_jitter_max_us={} stack_free={}",
                 uptime_ms,
                 msgs,
                 errors.total(),
@@ -928,6 +930,7 @@ mod app {
                 flavour::HOST_SENSOR_REJECTED.load(Ordering::Relaxed),
                 refused,
                 blocked as u8,
+                fixes_refused,
                 LOOP_JITTER_MAX_US.load(Ordering::Relaxed),
                 board_support::stack::free_bytes()
             );
