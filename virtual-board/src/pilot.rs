@@ -96,13 +96,19 @@ pub fn take_off_climb_mps() -> f64 {
     f64::from(autopilot::app::AutopilotConfig::default().climb_rate_mps)
 }
 
+/// How hard the ground station's drone speeds up into its climb and slows at its hover height,
+/// m/s^2: a gentle take-off, 0.5 s to the climb rate (a drone's climb does not start in one
+/// instant, and the firmware's vertical filter gates a fix stream that says it did).
+pub const TAKE_OFF_ACCEL_MPS2: f64 = 1.0;
+
 /// The user at the ground tool: a host heartbeat every [`HEARTBEAT_PERIOD_NS`] and height fixes
 /// every [`HEIGHT_FIX_PERIOD_NS`] on the telemetry port from boot, and an `Arm` at the instant
 /// the test chooses.
 ///
 /// The fixes are a motion-capture system's: they report where the drone is, which moves as a
 /// drone does. On the floor until the `Arm`, then climbing at the firmware's take-off climb rate
-/// ([`take_off_climb_mps`]) to the hover height, until the test's own world takes the height
+/// ([`take_off_climb_mps`], reached and left at [`TAKE_OFF_ACCEL_MPS2`]) to the hover height,
+/// until the test's own world takes the height
 /// over ([`GroundStation::set_height`]).
 #[derive(Debug, Clone)]
 pub struct GroundStation {
@@ -112,6 +118,8 @@ pub struct GroundStation {
     height_m: f64,
     /// The height the drone climbs to once armed, m (`None`: the test's world sets it).
     climb_to_m: Option<f64>,
+    /// The climb rate now, m/s.
+    climb_mps: f64,
     last_ns: Option<u64>,
     silent: bool,
     send_fixes: bool,
@@ -129,6 +137,7 @@ impl GroundStation {
             arm: Once::at(arm_at_ns),
             height_m: 0.0,
             climb_to_m: Some(hover_m),
+            climb_mps: 0.0,
             last_ns: None,
             silent: false,
             send_fixes: true,
@@ -161,6 +170,7 @@ impl GroundStation {
     pub fn set_height(&mut self, height_m: f64) {
         self.height_m = height_m;
         self.climb_to_m = None;
+        self.climb_mps = 0.0;
     }
 
     /// Stops (or resumes) sending anything: the ground link lost.
@@ -180,7 +190,12 @@ impl GroundStation {
             && self.arm.fired()
             && !arming
         {
-            self.height_m = (self.height_m + take_off_climb_mps() * dt_s).min(hover_m);
+            // Speed up to the climb rate, and slow in time to stop at the hover height.
+            let to_go = (hover_m - self.height_m).max(0.0);
+            let wanted = take_off_climb_mps().min((2.0 * TAKE_OFF_ACCEL_MPS2 * to_go).sqrt());
+            let step = TAKE_OFF_ACCEL_MPS2 * dt_s;
+            self.climb_mps += (wanted - self.climb_mps).clamp(-step, step);
+            self.height_m = (self.height_m + self.climb_mps * dt_s).min(hover_m);
         }
         if self.silent {
             return false;
@@ -239,7 +254,7 @@ mod tests {
     fn the_ground_station_sends_fixes_and_one_arm() {
         let line = Line::open();
         let mut ground = GroundStation::arming_at(40 * MS, 0.5);
-        let arms: usize = (0..1_500u64)
+        let arms: usize = (0..2_000u64)
             .map(|k| ground.step(k * MS + 7, &line))
             .filter(|&armed| armed)
             .count();
@@ -258,20 +273,32 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(heights.len(), 75, "50 a second");
+        assert_eq!(heights.len(), 100, "50 a second");
         assert_eq!(
             &heights[..3],
             &[0.0, 0.0, 0.0],
             "on the floor until the arm"
         );
-        // Then the take-off: 0.5 m/s, 1 cm per 20 ms fix, to the hover height.
-        let step = (take_off_climb_mps() * 0.02) as f32;
-        for (k, pair) in heights.windows(2).enumerate().skip(2) {
-            let climb = pair[1] - pair[0];
-            assert!(
-                (climb - step).abs() < 1e-4 || (pair[1] == 0.5 && climb <= step + 1e-4),
-                "fix {k}: {pair:?}"
-            );
+        // Then the take-off: never faster than the climb rate (1 cm per 20 ms fix), and never
+        // changing speed faster than the take-off acceleration, up to the hover height.
+        let period_s = HEIGHT_FIX_PERIOD_NS as f64 / 1e9;
+        let top = take_off_climb_mps() * period_s + 1e-6;
+        let climbs: Vec<f64> = heights
+            .windows(2)
+            .map(|pair| f64::from(pair[1] - pair[0]))
+            .collect();
+        assert!(
+            climbs.iter().all(|&c| (0.0..=top).contains(&c)),
+            "{climbs:?}"
+        );
+        assert!(
+            climbs.iter().any(|&c| c > top - 1e-4),
+            "the climb rate reached"
+        );
+        // (Half again for the last step onto the hover height, and the fixes' f32 rounding.)
+        let kick = 1.5 * TAKE_OFF_ACCEL_MPS2 * period_s * period_s + 1e-5;
+        for pair in climbs.windows(2) {
+            assert!((pair[1] - pair[0]).abs() <= kick, "{pair:?}: a jerk");
         }
         assert_eq!(*heights.last().unwrap(), 0.5, "holding at the hover height");
         let heartbeats = messages
