@@ -44,8 +44,8 @@ use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
 use crate::vertical::{VerticalConfig, VerticalEstimator};
 use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
-    ConfigResult, Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts,
-    Node, ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
+    Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts, Node,
+    ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
     StereoToAutopilot, Telemetry,
 };
 use timebase::WireTime;
@@ -542,26 +542,22 @@ impl Autopilot {
         self.storage
     }
 
-    /// Answers a host's parameter request for this board's table ([`params::TABLE`]) on a
-    /// build without parameter storage: `Save` and `Storage` are answered `NoStorage` (see
-    /// [`Autopilot::on_param_request_stored`]). A request for another board's table is refused
-    /// (`NoSuchBoard`; [`Autopilot::on_host_message`] passes the camera board's on).
-    pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
-        self.answer_param(req, None)
-    }
-
-    /// Answers a host's parameter request, saving to `store` on `Save`: refused while the
-    /// motors may run (`Armed`); otherwise the record of the configuration in use
+    /// Answers a host's parameter request for this board's table ([`params::TABLE`]). A
+    /// request for another board's table is refused (`NoSuchBoard`;
+    /// [`Autopilot::on_host_message`] passes the camera board's on).
+    ///
+    /// `store` is the board's parameter storage, `None` on a build without one, where `Save`
+    /// and `Storage` are answered `NoStorage`. With one, `Save` is refused while the motors may
+    /// run (`Armed`); otherwise the record of the configuration in use
     /// ([`params::encode_record`], with the link key when there is one) is written and read
-    /// back, and a failure of either is
-    /// `SaveFailed`. The write takes as long as the flash's erase (a second or two for a
-    /// 128 KiB sector), which is why it waits for the ground.
-    pub fn on_param_request_stored(
+    /// back, and a failure of either is `SaveFailed`. The write takes as long as the flash's
+    /// erase (a second or two for a 128 KiB sector), which is why it waits for the ground.
+    pub fn on_param_request(
         &mut self,
         req: &ParamRequest,
-        store: &mut impl RecordStore,
+        store: Option<&mut dyn RecordStore>,
     ) -> ParamResponse {
-        self.answer_param(req, Some(store))
+        self.answer_param(req, store)
     }
 
     pub(crate) fn answer_param(
@@ -689,11 +685,6 @@ impl Autopilot {
     /// The camera board's last status report.
     pub fn stereo_status(&self) -> Option<StereoStatus> {
         self.camera.status()
-    }
-
-    /// The camera board's answer to the last configuration request.
-    pub fn stereo_config_ack(&self) -> Option<ConfigResult> {
-        self.camera.config_ack()
     }
 
     /// Bytes from the camera-board UART, as they arrive (any chunking). Complete frames are

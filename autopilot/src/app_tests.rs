@@ -1129,7 +1129,7 @@ proptest! {
 }
 
 fn param_request(ap: &mut Autopilot, board: Node, op: ParamOp) -> ParamReply {
-    let resp = ap.on_param_request(&ParamRequest { board, op });
+    let resp = ap.on_param_request(&ParamRequest { board, op }, None);
     assert_eq!(resp.board, board);
     resp.reply
 }
@@ -1181,6 +1181,7 @@ fn parameters_set_on_the_ground_take_effect_and_are_refused_in_flight() {
                 op,
             }),
             0,
+            None,
         )
     };
     let shift = ParamOp::Set(
@@ -1228,7 +1229,7 @@ fn stored_request(ap: &mut Autopilot, store: &mut Sector, op: ParamOp) -> ParamR
         board: Node::Autopilot,
         op,
     };
-    ap.on_param_request_stored(&req, store).reply
+    ap.on_param_request(&req, Some(store)).reply
 }
 
 #[test]
@@ -1351,7 +1352,7 @@ fn a_failed_parameter_load_blocks_arming_until_acknowledged_or_saved() {
         op,
     };
     assert_eq!(
-        ap.on_param_request_stored(&req(ParamOp::Save), &mut slots)
+        ap.on_param_request(&req(ParamOp::Save), Some(&mut slots))
             .reply,
         ParamReply::Saved
     );
@@ -1375,7 +1376,7 @@ fn a_failed_parameter_load_blocks_arming_until_acknowledged_or_saved() {
         } else {
             ParamOp::Acknowledge
         };
-        let reply = r.ap.on_param_request_stored(&req(op), &mut store).reply;
+        let reply = r.ap.on_param_request(&req(op), Some(&mut store)).reply;
         assert!(
             matches!(reply, ParamReply::Saved | ParamReply::Storage(_)),
             "{reply:?}"

@@ -8,8 +8,8 @@
 //! [`CameraNews`] (an estimate, or the report that the camera stopped).
 
 use protocol::{
-    ConfigResult, Estimate, Heartbeat, LinkErrorCounts, ParamResponse, StereoStatus,
-    StereoToAutopilot, StereoToAutopilotDecoder,
+    Estimate, Heartbeat, LinkErrorCounts, ParamResponse, StereoStatus, StereoToAutopilot,
+    StereoToAutopilotDecoder,
 };
 
 /// What a camera-board message asks of the rest of the autopilot.
@@ -28,7 +28,6 @@ pub struct CameraLink {
     rx: StereoToAutopilotDecoder,
     heartbeat: Option<(u64, Heartbeat)>,
     status: Option<StereoStatus>,
-    config_ack: Option<ConfigResult>,
     param_reply: Option<ParamResponse>,
 }
 
@@ -45,7 +44,6 @@ impl CameraLink {
             rx: StereoToAutopilotDecoder::new_mid_stream(),
             heartbeat: None,
             status: None,
-            config_ack: None,
             param_reply: None,
         }
     }
@@ -68,7 +66,6 @@ impl CameraLink {
                     return Some(CameraNews::CameraStopped);
                 }
             }
-            StereoToAutopilot::ConfigAck(a) => self.config_ack = Some(a),
             StereoToAutopilot::Param(r) => self.param_reply = Some(r),
         }
         None
@@ -92,11 +89,6 @@ impl CameraLink {
     /// The board's last status report.
     pub fn status(&self) -> Option<StereoStatus> {
         self.status
-    }
-
-    /// The board's answer to the last configuration request.
-    pub fn config_ack(&self) -> Option<ConfigResult> {
-        self.config_ack
     }
 
     /// The board's latest answer to a parameter request, taken once.

@@ -36,23 +36,18 @@ pub enum HostOutcome {
 
 impl Autopilot {
     /// Handles one message from the host at board time `now_us`: a height / position fix, a
-    /// pilot command, a parameter request (answered; one for the camera board's table is
+    /// pilot command, a parameter request (answered by [`Autopilot::on_param_request`] with
+    /// `store`, the board's parameter storage or `None`; one for the camera board's table is
     /// passed on to it, except a set or save while the motors may run, which is refused here).
     /// A host heartbeat keeps the telemetry link alive ([`Autopilot::on_host_heartbeat`]);
     /// frame chunks are for the camera board and dropped here.
-    pub fn on_host_message(&mut self, msg: HostToBoard, now_us: u64) -> HostOutcome {
-        self.host_message(msg, now_us, None)
-    }
-
-    /// The same on a board with parameter storage: a parameter request is answered by
-    /// [`Autopilot::on_param_request_stored`], so a save writes `store`.
-    pub fn on_host_message_stored(
+    pub fn on_host_message(
         &mut self,
         msg: HostToBoard,
         now_us: u64,
-        store: &mut impl RecordStore,
+        store: Option<&mut dyn RecordStore>,
     ) -> HostOutcome {
-        self.host_message(msg, now_us, Some(store))
+        self.host_message(msg, now_us, store)
     }
 
     fn host_message(
@@ -157,7 +152,7 @@ mod tests {
     fn a_stream_of_position_fixes_reaches_the_height() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
         for _ in 0..crate::app::FIXES_TO_LEAD {
-            let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
+            let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000, None);
             assert_eq!(out, HostOutcome::Done);
         }
         assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
@@ -173,13 +168,13 @@ mod tests {
             min_timestamp: 0,
         });
         let before = ap.telemetry(1_000).height_m;
-        ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000);
+        ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000, None);
         assert_eq!(
             ap.telemetry(1_000).height_m,
             before,
             "an unsigned fix is ignored"
         );
-        ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 1_000);
+        ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 1_000, None);
         assert_eq!(
             ap.arm_refused(),
             0,
@@ -192,7 +187,7 @@ mod tests {
             let signed = signer
                 .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10 + k)
                 .unwrap();
-            ap.on_host_message(signed, 1_000);
+            ap.on_host_message(signed, 1_000, None);
         }
         assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
         assert_eq!(ap.telemetry(1_000).link_auth.accepted, u32::from(fixes));
@@ -214,31 +209,31 @@ mod tests {
         assert!(!ap.telemetry(0).link_auth.keyed);
         // A parameter set but not saved, then the key.
         let gain = ParamOp::Set("guid_kp".try_into().unwrap(), ParamValue::F32(0.3));
-        ap.on_host_message_stored(param(gain), 0, &mut flash);
+        ap.on_host_message(param(gain), 0, Some(&mut flash));
         assert_eq!(ap.config().guidance.kp, 0.3);
-        ap.on_host_message_stored(HostToBoard::SetKey(key), 0, &mut flash);
+        ap.on_host_message(HostToBoard::SetKey(key), 0, Some(&mut flash));
         assert!(ap.take_link_key_to_store().is_some());
         assert_eq!(ap.save_link_key(&mut flash), Ok(()));
         // The reboot loads the key, and the parameters as saved (the set was not).
         let (mut ap, _) = Autopilot::from_store(&flash);
         assert!(ap.telemetry(0).link_auth.keyed);
         assert_eq!(ap.config(), &AutopilotConfig::default());
-        ap.on_host_message_stored(HostToBoard::SetKey(LinkKey([9; 32])), 0, &mut flash);
+        ap.on_host_message(HostToBoard::SetKey(LinkKey([9; 32])), 0, Some(&mut flash));
         assert_eq!(ap.telemetry(0).link_auth.unsigned, 1, "the key is set");
         // A signed save keeps the key in the record it writes.
         let mut signer = Signer::new(key, 2);
         let save = signer.sign(&param(ParamOp::Save), 100).unwrap();
         let HostOutcome::Reply(BoardToHost::Param(r)) =
-            ap.on_host_message_stored(save, 0, &mut flash)
+            ap.on_host_message(save, 0, Some(&mut flash))
         else {
             panic!("a save is answered");
         };
         assert_eq!(r.reply, ParamReply::Saved);
         let (mut ap, _) = Autopilot::from_store(&flash);
         let arm = HostToBoard::Command(PilotCommand::Arm);
-        ap.on_host_message(arm.clone(), 0);
+        ap.on_host_message(arm.clone(), 0, None);
         assert_eq!(ap.telemetry(0).link_auth.unsigned, 1);
-        ap.on_host_message(signer.sign(&arm, 200).unwrap(), 0);
+        ap.on_host_message(signer.sign(&arm, 200).unwrap(), 0, None);
         assert_eq!(ap.telemetry(0).link_auth.accepted, 1);
     }
 
@@ -251,12 +246,14 @@ mod tests {
                 op: ParamOp::List(0),
             })
         };
-        let HostOutcome::Reply(BoardToHost::Param(r)) = ap.on_host_message(ask(Node::Autopilot), 0)
+        let HostOutcome::Reply(BoardToHost::Param(r)) =
+            ap.on_host_message(ask(Node::Autopilot), 0, None)
         else {
             panic!("a parameter request must be answered");
         };
         assert!(matches!(r.reply, ParamReply::Entry(_)));
-        let HostOutcome::Reply(BoardToHost::Param(r)) = ap.on_host_message(ask(Node::Host), 0)
+        let HostOutcome::Reply(BoardToHost::Param(r)) =
+            ap.on_host_message(ask(Node::Host), 0, None)
         else {
             panic!("a request for another board must be answered too");
         };
@@ -271,7 +268,7 @@ mod tests {
             op: ParamOp::List(3),
         };
         assert_eq!(
-            ap.on_host_message(HostToBoard::Param(req.clone()), 0),
+            ap.on_host_message(HostToBoard::Param(req.clone()), 0, None),
             HostOutcome::ToCamera(AutopilotToStereo::Param(req))
         );
         assert_eq!(ap.take_camera_param_reply(), None);
@@ -287,7 +284,7 @@ mod tests {
     #[test]
     fn an_arm_without_sensors_is_refused_and_counted() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
-        let out = ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 0);
+        let out = ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 0, None);
         assert_eq!(out, HostOutcome::Done);
         assert_eq!(ap.arm_refused(), 1);
     }
@@ -301,7 +298,7 @@ mod tests {
             accel_mps2: [0.0, 0.0, -9.81],
         };
         assert_eq!(
-            ap.on_host_message(HostToBoard::Imu(sample), 0),
+            ap.on_host_message(HostToBoard::Imu(sample), 0, None),
             HostOutcome::Imu(sample)
         );
     }
@@ -311,14 +308,14 @@ mod tests {
         let mut ap = Autopilot::new(AutopilotConfig::default());
         let before = ap.telemetry(0);
         let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, 0));
-        assert_eq!(ap.on_host_message(hb, 0), HostOutcome::Done);
+        assert_eq!(ap.on_host_message(hb, 0, None), HostOutcome::Done);
         let chunk = HostToBoard::FrameChunk(FrameChunk {
             frame_id: 0,
             capture_us: WireTime(0),
             offset: 0,
             data: heapless::Vec::new(),
         });
-        assert_eq!(ap.on_host_message(chunk, 0), HostOutcome::Done);
+        assert_eq!(ap.on_host_message(chunk, 0, None), HostOutcome::Done);
         assert_eq!(ap.telemetry(0), before);
     }
 }

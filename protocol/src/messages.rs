@@ -23,7 +23,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 10;
+pub const PROTOCOL_VERSION: u8 = 11;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -273,16 +273,6 @@ pub struct StereoStatus {
     pub camera_stopped: bool,
 }
 
-/// Result of a [`AutopilotToStereo::Config`] request.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum ConfigResult {
-    /// The configuration was valid and is in use from the next frame on.
-    Applied,
-    /// The configuration was rejected; the previous one stays in use.
-    Rejected(ConfigError),
-}
-
 /// Messages from the camera board to the autopilot.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -293,15 +283,13 @@ pub enum StereoToAutopilot {
     Estimate(Estimate),
     /// Periodic health report.
     Status(StereoStatus),
-    /// Answer to a configuration request.
-    ConfigAck(ConfigResult),
     /// The answer to a [`AutopilotToStereo::Param`] request (the autopilot passes it on to
     /// the host as [`BoardToHost::Param`]).
     Param(crate::ParamResponse),
 }
 
 impl Message for StereoToAutopilot {
-    const VARIANT_COUNT: u32 = 5;
+    const VARIANT_COUNT: u32 = 4;
     const MAX_FRAME_BYTES: usize = 128;
 }
 
@@ -386,15 +374,13 @@ pub enum AutopilotToStereo {
     Heartbeat(Heartbeat),
     /// Latest gyro and attitude, for derotation.
     GyroAttitude(GyroAttitude),
-    /// Change Edge-FS parameters (answered with [`StereoToAutopilot::ConfigAck`]).
-    Config(EdgeFsConfig),
     /// A host's request for the camera board's parameter table, passed on by the autopilot
     /// (answered with [`StereoToAutopilot::Param`]).
     Param(crate::ParamRequest),
 }
 
 impl Message for AutopilotToStereo {
-    const VARIANT_COUNT: u32 = 4;
+    const VARIANT_COUNT: u32 = 3;
     const MAX_FRAME_BYTES: usize = 64;
 }
 

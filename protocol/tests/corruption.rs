@@ -71,7 +71,6 @@ fn random_stereo_to_autopilot(rng: &mut ChaCha8Rng) -> StereoToAutopilot {
             },
             camera_stopped: rng.random(),
         }),
-        2 => StereoToAutopilot::ConfigAck(ConfigResult::Rejected(ConfigError::SearchRange)),
         _ => StereoToAutopilot::Estimate(random_estimate(rng)),
     }
 }
@@ -272,7 +271,7 @@ fn truncated_oversized_and_empty_frames_are_rejected_and_counted() {
     )
     .unwrap();
     decoder.feed(&wire[..foreign], |_| {
-        panic!("tag 4 is unknown to AutopilotToStereo")
+        panic!("tag 3 is unknown to AutopilotToStereo")
     });
     assert_eq!(decoder.errors().unknown_message, 1);
 }
@@ -320,4 +319,76 @@ fn a_decoder_joining_mid_stream_drops_the_partial_first_frame_uncounted() {
     decoder.feed(frame, |m| out.push(m));
     assert_eq!(decoder.errors().total(), 0);
     assert_eq!(out, vec![msg]);
+}
+
+/// The tag postcard gives `msg`: its variant's index, one byte below 128.
+fn encoded_tag(msg: &impl serde::Serialize) -> u32 {
+    let mut raw = [0u8; 600];
+    u32::from(postcard::to_slice(msg, &mut raw).expect("encodes")[0])
+}
+
+/// A decoder refuses as unknown exactly the tags past its type's variants, so each type's
+/// `VARIANT_COUNT` is one past its last variant's tag. The matches are exhaustive: a variant
+/// added or removed does not compile here until its tag and the count are looked at.
+#[test]
+fn every_variant_count_matches_its_type() {
+    let answer = ParamResponse {
+        board: Node::Autopilot,
+        reply: ParamReply::Saved,
+    };
+    let request = ParamRequest {
+        board: Node::Autopilot,
+        op: ParamOp::Save,
+    };
+    let s2a = |m: &StereoToAutopilot| match m {
+        StereoToAutopilot::Heartbeat(_) => 0,
+        StereoToAutopilot::Estimate(_) => 1,
+        StereoToAutopilot::Status(_) => 2,
+        StereoToAutopilot::Param(_) => 3,
+    };
+    let last = StereoToAutopilot::Param(answer.clone());
+    assert_eq!(
+        (encoded_tag(&last), StereoToAutopilot::VARIANT_COUNT),
+        (s2a(&last), s2a(&last) + 1)
+    );
+
+    let a2s = |m: &AutopilotToStereo| match m {
+        AutopilotToStereo::Heartbeat(_) => 0,
+        AutopilotToStereo::GyroAttitude(_) => 1,
+        AutopilotToStereo::Param(_) => 2,
+    };
+    let last = AutopilotToStereo::Param(request);
+    assert_eq!(
+        (encoded_tag(&last), AutopilotToStereo::VARIANT_COUNT),
+        (a2s(&last), a2s(&last) + 1)
+    );
+
+    let h2b = |m: &HostToBoard| match m {
+        HostToBoard::Heartbeat(_) => 0,
+        HostToBoard::FrameChunk(_) => 1,
+        HostToBoard::Imu(_) => 2,
+        HostToBoard::ExternalPosition(_) => 3,
+        HostToBoard::Command(_) => 4,
+        HostToBoard::Param(_) => 5,
+        HostToBoard::Signed(_) => 6,
+        HostToBoard::SetKey(_) => 7,
+    };
+    let last = HostToBoard::SetKey(signing::LinkKey([1; 32]));
+    assert_eq!(
+        (encoded_tag(&last), HostToBoard::VARIANT_COUNT),
+        (h2b(&last), h2b(&last) + 1)
+    );
+
+    let b2h = |m: &BoardToHost| match m {
+        BoardToHost::Heartbeat(_) => 0,
+        BoardToHost::Motors(_) => 1,
+        BoardToHost::Telemetry(_) => 2,
+        BoardToHost::Estimate(_) => 3,
+        BoardToHost::Param(_) => 4,
+    };
+    let last = BoardToHost::Param(answer);
+    assert_eq!(
+        (encoded_tag(&last), BoardToHost::VARIANT_COUNT),
+        (b2h(&last), b2h(&last) + 1)
+    );
 }

@@ -168,14 +168,6 @@ fn capture_counts() -> impl Strategy<Value = CaptureCounts> {
         frames_overwritten: c[6],
     })
 }
-fn config_error() -> impl Strategy<Value = ConfigError> {
-    prop_oneof![
-        Just(ConfigError::HalfWindow),
-        Just(ConfigError::SearchRange),
-        Just(ConfigError::MaxHorizon),
-        Just(ConfigError::StereoShift),
-    ]
-}
 fn stereo_to_autopilot() -> impl Strategy<Value = StereoToAutopilot> {
     prop_oneof![
         heartbeat().prop_map(StereoToAutopilot::Heartbeat),
@@ -213,21 +205,8 @@ fn stereo_to_autopilot() -> impl Strategy<Value = StereoToAutopilot> {
                     })
                 }
             ),
-        prop_oneof![
-            Just(ConfigResult::Applied),
-            config_error().prop_map(ConfigResult::Rejected)
-        ]
-        .prop_map(StereoToAutopilot::ConfigAck),
         param_response().prop_map(StereoToAutopilot::Param),
     ]
-}
-fn edge_fs_config() -> impl Strategy<Value = EdgeFsConfig> {
-    (any::<u8>(), any::<u8>(), any::<u8>(), any::<i8>()).prop_map(|(w, d, h, s)| EdgeFsConfig {
-        half_window: w,
-        search_range: d,
-        max_horizon: h,
-        stereo_shift: s,
-    })
 }
 fn autopilot_to_stereo() -> impl Strategy<Value = AutopilotToStereo> {
     prop_oneof![
@@ -239,7 +218,6 @@ fn autopilot_to_stereo() -> impl Strategy<Value = AutopilotToStereo> {
                 attitude_rad,
             })
         }),
-        edge_fs_config().prop_map(AutopilotToStereo::Config),
         param_request().prop_map(AutopilotToStereo::Param),
     ]
 }

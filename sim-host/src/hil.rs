@@ -1322,7 +1322,7 @@ mod tests {
             dec.feed(&buf[..n], |m| msgs.push(m));
             for m in msgs {
                 let now = clock.now_us();
-                match ap.on_host_message(m, now) {
+                match ap.on_host_message(m, now, None) {
                     HostOutcome::Imu(imu) => {
                         let now = clock.observe(imu.timestamp_us);
                         ap.on_stereo_bytes(&take(&from_camera), now);
@@ -1393,9 +1393,12 @@ mod tests {
                 Err(e) if is_transient_read_error(&e) => {
                     if !first_frame_seen {
                         let mut w = to_autopilot.lock().unwrap();
-                        cb.on_rx_bytes(&take(&from_autopilot), world, &mut |b| {
-                            w.extend_from_slice(b)
-                        });
+                        cb.on_rx_bytes(
+                            &take(&from_autopilot),
+                            world,
+                            &mut |b| w.extend_from_slice(b),
+                            None,
+                        );
                     }
                     continue;
                 }
@@ -1407,9 +1410,12 @@ mod tests {
                 first_frame_seen = true;
                 world = world.max(capture);
                 let mut w = to_autopilot.lock().unwrap();
-                cb.on_rx_bytes(&take(&from_autopilot), world, &mut |b| {
-                    w.extend_from_slice(b)
-                });
+                cb.on_rx_bytes(
+                    &take(&from_autopilot),
+                    world,
+                    &mut |b| w.extend_from_slice(b),
+                    None,
+                );
                 let out = cb.process_frame(frames.frame(), capture, world);
                 let est = cb.send_estimate(&out, capture, world, &mut |b| w.extend_from_slice(b));
                 drop(w);

@@ -89,7 +89,7 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
             let mut ap = boards.ap.lock().unwrap();
             let telemetry = BoardToHost::Telemetry(ap.telemetry(0));
             let mut ap_flash = boards.ap_flash.lock().unwrap();
-            let answer = match ap.on_host_message_stored(m, 0, &mut *ap_flash) {
+            let answer = match ap.on_host_message(m, 0, Some(&mut *ap_flash)) {
                 HostOutcome::Reply(answer) => Some(answer),
                 // The camera board's request goes over the link as encoded bytes, and its
                 // answer comes back the same way, as on the boards.
@@ -98,11 +98,11 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
                     let mut back = Vec::new();
                     let now = timebase::Instant::ZERO;
                     let mut camera_flash = boards.camera_flash.lock().unwrap();
-                    boards.camera.lock().unwrap().on_rx_bytes_stored(
+                    boards.camera.lock().unwrap().on_rx_bytes(
                         &frame,
                         now,
                         &mut |b| back.extend_from_slice(b),
-                        &mut *camera_flash,
+                        Some(&mut *camera_flash),
                     );
                     ap.on_stereo_bytes(&back, 0);
                     ap.take_camera_param_reply().map(BoardToHost::Param)

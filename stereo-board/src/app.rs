@@ -18,8 +18,8 @@
 use crate::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
 use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
-    encode, AutopilotToStereo, BoardToHost, CaptureCounts, ConfigResult, Decoder, Estimate,
-    FrameChunk, GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamRequest,
+    encode, AutopilotToStereo, BoardToHost, CaptureCounts, Decoder, Estimate, FrameChunk,
+    GyroAttitude, Heartbeat, HostToBoard, LinkErrorCounts, Message, Node, ParamRequest,
     ParamResponse, StereoStatus, StereoToAutopilot, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
@@ -242,10 +242,6 @@ pub struct Counters {
     pub frames_dropped: u32,
     /// Gyro samples ignored because a value was NaN or infinite.
     pub gyro_rejected: u32,
-    /// Configuration requests rejected.
-    pub config_rejected: u32,
-    /// Configuration requests applied.
-    pub config_applied: u32,
 }
 
 /// The whole camera-board state: Edge-FS, link decoders, latest gyro sample, counters.
@@ -287,8 +283,6 @@ impl StereoBoardApp {
                 frames_processed: 0,
                 frames_dropped: 0,
                 gyro_rejected: 0,
-                config_rejected: 0,
-                config_applied: 0,
             },
             last_status: Instant::ZERO,
             last_status_frames: 0,
@@ -310,7 +304,7 @@ impl StereoBoardApp {
     /// Boot with parameter storage: the Edge-FS parameters saved in `store`
     /// ([`crate::params::CAMERA`]'s record) when the record is good, otherwise the defaults;
     /// why is kept for [`protocol::ParamOp::Storage`] and returned (`Err`: the defaults are in
-    /// use). Saves then go to the store given to [`StereoBoardApp::on_rx_bytes_stored`].
+    /// use). Saves then go to the store given to [`StereoBoardApp::on_rx_bytes`].
     pub fn load_params(&mut self, store: &dyn RecordStore) -> Result<(), RecordError> {
         let (params, status) = crate::params::CAMERA.load(store);
         self.set_params(params);
@@ -459,25 +453,17 @@ impl StereoBoardApp {
     }
 
     /// `uart_rx` task: bytes from the autopilot, as they arrive. Gyro/attitude samples are kept
-    /// for derotation (non-finite ones are rejected and counted); a `Config` is validated,
-    /// applied from the next frame on (clearing the flow history) and answered with a
-    /// `ConfigAck` through `tx`; a parameter request is answered through `tx`
-    /// ([`StereoBoardApp::on_param_request`]: no storage); heartbeats record the peer's
-    /// uptime.
-    pub fn on_rx_bytes(&mut self, bytes: &[u8], now: Instant, tx: &mut impl FnMut(&[u8])) {
-        self.rx_bytes(bytes, now, tx, None);
-    }
-
-    /// The same on a board with parameter storage: a parameter request is answered by
-    /// [`StereoBoardApp::on_param_request_stored`], so a save writes `store`.
-    pub fn on_rx_bytes_stored(
+    /// for derotation (non-finite ones are rejected and counted); a parameter request is
+    /// answered through `tx` ([`StereoBoardApp::on_param_request`], saving to `store` on a
+    /// board with parameter storage); heartbeats record the peer's uptime.
+    pub fn on_rx_bytes(
         &mut self,
         bytes: &[u8],
         now: Instant,
         tx: &mut impl FnMut(&[u8]),
-        store: &mut impl RecordStore,
+        store: Option<&mut dyn RecordStore>,
     ) {
-        self.rx_bytes(bytes, now, tx, Some(store));
+        self.rx_bytes(bytes, now, tx, store);
     }
 
     fn rx_bytes(
@@ -515,23 +501,6 @@ impl StereoBoardApp {
                     self.counters.gyro_rejected = self.counters.gyro_rejected.saturating_add(1);
                 }
             }
-            AutopilotToStereo::Config(cfg) => {
-                let mut params = self.params;
-                let result = match params.apply(&cfg) {
-                    Ok(()) => {
-                        self.set_params(params);
-                        self.counters.config_applied =
-                            self.counters.config_applied.saturating_add(1);
-                        ConfigResult::Applied
-                    }
-                    Err(e) => {
-                        self.counters.config_rejected =
-                            self.counters.config_rejected.saturating_add(1);
-                        ConfigResult::Rejected(e)
-                    }
-                };
-                send_to_autopilot(&StereoToAutopilot::ConfigAck(result), tx);
-            }
             AutopilotToStereo::Param(req) => {
                 let answer = self.answer_param(&req, store);
                 send_to_autopilot(&StereoToAutopilot::Param(answer), tx);
@@ -540,25 +509,21 @@ impl StereoBoardApp {
     }
 
     /// Answers a parameter request for this board's table ([`crate::params::TABLE`]), passed
-    /// on by the autopilot from the host, on a board without parameter storage: a set takes
-    /// effect from the next frame on and clears the flow history; `Save` and `Storage` are
-    /// answered `NoStorage` (see [`StereoBoardApp::on_param_request_stored`]). A request for
-    /// another board's table is refused (`NoSuchBoard`).
-    pub fn on_param_request(&mut self, req: &ParamRequest) -> ParamResponse {
-        self.answer_param(req, None)
-    }
-
-    /// Answers a parameter request, saving to `store` on `Save`: the record of the parameters
-    /// in use is written and read back, and a failure of either is `SaveFailed`. The write
-    /// holds the board for the flash's erase (a second or two for a 128 KiB sector: no frame
-    /// is processed meanwhile); the autopilot passes a save on only while its motors are off.
+    /// on by the autopilot from the host. A set takes effect from the next frame on and clears
+    /// the flow history. A request for another board's table is refused (`NoSuchBoard`).
+    ///
+    /// `store` is the board's parameter storage, `None` on a board without one, where `Save`
+    /// and `Storage` are answered `NoStorage`. With one, `Save` writes the record of the
+    /// parameters in use and reads it back, and a failure of either is `SaveFailed`. The write
+    /// holds the board for the flash's erase (a second or two for a 128 KiB sector: no frame is
+    /// processed meanwhile); the autopilot passes a save on only while its motors are off.
     /// `Storage` is answered once [`StereoBoardApp::load_params`] ran.
-    pub fn on_param_request_stored(
+    pub fn on_param_request(
         &mut self,
         req: &ParamRequest,
-        store: &mut impl RecordStore,
+        store: Option<&mut dyn RecordStore>,
     ) -> ParamResponse {
-        self.answer_param(req, Some(store))
+        self.answer_param(req, store)
     }
 
     fn answer_param(

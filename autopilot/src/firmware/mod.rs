@@ -179,6 +179,7 @@ mod app {
     use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
     use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
+    use protocol::params::RecordStore;
     use protocol::{
         AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
         Message as _, Node, ParamOp, ParamReply,
@@ -681,10 +682,8 @@ mod app {
                     }
                     let started_us = clock::now_us();
                     let (outcome, new_key) = cx.shared.ap.lock(|ap| {
-                        let outcome = match sector {
-                            Some(sector) => ap.on_host_message_stored(msg, now, sector),
-                            None => ap.on_host_message(msg, now),
-                        };
+                        let store = sector.map(|s| s as &mut dyn RecordStore);
+                        let outcome = ap.on_host_message(msg, now, store);
                         (outcome, ap.take_link_key_to_store().is_some())
                     });
                     if new_key {

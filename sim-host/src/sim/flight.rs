@@ -465,7 +465,7 @@ pub fn run_flight_observed(
         // The simulated camera board's clock is the world's.
         let cb_now = WorldTime::from_micros(t).as_flight_clock();
         if !rxbuf.is_empty() {
-            cb.on_rx_bytes(&rxbuf, cb_now, &mut |b: &[u8]| s2a.write(t, b));
+            cb.on_rx_bytes(&rxbuf, cb_now, &mut |b: &[u8]| s2a.write(t, b), None);
         }
 
         // Camera board output leaves after the processing delay.
@@ -519,14 +519,14 @@ pub fn run_flight_observed(
             next_host_heartbeat += u64::from(autopilot::app::HEARTBEAT_PERIOD_US);
             if host_link {
                 let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
-                ap.on_host_message(HostToBoard::Heartbeat(hb), t);
+                ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);
             }
         }
         if t >= next_height {
             next_height += height_period_us;
             let fix = world.height_fix(t);
             if host_link {
-                ap.on_host_message(HostToBoard::ExternalPosition(fix), t);
+                ap.on_host_message(HostToBoard::ExternalPosition(fix), t, None);
             }
         }
         // The barometer on the autopilot's SPI bus.
@@ -548,7 +548,7 @@ pub fn run_flight_observed(
         }
         if !armed && t >= arm_us {
             armed = true;
-            ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t);
+            ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t, None);
         }
         // Periodic tasks of both boards.
         releases.clear();

@@ -5,8 +5,8 @@ extern crate std;
 use super::*;
 use protocol::params::MemStore;
 use protocol::{
-    AutopilotToStereoDecoder, ConfigError, EdgeFsConfig, EstimateFlags, ParamError, ParamName,
-    ParamOp, ParamReply, ParamValue, StereoToAutopilotDecoder,
+    AutopilotToStereoDecoder, EstimateFlags, ParamError, ParamName, ParamOp, ParamReply,
+    ParamValue, StereoToAutopilotDecoder,
 };
 use std::{boxed::Box, vec, vec::Vec};
 
@@ -148,6 +148,7 @@ fn gyro_from_the_link_is_used_for_derotation_until_stale() {
         &enc(&AutopilotToStereo::GyroAttitude(g)),
         at(1_000),
         &mut |_| panic!("a gyro sample is not answered"),
+        None,
     );
     assert_eq!(
         board.current_gyro(at(1_000 + GYRO_TIMEOUT.as_micros())),
@@ -186,6 +187,7 @@ fn non_finite_gyro_is_rejected_and_counted() {
         &enc(&AutopilotToStereo::GyroAttitude(g)),
         at(10),
         &mut |_| {},
+        None,
     );
     g.rates_radps[1] = 0.0;
     g.attitude_rad[0] = f32::INFINITY;
@@ -193,6 +195,7 @@ fn non_finite_gyro_is_rejected_and_counted() {
         &enc(&AutopilotToStereo::GyroAttitude(g)),
         at(10),
         &mut |_| {},
+        None,
     );
     assert_eq!(board.current_gyro(at(10)), None);
     assert_eq!(board.counters().gyro_rejected, 2);
@@ -202,7 +205,7 @@ fn non_finite_gyro_is_rejected_and_counted() {
 fn ask(board: &mut StereoBoardApp, node: Node, op: ParamOp) -> ParamReply {
     let mut wire = Vec::new();
     let req = AutopilotToStereo::Param(ParamRequest { board: node, op });
-    board.on_rx_bytes(&enc(&req), at(0), &mut |b| wire.extend_from_slice(b));
+    board.on_rx_bytes(&enc(&req), at(0), &mut |b| wire.extend_from_slice(b), None);
     let (msgs, errors) = decode_out(&wire);
     assert_eq!(errors.total(), 0);
     match msgs.as_slice() {
@@ -286,7 +289,12 @@ fn ask_stored(board: &mut StereoBoardApp, store: &mut MemStore<512>, op: ParamOp
         board: Node::StereoBoard,
         op,
     });
-    board.on_rx_bytes_stored(&enc(&req), at(0), &mut |b| wire.extend_from_slice(b), store);
+    board.on_rx_bytes(
+        &enc(&req),
+        at(0),
+        &mut |b| wire.extend_from_slice(b),
+        Some(store),
+    );
     match decode_out(&wire).0.as_slice() {
         [StereoToAutopilot::Param(r)] => r.reply.clone(),
         other => panic!("one parameter answer expected, got {other:?}"),
@@ -369,47 +377,6 @@ fn parameters_saved_over_the_link_load_at_the_next_boot() {
 }
 
 #[test]
-fn config_is_validated_applied_and_acknowledged() {
-    let mut board = app();
-    let good = EdgeFsConfig {
-        half_window: 5,
-        search_range: 10,
-        max_horizon: 3,
-        stereo_shift: -2,
-    };
-    let mut wire = Vec::new();
-    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(good)), at(0), &mut |b| {
-        wire.extend_from_slice(b)
-    });
-    assert_eq!(board.params().to_config(), good);
-    assert_eq!(board.edge_fs().params().to_config(), good);
-
-    let bad = EdgeFsConfig {
-        half_window: 0,
-        ..good
-    };
-    board.on_rx_bytes(&enc(&AutopilotToStereo::Config(bad)), at(0), &mut |b| {
-        wire.extend_from_slice(b)
-    });
-    assert_eq!(
-        board.params().to_config(),
-        good,
-        "rejected config changes nothing"
-    );
-    let (msgs, errors) = decode_out(&wire);
-    assert_eq!(errors.total(), 0);
-    assert_eq!(
-        msgs,
-        vec![
-            StereoToAutopilot::ConfigAck(ConfigResult::Applied),
-            StereoToAutopilot::ConfigAck(ConfigResult::Rejected(ConfigError::HalfWindow)),
-        ]
-    );
-    assert_eq!(board.counters().config_applied, 1);
-    assert_eq!(board.counters().config_rejected, 1);
-}
-
-#[test]
 fn link_errors_are_counted_and_the_next_frame_still_decodes() {
     let mut board = app();
     let mut bytes = vec![0x13, 0x77, 0x42, 0x00, 0xff, 0x01, 0x00];
@@ -423,7 +390,7 @@ fn link_errors_are_counted_and_the_next_frame_still_decodes() {
         Node::Autopilot,
         1234,
     ))));
-    board.on_rx_bytes(&bytes, at(0), &mut |_| {});
+    board.on_rx_bytes(&bytes, at(0), &mut |_| {}, None);
     // Three bad frames; the first is taken for the tail of a frame sent before the board
     // listened (the link joins mid-stream) and is not counted.
     assert_eq!(board.link_errors().total(), 2, "{:?}", board.link_errors());
@@ -441,7 +408,7 @@ fn status_tick_reports_rate_counters_and_heartbeat() {
     }
     board.frame_dropped();
     // The leading delimiter aligns the link (joined mid-stream); the garbage after it counts.
-    board.on_rx_bytes(&[0, 1, 2, 3, 0], at(0), &mut |_| {});
+    board.on_rx_bytes(&[0, 1, 2, 3, 0], at(0), &mut |_| {}, None);
     let mut wire = Vec::new();
     let status = board.status_tick(at(1_000_000), &mut |b| wire.extend_from_slice(b));
     assert!(
@@ -531,19 +498,17 @@ fn a_frame_overwritten_during_processing_sends_nothing_and_clears_the_history() 
 }
 
 #[test]
-fn config_search_range_bounds_the_default_modes_disparity_search() {
+fn stereo_range_set_over_the_link_bounds_the_default_modes_disparity_search() {
     // A scene at 12 px disparity: found with the default range (15), out of reach at 8.
-    let run = |cfg: Option<EdgeFsConfig>| {
+    let run = |range: Option<u32>| {
         let mut board = app();
-        if let Some(cfg) = cfg {
-            let mut ack = Vec::new();
-            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), at(0), &mut |b| {
-                ack.extend_from_slice(b)
-            });
-            assert_eq!(
-                decode_out(&ack).0,
-                vec![StereoToAutopilot::ConfigAck(ConfigResult::Applied)]
-            );
+        if let Some(range) = range {
+            let name = ParamName::try_from("stereo_range").unwrap();
+            let set = ParamOp::Set(name, ParamValue::U32(range));
+            let ParamReply::Entry(e) = ask(&mut board, Node::StereoBoard, set) else {
+                panic!("set stereo_range");
+            };
+            assert_eq!(e.value, ParamValue::U32(range));
         }
         let f = frame(0, 12);
         board.on_frame(&f, at(0), at(0), &mut |_| {});
@@ -553,15 +518,8 @@ fn config_search_range_bounds_the_default_modes_disparity_search() {
     };
     let (range, wide) = run(None);
     assert_eq!(range, 15);
-    let narrow_cfg = EdgeFsConfig {
-        search_range: 8,
-        ..app().params().to_config()
-    };
-    let (range, narrow) = run(Some(narrow_cfg));
-    assert_eq!(
-        range, 8,
-        "search_range reaches the default mode's stereo range"
-    );
+    let (range, narrow) = run(Some(8));
+    assert_eq!(range, 8, "the set reaches the default mode's stereo range");
     assert!(
         wide > 11.0,
         "default range finds the 12 px disparity: {wide}"
@@ -703,7 +661,7 @@ mod prop {
             let mut board = app();
             let mut asm = Box::new(FrameAssembler::new());
             let mut out = Vec::new();
-            board.on_rx_bytes(&bytes, at(now), &mut |b| out.extend_from_slice(b));
+            board.on_rx_bytes(&bytes, at(now), &mut |b| out.extend_from_slice(b), None);
             board.on_host_bytes(&bytes, &mut asm, |_, _| {});
             board.status_tick(at(now), &mut |b| out.extend_from_slice(b));
             let (_, errors) = decode_out(&out);
@@ -719,24 +677,6 @@ mod prop {
                 data: heapless::Vec::from_slice(&vec![7u8; len]).unwrap(),
             };
             prop_assert_eq!(asm.push(&chunk), None);
-        }
-
-        #[test]
-        fn any_config_request_is_answered(hw in any::<u8>(), sr in any::<u8>(), h in any::<u8>(),
-                                          shift in any::<i8>()) {
-            let mut board = app();
-            let cfg = EdgeFsConfig { half_window: hw, search_range: sr, max_horizon: h,
-                                     stereo_shift: shift };
-            let before = board.params().to_config();
-            let mut out = Vec::new();
-            board.on_rx_bytes(&enc(&AutopilotToStereo::Config(cfg)), at(0),
-                              &mut |b| out.extend_from_slice(b));
-            let (msgs, _) = decode_out(&out);
-            prop_assert_eq!(msgs.len(), 1);
-            match cfg.validate() {
-                Ok(()) => prop_assert_eq!(board.params().to_config(), cfg),
-                Err(_) => prop_assert_eq!(board.params().to_config(), before),
-            }
         }
     }
 }

@@ -7,7 +7,7 @@
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
 //! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]) |
-//! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes_stored`] (`on_rx_bytes` in QEMU) |
+//! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] (with the parameter sector on the real board) |
 //! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu) or IDLE (hil: received by DMA, [`board_support::uart_dma`]), TXE | [`StereoBoardApp::on_host_bytes`]; queued frames out |
 //! | `host_dma` | 4 | DMA1 stream 5 (hil) | half/full buffer: pends `host_irq` |
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
@@ -558,10 +558,10 @@ mod app {
                                 watchdog,
                                 timeout_ms: board::WATCHDOG_MS,
                             };
-                            board.on_rx_bytes_stored(bytes, now, &mut tx, &mut store);
+                            board.on_rx_bytes(bytes, now, &mut tx, Some(&mut store));
                             super::log_save(before, board.storage(), sector.last_error());
                         }
-                        None => board.on_rx_bytes(bytes, now, &mut tx),
+                        None => board.on_rx_bytes(bytes, now, &mut tx, None),
                     }
                     // Lockstep flavours: the autopilot's gyro timestamps are world time.
                     #[cfg(any(feature = "qemu", feature = "hil"))]
