@@ -1,26 +1,62 @@
 //! The RTIC apps (every flavour of both firmwares) mirror their boards' task tables: every
 //! task of `stereo_board::app::TASKS` and `autopilot::app::TASKS` exists in the firmware source
-//! with the same priority, and the byte-moving interrupt handlers preempt all of them.
+//! with the same priority, and the byte-moving interrupt handlers (those bound to a UART, a DMA
+//! stream or the DCMI) preempt all of them.
 
-/// `(name, priority)` of every `#[task(...)]` in a firmware source.
-fn rtic_tasks(src: &str) -> Vec<(String, u8)> {
+/// One `#[task(...)]` of a firmware source.
+#[derive(Debug)]
+struct RticTask {
+    name: String,
+    priority: u8,
+    /// The interrupt a hardware task is bound to (`binds = ...`), `None` for a software task.
+    binds: Option<String>,
+}
+
+impl RticTask {
+    /// Whether the task moves bytes between a peripheral and memory: bound to a (U)SART, a DMA
+    /// stream or the camera interface.
+    fn moves_bytes(&self) -> bool {
+        self.binds.as_deref().is_some_and(|irq| {
+            ["USART", "UART", "DMA", "DCMI"]
+                .iter()
+                .any(|kind| irq.starts_with(kind))
+        })
+    }
+}
+
+/// Every `#[task(...)]` in a firmware source.
+fn rtic_tasks(src: &str) -> Vec<RticTask> {
     let mut out = Vec::new();
     let mut rest = src;
     while let Some(at) = rest.find("#[task(") {
         rest = &rest[at + 7..];
         let Some(end) = rest.find(")]") else { break };
-        let priority = rest[..end]
-            .split(',')
-            .find_map(|kv| kv.trim().strip_prefix("priority")?.trim().strip_prefix('='))
-            .and_then(|v| v.trim().parse().ok())
+        let value_of = |key: &str| {
+            rest[..end].split(',').find_map(|kv| {
+                Some(
+                    kv.trim()
+                        .strip_prefix(key)?
+                        .trim()
+                        .strip_prefix('=')?
+                        .trim(),
+                )
+            })
+        };
+        let priority = value_of("priority")
+            .and_then(|v| v.parse().ok())
             .unwrap_or(1);
+        let binds = value_of("binds").map(str::to_owned);
         let after = &rest[end..];
         let Some(f) = after.find("fn ") else { break };
         let name = after[f + 3..]
             .chars()
             .take_while(|c| c.is_alphanumeric() || *c == '_')
             .collect();
-        out.push((name, priority));
+        out.push(RticTask {
+            name,
+            priority,
+            binds,
+        });
     }
     out
 }
@@ -28,7 +64,7 @@ fn rtic_tasks(src: &str) -> Vec<(String, u8)> {
 fn check(board: &str, src: &str, table: &[(&str, u8)]) {
     let tasks = rtic_tasks(src);
     for (name, priority) in table {
-        let found = tasks.iter().find(|(n, _)| n == name).map(|(_, p)| *p);
+        let found = tasks.iter().find(|t| t.name == *name).map(|t| t.priority);
         assert_eq!(
             found,
             Some(*priority),
@@ -36,10 +72,19 @@ fn check(board: &str, src: &str, table: &[(&str, u8)]) {
         );
     }
     let top = table.iter().map(|t| t.1).max().unwrap_or(0);
-    for (name, p) in &tasks {
-        if name.starts_with("usart") || name.starts_with("dcmi") || name == "imu_timer" {
-            assert!(*p > top, "{board}: {name} must preempt the task table");
-        }
+    let movers: Vec<&RticTask> = tasks.iter().filter(|t| t.moves_bytes()).collect();
+    assert!(
+        movers.len() >= 3,
+        "{board}: byte-moving handlers found: {movers:?} (every board has two UARTs and a DMA)"
+    );
+    for task in movers {
+        assert!(
+            task.priority > top,
+            "{board}: {} (bound to {:?}, priority {}) must preempt the task table (up to {top})",
+            task.name,
+            task.binds,
+            task.priority
+        );
     }
 }
 
