@@ -274,8 +274,8 @@ pub const BATTERY_ADC: BatteryAdc = BatteryAdc {
 
 /// Crystal, Hz (\[PZ\] lisa_mx_common.h:29-30).
 pub const HSE_HZ: u32 = 12_000_000;
-/// Core clock, Hz (PLL from the HSE; \[PZ\] lisa_mx_common.h:29-30).
-pub const SYSCLK_HZ: u32 = 168_000_000;
+// Core clock, Hz: the PLL from the HSE (\[PZ\] lisa_mx_common.h:29-30), as on the camera board.
+pub use board_support::chip::SYSCLK_HZ;
 /// APB1 timer clock (TIM2, TIM3, TIM5), Hz: APB1 at SYSCLK / 4 = 42 MHz, timers at twice that.
 pub const APB1_TIMER_HZ: u32 = 84_000_000;
 

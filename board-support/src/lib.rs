@@ -27,6 +27,7 @@
 
 #[cfg(not(target_os = "none"))]
 pub mod build;
+pub mod chip;
 pub mod clock;
 #[cfg(target_os = "none")]
 pub mod clocks;

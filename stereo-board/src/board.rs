@@ -315,8 +315,8 @@ pub const HIL_PINS: [PinAssignment; 6] = [CAMERA_RESET, LINK_TX, LINK_RX, HOST_T
 pub const MCU: &str = "STM32F407VGTx";
 /// Crystal, Hz.
 pub const HSE_HZ: u32 = 12_000_000;
-/// Core clock, Hz (HSE / M=12 x N=336 / P=2).
-pub const SYSCLK_HZ: u32 = 168_000_000;
+// Core clock, Hz: HSE / M=12 x N=336 / P=2, as on the autopilot.
+pub use board_support::chip::SYSCLK_HZ;
 /// APB1 bus clock, Hz (core / 4).
 pub const APB1_HZ: u32 = SYSCLK_HZ / 4;
 /// Clock of the timers on APB1 (TIM3), Hz: twice the bus clock because APB1 is divided.
