@@ -1124,6 +1124,13 @@ impl Autopilot {
         }
     }
 
+    /// The `heartbeat` task's message at board time `now_us`, to both links (the camera board
+    /// and the host): this node, the protocol version and the uptime, ms (wrapping as the
+    /// wire's `u32` does).
+    pub fn heartbeat(now_us: u64) -> Heartbeat {
+        Heartbeat::new(Node::Autopilot, (now_us / 1_000) as u32)
+    }
+
     /// Gyro and attitude for the camera board's derotation.
     pub fn gyro_attitude(&self, now_us: u64) -> GyroAttitude {
         GyroAttitude {

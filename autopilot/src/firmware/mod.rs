@@ -181,8 +181,8 @@ mod app {
     use heapless::spsc::{Consumer, Producer, Queue};
     use protocol::params::RecordStore;
     use protocol::{
-        AutopilotToStereo, BoardToHost, Heartbeat, HostToBoard, HostToBoardDecoder, ImuSample,
-        Message as _, Node, ParamOp, ParamReply,
+        AutopilotToStereo, BoardToHost, HostToBoard, HostToBoardDecoder, ImuSample, Message as _,
+        Node, ParamOp, ParamReply,
     };
     use rtic_monotonics::Timebase as _;
     use rtic_sync::channel::{Receiver, Sender};
@@ -891,8 +891,7 @@ mod app {
     async fn heartbeat(mut cx: heartbeat::Context) {
         loop {
             let now = clock::now_us();
-            let uptime_ms = (now / 1_000) as u32;
-            let hb = Heartbeat::new(Node::Autopilot, uptime_ms);
+            let hb = Autopilot::heartbeat(now);
             send::<_, A2S>(&mut cx.shared.link_tx, &AutopilotToStereo::Heartbeat(hb));
             send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Heartbeat(hb));
             cx.local.led.toggle();
@@ -916,7 +915,7 @@ mod app {
                 });
             log::info!(
                 "status uptime_ms={} stereo_rx_ok={} link_errors={} version_mismatch={} estimates={} stereo_uptime_ms={} imu_invalid={} imu_reconfigured={} rx_lost={} tx_dropped={} host_sensor_rejected={} arm_refused={} arm_blocked={} fixes_refused={} loop_jitter_max_us={} stack_free={}",
-                uptime_ms,
+                hb.uptime_ms,
                 msgs,
                 errors.total(),
                 errors.version_mismatch,

@@ -594,10 +594,7 @@ pub fn run_flight_observed(
                     send(&msg, &mut |b: &[u8]| a2s.write(t, b));
                 }
                 (Board::Autopilot, "heartbeat") => {
-                    let msg = AutopilotToStereo::Heartbeat(Heartbeat::new(
-                        Node::Autopilot,
-                        (t / 1000) as u32,
-                    ));
+                    let msg = AutopilotToStereo::Heartbeat(Autopilot::heartbeat(t));
                     send(&msg, &mut |b: &[u8]| a2s.write(t, b));
                 }
                 (Board::Stereo, stereo_board::app::TASK_STATUS) => {
