@@ -377,15 +377,6 @@ pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::
     board_support::watchdog::LSI_HZ_TYPICAL,
 );
 
-/// The longest time from the IMU failing (frozen, unplugged, asleep, gone) to every motor at 0,
-/// µs, with the failsafe timings `failsafe`: a frozen sensor's samples still pass for
-/// [`crate::mpu6000::STUCK_SAMPLES`] - 1 loop periods, then no valid sample for the failsafe's
-/// `imu_timeout_us`, then the loop period whose check turns the motors off.
-pub fn imu_fault_motors_off_us(failsafe: &crate::failsafe::FailsafeConfig) -> u64 {
-    let period_us = 1_000_000u64.div_ceil(u64::from(LOOP_RATE_HZ));
-    failsafe.imu_timeout_us + u64::from(crate::mpu6000::STUCK_SAMPLES) * period_us
-}
-
 /// The longest time from a panic or HardFault to every motor at 0, µs: the fault path's first
 /// act after masking interrupts is the register writes of `hw::motors_off` (a few dozen
 /// instructions; `board_support::fault`).

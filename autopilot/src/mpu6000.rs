@@ -412,6 +412,15 @@ impl SampleCheck {
     }
 }
 
+/// The longest time from the IMU failing (frozen, unplugged, asleep, gone) to every motor at 0,
+/// µs, with the failsafe timings `failsafe`: a frozen sensor's samples still pass for
+/// [`STUCK_SAMPLES`] - 1 loop periods, then no valid sample for the failsafe's
+/// `imu_timeout_us`, then the loop period whose check turns the motors off.
+pub fn fault_motors_off_us(failsafe: &crate::failsafe::FailsafeConfig) -> u64 {
+    let period_us = 1_000_000u64.div_ceil(u64::from(crate::board::LOOP_RATE_HZ));
+    failsafe.imu_timeout_us + u64::from(STUCK_SAMPLES) * period_us
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

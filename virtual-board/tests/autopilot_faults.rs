@@ -6,7 +6,7 @@
 //!
 //! | fault | injection | promise |
 //! |---|---|---|
-//! | IMU frozen | the MPU-6000's registers stop updating | [`autopilot::board::imu_fault_motors_off_us`] |
+//! | IMU frozen | the MPU-6000's registers stop updating | [`autopilot::mpu6000::fault_motors_off_us`] |
 //! | IMU unplugged | MISO pulled high: every byte 0xFF | the same |
 //! | IMU at full scale | a body rate beyond the gyro's +-2000 deg/s range: one axis reads +32767 (the model saturates, RM 4.19), the others stay live | the same |
 //! | IMU reset | the MPU-6000 resets (a brown-out): registers at their defaults, asleep, silent for its reset time; the firmware must configure it again | the same; the chip configured and sampling again within [`IMU_BACK_NS`], the motors off until a new `Arm` |
@@ -620,7 +620,7 @@ fn fault_stops_the_motors_at(
 /// No valid IMU sample for this long while armed -> motors off.
 /// Measured at the bench's 1 ms stops: one stop of slack.
 fn imu_promise_ns() -> u64 {
-    autopilot::board::imu_fault_motors_off_us(&autopilot::failsafe::FailsafeConfig::default())
+    autopilot::mpu6000::fault_motors_off_us(&autopilot::failsafe::FailsafeConfig::default())
         * 1_000
         + MS
 }
