@@ -6,7 +6,7 @@
 //! against it) and only rows in level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
 //! ramp has reached the target height, and stops for landing and every failsafe).
 
-use super::flight::LogRow;
+use super::log_row::LogRow;
 use protocol::{FlightMode, FsmState};
 
 /// Setpoint-tracking figures of one flight. A figure is NaN when the flight has no row it

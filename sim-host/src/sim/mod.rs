@@ -81,6 +81,7 @@ pub mod camera;
 pub mod dynamics;
 pub mod flight;
 pub mod imu;
+pub mod log_row;
 pub mod math;
 pub mod metrics;
 pub mod output;
