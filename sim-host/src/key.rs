@@ -176,7 +176,7 @@ fn provision(
 ) -> anyhow::Result<()> {
     let key = load_key(key_file)?;
     let mut signer = HostSigner::from_file(old_key, link_id::PROVISION)?;
-    let mut link = crate::hil::open_link(port, baud)?;
+    let mut link = crate::transport::open_link(port, baud)?;
     let frame = signer.frame(HostToBoard::SetKey(key))?;
     link.write_all(&frame)
         .with_context(|| format!("writing the key to {port}"))?;

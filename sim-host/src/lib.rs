@@ -12,6 +12,7 @@ pub mod param;
 pub mod plot_font;
 pub mod sim;
 pub mod suite;
+pub mod transport;
 
 /// Installs the process's Ctrl-C (SIGINT) handler and returns the flag it sets: a long-running
 /// command (`fly`, `hil`, `monitor`) polls it, stops, and still finishes its MCAP file and

@@ -13,7 +13,6 @@
 //! Message times in the log are wall-clock nanoseconds since the Unix epoch at reception
 //! (monotonic within one run); the board's own clock is logged beside them (`/board_clock`).
 
-use crate::hil::{open_link, Link};
 use crate::log::records::{
     BoardClockRecord, EstimateRecord, HeartbeatRecord, LinkErrorsRecord, LinkRecord, MotorsRecord,
     StateRecord,
@@ -21,6 +20,7 @@ use crate::log::records::{
 use crate::log::scene3d::CameraMount;
 use crate::log::view3d::{View3d, ViewRates, ViewSample};
 use crate::log::{write_telemetry, FlightLog, TelemetryExtras};
+use crate::transport::{open_link, Link};
 use anyhow::Context as _;
 use protocol::{
     BoardToHost, BoardToHostDecoder, Estimate, Heartbeat, HostToBoard, LinkErrorCounts, Node,
@@ -499,7 +499,7 @@ fn reader(mut link: Box<dyn Link>, tx: mpsc::Sender<Received>) {
         let r = match link.read(&mut buf) {
             Ok(0) => Received::Closed,
             Ok(n) => Received::Bytes(buf[..n].to_vec()),
-            Err(e) if crate::hil::is_transient_read_error(&e) => continue,
+            Err(e) if crate::transport::is_transient_read_error(&e) => continue,
             // A peer that closed with our heartbeats unread resets the connection.
             Err(e) if closed_by_peer(&e) => Received::Closed,
             Err(e) => Received::Failed(e),

@@ -24,7 +24,7 @@
 //! An unknown board or name, a value of the wrong type, a value out of bounds or one that makes
 //! the configuration inconsistent is an error naming the file, the key and the problem.
 
-use crate::hil::{open_link, Link};
+use crate::transport::{open_link, Link};
 use anyhow::{anyhow, bail, Context as _};
 use autopilot::app::AutopilotConfig;
 use autopilot::params as ap_params;
@@ -244,7 +244,7 @@ impl ParamClient<'static> {
                             return;
                         }
                     }
-                    Err(e) if crate::hil::is_transient_read_error(&e) => {}
+                    Err(e) if crate::transport::is_transient_read_error(&e) => {}
                     Err(_) => return,
                 }
             }
