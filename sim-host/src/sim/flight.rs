@@ -2,21 +2,18 @@
 //! and the two UART directions between them. Deterministic: the same [`FlightConfig`] gives the
 //! same [`FlightResult`], bit for bit.
 
-use super::baro::BaroParams;
 use super::battery::Battery;
-use super::battery::BatteryParams;
 use super::boards::{autopilot_tasks, camera_tasks, send};
 use super::camera::CameraParams;
-use super::dynamics::{Drone, DroneParams};
-use super::imu::ImuParams;
+use super::dynamics::Drone;
+pub use super::flight_config::FlightConfig;
 pub use super::log_row::LogRow;
 use super::metrics::TrackingFigures;
 use super::scene::Scene;
-use super::scene_spec::SceneSpec;
 use super::sched::{Board, Release, Scheduler};
-use super::uart::{LinkFaults, SimUart, UartStats};
+use super::uart::{SimUart, UartStats};
 use super::world::World;
-use autopilot::app::{Autopilot, AutopilotConfig};
+use autopilot::app::Autopilot;
 use autopilot::ms5611::BaroReading;
 use protocol::{
     AutopilotToStereo, Decoder, Estimate, FailsafeReason, FlightMode, Heartbeat, HostToBoard,
@@ -24,102 +21,8 @@ use protocol::{
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
-use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput, EdgeFsParams};
+use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput};
 use timebase::{Instant, WorldTime};
-
-/// Everything that defines a flight.
-#[derive(Debug, Clone)]
-pub struct FlightConfig {
-    /// The room (a scene file or a preset, see [`SceneSpec`]).
-    pub scene: SceneSpec,
-    /// Simulated duration, s.
-    pub duration_s: f64,
-    /// Seed of every random process (textures, start heading, sensor noise, link faults).
-    pub seed: u64,
-    /// Start heading, rad; `None`: the scene's `start.yaw_deg`, else a heading drawn from the
-    /// seed.
-    pub start_yaw_rad: Option<f64>,
-    /// Start position (x, y), m; `None`: the scene's start.
-    pub start_xy: Option<[f64; 2]>,
-    /// UART baud rate between the boards, bit/s.
-    pub baud: u32,
-    /// Faults on the camera-board -> autopilot direction.
-    pub faults_s2a: LinkFaults,
-    /// Faults on the autopilot -> camera-board direction.
-    pub faults_a2s: LinkFaults,
-    /// Camera.
-    pub camera: CameraParams,
-    /// Drone.
-    pub drone: DroneParams,
-    /// IMU.
-    pub imu: ImuParams,
-    /// Barometer.
-    pub baro: BaroParams,
-    /// Flight battery, its voltage read by the autopilot at [`BATTERY_READ_HZ`] (`None`: an
-    /// ideal supply, no reading; the drone flies on its nominal thrust for ever).
-    pub battery: Option<BatteryParams>,
-    /// Camera readout time after exposure, µs.
-    pub readout_us: u64,
-    /// Camera-board processing time per frame (Edge-FS on the Cortex-M4), µs: the estimate
-    /// leaves this long after the frame is read out; frames arriving while busy are dropped.
-    pub processing_us: u64,
-    /// Physics step, µs (RK4).
-    pub physics_dt_us: u64,
-    /// Motion capture: height fixes to the autopilot (the paper's lab). Without it the
-    /// autopilot flies on its barometer and accelerometer.
-    pub mocap: bool,
-    /// Height measurement (motion capture) rate, Hz, and noise, m.
-    pub height_rate_hz: f64,
-    /// Height measurement noise (standard deviation), m.
-    pub height_noise_m: f64,
-    /// The telemetry link (host -> autopilot) is cut at this time, s: from then on nothing of
-    /// the host reaches the autopilot (heartbeats, height fixes); `None`: never. The host
-    /// sends its heartbeat once a second before that.
-    pub host_link_cut_at_s: Option<f64>,
-    /// Arm (take off) at this time, s. The autopilot calibrates its gyro on the ground first
-    /// (256 still samples, 0.5 s), so this must be later than that.
-    pub arm_at_s: f64,
-    /// Keep one left camera image every this many frames for the GIF (0: none).
-    pub keep_image_every: u32,
-    /// Stop at the first collision.
-    pub stop_on_collision: bool,
-    /// Autopilot configuration (its FSM variant is the avoidance logic the flight flies).
-    pub autopilot: AutopilotConfig,
-    /// Edge-FS parameters of the camera board.
-    pub edge_fs: EdgeFsParams,
-}
-
-impl Default for FlightConfig {
-    fn default() -> Self {
-        Self {
-            scene: SceneSpec::preset("room").expect("the room preset"),
-            duration_s: 120.0,
-            seed: 1,
-            start_yaw_rad: None,
-            start_xy: None,
-            baud: 115_200,
-            faults_s2a: LinkFaults::default(),
-            faults_a2s: LinkFaults::default(),
-            camera: CameraParams::default(),
-            drone: DroneParams::pocket_drone(),
-            imu: ImuParams::default(),
-            baro: BaroParams::default(),
-            battery: None,
-            readout_us: 8_000,
-            processing_us: 15_000,
-            physics_dt_us: 500,
-            mocap: true,
-            height_rate_hz: 100.0,
-            height_noise_m: 0.003,
-            host_link_cut_at_s: None,
-            arm_at_s: 1.0,
-            keep_image_every: 0,
-            stop_on_collision: false,
-            autopilot: AutopilotConfig::default(),
-            edge_fs: EdgeFsParams::default_config(),
-        }
-    }
-}
 
 /// Rate at which the autopilot reads the battery voltage, Hz (the firmware's telemetry task).
 pub const BATTERY_READ_HZ: f64 = 10.0;

@@ -80,6 +80,7 @@ pub mod boards;
 pub mod camera;
 pub mod dynamics;
 pub mod flight;
+pub mod flight_config;
 pub mod imu;
 pub mod log_row;
 pub mod math;

@@ -10,7 +10,7 @@ use super::baro::Barometer;
 use super::battery::Battery;
 use super::camera::{Motion, StereoCamera};
 use super::dynamics::Drone;
-use super::flight::FlightConfig;
+use super::flight_config::FlightConfig;
 use super::imu::{gauss, Imu, ImuReading};
 use super::scene::Scene;
 use autopilot::ms5611::BaroReading;
