@@ -620,8 +620,7 @@ fn fault_stops_the_motors_at(
 /// No valid IMU sample for this long while armed -> motors off.
 /// Measured at the bench's 1 ms stops: one stop of slack.
 fn imu_promise_ns() -> u64 {
-    autopilot::mpu6000::fault_motors_off_us(&autopilot::failsafe::FailsafeConfig::default())
-        * 1_000
+    autopilot::mpu6000::fault_motors_off_us(&autopilot::failsafe::FailsafeConfig::default()) * 1_000
         + MS
 }
 
