@@ -39,8 +39,9 @@ pub struct FlightConfig {
     pub imu: ImuParams,
     /// Barometer.
     pub baro: BaroParams,
-    /// Flight battery, its voltage read by the autopilot at [`BATTERY_READ_HZ`] (`None`: an
-    /// ideal supply, no reading; the drone flies on its nominal thrust for ever).
+    /// Flight battery, its voltage read by the autopilot at
+    /// [`BATTERY_READ_HZ`](super::flight::BATTERY_READ_HZ) (`None`: an ideal supply, no
+    /// reading; the drone flies on its nominal thrust for ever).
     pub battery: Option<BatteryParams>,
     /// Camera readout time after exposure, µs.
     pub readout_us: u64,
