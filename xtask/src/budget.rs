@@ -49,7 +49,7 @@ pub struct Budgets {
 
 /// Where the expectations live.
 pub fn path() -> PathBuf {
-    crate::size::workspace_root().join("xtask/budgets.toml")
+    crate::cargo::workspace_root().join("xtask/budgets.toml")
 }
 
 /// Reads and parses `xtask/budgets.toml`.

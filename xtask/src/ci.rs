@@ -18,12 +18,10 @@
 //! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
 
 use anyhow::{bail, Context, Result};
-use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-/// The firmware target.
-pub const FIRMWARE_TARGET: &str = "thumbv7em-none-eabihf";
+use crate::cargo::{cargo, cargo_test, run_checked, workspace_root, FIRMWARE_TARGET};
 
 /// The Python MCAP reader the flight-log test uses, and its protobuf decoder for Foxglove's
 /// well-known types (pip requirements).
@@ -105,7 +103,7 @@ pub fn run(args: &[String]) -> Result<()> {
     steps.done("clippy(thumbv7em: real, qemu, hil)");
 
     // Docs whose links point nowhere have drifted from the code: rustdoc's lints catch them.
-    for dir in [crate::size::workspace_root(), bench.clone()] {
+    for dir in [workspace_root(), bench.clone()] {
         let mut doc = Command::new("cargo");
         doc.args(["doc", "--no-deps"])
             .env("RUSTDOCFLAGS", "-D warnings")
@@ -164,7 +162,7 @@ pub fn run(args: &[String]) -> Result<()> {
 fn fuzz_run(fuzz_seconds: u64) -> Result<String> {
     // The fuzz targets are a workspace of their own (nightly, sanitizers): formatted and
     // linted there, with the lints of the main workspace (its `[lints]` table).
-    let fuzz = crate::size::workspace_root().join("fuzz");
+    let fuzz = workspace_root().join("fuzz");
     run_checked(
         Command::new("cargo")
             .args(["fmt", "--all", "--", "--check"])
@@ -356,74 +354,9 @@ fn succeeds(cmd: &mut Command) -> bool {
         .unwrap_or(false)
 }
 
-fn run_checked(cmd: &mut Command) -> Result<()> {
-    eprintln!("xtask: running {cmd:?}");
-    let status = cmd
-        .status()
-        .with_context(|| format!("could not start {cmd:?}"))?;
-    if !status.success() {
-        bail!("{cmd:?} failed with {status}");
-    }
-    Ok(())
-}
-
-pub fn cargo(args: &[&str]) -> Result<()> {
-    run_checked(Command::new("cargo").args(args))
-}
-
-/// Runs a `cargo test` command, streaming its output, and sums the `test result:` lines.
-fn cargo_test(args: &[&str]) -> Result<(u64, u64)> {
-    cargo_test_with(Command::new("cargo").args(args))
-}
-
-/// Runs a prepared `cargo test` command (arguments, directory, environment set), streaming its
-/// output, and sums the `test result:` lines. Fails on a failed test or when no test ran.
-pub fn cargo_test_with(cmd: &mut Command) -> Result<(u64, u64)> {
-    eprintln!("xtask: running {cmd:?}");
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .spawn()
-        .context("could not start cargo test")?;
-    let (mut passed, mut failed) = (0u64, 0u64);
-    if let Some(stdout) = child.stdout.take() {
-        for line in BufReader::new(stdout).lines() {
-            let line = line?;
-            println!("{line}");
-            if let Some(rest) = line.strip_prefix("test result: ") {
-                passed += count_before(rest, " passed");
-                failed += count_before(rest, " failed");
-            }
-        }
-    }
-    let status = child.wait()?;
-    if !status.success() || failed > 0 {
-        println!("{passed} passed, {failed} failed");
-        bail!("cargo test failed ({failed} failed)");
-    }
-    if passed == 0 {
-        bail!("cargo test ran no test");
-    }
-    Ok((passed, failed))
-}
-
-/// In `ok. 12 passed; 0 failed; ...`, the number before `word`.
-fn count_before(text: &str, word: &str) -> u64 {
-    text.split(';')
-        .find_map(|part| {
-            part.trim()
-                .trim_start_matches("ok. ")
-                .trim_start_matches("FAILED. ")
-                .strip_suffix(word.trim_start())
-                .map(str::trim)
-        })
-        .and_then(|n| n.trim().parse().ok())
-        .unwrap_or(0)
-}
-
 #[cfg(test)]
 mod tests {
-    use super::count_before;
-    use crate::size::workspace_root;
+    use crate::cargo::workspace_root;
 
     fn table(path: &str, keys: &[&str]) -> toml::Value {
         let path = workspace_root().join(path);
@@ -446,17 +379,5 @@ mod tests {
         for manifest in ["virtual-board/Cargo.toml", "fuzz/Cargo.toml"] {
             assert_eq!(table(manifest, &["lints"]), main, "{manifest}");
         }
-    }
-
-    #[test]
-    fn parses_cargo_test_summaries() {
-        let line =
-            "ok. 12 passed; 3 failed; 1 ignored; 0 measured; 0 filtered out; finished in 0.1s";
-        assert_eq!(count_before(line, " passed"), 12);
-        assert_eq!(count_before(line, " failed"), 3);
-        assert_eq!(
-            count_before("FAILED. 2 passed; 1 failed; 0 ignored", " failed"),
-            1
-        );
     }
 }

@@ -25,7 +25,7 @@
 //! measurement N times and fail unless every run gives identical counts; default 1). Another
 //! take or frame count measures other frames, so the budget comparison is skipped then.
 
-use crate::size::workspace_root;
+use crate::cargo::workspace_root;
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

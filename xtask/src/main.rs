@@ -16,6 +16,7 @@
 //! The budgets are `xtask/budgets.toml` (see [`budget`]).
 
 mod budget;
+mod cargo;
 mod ci;
 mod elf;
 mod fw;

@@ -17,9 +17,10 @@
 //! measures (`xtask/budgets.toml`'s `[stack]`, which every clean bench run is checked against)
 //! and what it leaves of the reserve.
 
+use crate::cargo::workspace_root;
 use crate::elf::{sections, symbol};
 use anyhow::{bail, Context, Result};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 
 /// Firmware packages, in print order.
@@ -173,14 +174,6 @@ impl Flavour {
             Some(f) => base.join(format!("fw-{f}")),
         }
     }
-}
-
-/// The workspace root (the parent of xtask/).
-pub fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_else(|| PathBuf::from("."))
 }
 
 /// Path of a firmware's ELF after [`build_firmwares`].

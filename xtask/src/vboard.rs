@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
-use crate::ci::{cargo_test_with, FIRMWARE_TARGET};
+use crate::cargo::{cargo, cargo_test_with, FIRMWARE_TARGET};
 use crate::size::{build_firmwares, Flavour, FIRMWARES};
 
 fn workspace_root() -> PathBuf {
@@ -62,7 +62,7 @@ fn run_tests_with(args: &[String]) -> Result<(u64, u64)> {
     build_firmwares(Flavour::Hil, &FIRMWARES)
         .context("firmware build (cargo xtask fw --flavour hil) failed")?;
     // The ground tool the bench serves a board to (tests/monitor.rs).
-    crate::ci::cargo(&["build", "-p", "sim-host"]).context("building sim-host failed")?;
+    cargo(&["build", "-p", "sim-host"]).context("building sim-host failed")?;
     let built = build.elapsed().as_secs_f64();
     let tests = Instant::now();
     let mut cmd = Command::new("cargo");
