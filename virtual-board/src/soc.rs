@@ -258,6 +258,21 @@ struct Slots {
     i2c2: usize,
 }
 
+impl Soc {
+    /// Runs the core at `rate` from the next run on.
+    pub fn set_core_rate(&mut self, rate: crate::timing::CoreRate) {
+        self.core_rate = rate;
+    }
+
+    /// Calibrates the part's LSI to `hz` (kept across resets, as the oscillator is the part's).
+    ///
+    /// # Panics
+    /// `hz` outside [`crate::timing::LSI_HZ_SLOWEST`]..=[`crate::timing::LSI_HZ_FASTEST`] (rigless refuses it).
+    pub fn set_lsi_hz(&mut self, hz: u64) {
+        self.mcu.rcc.calibrate_lsi(hz);
+    }
+}
+
 impl Store for Soc {}
 
 impl Soc {

@@ -10,11 +10,9 @@
 //!
 //! The LSI clocks the independent watchdog: 17 to 47 kHz on the STM32F4 (DS8626 table 41,
 //! DS9405 table 42), 32 kHz typical, which is what rigless runs it at unless the board
-//! calibrates it ([`Soc::set_lsi_hz`]).
+//! calibrates it ([`crate::soc::Soc::set_lsi_hz`]).
 
 use std::num::NonZeroU64;
-
-use crate::soc::Soc;
 
 /// The core clock of both boards, Hz (RM0090 section 6.2: 168 MHz from the PLL).
 pub const CORE_HZ: u64 = 168_000_000;
@@ -61,21 +59,6 @@ impl CoreRate {
     #[must_use]
     pub fn label(self) -> String {
         format!("{:.2} ns/insn", self.ns_per_instruction())
-    }
-}
-
-impl Soc {
-    /// Runs the core at `rate` from the next run on.
-    pub fn set_core_rate(&mut self, rate: CoreRate) {
-        self.core_rate = rate;
-    }
-
-    /// Calibrates the part's LSI to `hz` (kept across resets, as the oscillator is the part's).
-    ///
-    /// # Panics
-    /// `hz` outside [`LSI_HZ_SLOWEST`]..=[`LSI_HZ_FASTEST`] (rigless refuses it).
-    pub fn set_lsi_hz(&mut self, hz: u64) {
-        self.mcu.rcc.calibrate_lsi(hz);
     }
 }
 
