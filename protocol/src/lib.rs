@@ -11,6 +11,7 @@
 #![no_std]
 #![warn(missing_docs)]
 
+pub mod envelope;
 pub mod messages;
 pub mod params;
 pub mod signing;

@@ -458,10 +458,10 @@ pub enum HostToBoard {
     /// [`BoardToHost::Param`]).
     Param(crate::ParamRequest),
     /// A message signed with the link key (see [`crate::signing`]).
-    Signed(crate::signing::SignedMessage),
+    Signed(crate::envelope::SignedMessage),
     /// Provision the link key (autopilot): accepted unsigned only while disarmed and no key is
     /// set; a key already set is changed only by a signed `SetKey`, disarmed.
-    SetKey(crate::signing::LinkKey),
+    SetKey(crate::envelope::LinkKey),
 }
 
 impl Message for HostToBoard {
