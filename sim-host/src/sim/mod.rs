@@ -86,6 +86,7 @@ pub mod log_row;
 pub mod math;
 pub mod metrics;
 pub mod output;
+pub mod picture;
 pub mod scene;
 pub mod scene_spec;
 pub mod sched;

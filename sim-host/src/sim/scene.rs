@@ -77,31 +77,21 @@ impl Obstacle {
         }
     }
 
+    /// Its footprint.
+    fn footprint(&self) -> Shape {
+        match *self {
+            Self::Cylinder { x, y, radius, .. } => Shape::Cylinder {
+                centre: [x, y],
+                radius,
+            },
+            Self::Panel { a, b, .. } => Shape::Panel { a, b },
+            Self::Box { min, max, .. } => Shape::Box { min, max },
+        }
+    }
+
     /// Signed horizontal distance from `(x, y)` to the obstacle's surface, m (negative inside).
     fn distance(&self, x: f32, y: f32) -> f32 {
-        match self {
-            Self::Cylinder {
-                x: cx,
-                y: cy,
-                radius,
-                ..
-            } => (x - cx).hypot(y - cy) - radius,
-            Self::Panel { a, b, .. } => {
-                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-                let l2 = (ex * ex + ey * ey).max(1e-12);
-                let u = (((x - a[0]) * ex + (y - a[1]) * ey) / l2).clamp(0.0, 1.0);
-                (x - a[0] - u * ex).hypot(y - a[1] - u * ey)
-            }
-            Self::Box { min, max, .. } => {
-                let dx = (min[0] - x).max(x - max[0]);
-                let dy = (min[1] - y).max(y - max[1]);
-                if dx <= 0.0 && dy <= 0.0 {
-                    dx.max(dy)
-                } else {
-                    dx.max(0.0).hypot(dy.max(0.0))
-                }
-            }
-        }
+        self.footprint().distance(x, y)
     }
 }
 
@@ -145,23 +135,6 @@ fn surface_of_code(code: u8) -> Surface {
         4 => Surface::Floor,
         _ => Surface::Ceiling,
     }
-}
-
-/// Horizontal clearance from `(x, y)` at height `h` to the walls of a room of `size` and to
-/// the given obstacles that reach above `h`, m.
-pub fn clearance_of(
-    size: &[f32; 3],
-    obstacles: &[super::scene_spec::ObstacleSpec],
-    x: f32,
-    y: f32,
-    h: f32,
-) -> f32 {
-    let walls = x.min(size[0] - x).min(y).min(size[1] - y);
-    obstacles
-        .iter()
-        .filter(|o| h <= o.height)
-        .map(|o| Obstacle::from_shape(o.shape, o.height).distance(x, y))
-        .fold(walls, f32::min)
 }
 
 /// Which surface a ray hit.

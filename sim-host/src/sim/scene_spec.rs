@@ -310,6 +310,41 @@ pub enum Shape {
     },
 }
 
+impl Shape {
+    /// Signed horizontal distance from `(x, y)` to the shape's surface, m (negative inside).
+    pub fn distance(&self, x: f32, y: f32) -> f32 {
+        match self {
+            Self::Cylinder { centre, radius } => (x - centre[0]).hypot(y - centre[1]) - radius,
+            Self::Panel { a, b } => {
+                let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                let l2 = (ex * ex + ey * ey).max(1e-12);
+                let u = (((x - a[0]) * ex + (y - a[1]) * ey) / l2).clamp(0.0, 1.0);
+                (x - a[0] - u * ex).hypot(y - a[1] - u * ey)
+            }
+            Self::Box { min, max } => {
+                let dx = (min[0] - x).max(x - max[0]);
+                let dy = (min[1] - y).max(y - max[1]);
+                if dx <= 0.0 && dy <= 0.0 {
+                    dx.max(dy)
+                } else {
+                    dx.max(0.0).hypot(dy.max(0.0))
+                }
+            }
+        }
+    }
+}
+
+/// Horizontal clearance from `(x, y)` at height `h` to the walls of a room of `size` and to
+/// the given obstacles that reach above `h`, m.
+pub fn clearance_of(size: &[f32; 3], obstacles: &[ObstacleSpec], x: f32, y: f32, h: f32) -> f32 {
+    let walls = x.min(size[0] - x).min(y).min(size[1] - y);
+    obstacles
+        .iter()
+        .filter(|o| h <= o.height)
+        .map(|o| o.shape.distance(x, y))
+        .fold(walls, f32::min)
+}
+
 /// One obstacle, resolved.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ObstacleSpec {
@@ -564,9 +599,8 @@ fn resolve(raw: SceneFile, file: &str, dir: &Path) -> Result<SceneSpec, SceneErr
     };
     let [x, y] = spec.start_xy;
     let inside = x.is_finite() && y.is_finite() && x > 0.0 && y > 0.0 && x < sx && y < sy;
-    let clear = inside
-        && super::scene::clearance_of(&spec.size_m, &spec.obstacles, x, y, 0.05)
-            >= START_CLEARANCE_M;
+    let clear =
+        inside && clearance_of(&spec.size_m, &spec.obstacles, x, y, 0.05) >= START_CLEARANCE_M;
     if !clear {
         return Err(err(
             "start",
@@ -619,7 +653,7 @@ fn surface(
     let image = match (&keys.image, texture) {
         (Some(p), TextureKind::Image) => {
             let p = dir.join(p);
-            super::texture::GreyImage::load(&p).map_err(|e| err("image", e))?;
+            super::picture::GreyImage::load(&p).map_err(|e| err("image", e))?;
             Some(p)
         }
         (None, TextureKind::Image) => {

@@ -159,7 +159,7 @@ pub fn room(seed: u64, index: u64) -> SuiteRoom {
         // Keep the start free (0.8 m around the centre).
         let mut with = obstacles.clone();
         with.push(o.clone());
-        if super::scene::clearance_of(&[sx, sy, h], &with, centre[0], centre[1], 0.05) >= 0.8 {
+        if super::scene_spec::clearance_of(&[sx, sy, h], &with, centre[0], centre[1], 0.05) >= 0.8 {
             obstacles.push(o);
         }
     }
@@ -495,7 +495,7 @@ mod tests {
             }
             // Builds, and the start is clear.
             super::super::scene::Scene::build(&a.spec, a.seed).unwrap();
-            let c = super::super::scene::clearance_of(
+            let c = super::super::scene_spec::clearance_of(
                 &a.spec.size_m,
                 &a.spec.obstacles,
                 a.spec.start_xy[0],
