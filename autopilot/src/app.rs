@@ -1,5 +1,5 @@
 //! The autopilot board's task logic: every firmware task body (and the simulator) calls one
-//! method of [`Autopilot`], and the task graph is the data in [`TASKS`].
+//! method of [`Autopilot`], and the task graph is the data in [`TASKS`](crate::tasks::TASKS).
 //!
 //! [`Autopilot`] holds one value per stage, each in its own module and tested there; its
 //! methods pass each stage's typed result to the next:
@@ -22,26 +22,25 @@
 //! Failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
 //! library never reads a clock.
 
-use crate::attitude::{attitude_error, AttitudeConfig, AttitudeEstimator, Quat, GRAVITY};
+use crate::attitude::{attitude_error, AttitudeEstimator, Quat, GRAVITY};
 use crate::avoidance::{Avoidance, AvoidanceInput};
-use crate::battery::{BatteryConfig, BatteryMonitor, BatteryState};
+use crate::battery::{BatteryMonitor, BatteryState};
 use crate::camera_link::{CameraLink, CameraNews};
-pub use crate::estimation::VelocitySource;
+use crate::config::AutopilotConfig;
 use crate::estimation::{VelocityEstimation, VisionContext};
-use crate::failsafe::{Failsafe, FailsafeConfig, FailsafeReason, FlightMode, Freshness};
-use crate::force_field::ForceFieldConfig;
-use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState};
-use crate::guidance::{GuidanceConfig, ObserverConfig, VelocityObserver};
+use crate::failsafe::{Failsafe, FailsafeReason, FlightMode, Freshness};
+use crate::fsm::{AvoidanceFsm, FsmState};
+use crate::guidance::VelocityObserver;
 use crate::gyro_calibration::GyroCalibration;
-use crate::height::{tilt_compensate, HeightConfig, HeightController};
-use crate::indi::{Indi, IndiConfig};
+use crate::height::{tilt_compensate, HeightController};
+use crate::indi::Indi;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
+use crate::setpoints::Guidance;
 pub use crate::setpoints::Setpoints;
-use crate::setpoints::{Guidance, LAND_SETPOINT_FLOOR_M};
-use crate::velocity_kf::{VelocityKf, VelocityKfConfig};
-use crate::vertical::{VerticalConfig, VerticalEstimator};
+use crate::velocity_kf::VelocityKf;
+use crate::vertical::{VerticalEstimator, FIXES_TO_LEAD};
 use protocol::params::{ParamStorage, RecordError, RecordStore, StorageStatus};
 use protocol::{
     Estimate, ExternalPosition, GyroAttitude, Heartbeat, ImuSample, LinkErrorCounts, Node,
@@ -50,330 +49,12 @@ use protocol::{
 };
 use timebase::WireTime;
 
-pub use task_table::{TaskSpec, Trigger};
-
-/// IMU / INDI period: 512 Hz, µs (rounded down).
-pub const IMU_PERIOD_US: u32 = 1_953;
-/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz, µs.
-pub const GUIDANCE_PERIOD_US: u32 = 20_000;
-/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample), µs.
-pub const GYRO_TX_PERIOD_US: u32 = 7_812;
-/// Telemetry period: 10 Hz, µs.
-pub const TELEMETRY_PERIOD_US: u32 = 100_000;
-/// Heartbeat period: 1 Hz, µs.
-pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
-
-/// The autopilot's task table. The firmware's RTIC app mirrors it; `sim-host` schedules from it.
-///
-/// | task | calls |
-/// |---|---|
-/// | `imu_indi` | [`Autopilot::on_imu`], motors written from its result |
-/// | `stereo_rx` | [`Autopilot::on_estimate`] for each decoded estimate |
-/// | `host_rx` | [`Autopilot::on_host_message`] (HIL: then `on_imu` on the samples it hands back) |
-/// | `guidance` | [`Autopilot::guidance_step`], then [`Autopilot::motor_safety`] |
-/// | `gyro_tx` | [`Autopilot::gyro_attitude`] encoded to the camera board |
-/// | `telemetry` | [`Autopilot::telemetry`] encoded to the host |
-/// | `heartbeat` | a `protocol::Heartbeat` to both links |
-pub const TASKS: &[TaskSpec] = &[
-    TaskSpec {
-        name: "imu_indi",
-        priority: 5,
-        trigger: Trigger::Periodic {
-            period_us: IMU_PERIOD_US,
-        },
-        deadline_us: 500,
-    },
-    TaskSpec {
-        name: "stereo_rx",
-        priority: 4,
-        trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
-        deadline_us: 1_000,
-    },
-    TaskSpec {
-        name: "host_rx",
-        priority: 4,
-        trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
-        deadline_us: 1_000,
-    },
-    TaskSpec {
-        name: "guidance",
-        priority: 3,
-        trigger: Trigger::Periodic {
-            period_us: GUIDANCE_PERIOD_US,
-        },
-        deadline_us: 5_000,
-    },
-    TaskSpec {
-        name: "gyro_tx",
-        priority: 2,
-        trigger: Trigger::Periodic {
-            period_us: GYRO_TX_PERIOD_US,
-        },
-        deadline_us: GYRO_TX_PERIOD_US,
-    },
-    TaskSpec {
-        name: "telemetry",
-        priority: 1,
-        trigger: Trigger::Periodic {
-            period_us: TELEMETRY_PERIOD_US,
-        },
-        deadline_us: TELEMETRY_PERIOD_US,
-    },
-    TaskSpec {
-        name: "heartbeat",
-        priority: 1,
-        trigger: Trigger::Periodic {
-            period_us: HEARTBEAT_PERIOD_US,
-        },
-        deadline_us: HEARTBEAT_PERIOD_US,
-    },
-];
-
-/// Every tunable of the autopilot, with pocket-drone defaults. Units are on each field (and in
-/// each module's config).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AutopilotConfig {
-    /// Attitude estimator.
-    pub attitude: AttitudeConfig,
-    /// INDI attitude control.
-    pub indi: IndiConfig,
-    /// Height loop.
-    pub height: HeightConfig,
-    /// Vertical estimator (barometer, accelerometer, external height fixes).
-    pub vertical: VerticalConfig,
-    /// Velocity guidance.
-    pub guidance: GuidanceConfig,
-    /// Wall force field.
-    pub force_field: ForceFieldConfig,
-    /// Avoidance FSM.
-    pub fsm: FsmConfig,
-    /// Failsafe timings.
-    pub failsafe: FailsafeConfig,
-    /// Battery thresholds and sag model.
-    pub battery: BatteryConfig,
-    /// Flight height after take-off, m above the floor.
-    pub target_height_m: f32,
-    /// Height-setpoint climb rate during take-off, m/s.
-    pub climb_rate_mps: f32,
-    /// Height-setpoint descent rate when landing, m/s.
-    pub land_rate_mps: f32,
-    /// Descent rate instead of `land_rate_mps` while no vision velocity has been fused for
-    /// the failsafe's estimate timeout, m/s: the drone then drifts on its trim (an
-    /// accelerometer bias of 0.01 g is 0.1 m/s² of unobserved acceleration), so the sooner
-    /// it is down, the shorter the drift.
-    pub blind_land_rate_mps: f32,
-    /// Below this height the drone counts as on the floor, m (height integrator off, touchdown).
-    pub landed_height_m: f32,
-    /// Touchdown confirmed after this long below `landed_height_m` while landing, µs.
-    pub landed_time_us: u64,
-    /// The avoidance FSM starts once the height is within this of the target, m.
-    pub fsm_start_height_tolerance_m: f32,
-    /// A landing that has not touched down after this long (a biased barometer that reads the
-    /// floor as higher than it is) cuts the motors once the height estimate is below
-    /// `land_cut_height_m` or the drone shows the ground signature, µs.
-    pub land_timeout_us: u64,
-    /// After `land_timeout_us`, the motors are cut below this height estimate, m.
-    pub land_cut_height_m: f32,
-    /// Ground signature (touchdown whatever the height says): the level-flight thrust below
-    /// this fraction of the hover thrust while the specific force stays above
-    /// `ground_min_specific_force` g and the body rates below [`GROUND_MAX_RATE_RADPS`]. In the
-    /// air that little thrust makes the drone fall (its specific force drops with the
-    /// thrust); only the floor holds it at 1 g. 0 turns the signature off.
-    pub ground_thrust_ratio: f32,
-    /// Ground signature: the low-passed specific force stays above this fraction of g.
-    pub ground_min_specific_force: f32,
-    /// A barometer whose readings (pressure and temperature, as compensated from the raw
-    /// conversions) stay bit-for-bit identical for longer than this is frozen: its readings
-    /// are not used (as a stuck IMU's), so the height failsafe acts without fixes, µs. A live
-    /// MS5611's noise (about 1.5 Pa rms on a 1 Pa resolution) repeats a reading with about
-    /// 0.3 probability: 25 repeats in a row (0.5 s at 50 Hz) happen with about 1e-13.
-    pub baro_stuck_us: u64,
-    /// Level-flight thrust when landing without a height measurement (0..=1, below hover).
-    pub blind_land_thrust: f32,
-    /// Landing without a height measurement: motors off after this long, µs.
-    pub blind_land_time_us: u64,
-    /// Estimates with a lower quality are treated as invalid (0..=255).
-    pub min_quality: u8,
-    /// A gap between valid estimates longer than this empties the median filter, µs.
-    pub median_reset_gap_us: u64,
-    /// Largest accepted velocity estimate magnitude per axis, m/s (bigger is treated as invalid).
-    pub max_estimate_mps: f32,
-    /// Plausibility gate: an estimate further than this from the median output on either axis
-    /// is an outlier and skipped, m/s (a 15 deg bank changes the velocity by about 0.1 m/s
-    /// per 25 Hz frame). The median alone cannot reject two spikes in a row.
-    pub max_velocity_jump_mps: f32,
-    /// After this many consecutive outliers that agree with each other (within
-    /// `max_velocity_jump_mps`) the gate restarts the median from the new value (the filter,
-    /// not the estimates, lost track).
-    pub max_consecutive_outliers: u8,
-    /// Guidance flies on the observer's velocity only while the last fused estimate is
-    /// younger than this, µs (in between the observer dead-reckons from the attitude, which
-    /// keeps braking through fast yaw and short link outages); older, it holds the trim
-    /// attitude.
-    pub velocity_max_age_us: u64,
-    /// Velocity observer (prediction from the attitude, correction by the filtered Edge-FS
-    /// velocity).
-    pub observer: ObserverConfig,
-    /// Which velocity guidance flies on.
-    pub velocity_source: VelocitySource,
-    /// Horizontal velocity Kalman filter.
-    pub velocity_kf: VelocityKfConfig,
-    /// Time span an Edge-FS velocity averages over, µs: its flow horizon (`horizon_s`, 0.25 s
-    /// by default) widened by the camera board's output filter, which smooths over several
-    /// frames. The velocity filter takes each estimate as the mean velocity over this long.
-    pub estimate_horizon_us: u32,
-    /// [`VelocitySource::KalmanFits`]: the time span a frame's own fit averages over, µs (the
-    /// flow horizon `horizon_s`; no filter lag).
-    pub fit_horizon_us: u32,
-    /// Time an estimate spends on the link after the camera board sent it, µs (an `Estimate`
-    /// frame of ~40 bytes at 115,200 Bd; its `processing_us` covers capture to sending).
-    pub estimate_link_us: u32,
-    /// Delay of the camera board's output filter, µs: the averaging window ends this long
-    /// before the frame's capture. The filter (a velocity random walk on the board) passes a
-    /// step in a few frames, so the estimate describes an older, wider window than the flow
-    /// horizon alone; fitted in the simulator on tuning seeds (see `docs/parameters.md`).
-    pub estimate_filter_lag_us: u32,
-    /// Estimates are not used for the velocity while the gyro's yaw rate is above this, rad/s
-    /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
-    /// still count as valid for the failsafe (the camera board is alive).
-    pub max_yaw_rate_radps: f32,
-    /// Estimates are not used for the velocity below this height, m: near the floor the view
-    /// is mostly floor nearer than the stereo range, and a wrong take-off estimate teaches the
-    /// velocity filter a wrong bias. They still count as valid for the failsafe.
-    pub min_vision_height_m: f32,
-    /// Estimates are not used for the velocity while the drone climbs or descends faster than
-    /// this, m/s: Edge-FS takes all image motion for horizontal translation, and a climb over a
-    /// floor seen in perspective moves its edges sideways as a forward flight would (in a room
-    /// with plain walls a take-off read as 1.1 m/s forward). They still count as valid for the
-    /// failsafe.
-    pub max_vision_climb_mps: f32,
-    /// ... unless the view has at least this fraction of its columns with a stereo depth
-    /// (0..1): textured walls in range move as the scene does, only a view of little but the
-    /// floor reads a climb as forward flight.
-    pub vision_climb_min_depth: f32,
-    /// A valid estimate counts (for the velocity and for the failsafe) only as the
-    /// `min_valid_run`-th or later of an unbroken run of valid ones. On a textured view nearly
-    /// every frame is valid; a lone valid frame among invalid ones comes from a scrap of
-    /// texture (the floor's perspective lines at the bottom of a view of a plain wall, which
-    /// pitch and heave move sideways as forward flight would) and was seen 1 m/s wrong.
-    pub min_valid_run: u8,
-    /// ... nor until this long after the yaw rate was last above the limit, µs (covers the
-    /// exposure-to-arrival latency and the estimator's history).
-    pub yaw_settle_us: u64,
-    /// Ground gyro calibration: while disarmed and still, the mean gyro over this many IMU
-    /// samples becomes the gyro offset (every later sample is corrected by it). The
-    /// MPU-6000's zero-rate offset is ±0.5 deg/s-class even after factory trim; uncorrected,
-    /// the attitude filter's low accelerometer gain leaves a tilt error of `offset / kp`
-    /// (several degrees) that the velocity loop then flies as a trim.
-    pub gyro_calibration_samples: u16,
-    /// A sample counts as still while every gyro axis is below this, rad/s, and the
-    /// specific force is within 5 % of 1 g; anything else restarts the average.
-    pub gyro_calibration_still_radps: f32,
-}
-
-impl Default for AutopilotConfig {
-    fn default() -> Self {
-        Self {
-            attitude: AttitudeConfig::default(),
-            indi: IndiConfig::default(),
-            height: HeightConfig::default(),
-            vertical: VerticalConfig::default(),
-            guidance: GuidanceConfig::default(),
-            force_field: ForceFieldConfig::default(),
-            fsm: FsmConfig::default(),
-            failsafe: FailsafeConfig::default(),
-            battery: BatteryConfig::default(),
-            target_height_m: 1.0,
-            climb_rate_mps: 0.5,
-            land_rate_mps: 0.3,
-            blind_land_rate_mps: 0.6,
-            landed_height_m: 0.06,
-            landed_time_us: 500_000,
-            fsm_start_height_tolerance_m: 0.15,
-            land_timeout_us: 10_000_000,
-            land_cut_height_m: 0.3,
-            ground_thrust_ratio: 0.6,
-            ground_min_specific_force: 0.9,
-            baro_stuck_us: 500_000,
-            blind_land_thrust: 0.5,
-            blind_land_time_us: 3_000_000,
-            min_quality: 0,
-            median_reset_gap_us: 500_000,
-            max_estimate_mps: 5.0,
-            max_velocity_jump_mps: 0.6,
-            max_consecutive_outliers: 3,
-            velocity_max_age_us: 2_500_000,
-            observer: ObserverConfig::default(),
-            velocity_source: VelocitySource::Kalman,
-            velocity_kf: VelocityKfConfig::default(),
-            estimate_horizon_us: 350_000,
-            fit_horizon_us: 250_000,
-            estimate_link_us: 3_500,
-            estimate_filter_lag_us: 97_000,
-            min_vision_height_m: 0.6,
-            max_vision_climb_mps: 0.25,
-            vision_climb_min_depth: 0.9,
-            min_valid_run: 3,
-            max_yaw_rate_radps: 0.6,
-            yaw_settle_us: 150_000,
-            gyro_calibration_samples: 256,
-            gyro_calibration_still_radps: 0.1,
-        }
-    }
-}
-
-impl AutopilotConfig {
-    /// The longest time from the camera board's estimates stopping (a cut link, a dead board)
-    /// to every motor at 0, µs, for a drone flying at up to `target_height_m`: the estimate
-    /// timeout, then as [`AutopilotConfig::camera_stopped_motors_off_us`].
-    pub fn link_loss_motors_off_us(&self) -> u64 {
-        self.failsafe.estimate_timeout_us + self.camera_stopped_motors_off_us()
-    }
-
-    /// The longest time from the host's last heartbeat to every motor at 0, µs, with the
-    /// default host action (land) for a drone flying at up to `target_height_m` (the host
-    /// timeout, then a landing as in [`AutopilotConfig::camera_stopped_motors_off_us`] at the
-    /// slower of the two landing rates, without the hover).
-    pub fn host_loss_motors_off_us(&self) -> u64 {
-        let ramp_m = self.target_height_m.max(0.0) - LAND_SETPOINT_FLOOR_M;
-        let rate = self
-            .land_rate_mps
-            .abs()
-            .min(self.blind_land_rate_mps.abs())
-            .max(0.01);
-        self.failsafe.host_timeout_us
-            + ((ramp_m / rate) * 1e6) as u64
-            + self.landed_time_us
-            + u64::from(GUIDANCE_PERIOD_US)
-    }
-
-    /// The longest time from the camera board's `Status` reporting its camera stopped to every
-    /// motor at 0, µs (the report ends the estimates at once): the hover before landing; the
-    /// height setpoint's ramp at `blind_land_rate_mps` from the target height down to its stop
-    /// 0.2 m below the floor (not just to the floor: the drone lags the ramp, by more the
-    /// faster it is, and is down when the setpoint stops at the latest); the touchdown
-    /// confirmation; one guidance period.
-    pub fn camera_stopped_motors_off_us(&self) -> u64 {
-        let ramp_m = self.target_height_m.max(0.0) - LAND_SETPOINT_FLOOR_M;
-        let descent_s = ramp_m / self.blind_land_rate_mps.abs().max(0.01);
-        self.failsafe.hover_before_land_us
-            + (descent_s * 1e6) as u64
-            + self.landed_time_us
-            + u64::from(GUIDANCE_PERIOD_US)
-    }
-}
-
 /// Ground signature: the low-passed squared body rate stays below this, rad/s.
 pub const GROUND_MAX_RATE_RADPS: f32 = 0.5;
 
 /// Low-pass weight per guidance step of the ground signature's specific force and body rate,
 /// sampled from the latest IMU sample (a time constant of about 0.1 s at 50 Hz).
 const GROUND_LP_ALPHA: f32 = 0.2;
-
-/// External height fixes the vertical estimator must take in a row before they are the height
-/// loop's measurement (100 ms of a 50 Hz motion-capture stream): one fix, even one the gate
-/// takes, makes no height fresh for arming.
-pub const FIXES_TO_LEAD: u8 = 5;
 
 /// The whole autopilot state (fixed size, no heap): the stages in data-flow order.
 #[derive(Debug, Clone)]
@@ -442,7 +123,7 @@ pub enum ArmBlock {
     /// was saved. Cleared by a successful save or `ParamOp::Acknowledge`
     /// ([`StorageStatus::blocks_arming`]).
     ParamsNotLoaded(RecordError),
-    /// The battery's resting voltage is below [`BatteryConfig::arm_v`].
+    /// The battery's resting voltage is below [`BatteryConfig::arm_v`](crate::battery::BatteryConfig::arm_v).
     BatteryLow,
 }
 
@@ -470,7 +151,7 @@ impl Autopilot {
             fixes_refused: 0,
             fixes_in_row: 0,
             height: HeightController::new(config.height),
-            estimation: VelocityEstimation::new(&config),
+            estimation: VelocityEstimation::new(&config.estimation),
             avoidance: Avoidance::new(config.fsm),
             guidance: Guidance::new(config.guidance),
             failsafe: Failsafe::new(config.failsafe),
@@ -513,7 +194,7 @@ impl Autopilot {
         self.height.set_config(config.height);
         self.vertical.set_config(config.vertical);
         self.guidance.set_config(config.guidance);
-        self.estimation.set_config(&config);
+        self.estimation.set_config(&config.estimation);
         self.avoidance.set_config(config.fsm);
         self.failsafe.set_config(config.failsafe);
         self.battery.set_config(config.battery);
@@ -625,10 +306,12 @@ impl Autopilot {
     }
 
     /// The `[forward, sideways]` velocity guidance flies on, m/s, from the configured
-    /// [`VelocitySource`] (`None` before the first valid estimate). Between estimates it is
+    /// [`VelocitySource`](crate::estimation::VelocitySource) (`None` before the first valid estimate). Between estimates it is
     /// predicted from the attitude.
     pub fn velocity_estimate(&self) -> Option<[f32; 2]> {
-        self.estimation.state(self.cfg.velocity_source).velocity_mps
+        self.estimation
+            .state(self.cfg.estimation.velocity_source)
+            .velocity_mps
     }
 
     /// The horizontal velocity Kalman filter.
@@ -637,7 +320,7 @@ impl Autopilot {
     }
 
     /// The velocity observer of the paper's path (bias, configuration); it runs only when
-    /// [`AutopilotConfig::velocity_source`] is [`VelocitySource::MedianObserver`].
+    /// [`EstimationConfig::velocity_source`](crate::estimation::EstimationConfig::velocity_source) is [`VelocitySource::MedianObserver`](crate::estimation::VelocitySource::MedianObserver).
     pub fn observer(&self) -> &VelocityObserver {
         self.estimation.observer()
     }
@@ -764,8 +447,8 @@ impl Autopilot {
         if !self.failsafe.mode().motors_enabled()
             && self.gyro_cal.update(
                 imu,
-                self.cfg.gyro_calibration_samples,
-                self.cfg.gyro_calibration_still_radps,
+                self.cfg.gyro_calibration.samples,
+                self.cfg.gyro_calibration.still_radps,
             )
         {
             // Start the attitude again from the accelerometer, without the tilt error the
@@ -782,7 +465,7 @@ impl Autopilot {
         self.vertical
             .predict(vertical_acceleration(imu.accel_mps2, q), dt);
         self.estimation
-            .predict(roll, pitch, gyro[2], dt, now_us, &self.cfg);
+            .predict(roll, pitch, gyro[2], dt, now_us, &self.cfg.estimation);
         let thrust = if self.failsafe.mode().motors_enabled() {
             tilt_compensate(
                 self.guidance.setpoints().thrust,
@@ -817,7 +500,7 @@ impl Autopilot {
             height_m: self.height.height_m(),
             climb_mps: self.height.climb_mps(),
         };
-        self.estimation.on_estimate(est, &ctx, &self.cfg);
+        self.estimation.on_estimate(est, &ctx, &self.cfg.estimation);
     }
 
     /// An external position fix (motion capture / simulator); only the height (`-z`) is used
@@ -949,7 +632,7 @@ impl Autopilot {
 
     /// A barometer reading (pressure, temperature) taken at `now_us`, fused by the vertical
     /// estimator the height loop flies on when no external fixes come. A reading identical to
-    /// the ones before it for longer than [`AutopilotConfig::baro_stuck_us`] is a frozen
+    /// the ones before it for longer than [`VerticalConfig::baro_stuck_us`](crate::vertical::VerticalConfig::baro_stuck_us) is a frozen
     /// sensor's: kept for telemetry, not fused, and counted ([`Autopilot::baro_frozen`]).
     pub fn on_baro(&mut self, reading: &BaroReading, now_us: u64) {
         if reading.pressure_pa.is_finite() && reading.temperature_c.is_finite() {
@@ -988,10 +671,10 @@ impl Autopilot {
     }
 
     /// The barometer's readings have stayed identical for longer than
-    /// [`AutopilotConfig::baro_stuck_us`]: a frozen sensor.
+    /// [`VerticalConfig::baro_stuck_us`](crate::vertical::VerticalConfig::baro_stuck_us): a frozen sensor.
     pub fn baro_is_frozen(&self) -> bool {
         matches!(self.baro, Some((t, _))
-            if t.saturating_sub(self.baro_changed_us) > self.cfg.baro_stuck_us)
+            if t.saturating_sub(self.baro_changed_us) > self.cfg.vertical.baro_stuck_us)
     }
 
     /// Frozen barometer readings refused since boot (wrapping).
@@ -1001,11 +684,12 @@ impl Autopilot {
 
     /// The ground signature: the commanded level-flight thrust well below hover while the
     /// specific force stays near 1 g and the body still (see
-    /// [`AutopilotConfig::ground_thrust_ratio`]).
+    /// [`SetpointConfig::ground_thrust_ratio`](crate::setpoints::SetpointConfig::ground_thrust_ratio)).
     pub fn ground_signature(&self) -> bool {
         let cfg = &self.cfg;
-        let min_force = cfg.ground_min_specific_force * GRAVITY;
-        self.guidance.setpoints().thrust < cfg.ground_thrust_ratio * cfg.height.hover_thrust
+        let min_force = cfg.setpoints.ground_min_specific_force * GRAVITY;
+        self.guidance.setpoints().thrust
+            < cfg.setpoints.ground_thrust_ratio * cfg.height.hover_thrust
             && self.ground_lp[0] >= min_force * min_force
             && self.ground_lp[1] <= GROUND_MAX_RATE_RADPS * GROUND_MAX_RATE_RADPS
     }
@@ -1035,23 +719,29 @@ impl Autopilot {
             }
         }
         let cfg = &self.cfg;
-        let velocity = self.estimation.state(cfg.velocity_source);
+        let velocity = self.estimation.state(cfg.estimation.velocity_source);
         let h = self.height.height_m();
-        let height_sp = self
-            .guidance
-            .height_setpoint(mode, &velocity, now_us, dt, cfg);
-        let fresh_velocity = velocity.fresh(now_us, cfg.velocity_max_age_us);
+        let height_sp = self.guidance.height_setpoint(
+            mode,
+            &velocity,
+            now_us,
+            dt,
+            cfg.failsafe.estimate_timeout_us,
+            &cfg.setpoints,
+        );
+        let fresh_velocity = velocity.fresh(now_us, cfg.estimation.velocity_max_age_us);
         let request = self.avoidance.step(
             &AvoidanceInput {
                 now_us,
                 // A lost host link with the hold action: hover where it is.
                 flying: mode == FlightMode::Flying && !self.failsafe.holding(),
-                at_flight_height: self.guidance.at_flight_height(h, cfg),
+                at_flight_height: self.guidance.at_flight_height(h, &cfg.setpoints),
                 yaw_rad: self.att.euler()[2],
                 held_yaw_rad: self.guidance.setpoints().attitude_rad[2],
                 speed_mps: fresh_velocity.map(|[f, s]| libm::sqrtf(f * f + s * s)),
             },
-            cfg,
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
         );
         if request.land {
             // No way to go found within the FSM's timeouts: land where it is.
@@ -1063,14 +753,14 @@ impl Autopilot {
         let landing = mode == FlightMode::Landing;
         let down = if height_fresh {
             self.guidance
-                .hold_height(&mut self.height, height_sp, h, dt, cfg);
+                .hold_height(&mut self.height, height_sp, h, dt, &cfg.setpoints);
             let on_ground = landing && self.ground_signature();
             self.guidance
-                .touched_down(landing, h, on_ground, now_us, cfg)
+                .touched_down(landing, h, on_ground, now_us, &cfg.setpoints)
         } else {
             // Blind landing (the failsafe switched to Landing): reduced thrust, then off.
             self.guidance
-                .blind_landing(self.failsafe.since_us(), now_us, cfg)
+                .blind_landing(self.failsafe.since_us(), now_us, &cfg.setpoints)
         };
         if down {
             self.touchdown(now_us);
@@ -1080,8 +770,9 @@ impl Autopilot {
         // height): cut near the floor or on the ground signature once it has taken too long.
         let landing_for = now_us.saturating_sub(self.failsafe.since_us());
         if landing
-            && landing_for >= self.cfg.land_timeout_us
-            && ((height_fresh && h <= self.cfg.land_cut_height_m) || self.ground_signature())
+            && landing_for >= self.cfg.setpoints.land_timeout_us
+            && ((height_fresh && h <= self.cfg.setpoints.land_cut_height_m)
+                || self.ground_signature())
         {
             self.failsafe.cut(FailsafeReason::LandTimeout, now_us);
             self.touchdown(now_us);

@@ -9,7 +9,10 @@ extern crate std;
 use super::*;
 use crate::attitude::GRAVITY;
 use crate::battery::BatteryState;
+use crate::estimation::VelocitySource;
 use crate::indi::IndiConfig;
+use crate::setpoints::SetpointConfig;
+use crate::tasks::{Trigger, IMU_PERIOD_US, TASKS};
 use crate::test_support::{camera_status, forward_estimate};
 use proptest::prelude::*;
 use protocol::params::MemStore;
@@ -354,7 +357,7 @@ fn a_stopped_camera_lands_and_stops_the_motors_within_its_promise() {
     let mut r = Run::new(cfg);
     r.takeoff();
     r.fly(4.0);
-    assert!((r.quad.height() - cfg.target_height_m).abs() < 0.1);
+    assert!((r.quad.height() - cfg.setpoints.target_height_m).abs() < 0.1);
     r.estimates = false;
     let stopped_at = r.now;
     r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
@@ -398,7 +401,7 @@ fn a_silent_host_lands_the_drone_and_stops_the_motors_within_its_promise() {
     let mut r = Run::new(cfg);
     r.takeoff();
     r.fly(4.0);
-    assert!((r.quad.height() - cfg.target_height_m).abs() < 0.1);
+    assert!((r.quad.height() - cfg.setpoints.target_height_m).abs() < 0.1);
     r.host = false;
     let last_heartbeat = r.ap.last_host_heartbeat_us().expect("heartbeats came");
     let promise = cfg.host_loss_motors_off_us();
@@ -450,7 +453,10 @@ fn a_biased_height_still_touches_down_on_the_ground_signature() {
         "biased height: disarmed {} ms after Land",
         (down.0 - land_at) / 1000
     );
-    assert!(down.0 - land_at < cfg.land_timeout_us, "before the timeout");
+    assert!(
+        down.0 - land_at < cfg.setpoints.land_timeout_us,
+        "before the timeout"
+    );
     assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::Command));
     assert_eq!(r.ap.motors(), [0.0; 4]);
     assert!(r.quad.height() < 0.02);
@@ -462,7 +468,10 @@ fn a_biased_height_still_touches_down_on_the_ground_signature() {
 #[test]
 fn a_landing_that_does_not_end_is_cut_after_its_timeout() {
     let cfg = AutopilotConfig {
-        ground_thrust_ratio: 0.0,
+        setpoints: SetpointConfig {
+            ground_thrust_ratio: 0.0,
+            ..SetpointConfig::default()
+        },
         ..AutopilotConfig::default()
     };
     let mut r = Run::new(cfg);
@@ -471,12 +480,12 @@ fn a_landing_that_does_not_end_is_cut_after_its_timeout() {
     r.height_bias = 0.2;
     r.ap.on_command(PilotCommand::Land, r.now);
     let land_at = r.now;
-    r.fly(cfg.land_timeout_us as f32 * 1e-6 - 0.1);
+    r.fly(cfg.setpoints.land_timeout_us as f32 * 1e-6 - 0.1);
     assert_eq!(r.ap.mode(), FlightMode::Landing, "still landing");
     r.fly(0.2);
     let down = r.modes.last().unwrap();
     assert_eq!(down.1, FlightMode::Disarmed);
-    assert!(down.0 - land_at >= cfg.land_timeout_us);
+    assert!(down.0 - land_at >= cfg.setpoints.land_timeout_us);
     assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::LandTimeout));
     assert_eq!(r.ap.motors(), [0.0; 4]);
 }
@@ -499,14 +508,14 @@ fn a_frozen_barometer_is_refused_and_counted() {
     assert!(!ap.baro_is_frozen());
     assert_eq!(ap.baro_frozen(), 0);
     let frozen_from = t;
-    while t <= frozen_from + cfg.baro_stuck_us + 100_000 {
+    while t <= frozen_from + cfg.vertical.baro_stuck_us + 100_000 {
         ap.on_baro(&reading(101_330.0), t);
         t += 20_000;
     }
     assert!(ap.baro_is_frozen());
     assert!(ap.baro_frozen() >= 4);
     let last_height = ap.height.last_measurement_us();
-    assert!(last_height.is_none_or(|h| h <= frozen_from + cfg.baro_stuck_us));
+    assert!(last_height.is_none_or(|h| h <= frozen_from + cfg.vertical.baro_stuck_us));
     assert!(ap.freshness().baro_frozen);
     ap.on_baro(&reading(101_331.0), t);
     assert!(!ap.baro_is_frozen());
@@ -550,7 +559,7 @@ fn a_barometer_frozen_in_flight_lands_the_drone_and_says_why() {
             pressure_pa: 1.0e5,
             temperature_c: 20.0,
         },
-        cfg.baro_stuck_us + 1,
+        cfg.vertical.baro_stuck_us + 1,
     );
     assert!(ap.freshness().baro_frozen);
 }
@@ -644,7 +653,7 @@ fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
             ap.on_estimate(&floor_only, t);
         }
     }
-    assert!(ap.height.climb_mps() > AutopilotConfig::default().max_vision_climb_mps);
+    assert!(ap.height.climb_mps() > AutopilotConfig::default().estimation.max_vision_climb_mps);
     assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
     assert_eq!(ap.velocity(), None);
     assert_eq!(ap.velocity_estimate(), None);
@@ -1168,7 +1177,7 @@ fn parameters_set_on_the_ground_take_effect_and_are_refused_in_flight() {
         set_param(&mut r.ap, "target_height", ParamValue::F32(1.5)),
         ParamReply::Error(ParamError::Armed)
     );
-    assert_eq!(r.ap.config().target_height_m, 0.6);
+    assert_eq!(r.ap.config().setpoints.target_height_m, 0.6);
     assert_eq!(
         param_request(&mut r.ap, Node::Autopilot, ParamOp::Save),
         ParamReply::Error(ParamError::NoStorage)
@@ -1330,7 +1339,7 @@ fn a_flight_continues_across_the_clock_wraps() {
             "wrap at {wrap_us} us: {:?}",
             r.modes
         );
-        let target = AutopilotConfig::default().target_height_m;
+        let target = AutopilotConfig::default().setpoints.target_height_m;
         let h = r.quad.height();
         assert!((h - target).abs() < 0.1, "wrap at {wrap_us} us: height {h}");
         assert!(
@@ -1480,7 +1489,7 @@ fn the_fit_source_takes_each_frames_own_fit() {
     };
     let mut fits = autopilot_at_height();
     let mut cfg = *fits.config();
-    cfg.velocity_source = VelocitySource::KalmanFits;
+    cfg.estimation.velocity_source = VelocitySource::KalmanFits;
     fits.set_config(cfg).unwrap();
     let mut output = autopilot_at_height();
     for k in 1..=10u64 {
@@ -1563,7 +1572,7 @@ fn a_critical_battery_lands_at_once_at_the_fast_descent_rate() {
     fly_on_battery(&mut r, 3.1, 0.5);
     let rate = (h0 - r.ap.setpoints().height_m) / 0.5;
     assert!(
-        (rate - cfg.blind_land_rate_mps).abs() < 0.05,
+        (rate - cfg.setpoints.blind_land_rate_mps).abs() < 0.05,
         "descends at {rate} m/s"
     );
     fly_on_battery(&mut r, 3.1, 4.0);
@@ -1672,7 +1681,7 @@ fn a_motion_capture_take_off_passes_the_gate_fix_by_fix() {
             next_fix += 20_000;
             let climbing = t > 1_000_000;
             if climbing {
-                h = (h + cfg.climb_rate_mps * 0.02).min(1.0);
+                h = (h + cfg.setpoints.climb_rate_mps * 0.02).min(1.0);
             }
             ap.on_external_position(&height_fix(h, t), t);
             worst = worst.max((ap.height.height_m() - h).abs());

@@ -17,8 +17,8 @@
 //!   other mode; while it is stopped the request is zero velocity on the held heading.
 //! * The force field acts whenever the motors run.
 
-use crate::app::AutopilotConfig;
 use crate::force_field::backward_velocity;
+use crate::force_field::ForceFieldConfig;
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
 use protocol::{Estimate, EstimateFlags};
 
@@ -114,11 +114,16 @@ impl Avoidance {
     }
 
     /// One guidance step: starts, steps or stops the FSM and adds the force field.
-    pub fn step(&mut self, input: &AvoidanceInput, cfg: &AutopilotConfig) -> AvoidanceOutput {
+    pub fn step(
+        &mut self,
+        input: &AvoidanceInput,
+        force_field: &ForceFieldConfig,
+        estimate_timeout_us: u64,
+    ) -> AvoidanceOutput {
         let now_us = input.now_us;
         let obstacle = self
             .obstacle
-            .filter(|o| now_us.saturating_sub(o.received_us) <= cfg.failsafe.estimate_timeout_us);
+            .filter(|o| now_us.saturating_sub(o.received_us) <= estimate_timeout_us);
         let mut v_sp = [0.0f32; 2];
         let mut yaw_sp = input.held_yaw_rad;
         let mut land = false;
@@ -138,7 +143,7 @@ impl Avoidance {
         } else {
             self.active = false;
         }
-        v_sp[0] += backward_velocity(&cfg.force_field, obstacle.and_then(|o| o.distance_m));
+        v_sp[0] += backward_velocity(force_field, obstacle.and_then(|o| o.distance_m));
         AvoidanceOutput {
             velocity_mps: v_sp,
             yaw_sp_rad: yaw_sp,
@@ -176,6 +181,7 @@ impl Avoidance {
 mod tests {
     use super::*;
     use crate::test_support::forward_estimate;
+    use crate::AutopilotConfig;
 
     fn input(now_us: u64, flying: bool, at_flight_height: bool) -> AvoidanceInput {
         AvoidanceInput {
@@ -229,7 +235,11 @@ mod tests {
         let cfg = AutopilotConfig::default();
         let mut a = Avoidance::new(cfg.fsm);
         // Climbing: held heading, no FSM.
-        let out = a.step(&input(0, true, false), &cfg);
+        let out = a.step(
+            &input(0, true, false),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
         assert_eq!(
             out,
             AvoidanceOutput {
@@ -240,20 +250,44 @@ mod tests {
         );
         assert_eq!(a.state(), None);
         // At height: Check on the held heading; a clear view then sends it forward.
-        a.step(&input(20_000, true, true), &cfg);
+        a.step(
+            &input(20_000, true, true),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
         assert_eq!(a.state(), Some(FsmState::Check));
         a.on_estimate(&sees(None), 30_000);
-        let out = a.step(&input(40_000, true, true), &cfg);
+        let out = a.step(
+            &input(40_000, true, true),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
         assert_eq!(a.state(), Some(FsmState::Forward));
-        a.step(&input(60_000, true, true), &cfg);
-        let out2 = a.step(&input(80_000, true, true), &cfg);
+        a.step(
+            &input(60_000, true, true),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
+        let out2 = a.step(
+            &input(80_000, true, true),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
         assert_eq!(out.yaw_sp_rad, 0.2);
         assert_eq!(out2.velocity_mps, [cfg.fsm.forward_speed_mps, 0.0]);
         // Any other mode stops it; back in normal flight it starts again in Check.
-        let out = a.step(&input(100_000, false, true), &cfg);
+        let out = a.step(
+            &input(100_000, false, true),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
         assert_eq!(out.velocity_mps, [0.0; 2]);
         assert!(!a.active());
-        a.step(&input(120_000, true, true), &cfg);
+        a.step(
+            &input(120_000, true, true),
+            &cfg.force_field,
+            cfg.failsafe.estimate_timeout_us,
+        );
         assert_eq!(a.state(), Some(FsmState::Check));
         a.stop();
         assert_eq!(a.state(), None);
@@ -267,12 +301,21 @@ mod tests {
         let push = backward_velocity(&cfg.force_field, Some(0.4));
         assert!(push < 0.0);
         for flying in [true, false] {
-            let out = a.step(&input(1_000_000, flying, false), &cfg);
+            let out = a.step(
+                &input(1_000_000, flying, false),
+                &cfg.force_field,
+                cfg.failsafe.estimate_timeout_us,
+            );
             assert_eq!(out.velocity_mps, [push, 0.0]);
         }
         let stale = 1_000_000 + cfg.failsafe.estimate_timeout_us + 1;
         assert_eq!(
-            a.step(&input(stale, false, false), &cfg).velocity_mps,
+            a.step(
+                &input(stale, false, false),
+                &cfg.force_field,
+                cfg.failsafe.estimate_timeout_us
+            )
+            .velocity_mps,
             [0.0; 2]
         );
     }
@@ -286,7 +329,13 @@ mod tests {
         // Never a reading: every Check times out into a turn until the searches run out.
         while !land && t < 120_000_000 {
             t += 20_000;
-            land = a.step(&input(t, true, true), &cfg).land;
+            land = a
+                .step(
+                    &input(t, true, true),
+                    &cfg.force_field,
+                    cfg.failsafe.estimate_timeout_us,
+                )
+                .land;
         }
         assert!(land, "asked to land within {t} us");
         assert!(a.fsm().wants_to_land());

@@ -8,7 +8,7 @@
 //! estimate for the failsafe ([`VelocityEstimation::last_valid_estimate_us`]), and for each
 //! estimate the [`Gate`] it stopped at.
 //!
-//! The gates, in order (tunables are [`AutopilotConfig`] fields, the parameter table's):
+//! The gates, in order (tunables are [`EstimationConfig`] fields, the parameter table's):
 //!
 //! 1. Valid: the estimate's flags, `min_quality`, a finite velocity within `max_estimate_mps`
 //!    (with [`VelocitySource::KalmanFits`]: the frame's own fit, present only when valid, and
@@ -32,13 +32,113 @@
 //! 7. The median-5, whose output corrects the velocity observer
 //!    ([`VelocitySource::MedianObserver`]).
 //!
-//! [`AutopilotConfig`]: crate::app::AutopilotConfig
 
-use crate::app::AutopilotConfig;
+use crate::guidance::ObserverConfig;
 use crate::guidance::VelocityObserver;
 use crate::median::VelocityMedian;
+use crate::velocity_kf::VelocityKfConfig;
 use crate::velocity_kf::{Fusion, VelocityKf};
 use protocol::{Estimate, EstimateFlags};
+
+/// The horizontal velocity estimation: the gates an Edge-FS estimate passes, the velocity
+/// filters and the timing of an estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EstimationConfig {
+    /// Estimates with a lower quality are treated as invalid (0..=255).
+    pub min_quality: u8,
+    /// A gap between valid estimates longer than this empties the median filter, µs.
+    pub median_reset_gap_us: u64,
+    /// Largest accepted velocity estimate magnitude per axis, m/s (bigger is treated as invalid).
+    pub max_estimate_mps: f32,
+    /// Plausibility gate: an estimate further than this from the median output on either axis
+    /// is an outlier and skipped, m/s (a 15 deg bank changes the velocity by about 0.1 m/s
+    /// per 25 Hz frame). The median alone cannot reject two spikes in a row.
+    pub max_velocity_jump_mps: f32,
+    /// After this many consecutive outliers that agree with each other (within
+    /// `max_velocity_jump_mps`) the gate restarts the median from the new value (the filter,
+    /// not the estimates, lost track).
+    pub max_consecutive_outliers: u8,
+    /// Guidance flies on the observer's velocity only while the last fused estimate is
+    /// younger than this, µs (in between the observer dead-reckons from the attitude, which
+    /// keeps braking through fast yaw and short link outages); older, it holds the trim
+    /// attitude.
+    pub velocity_max_age_us: u64,
+    /// Velocity observer (prediction from the attitude, correction by the filtered Edge-FS
+    /// velocity).
+    pub observer: ObserverConfig,
+    /// Which velocity guidance flies on.
+    pub velocity_source: VelocitySource,
+    /// Horizontal velocity Kalman filter.
+    pub velocity_kf: VelocityKfConfig,
+    /// Time span an Edge-FS velocity averages over, µs: its flow horizon (`horizon_s`, 0.25 s
+    /// by default) widened by the camera board's output filter, which smooths over several
+    /// frames. The velocity filter takes each estimate as the mean velocity over this long.
+    pub estimate_horizon_us: u32,
+    /// [`VelocitySource::KalmanFits`]: the time span a frame's own fit averages over, µs (the
+    /// flow horizon `horizon_s`; no filter lag).
+    pub fit_horizon_us: u32,
+    /// Time an estimate spends on the link after the camera board sent it, µs (an `Estimate`
+    /// frame of ~40 bytes at 115,200 Bd; its `processing_us` covers capture to sending).
+    pub estimate_link_us: u32,
+    /// Delay of the camera board's output filter, µs: the averaging window ends this long
+    /// before the frame's capture. The filter (a velocity random walk on the board) passes a
+    /// step in a few frames, so the estimate describes an older, wider window than the flow
+    /// horizon alone; fitted in the simulator on tuning seeds (see `docs/parameters.md`).
+    pub estimate_filter_lag_us: u32,
+    /// Estimates are not used for the velocity while the gyro's yaw rate is above this, rad/s
+    /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
+    /// still count as valid for the failsafe (the camera board is alive).
+    pub max_yaw_rate_radps: f32,
+    /// Estimates are not used for the velocity below this height, m: near the floor the view
+    /// is mostly floor nearer than the stereo range, and a wrong take-off estimate teaches the
+    /// velocity filter a wrong bias. They still count as valid for the failsafe.
+    pub min_vision_height_m: f32,
+    /// Estimates are not used for the velocity while the drone climbs or descends faster than
+    /// this, m/s: Edge-FS takes all image motion for horizontal translation, and a climb over a
+    /// floor seen in perspective moves its edges sideways as a forward flight would (in a room
+    /// with plain walls a take-off read as 1.1 m/s forward). They still count as valid for the
+    /// failsafe.
+    pub max_vision_climb_mps: f32,
+    /// ... unless the view has at least this fraction of its columns with a stereo depth
+    /// (0..1): textured walls in range move as the scene does, only a view of little but the
+    /// floor reads a climb as forward flight.
+    pub vision_climb_min_depth: f32,
+    /// A valid estimate counts (for the velocity and for the failsafe) only as the
+    /// `min_valid_run`-th or later of an unbroken run of valid ones. On a textured view nearly
+    /// every frame is valid; a lone valid frame among invalid ones comes from a scrap of
+    /// texture (the floor's perspective lines at the bottom of a view of a plain wall, which
+    /// pitch and heave move sideways as forward flight would) and was seen 1 m/s wrong.
+    pub min_valid_run: u8,
+    /// ... nor until this long after the yaw rate was last above the limit, µs (covers the
+    /// exposure-to-arrival latency and the estimator's history).
+    pub yaw_settle_us: u64,
+}
+
+impl Default for EstimationConfig {
+    fn default() -> Self {
+        Self {
+            min_quality: 0,
+            median_reset_gap_us: 500_000,
+            max_estimate_mps: 5.0,
+            max_velocity_jump_mps: 0.6,
+            max_consecutive_outliers: 3,
+            velocity_max_age_us: 2_500_000,
+            observer: ObserverConfig::default(),
+            velocity_source: VelocitySource::Kalman,
+            velocity_kf: VelocityKfConfig::default(),
+            estimate_horizon_us: 350_000,
+            fit_horizon_us: 250_000,
+            estimate_link_us: 3_500,
+            estimate_filter_lag_us: 97_000,
+            max_yaw_rate_radps: 0.6,
+            min_vision_height_m: 0.6,
+            max_vision_climb_mps: 0.25,
+            vision_climb_min_depth: 0.9,
+            min_valid_run: 3,
+            yaw_settle_us: 150_000,
+        }
+    }
+}
 
 /// The velocity estimate guidance flies on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -49,7 +149,7 @@ pub enum VelocitySource {
     /// The paper's path: median-5 of the gated estimates into the [`VelocityObserver`].
     MedianObserver,
     /// [`VelocityKf`] on each frame's own fit ([`protocol::Estimate::fit`]) instead of the
-    /// board's filtered output, over the flow window [`AutopilotConfig::fit_horizon_us`]: 2x
+    /// board's filtered output, over the flow window [`EstimationConfig::fit_horizon_us`]: 2x
     /// less velocity error in most simulated flights (0.02 against 0.045 m/s RMS), but a
     /// frame's fit can alias to the wrong sign when the flow outruns the search (seen above
     /// 0.5 m/s), and runs of such fits have thrown the filter off; not the default.
@@ -144,7 +244,7 @@ pub struct VelocityEstimation {
     velocity: Option<[f32; 2]>,
     estimates_received: u32,
     outliers_in_a_row: u8,
-    /// Valid estimates in a row (saturating), see [`AutopilotConfig::min_valid_run`].
+    /// Valid estimates in a row (saturating), see [`EstimationConfig::min_valid_run`].
     valid_run: u8,
     last_outlier: [f32; 2],
     outliers_total: u32,
@@ -152,7 +252,7 @@ pub struct VelocityEstimation {
 
 impl VelocityEstimation {
     /// Nothing estimated yet; the observer and the Kalman filter from `cfg`.
-    pub fn new(cfg: &AutopilotConfig) -> Self {
+    pub fn new(cfg: &EstimationConfig) -> Self {
         Self {
             median: VelocityMedian::default(),
             observer: VelocityObserver::new(cfg.observer),
@@ -173,14 +273,14 @@ impl VelocityEstimation {
 
     /// Takes the observer's and the Kalman filter's parts of a new configuration, keeping the
     /// state (the gates read theirs at every call).
-    pub fn set_config(&mut self, cfg: &AutopilotConfig) {
+    pub fn set_config(&mut self, cfg: &EstimationConfig) {
         self.observer.set_config(cfg.observer);
         self.kf.set_config(cfg.velocity_kf);
     }
 
     /// 512 Hz: the configured source predicts over `dt` s from the attitude (`roll`, `pitch`,
     /// rad) and the gyro's `yaw_rate` (rad/s); a yaw rate above
-    /// [`AutopilotConfig::max_yaw_rate_radps`] starts the yaw gate's settle time.
+    /// [`EstimationConfig::max_yaw_rate_radps`] starts the yaw gate's settle time.
     #[inline]
     pub fn predict(
         &mut self,
@@ -189,7 +289,7 @@ impl VelocityEstimation {
         yaw_rate: f32,
         dt: f32,
         now_us: u64,
-        cfg: &AutopilotConfig,
+        cfg: &EstimationConfig,
     ) {
         match cfg.velocity_source {
             VelocitySource::Kalman | VelocitySource::KalmanFits => {
@@ -209,7 +309,7 @@ impl VelocityEstimation {
         &mut self,
         est: &Estimate,
         ctx: &VisionContext,
-        cfg: &AutopilotConfig,
+        cfg: &EstimationConfig,
     ) -> Gate {
         let now_us = ctx.now_us;
         self.estimates_received = self.estimates_received.wrapping_add(1);
@@ -400,6 +500,7 @@ impl VelocityEstimation {
 mod tests {
     use super::*;
     use crate::test_support::forward_estimate;
+    use crate::AutopilotConfig;
     use protocol::EstimateFlags;
 
     /// Level at 1 m at `now_us`: nothing but the estimate itself gates it.
@@ -420,12 +521,10 @@ mod tests {
 
     impl Feed {
         fn new(source: VelocitySource) -> Self {
-            let cfg = AutopilotConfig {
-                velocity_source: source,
-                ..AutopilotConfig::default()
-            };
+            let mut cfg = AutopilotConfig::default();
+            cfg.estimation.velocity_source = source;
             Self {
-                est: VelocityEstimation::new(&cfg),
+                est: VelocityEstimation::new(&cfg.estimation),
                 cfg,
                 t: 0,
             }
@@ -438,7 +537,7 @@ mod tests {
                 now_us: self.t,
                 ..ctx
             };
-            self.est.on_estimate(e, &ctx, &self.cfg)
+            self.est.on_estimate(e, &ctx, &self.cfg.estimation)
         }
 
         fn level(&mut self, forward_mps: f32) -> Gate {
@@ -451,7 +550,7 @@ mod tests {
     #[test]
     fn a_valid_estimate_counts_only_within_a_run_of_valid_ones() {
         let mut f = Feed::new(VelocitySource::MedianObserver);
-        let run = f.cfg.min_valid_run;
+        let run = f.cfg.estimation.min_valid_run;
         assert!(run >= 2);
         let mut invalid = forward_estimate(1.1);
         invalid.flags = EstimateFlags::NO_FLOW_MATCH;
@@ -476,14 +575,17 @@ mod tests {
     #[test]
     fn garbage_and_low_quality_are_invalid() {
         let mut f = Feed::new(VelocitySource::Kalman);
-        f.cfg.min_quality = 100;
+        f.cfg.estimation.min_quality = 100;
         let poor = Estimate {
             quality: 99,
             ..forward_estimate(0.1)
         };
         assert_eq!(f.frame(&poor, level(0)), Gate::Invalid);
         assert_eq!(f.level(f32::NAN), Gate::Invalid);
-        assert_eq!(f.level(f.cfg.max_estimate_mps + 0.1), Gate::Invalid);
+        assert_eq!(
+            f.level(f.cfg.estimation.max_estimate_mps + 0.1),
+            Gate::Invalid
+        );
         assert_eq!(f.est.last_valid_estimate_us(), None);
     }
 
@@ -499,11 +601,11 @@ mod tests {
         for source in [VelocitySource::Kalman, VelocitySource::MedianObserver] {
             let mut f = Feed::new(source);
             let low = VisionContext {
-                height_m: f.cfg.min_vision_height_m - 0.01,
+                height_m: f.cfg.estimation.min_vision_height_m - 0.01,
                 ..level(0)
             };
             let climbing = VisionContext {
-                climb_mps: f.cfg.max_vision_climb_mps + 0.01,
+                climb_mps: f.cfg.estimation.max_vision_climb_mps + 0.01,
                 ..level(0)
             };
             let descending = VisionContext {
@@ -526,7 +628,7 @@ mod tests {
             assert_eq!(f.est.state(source).last_fix_us, Some(f.t));
             // Climbing over a view with depth at least `vision_climb_min_depth`: taken too.
             let deep = Estimate {
-                depth_coverage: (f.cfg.vision_climb_min_depth * 255.0).ceil() as u8,
+                depth_coverage: (f.cfg.estimation.vision_climb_min_depth * 255.0).ceil() as u8,
                 ..forward_estimate(0.4)
             };
             assert_eq!(f.frame(&deep, climbing), Gate::Passed);
@@ -567,7 +669,7 @@ mod tests {
         for _ in 0..5 {
             f.level(0.3);
         }
-        f.t += f.cfg.median_reset_gap_us;
+        f.t += f.cfg.estimation.median_reset_gap_us;
         // Far from the old output, but the old output is gone.
         assert_eq!(f.level(1.5), Gate::Passed);
         assert_eq!(f.est.median_velocity(), Some([1.5, 0.0]));
@@ -577,13 +679,16 @@ mod tests {
     #[test]
     fn estimates_under_fast_yaw_are_not_fused_but_keep_the_failsafe_quiet() {
         let cfg = AutopilotConfig::default();
-        let mut est = VelocityEstimation::new(&cfg);
+        let mut est = VelocityEstimation::new(&cfg.estimation);
         let mut t = 0;
         // `dt_us` of prediction at `yaw_rate`, then an estimate of `v` forward.
         let mut step = |est: &mut VelocityEstimation, yaw_rate: f32, v: f32, dt_us: u64| {
             t += dt_us;
-            est.predict(0.0, 0.0, yaw_rate, dt_us as f32 * 1e-6, t, &cfg);
-            (est.on_estimate(&forward_estimate(v), &level(t), &cfg), t)
+            est.predict(0.0, 0.0, yaw_rate, dt_us as f32 * 1e-6, t, &cfg.estimation);
+            (
+                est.on_estimate(&forward_estimate(v), &level(t), &cfg.estimation),
+                t,
+            )
         };
         let velocity = |est: &VelocityEstimation| est.state(VelocitySource::Kalman).velocity_mps;
         // Long enough for the estimates' windows (about 0.5 s old) to lie after the filter's
@@ -620,7 +725,7 @@ mod tests {
     #[test]
     fn fits_spoiled_by_a_turn_keep_the_failsafe_quiet() {
         let cfg = AutopilotConfig::default();
-        let mut est = VelocityEstimation::new(&cfg);
+        let mut est = VelocityEstimation::new(&cfg.estimation);
         let with_flags = |flags: u8| Estimate {
             flags: EstimateFlags(flags),
             ..forward_estimate(0.0)
@@ -629,24 +734,36 @@ mod tests {
         let blind = with_flags(EstimateFlags::POOR_FIT.0 | EstimateFlags::NO_TEXTURE.0);
         let mut t = 1_000_000;
         // Not turning: a spoiled fit is invalid and leaves the failsafe's clock alone.
-        est.predict(0.0, 0.0, 0.0, 0.02, t, &cfg);
-        assert_eq!(est.on_estimate(&spoiled, &level(t), &cfg), Gate::Invalid);
+        est.predict(0.0, 0.0, 0.0, 0.02, t, &cfg.estimation);
+        assert_eq!(
+            est.on_estimate(&spoiled, &level(t), &cfg.estimation),
+            Gate::Invalid
+        );
         assert_eq!(est.last_valid_estimate_us(), None);
         // Turning: it counts for the failsafe (not for the velocity); a blind frame does not.
         t += 20_000;
-        est.predict(0.0, 0.0, 1.5, 0.02, t, &cfg);
-        assert_eq!(est.on_estimate(&spoiled, &level(t), &cfg), Gate::Yaw);
+        est.predict(0.0, 0.0, 1.5, 0.02, t, &cfg.estimation);
+        assert_eq!(
+            est.on_estimate(&spoiled, &level(t), &cfg.estimation),
+            Gate::Yaw
+        );
         assert_eq!(est.last_valid_estimate_us(), Some(t));
         assert_eq!(est.yaw_gated(), 1);
-        assert_eq!(est.on_estimate(&blind, &level(t + 1), &cfg), Gate::Invalid);
+        assert_eq!(
+            est.on_estimate(&blind, &level(t + 1), &cfg.estimation),
+            Gate::Invalid
+        );
         assert_eq!(est.last_valid_estimate_us(), Some(t));
         // Until the flow window has left the turn behind, and no longer.
-        let window = cfg.yaw_settle_us + u64::from(cfg.estimate_horizon_us);
+        let window = cfg.estimation.yaw_settle_us + u64::from(cfg.estimation.estimate_horizon_us);
         let (inside, after) = (t + window, t + window + 1);
-        est.predict(0.0, 0.0, 0.0, 0.02, inside, &cfg);
-        assert_eq!(est.on_estimate(&spoiled, &level(inside), &cfg), Gate::Yaw);
+        est.predict(0.0, 0.0, 0.0, 0.02, inside, &cfg.estimation);
         assert_eq!(
-            est.on_estimate(&spoiled, &level(after), &cfg),
+            est.on_estimate(&spoiled, &level(inside), &cfg.estimation),
+            Gate::Yaw
+        );
+        assert_eq!(
+            est.on_estimate(&spoiled, &level(after), &cfg.estimation),
             Gate::Invalid
         );
         assert_eq!(est.last_valid_estimate_us(), Some(inside));

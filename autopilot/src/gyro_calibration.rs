@@ -2,8 +2,7 @@
 //! block of samples becomes the gyro offset.
 //!
 //! Takes: each IMU sample while the motors cannot run (disarmed, killed, IMU fault), with the
-//! block length and the stillness limit ([`AutopilotConfig::gyro_calibration_samples`],
-//! [`AutopilotConfig::gyro_calibration_still_radps`]). Gives: the offset
+//! block length and the stillness limit ([`GyroCalibrationConfig`]). Gives: the offset
 //! ([`GyroCalibration::offset`]) and every gyro sample corrected by it
 //! ([`GyroCalibration::correct`], on the 512 Hz path whether armed or not);
 //! [`GyroCalibration::update`] says when a block gave the first offset since boot (the caller
@@ -11,12 +10,32 @@
 //!
 //! A sample is still while every gyro axis is below the limit and the specific force is within
 //! 5 % of 1 g; any other sample restarts the block. Each full block replaces the offset.
-//!
-//! [`AutopilotConfig::gyro_calibration_samples`]: crate::app::AutopilotConfig::gyro_calibration_samples
-//! [`AutopilotConfig::gyro_calibration_still_radps`]: crate::app::AutopilotConfig::gyro_calibration_still_radps
 
 use crate::attitude::GRAVITY;
 use protocol::ImuSample;
+
+/// Ground gyro calibration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GyroCalibrationConfig {
+    /// Ground gyro calibration: while disarmed and still, the mean gyro over this many IMU
+    /// samples becomes the gyro offset (every later sample is corrected by it). The
+    /// MPU-6000's zero-rate offset is ±0.5 deg/s-class even after factory trim; uncorrected,
+    /// the attitude filter's low accelerometer gain leaves a tilt error of `offset / kp`
+    /// (several degrees) that the velocity loop then flies as a trim.
+    pub samples: u16,
+    /// A sample counts as still while every gyro axis is below this, rad/s, and the
+    /// specific force is within 5 % of 1 g; anything else restarts the average.
+    pub still_radps: f32,
+}
+
+impl Default for GyroCalibrationConfig {
+    fn default() -> Self {
+        Self {
+            samples: 256,
+            still_radps: 0.1,
+        }
+    }
+}
 
 /// Block average of still gyro samples and the offset it gave.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -151,7 +151,7 @@ mod tests {
     #[test]
     fn a_stream_of_position_fixes_reaches_the_height() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
-        for _ in 0..crate::app::FIXES_TO_LEAD {
+        for _ in 0..crate::vertical::FIXES_TO_LEAD {
             let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000, None);
             assert_eq!(out, HostOutcome::Done);
         }
@@ -182,7 +182,7 @@ mod tests {
         );
         assert_eq!(ap.telemetry(1_000).link_auth.unsigned, 2);
         let mut signer = Signer::new(key, 1);
-        let fixes = crate::app::FIXES_TO_LEAD;
+        let fixes = crate::vertical::FIXES_TO_LEAD;
         for k in 0..u64::from(fixes) {
             let signed = signer
                 .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10 + k)

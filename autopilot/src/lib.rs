@@ -28,7 +28,9 @@
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts, why a landing began.
 //! * [`battery`]: the supply voltage filtered and compensated for its sag under thrust, the
 //!   arming, landing and critical thresholds.
-//! * [`app`]: [`Autopilot`], the board's task logic, and the task table [`TASKS`].
+//! * [`app`]: [`Autopilot`], the board's task logic: the stages composed.
+//! * [`config`]: [`AutopilotConfig`], every stage's configuration composed.
+//! * [`tasks`]: the task periods and the task table [`TASKS`].
 //! * [`camera_link`]: the camera board's link: decoder, last heartbeat, status and answers.
 //! * [`link_auth`]: which host messages must be signed, the link key and the refusal counts.
 //! * [`host`]: [`Autopilot::on_host_message`], the one dispatch of host messages that the
@@ -50,6 +52,7 @@ pub mod avoidance;
 pub mod battery;
 pub mod board;
 pub mod camera_link;
+pub mod config;
 pub mod estimation;
 pub mod failsafe;
 pub mod force_field;
@@ -68,13 +71,16 @@ pub mod ms5611;
 pub mod params;
 pub mod rc;
 pub mod setpoints;
+pub mod tasks;
 #[cfg(test)]
 mod test_support;
 pub mod velocity_kf;
 pub mod velocity_model;
 pub mod vertical;
 
-pub use app::{ArmBlock, Autopilot, AutopilotConfig, Setpoints, TaskSpec, Trigger, TASKS};
+pub use app::{ArmBlock, Autopilot, Setpoints};
+pub use config::AutopilotConfig;
 pub use failsafe::FlightMode;
 pub use fsm::{FsmState, FsmVariant};
 pub use host::HostOutcome;
+pub use tasks::{TaskSpec, Trigger, TASKS};

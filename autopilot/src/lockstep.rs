@@ -12,7 +12,7 @@
 //! Only the time source changes: the task bodies call the same [`crate::Autopilot`] methods as
 //! the real flavour, at the periods of [`crate::TASKS`].
 
-use crate::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
+use crate::tasks::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
 use timebase::{WireTime, WorldTime, WrapExtender};
 
 /// The world clock: the host's wrapping `u32` microsecond sample timestamps extended onto a
@@ -108,7 +108,7 @@ impl WorldTimers {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::app::IMU_PERIOD_US;
+    use crate::tasks::IMU_PERIOD_US;
 
     #[test]
     fn clock_extends_wraps_and_never_goes_back() {

@@ -19,7 +19,8 @@
 //! else is rejected with the parameter, the one it disagrees with and the reason
 //! ([`Rejected`], its [`Conflict`]), and nothing changes.
 
-use crate::app::{AutopilotConfig, VelocitySource};
+use crate::config::AutopilotConfig;
+use crate::estimation::VelocitySource;
 use crate::failsafe::HostLossAction;
 use crate::fsm::FsmVariant;
 use crate::guidance::MAX_MEASUREMENT_DELAY_US;
@@ -177,56 +178,56 @@ protocol::param_table! {
     "fs_host_timeout_us": U32 ["us"] 200_000, 60_000_000, true => |c| c.failsafe.host_timeout_us;
     "fs_host_action": U32 ["enum"] 0, 2, true => |c| c.failsafe.host_action;
     "fs_autonomous_arm": Bool ["-"] false, true, true => |c| c.failsafe.autonomous_arm;
-    "target_height": F32 ["m"] 0.2, 3.0, true => |c| c.target_height_m;
-    "climb_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.climb_rate_mps;
-    "land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.land_rate_mps;
-    "blind_land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.blind_land_rate_mps;
-    "landed_height": F32 ["m"] 0.01, 0.5, true => |c| c.landed_height_m;
-    "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.landed_time_us;
-    "land_timeout_us": U32 ["us"] 1_000_000, 120_000_000, true => |c| c.land_timeout_us;
-    "land_cut_height": F32 ["m"] 0.0, 1.0, true => |c| c.land_cut_height_m;
-    "ground_thrust_ratio": F32 ["-"] 0.0, 1.0, true => |c| c.ground_thrust_ratio;
-    "ground_min_accel": F32 ["g"] 0.5, 1.0, true => |c| c.ground_min_specific_force;
-    "baro_stuck_us": U32 ["us"] 40_000, 10_000_000, true => |c| c.baro_stuck_us;
-    "fsm_start_height_tol": F32 ["m"] 0.01, 1.0, true => |c| c.fsm_start_height_tolerance_m;
-    "blind_land_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.blind_land_thrust;
-    "blind_land_time_us": U32 ["us"] 0, 20_000_000, true => |c| c.blind_land_time_us;
-    "min_quality": U32 ["-"] 0, 255, true => |c| c.min_quality;
-    "median_reset_gap_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.median_reset_gap_us;
-    "max_estimate": F32 ["m/s"] 0.1, 20.0, true => |c| c.max_estimate_mps;
-    "max_velocity_jump": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_velocity_jump_mps;
-    "max_outliers": U32 ["-"] 0, 20, true => |c| c.max_consecutive_outliers;
-    "min_vision_height": F32 ["m"] 0.0, 2.0, true => |c| c.min_vision_height_m;
-    "max_vision_climb": F32 ["m/s"] 0.05, 5.0, true => |c| c.max_vision_climb_mps;
-    "vision_climb_depth": F32 ["-"] 0.0, 1.0, true => |c| c.vision_climb_min_depth;
-    "min_valid_run": U32 ["-"] 1, 20, true => |c| c.min_valid_run;
-    "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.velocity_max_age_us;
-    "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.observer.drag_per_s;
-    "obs_velocity_gain": F32 ["-"] 0.0, 1.0, true => |c| c.observer.velocity_gain;
-    "obs_bias_gain": F32 ["-"] 0.0, 1.0, true => |c| c.observer.bias_gain;
-    "obs_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.observer.max_bias_mps2;
-    "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY_US, true => |c| c.observer.measurement_delay_us;
-    "obs_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.observer.max_tilt_rad;
-    "velocity_source": U32 ["enum"] 0, 2, true => |c| c.velocity_source;
-    "vkf_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.velocity_kf.drag_per_s;
-    "vkf_accel_noise": F32 ["m/s2"] 0.001, 10.0, true => |c| c.velocity_kf.accel_noise;
-    "vkf_bias_walk": F32 ["m/s2"] 0.0, 1.0, true => |c| c.velocity_kf.bias_walk;
-    "vkf_bias_sigma0": F32 ["m/s2"] 0.001, 5.0, true => |c| c.velocity_kf.initial_bias_sigma;
-    "vkf_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.velocity_kf.max_bias_mps2;
-    "vkf_sigma_best": F32 ["m/s"] 0.001, 2.0, true => |c| c.velocity_kf.sigma_best_mps;
-    "vkf_min_quality": U32 ["-"] 1, 255, true => |c| c.velocity_kf.min_quality;
-    "vkf_gate_sigmas": F32 ["-"] 1.0, 100.0, true => |c| c.velocity_kf.gate_sigmas;
-    "vkf_reinit_after": U32 ["-"] 1, 50, true => |c| c.velocity_kf.reinit_after;
-    "vkf_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.velocity_kf.max_tilt_rad;
-    "vkf_room_bias": Bool ["-"] false, true, true => |c| c.velocity_kf.bias_in_room_frame;
-    "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimate_horizon_us;
-    "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimate_link_us;
-    "est_filter_lag_us": U32 ["us"] 0, 500_000, true => |c| c.estimate_filter_lag_us;
-    "fit_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.fit_horizon_us;
-    "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.max_yaw_rate_radps;
-    "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.yaw_settle_us;
-    "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration_samples;
-    "gyro_cal_still": F32 ["rad/s"] 0.001, 1.0, true => |c| c.gyro_calibration_still_radps;
+    "target_height": F32 ["m"] 0.2, 3.0, true => |c| c.setpoints.target_height_m;
+    "climb_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.setpoints.climb_rate_mps;
+    "land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.setpoints.land_rate_mps;
+    "blind_land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.setpoints.blind_land_rate_mps;
+    "landed_height": F32 ["m"] 0.01, 0.5, true => |c| c.setpoints.landed_height_m;
+    "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.setpoints.landed_time_us;
+    "land_timeout_us": U32 ["us"] 1_000_000, 120_000_000, true => |c| c.setpoints.land_timeout_us;
+    "land_cut_height": F32 ["m"] 0.0, 1.0, true => |c| c.setpoints.land_cut_height_m;
+    "ground_thrust_ratio": F32 ["-"] 0.0, 1.0, true => |c| c.setpoints.ground_thrust_ratio;
+    "ground_min_accel": F32 ["g"] 0.5, 1.0, true => |c| c.setpoints.ground_min_specific_force;
+    "baro_stuck_us": U32 ["us"] 40_000, 10_000_000, true => |c| c.vertical.baro_stuck_us;
+    "fsm_start_height_tol": F32 ["m"] 0.01, 1.0, true => |c| c.setpoints.fsm_start_height_tolerance_m;
+    "blind_land_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.setpoints.blind_land_thrust;
+    "blind_land_time_us": U32 ["us"] 0, 20_000_000, true => |c| c.setpoints.blind_land_time_us;
+    "min_quality": U32 ["-"] 0, 255, true => |c| c.estimation.min_quality;
+    "median_reset_gap_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.estimation.median_reset_gap_us;
+    "max_estimate": F32 ["m/s"] 0.1, 20.0, true => |c| c.estimation.max_estimate_mps;
+    "max_velocity_jump": F32 ["m/s"] 0.05, 5.0, true => |c| c.estimation.max_velocity_jump_mps;
+    "max_outliers": U32 ["-"] 0, 20, true => |c| c.estimation.max_consecutive_outliers;
+    "min_vision_height": F32 ["m"] 0.0, 2.0, true => |c| c.estimation.min_vision_height_m;
+    "max_vision_climb": F32 ["m/s"] 0.05, 5.0, true => |c| c.estimation.max_vision_climb_mps;
+    "vision_climb_depth": F32 ["-"] 0.0, 1.0, true => |c| c.estimation.vision_climb_min_depth;
+    "min_valid_run": U32 ["-"] 1, 20, true => |c| c.estimation.min_valid_run;
+    "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.estimation.velocity_max_age_us;
+    "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.estimation.observer.drag_per_s;
+    "obs_velocity_gain": F32 ["-"] 0.0, 1.0, true => |c| c.estimation.observer.velocity_gain;
+    "obs_bias_gain": F32 ["-"] 0.0, 1.0, true => |c| c.estimation.observer.bias_gain;
+    "obs_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.estimation.observer.max_bias_mps2;
+    "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY_US, true => |c| c.estimation.observer.measurement_delay_us;
+    "obs_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.estimation.observer.max_tilt_rad;
+    "velocity_source": U32 ["enum"] 0, 2, true => |c| c.estimation.velocity_source;
+    "vkf_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.estimation.velocity_kf.drag_per_s;
+    "vkf_accel_noise": F32 ["m/s2"] 0.001, 10.0, true => |c| c.estimation.velocity_kf.accel_noise;
+    "vkf_bias_walk": F32 ["m/s2"] 0.0, 1.0, true => |c| c.estimation.velocity_kf.bias_walk;
+    "vkf_bias_sigma0": F32 ["m/s2"] 0.001, 5.0, true => |c| c.estimation.velocity_kf.initial_bias_sigma;
+    "vkf_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.estimation.velocity_kf.max_bias_mps2;
+    "vkf_sigma_best": F32 ["m/s"] 0.001, 2.0, true => |c| c.estimation.velocity_kf.sigma_best_mps;
+    "vkf_min_quality": U32 ["-"] 1, 255, true => |c| c.estimation.velocity_kf.min_quality;
+    "vkf_gate_sigmas": F32 ["-"] 1.0, 100.0, true => |c| c.estimation.velocity_kf.gate_sigmas;
+    "vkf_reinit_after": U32 ["-"] 1, 50, true => |c| c.estimation.velocity_kf.reinit_after;
+    "vkf_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.estimation.velocity_kf.max_tilt_rad;
+    "vkf_room_bias": Bool ["-"] false, true, true => |c| c.estimation.velocity_kf.bias_in_room_frame;
+    "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimation.estimate_horizon_us;
+    "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimation.estimate_link_us;
+    "est_filter_lag_us": U32 ["us"] 0, 500_000, true => |c| c.estimation.estimate_filter_lag_us;
+    "fit_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimation.fit_horizon_us;
+    "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.estimation.max_yaw_rate_radps;
+    "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.estimation.yaw_settle_us;
+    "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration.samples;
+    "gyro_cal_still": F32 ["rad/s"] 0.001, 1.0, true => |c| c.gyro_calibration.still_radps;
     "bat_arm_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.arm_v;
     "bat_low_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.low_v;
     "bat_critical_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.critical_v;
@@ -326,10 +327,10 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
         );
     }
     // A landing without a height descends on this thrust alone: below hover, and in the air.
-    if cfg.blind_land_thrust >= h.hover_thrust {
+    if cfg.setpoints.blind_land_thrust >= h.hover_thrust {
         return fail("blind_land_thrust", "height_hover_thrust", "must be below");
     }
-    if cfg.blind_land_thrust < i.arming_thrust {
+    if cfg.setpoints.blind_land_thrust < i.arming_thrust {
         return fail(
             "blind_land_thrust",
             "indi_arming_thrust",
@@ -361,24 +362,24 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
     if cfg.fsm.clear_distance_m < cfg.fsm.obstacle_distance_m {
         return fail("fsm_clear_dist", "fsm_obstacle_dist", "must not be below");
     }
-    if cfg.landed_height_m >= cfg.target_height_m {
+    if cfg.setpoints.landed_height_m >= cfg.setpoints.target_height_m {
         return fail("landed_height", "target_height", "must be below");
     }
     // Above the flight height no estimate would ever be fused.
-    if cfg.min_vision_height_m > cfg.target_height_m {
+    if cfg.estimation.min_vision_height_m > cfg.setpoints.target_height_m {
         return fail("min_vision_height", "target_height", "must not exceed");
     }
     // A landing that times out cuts the motors below this height: below the flight height.
-    if cfg.land_cut_height_m >= cfg.target_height_m {
+    if cfg.setpoints.land_cut_height_m >= cfg.setpoints.target_height_m {
         return fail("land_cut_height", "target_height", "must be below");
     }
     // The oldest estimate window (the longest processing time an estimate can report, then the
     // link, the output filter's lag and the window itself) must lie inside the velocity
     // filter's history, or every estimate would be ignored.
     let oldest_window_us = u64::from(u16::MAX)
-        + u64::from(cfg.estimate_link_us)
-        + u64::from(cfg.estimate_filter_lag_us)
-        + u64::from(cfg.estimate_horizon_us);
+        + u64::from(cfg.estimation.estimate_link_us)
+        + u64::from(cfg.estimation.estimate_filter_lag_us)
+        + u64::from(cfg.estimation.estimate_horizon_us);
     if oldest_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
         return fail(
             "est_horizon_us",
@@ -386,8 +387,9 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
             "reaches past the velocity filter's history with this",
         );
     }
-    let oldest_fit_window_us =
-        u64::from(u16::MAX) + u64::from(cfg.estimate_link_us) + u64::from(cfg.fit_horizon_us);
+    let oldest_fit_window_us = u64::from(u16::MAX)
+        + u64::from(cfg.estimation.estimate_link_us)
+        + u64::from(cfg.estimation.fit_horizon_us);
     if oldest_fit_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
         return fail(
             "fit_horizon_us",
@@ -584,7 +586,7 @@ mod tests {
         );
         let r = set_by_name(&mut c, "est_filter_lag_us", ParamValue::U32(300_000)).unwrap_err();
         assert_eq!(r.error, ParamError::Inconsistent);
-        assert_eq!(c.estimate_filter_lag_us, 150_000);
+        assert_eq!(c.estimation.estimate_filter_lag_us, 150_000);
         assert!(validate(&AutopilotConfig::default()).is_ok());
     }
 

@@ -17,20 +17,20 @@
 //!    the velocity loop ([`VelocityGuidance`]; its trim without one) to roll and pitch, and
 //!    avoidance's heading.
 //! 4. With a fresh height: the height loop's thrust ([`Guidance::hold_height`]), and
-//!    touchdown while landing after [`AutopilotConfig::landed_time_us`] below
-//!    [`AutopilotConfig::landed_height_m`] or on the ground signature
+//!    touchdown while landing after [`SetpointConfig::landed_time_us`] below
+//!    [`SetpointConfig::landed_height_m`] or on the ground signature
 //!    ([`Guidance::touched_down`]). Without: the blind landing's reduced thrust, and touchdown
-//!    [`AutopilotConfig::blind_land_time_us`] after the mode changed ([`Guidance::blind_landing`]).
+//!    [`SetpointConfig::blind_land_time_us`] after the mode changed ([`Guidance::blind_landing`]).
 //!
 //! [`Autopilot::guidance_step`]: crate::Autopilot::guidance_step
 
-use crate::app::{AutopilotConfig, GUIDANCE_PERIOD_US};
 use crate::attitude::wrap_pi;
 use crate::avoidance::AvoidanceOutput;
 use crate::estimation::VelocityState;
 use crate::failsafe::FlightMode;
 use crate::guidance::{GuidanceConfig, TiltSetpoint, VelocityGuidance};
 use crate::height::HeightController;
+use crate::tasks::GUIDANCE_PERIOD_US;
 
 /// While landing, the height setpoint ramps down to this height below the floor, m, and stays
 /// there: the drone, lagging the ramp, is pushed onto the floor rather than hovering just above
@@ -53,14 +53,74 @@ pub struct Setpoints {
 /// Where the height setpoint goes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum HeightTarget {
-    /// To [`AutopilotConfig::target_height_m`] at [`AutopilotConfig::climb_rate_mps`].
+    /// To [`SetpointConfig::target_height_m`] at [`SetpointConfig::climb_rate_mps`].
     FlightHeight,
-    /// Down to [`LAND_SETPOINT_FLOOR_M`] at [`AutopilotConfig::land_rate_mps`], or at
-    /// [`AutopilotConfig::blind_land_rate_mps`] when `blind`.
+    /// Down to [`LAND_SETPOINT_FLOOR_M`] at [`SetpointConfig::land_rate_mps`], or at
+    /// [`SetpointConfig::blind_land_rate_mps`] when `blind`.
     Land {
         /// No vision velocity fixed within the failsafe's estimate timeout.
         blind: bool,
     },
+}
+
+/// Take-off, flight height and landing: the height setpoint's ramps and the touchdown.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SetpointConfig {
+    /// Flight height after take-off, m above the floor.
+    pub target_height_m: f32,
+    /// Height-setpoint climb rate during take-off, m/s.
+    pub climb_rate_mps: f32,
+    /// Height-setpoint descent rate when landing, m/s.
+    pub land_rate_mps: f32,
+    /// Descent rate instead of `land_rate_mps` while no vision velocity has been fused for
+    /// the failsafe's estimate timeout, m/s: the drone then drifts on its trim (an
+    /// accelerometer bias of 0.01 g is 0.1 m/s² of unobserved acceleration), so the sooner
+    /// it is down, the shorter the drift.
+    pub blind_land_rate_mps: f32,
+    /// Below this height the drone counts as on the floor, m (height integrator off, touchdown).
+    pub landed_height_m: f32,
+    /// Touchdown confirmed after this long below `landed_height_m` while landing, µs.
+    pub landed_time_us: u64,
+    /// The avoidance FSM starts once the height is within this of the target, m.
+    pub fsm_start_height_tolerance_m: f32,
+    /// A landing that has not touched down after this long (a biased barometer that reads the
+    /// floor as higher than it is) cuts the motors once the height estimate is below
+    /// `land_cut_height_m` or the drone shows the ground signature, µs.
+    pub land_timeout_us: u64,
+    /// After `land_timeout_us`, the motors are cut below this height estimate, m.
+    pub land_cut_height_m: f32,
+    /// Ground signature (touchdown whatever the height says): the level-flight thrust below
+    /// this fraction of the hover thrust while the specific force stays above
+    /// `ground_min_specific_force` g and the body rates below [`GROUND_MAX_RATE_RADPS`](crate::app::GROUND_MAX_RATE_RADPS). In the
+    /// air that little thrust makes the drone fall (its specific force drops with the
+    /// thrust); only the floor holds it at 1 g. 0 turns the signature off.
+    pub ground_thrust_ratio: f32,
+    /// Ground signature: the low-passed specific force stays above this fraction of g.
+    pub ground_min_specific_force: f32,
+    /// Level-flight thrust when landing without a height measurement (0..=1, below hover).
+    pub blind_land_thrust: f32,
+    /// Landing without a height measurement: motors off after this long, µs.
+    pub blind_land_time_us: u64,
+}
+
+impl Default for SetpointConfig {
+    fn default() -> Self {
+        Self {
+            target_height_m: 1.0,
+            climb_rate_mps: 0.5,
+            land_rate_mps: 0.3,
+            blind_land_rate_mps: 0.6,
+            landed_height_m: 0.06,
+            landed_time_us: 500_000,
+            fsm_start_height_tolerance_m: 0.15,
+            land_timeout_us: 10_000_000,
+            land_cut_height_m: 0.3,
+            ground_thrust_ratio: 0.6,
+            ground_min_specific_force: 0.9,
+            blind_land_thrust: 0.5,
+            blind_land_time_us: 3_000_000,
+        }
+    }
 }
 
 /// The height setpoint of one guidance step.
@@ -73,7 +133,7 @@ pub struct HeightSetpoint {
 }
 
 /// One step of `dt` s of the height setpoint from `from_m` towards `target`.
-pub fn ramp(from_m: f32, target: HeightTarget, dt: f32, cfg: &AutopilotConfig) -> HeightSetpoint {
+pub fn ramp(from_m: f32, target: HeightTarget, dt: f32, cfg: &SetpointConfig) -> HeightSetpoint {
     match target {
         HeightTarget::Land { blind } => {
             let rate = if blind {
@@ -180,7 +240,7 @@ impl Guidance {
     }
 
     /// Until the next take-off, landings descend at
-    /// [`AutopilotConfig::blind_land_rate_mps`] (a critically low battery).
+    /// [`SetpointConfig::blind_land_rate_mps`] (a critically low battery).
     pub fn hurry_landing(&mut self) {
         self.hurry = true;
     }
@@ -214,12 +274,12 @@ impl Guidance {
         velocity: &VelocityState,
         now_us: u64,
         dt: f32,
-        cfg: &AutopilotConfig,
+        estimate_timeout_us: u64,
+        cfg: &SetpointConfig,
     ) -> HeightSetpoint {
         let target = match mode {
             FlightMode::Landing => HeightTarget::Land {
-                blind: self.hurry
-                    || !velocity.fixed_within(now_us, cfg.failsafe.estimate_timeout_us),
+                blind: self.hurry || !velocity.fixed_within(now_us, estimate_timeout_us),
             },
             _ => HeightTarget::FlightHeight,
         };
@@ -229,8 +289,8 @@ impl Guidance {
     }
 
     /// The height setpoint has reached the flight height and the drone at `height_m` is
-    /// within [`AutopilotConfig::fsm_start_height_tolerance_m`] of it.
-    pub fn at_flight_height(&self, height_m: f32, cfg: &AutopilotConfig) -> bool {
+    /// within [`SetpointConfig::fsm_start_height_tolerance_m`] of it.
+    pub fn at_flight_height(&self, height_m: f32, cfg: &SetpointConfig) -> bool {
         let target = cfg.target_height_m;
         self.sp.height_m == target && (height_m - target).abs() <= cfg.fsm_start_height_tolerance_m
     }
@@ -256,7 +316,7 @@ impl Guidance {
         sp: HeightSetpoint,
         height_m: f32,
         dt: f32,
-        cfg: &AutopilotConfig,
+        cfg: &SetpointConfig,
     ) {
         let airborne = height_m > cfg.landed_height_m;
         self.sp.thrust = height.step(sp.height_m, sp.rate_mps, dt, airborne);
@@ -271,7 +331,7 @@ impl Guidance {
         height_m: f32,
         on_ground: bool,
         now_us: u64,
-        cfg: &AutopilotConfig,
+        cfg: &SetpointConfig,
     ) -> bool {
         if landing && (height_m <= cfg.landed_height_m || on_ground) {
             let since = *self.below_landed_since_us.get_or_insert(now_us);
@@ -284,7 +344,7 @@ impl Guidance {
 
     /// Step 4 without a height (the failsafe switched to landing at `since_us`): reduced
     /// thrust; true once it has run for the blind landing time.
-    pub fn blind_landing(&mut self, since_us: u64, now_us: u64, cfg: &AutopilotConfig) -> bool {
+    pub fn blind_landing(&mut self, since_us: u64, now_us: u64, cfg: &SetpointConfig) -> bool {
         self.sp.thrust = cfg.blind_land_thrust.clamp(0.0, 1.0);
         now_us.saturating_sub(since_us) >= cfg.blind_land_time_us
     }
@@ -294,6 +354,7 @@ impl Guidance {
 mod tests {
     use super::*;
     use crate::height::HeightConfig;
+    use crate::AutopilotConfig;
 
     fn close(a: f32, b: f32) -> bool {
         (a - b).abs() < 1e-6
@@ -304,38 +365,52 @@ mod tests {
         let cfg = AutopilotConfig::default();
         let mut h = 0.0;
         let mut steps = 0;
-        while h != cfg.target_height_m {
-            let sp = ramp(h, HeightTarget::FlightHeight, 0.02, &cfg);
+        while h != cfg.setpoints.target_height_m {
+            let sp = ramp(h, HeightTarget::FlightHeight, 0.02, &cfg.setpoints);
             assert!(sp.height_m > h);
             h = sp.height_m;
             steps += 1;
             assert!(steps < 1_000);
         }
-        let expected = (cfg.target_height_m / (cfg.climb_rate_mps * 0.02)).ceil() as i32;
+        let expected =
+            (cfg.setpoints.target_height_m / (cfg.setpoints.climb_rate_mps * 0.02)).ceil() as i32;
         assert!((steps - expected).abs() <= 1, "{steps} steps");
         assert_eq!(
-            ramp(h, HeightTarget::FlightHeight, 0.02, &cfg),
+            ramp(h, HeightTarget::FlightHeight, 0.02, &cfg.setpoints),
             HeightSetpoint {
-                height_m: cfg.target_height_m,
+                height_m: cfg.setpoints.target_height_m,
                 rate_mps: 0.0
             }
         );
         // Above it: down at the climb rate.
-        let sp = ramp(2.0, HeightTarget::FlightHeight, 0.1, &cfg);
-        assert!(close(sp.height_m, 2.0 - cfg.climb_rate_mps * 0.1));
-        assert_eq!(sp.rate_mps, -cfg.climb_rate_mps);
+        let sp = ramp(2.0, HeightTarget::FlightHeight, 0.1, &cfg.setpoints);
+        assert!(close(sp.height_m, 2.0 - cfg.setpoints.climb_rate_mps * 0.1));
+        assert_eq!(sp.rate_mps, -cfg.setpoints.climb_rate_mps);
     }
 
     #[test]
     fn landing_descends_faster_when_blind_and_stops_below_the_floor() {
         let cfg = AutopilotConfig::default();
-        let seen = ramp(1.0, HeightTarget::Land { blind: false }, 0.1, &cfg);
-        let blind = ramp(1.0, HeightTarget::Land { blind: true }, 0.1, &cfg);
-        assert_eq!(seen.rate_mps, -cfg.land_rate_mps);
-        assert_eq!(blind.rate_mps, -cfg.blind_land_rate_mps);
+        let seen = ramp(
+            1.0,
+            HeightTarget::Land { blind: false },
+            0.1,
+            &cfg.setpoints,
+        );
+        let blind = ramp(1.0, HeightTarget::Land { blind: true }, 0.1, &cfg.setpoints);
+        assert_eq!(seen.rate_mps, -cfg.setpoints.land_rate_mps);
+        assert_eq!(blind.rate_mps, -cfg.setpoints.blind_land_rate_mps);
         assert!(blind.height_m < seen.height_m);
-        assert!(close(seen.height_m, 1.0 - cfg.land_rate_mps * 0.1));
-        let floor = ramp(-0.19, HeightTarget::Land { blind: true }, 0.1, &cfg);
+        assert!(close(
+            seen.height_m,
+            1.0 - cfg.setpoints.land_rate_mps * 0.1
+        ));
+        let floor = ramp(
+            -0.19,
+            HeightTarget::Land { blind: true },
+            0.1,
+            &cfg.setpoints,
+        );
         assert_eq!(floor.height_m, LAND_SETPOINT_FLOOR_M);
     }
 
@@ -391,22 +466,43 @@ mod tests {
             velocity_mps: None,
             last_fix_us: None,
         };
-        g.take_off(cfg.target_height_m - 0.005, 0.0);
-        assert!(!g.at_flight_height(cfg.target_height_m, &cfg));
-        g.height_setpoint(FlightMode::Flying, &hover, 0, 0.02, &cfg);
-        assert!(g.at_flight_height(cfg.target_height_m, &cfg));
-        let tol = cfg.fsm_start_height_tolerance_m;
-        assert!(g.at_flight_height(cfg.target_height_m - tol * 0.9, &cfg));
-        assert!(!g.at_flight_height(cfg.target_height_m - tol * 1.1, &cfg));
+        g.take_off(cfg.setpoints.target_height_m - 0.005, 0.0);
+        assert!(!g.at_flight_height(cfg.setpoints.target_height_m, &cfg.setpoints));
+        g.height_setpoint(
+            FlightMode::Flying,
+            &hover,
+            0,
+            0.02,
+            cfg.failsafe.estimate_timeout_us,
+            &cfg.setpoints,
+        );
+        assert!(g.at_flight_height(cfg.setpoints.target_height_m, &cfg.setpoints));
+        let tol = cfg.setpoints.fsm_start_height_tolerance_m;
+        assert!(g.at_flight_height(cfg.setpoints.target_height_m - tol * 0.9, &cfg.setpoints));
+        assert!(!g.at_flight_height(cfg.setpoints.target_height_m - tol * 1.1, &cfg.setpoints));
         // Landing: blind without a recent fix.
         let seen = VelocityState {
             velocity_mps: Some([0.0; 2]),
             last_fix_us: Some(1_000_000),
         };
-        let sp = g.height_setpoint(FlightMode::Landing, &seen, 1_000_000, 0.02, &cfg);
-        assert_eq!(sp.rate_mps, -cfg.land_rate_mps);
-        let sp = g.height_setpoint(FlightMode::Landing, &hover, 1_000_000, 0.02, &cfg);
-        assert_eq!(sp.rate_mps, -cfg.blind_land_rate_mps);
+        let sp = g.height_setpoint(
+            FlightMode::Landing,
+            &seen,
+            1_000_000,
+            0.02,
+            cfg.failsafe.estimate_timeout_us,
+            &cfg.setpoints,
+        );
+        assert_eq!(sp.rate_mps, -cfg.setpoints.land_rate_mps);
+        let sp = g.height_setpoint(
+            FlightMode::Landing,
+            &hover,
+            1_000_000,
+            0.02,
+            cfg.failsafe.estimate_timeout_us,
+            &cfg.setpoints,
+        );
+        assert_eq!(sp.rate_mps, -cfg.setpoints.blind_land_rate_mps);
         assert_eq!(g.setpoints().height_m, sp.height_m);
     }
 
@@ -417,12 +513,12 @@ mod tests {
         let mut height = HeightController::new(HeightConfig::default());
         let sp = HeightSetpoint {
             height_m: LAND_SETPOINT_FLOOR_M,
-            rate_mps: -cfg.land_rate_mps,
+            rate_mps: -cfg.setpoints.land_rate_mps,
         };
-        let low = cfg.landed_height_m;
+        let low = cfg.setpoints.landed_height_m;
         let mut hold = |g: &mut Guidance, h: f32, landing: bool, t: u64| {
-            g.hold_height(&mut height, sp, h, 0.02, &cfg);
-            g.touched_down(landing, h, false, t, &cfg)
+            g.hold_height(&mut height, sp, h, 0.02, &cfg.setpoints);
+            g.touched_down(landing, h, false, t, &cfg.setpoints)
         };
         // Below it, but not landing: nothing.
         assert!(!hold(&mut g, low, false, 0));
@@ -430,25 +526,55 @@ mod tests {
         // Bounced up: the timer restarts.
         assert!(!hold(&mut g, low + 0.1, true, 1_400_000));
         assert!(!hold(&mut g, low, true, 1_500_000));
-        assert!(!hold(&mut g, low, true, 1_500_000 + cfg.landed_time_us - 1));
-        assert!(hold(&mut g, low, true, 1_500_000 + cfg.landed_time_us));
+        assert!(!hold(
+            &mut g,
+            low,
+            true,
+            1_500_000 + cfg.setpoints.landed_time_us - 1
+        ));
+        assert!(hold(
+            &mut g,
+            low,
+            true,
+            1_500_000 + cfg.setpoints.landed_time_us
+        ));
         assert!(g.setpoints().thrust >= 0.0);
         g.landed();
         assert_eq!(g.setpoints().thrust, 0.0);
         // High above the landed height (a biased barometer), the ground signature alone
         // touches down after the same landed time.
         let high = low + 0.3;
-        assert!(!g.touched_down(true, high, true, 3_000_000, &cfg));
-        assert!(!g.touched_down(true, high, true, 3_000_000 + cfg.landed_time_us - 1, &cfg));
-        assert!(g.touched_down(true, high, true, 3_000_000 + cfg.landed_time_us, &cfg));
+        assert!(!g.touched_down(true, high, true, 3_000_000, &cfg.setpoints));
+        assert!(!g.touched_down(
+            true,
+            high,
+            true,
+            3_000_000 + cfg.setpoints.landed_time_us - 1,
+            &cfg.setpoints
+        ));
+        assert!(g.touched_down(
+            true,
+            high,
+            true,
+            3_000_000 + cfg.setpoints.landed_time_us,
+            &cfg.setpoints
+        ));
     }
 
     #[test]
     fn a_blind_landing_runs_on_reduced_thrust_for_its_time() {
         let cfg = AutopilotConfig::default();
         let mut g = Guidance::new(cfg.guidance);
-        assert!(!g.blind_landing(1_000, 1_000 + cfg.blind_land_time_us - 1, &cfg));
-        assert_eq!(g.setpoints().thrust, cfg.blind_land_thrust);
-        assert!(g.blind_landing(1_000, 1_000 + cfg.blind_land_time_us, &cfg));
+        assert!(!g.blind_landing(
+            1_000,
+            1_000 + cfg.setpoints.blind_land_time_us - 1,
+            &cfg.setpoints
+        ));
+        assert_eq!(g.setpoints().thrust, cfg.setpoints.blind_land_thrust);
+        assert!(g.blind_landing(
+            1_000,
+            1_000 + cfg.setpoints.blind_land_time_us,
+            &cfg.setpoints
+        ));
     }
 }

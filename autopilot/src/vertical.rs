@@ -42,6 +42,12 @@ pub struct VerticalConfig {
     /// used at all. Off on a drone that flies without motion capture: then nothing a host sends
     /// moves its height, signed or not.
     pub external_fixes: bool,
+    /// A barometer whose readings (pressure and temperature, as compensated from the raw
+    /// conversions) stay bit-for-bit identical for longer than this is frozen: its readings
+    /// are not used (as a stuck IMU's), so the height failsafe acts without fixes, µs. A live
+    /// MS5611's noise (about 1.5 Pa rms on a 1 Pa resolution) repeats a reading with about
+    /// 0.3 probability: 25 repeats in a row (0.5 s at 50 Hz) happen with about 1e-13.
+    pub baro_stuck_us: u64,
 }
 
 impl Default for VerticalConfig {
@@ -55,9 +61,15 @@ impl Default for VerticalConfig {
             ground_effect_noise_factor: 5.0,
             gate_sigma: 5.0,
             external_fixes: true,
+            baro_stuck_us: 500_000,
         }
     }
 }
+
+/// External height fixes the vertical estimator must take in a row before they are the height
+/// loop's measurement (100 ms of a 50 Hz motion-capture stream): one fix, even one the gate
+/// takes, makes no height fresh for arming.
+pub const FIXES_TO_LEAD: u8 = 5;
 
 /// Height of `pressure_pa` above the level of `reference_pa` (international standard
 /// atmosphere, valid for the few metres of a room), m.

@@ -17,8 +17,9 @@ use crate::sim::scene_spec::SceneSpec;
 use crate::sim::suite::{self, FlightFigures, SuiteRoom};
 use crate::sim::uart::LinkFaults;
 use anyhow::Context;
-use autopilot::app::{AutopilotConfig, VelocitySource};
+use autopilot::estimation::VelocitySource;
 use autopilot::fsm::FsmVariant;
+use autopilot::AutopilotConfig;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -247,12 +248,14 @@ impl FlyArgs {
         cfg.camera.misalign_px = self.misalign_px;
         cfg.battery = self.battery_mah.map(BatteryParams::lipo_1s);
         match self.velocity {
-            Some(VelocityArg::Kalman) => cfg.autopilot.velocity_source = VelocitySource::Kalman,
+            Some(VelocityArg::Kalman) => {
+                cfg.autopilot.estimation.velocity_source = VelocitySource::Kalman
+            }
             Some(VelocityArg::Median) => {
-                cfg.autopilot.velocity_source = VelocitySource::MedianObserver
+                cfg.autopilot.estimation.velocity_source = VelocitySource::MedianObserver
             }
             Some(VelocityArg::KalmanFits) => {
-                cfg.autopilot.velocity_source = VelocitySource::KalmanFits
+                cfg.autopilot.estimation.velocity_source = VelocitySource::KalmanFits
             }
             None => {}
         }

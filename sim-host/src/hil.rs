@@ -661,7 +661,7 @@ fn lockstep(
         // then the IMU sample of this instant.
         out.clear();
         if t >= next_heartbeat {
-            next_heartbeat += u64::from(autopilot::app::HEARTBEAT_PERIOD_US);
+            next_heartbeat += u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US);
             let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
             push_msg(&signer.wrap(HostToBoard::Heartbeat(hb))?, &mut out)?;
         }
@@ -1161,8 +1161,9 @@ mod tests {
     //! at the frames' exposure times). Fast, no firmware: `virtual-board/tests/hil.rs` flies
     //! the `hil` images on the virtual boards.
     use super::*;
-    use autopilot::app::{Autopilot, AutopilotConfig};
+    use autopilot::app::Autopilot;
     use autopilot::lockstep::{WorldClock, WorldTimers};
+    use autopilot::AutopilotConfig;
     use autopilot::HostOutcome;
     use protocol::{Heartbeat, HostToBoardDecoder, MotorCommand, Node};
     use std::net::{TcpListener, TcpStream};

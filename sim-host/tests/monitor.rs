@@ -5,7 +5,8 @@
 //! and leave an MCAP log (the barometer's reading included) that the `mcap` crate's reader
 //! reads back with one record per message received, in time order.
 
-use autopilot::app::{Autopilot, AutopilotConfig};
+use autopilot::app::Autopilot;
+use autopilot::AutopilotConfig;
 use protocol::{BoardToHost, Heartbeat, Message, Node};
 use std::collections::BTreeMap;
 use std::io::Write as _;

@@ -173,7 +173,7 @@ fn the_client_lists_reads_and_writes_the_autopilots_table() {
     assert!(e.contains("no parameter of that name"), "{e}");
     let e = err(c.set("indi_rate_hz", "512"));
     assert!(e.contains("read-only"), "{e}");
-    assert_eq!(ap.lock().unwrap().config().target_height_m, 1.0);
+    assert_eq!(ap.lock().unwrap().config().setpoints.target_height_m, 1.0);
     // Saved with a CRC and a version: the next boot runs on the values.
     c.save().unwrap();
     let status = c.storage().unwrap();
@@ -209,7 +209,7 @@ fn the_command_line_works_over_tcp() {
     assert!(ok && out.contains("land_rate"), "{out}{err}");
     let (ok, out, _) = run(&["get", "land_rate"]);
     assert!(ok && out.contains(" 0.4 "), "{out}");
-    assert_eq!(ap.lock().unwrap().config().land_rate_mps, 0.4);
+    assert_eq!(ap.lock().unwrap().config().setpoints.land_rate_mps, 0.4);
     let (ok, _, err) = run(&["set", "land_rate", "true"]);
     assert!(!ok && err.contains("not a finite number"), "{err}");
     // The camera board's table, through the autopilot.
@@ -276,7 +276,7 @@ fn the_command_line_works_over_a_serial_port() {
     done.store(true, Ordering::Relaxed);
     served.join().unwrap();
     drop(slave);
-    assert_eq!(ap.lock().unwrap().config().target_height_m, 0.8);
+    assert_eq!(ap.lock().unwrap().config().setpoints.target_height_m, 0.8);
 }
 
 #[test]

@@ -16,8 +16,8 @@
 //!
 //! `PROPTEST_CASES` sets the number of flights (default 6).
 
-use autopilot::app::AutopilotConfig;
 use autopilot::params::{self, TABLE};
+use autopilot::AutopilotConfig;
 use proptest::prop_assert;
 use proptest::test_runner::TestCaseError;
 use protocol::{FlightMode, ParamValue};
@@ -140,7 +140,7 @@ fn fly(seed: u64, autopilot: AutopilotConfig) -> Result<Vec<LogRow>, String> {
 
 /// Checks a flight's log against the property (see the module docs).
 fn check_log(seed: u64, autopilot: &AutopilotConfig, log: &[LogRow]) -> Result<(), TestCaseError> {
-    let ceiling = autopilot.target_height_m + FLYAWAY_MARGIN_M;
+    let ceiling = autopilot.setpoints.target_height_m + FLYAWAY_MARGIN_M;
     let mut landing_floor: Option<f32> = None;
     let mut landed_seen = false;
     for l in log {
@@ -221,7 +221,10 @@ fn drawn_configurations_cover_the_bounds_and_pass_the_checks() {
     assert!(max > 400.0, "filter omega reached {max}");
     let zetas = cfgs.iter().map(|c| c.indi.filter_zeta).fold(0.0, f32::max);
     assert!(zetas > 1.5, "filter zeta reached {zetas}");
-    let blind = cfgs.iter().map(|c| c.blind_land_thrust).fold(0.0, f32::max);
+    let blind = cfgs
+        .iter()
+        .map(|c| c.setpoints.blind_land_thrust)
+        .fold(0.0, f32::max);
     assert!(blind > 0.55, "blind landing thrust reached {blind}");
 }
 

@@ -1,5 +1,5 @@
 //! The RTIC apps (every flavour of both firmwares) mirror their boards' task tables: every
-//! task of `stereo_board::app::TASKS` and `autopilot::app::TASKS` exists in the firmware source
+//! task of `stereo_board::app::TASKS` and `autopilot::tasks::TASKS` exists in the firmware source
 //! with the same priority, and the byte-moving interrupt handlers (those bound to a UART, a DMA
 //! stream or the DCMI) preempt all of them.
 
@@ -103,7 +103,7 @@ fn stereo_board_firmware_mirrors_its_task_table() {
 
 #[test]
 fn autopilot_firmware_mirrors_its_task_table() {
-    let table: Vec<_> = autopilot::app::TASKS
+    let table: Vec<_> = autopilot::tasks::TASKS
         .iter()
         .map(|t| (t.name, t.priority))
         .collect();

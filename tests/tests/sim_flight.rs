@@ -243,7 +243,7 @@ fn height_holds_without_motion_capture() {
             mocap: false,
             ..FlightConfig::default()
         };
-        let target = cfg.autopilot.target_height_m;
+        let target = cfg.autopilot.setpoints.target_height_m;
         let r = fly(&cfg);
         let i0 = fsm_start(&r.log);
         let level = &r.log[i0..];

@@ -93,7 +93,11 @@ pub const HEARTBEAT_PERIOD_NS: u64 = 1_000 * MS;
 /// (`climb_rate_mps`, the rate its height setpoint ramps at), m/s.
 #[must_use]
 pub fn take_off_climb_mps() -> f64 {
-    f64::from(autopilot::app::AutopilotConfig::default().climb_rate_mps)
+    f64::from(
+        autopilot::AutopilotConfig::default()
+            .setpoints
+            .climb_rate_mps,
+    )
 }
 
 /// How hard the ground station's drone speeds up into its climb and slows at its hover height,

@@ -21,9 +21,9 @@
 //! each. The hard fault runs at both core rates ([`CoreRate`]), the hung loop at the typical,
 //! slowest and fastest LSI (the watchdog's timeout scales with it).
 //!
-//! | link cut | the camera board's estimates stop | [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
-//! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::app::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
-//! | telemetry link cut | flying on the barometer (no height fixes, as without motion capture), the host's heartbeats stop | [`autopilot::app::AutopilotConfig::host_loss_motors_off_us`] (`fs_host_timeout_us`, land, touch down), the landing reported as `telemetry-lost` |
+//! | link cut | the camera board's estimates stop | [`autopilot::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
+//! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
+//! | telemetry link cut | flying on the barometer (no height fixes, as without motion capture), the host's heartbeats stop | [`autopilot::AutopilotConfig::host_loss_motors_off_us`] (`fs_host_timeout_us`, land, touch down), the landing reported as `telemetry-lost` |
 //! | host kill | a `PilotCommand::Kill` on the telemetry port | [`KILL_AFTER_LAST_BYTE_NS`]: the next 512 Hz step after the command's last byte reached the board |
 //! | frozen barometer | flying on the barometer (no height fixes), the MS5611 answers every conversion with its last word ([`virtual_board::ms5611::Barometer::set_frozen`]) | [`baro_frozen_promise_ns`]: `baro_stuck_us`, the height timeout, the blind landing; the landing reported as `baro-frozen` |
 
@@ -179,7 +179,9 @@ impl Pilot {
         self.telemetry_read = sent.len();
         if self.landing {
             // No estimates: the autopilot descends at its blind rate.
-            let rate = autopilot::app::AutopilotConfig::default().blind_land_rate_mps;
+            let rate = autopilot::AutopilotConfig::default()
+                .setpoints
+                .blind_land_rate_mps;
             let dt = (now - self.last_ns) as f64 / 1e9;
             let height = (self.ground.height_m() - f64::from(rate) * dt).max(0.0);
             self.ground.set_height(height);
@@ -750,7 +752,7 @@ fn hung_loop_at(lsi_hz: u64) {
 /// on touchdown.
 #[test]
 fn a_cut_camera_link_lands_and_stops_the_motors() {
-    let promise = autopilot::app::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
+    let promise = autopilot::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     fault_stops_the_motors(Fault::LinkCut, promise, run_s);
 }
@@ -761,14 +763,14 @@ fn a_cut_camera_link_lands_and_stops_the_motors() {
 /// its camera's last VSYNC (`tests/link.rs`), which is the camera board's promise, not this one.
 #[test]
 fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
-    let cfg = autopilot::app::AutopilotConfig::default();
+    let cfg = autopilot::AutopilotConfig::default();
     let promise = cfg.camera_stopped_motors_off_us() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     let (report, _, hover_seen_at, _) =
         fault_stops_the_motors(Fault::CameraStopped, promise, run_s);
     // Telemetry goes out at 10 Hz: the hover is seen within two of its periods (the mode
     // changes at the next 50 Hz guidance step), well inside the estimate timeout.
-    let hover_by = FAULT_AT + 2 * u64::from(autopilot::app::TELEMETRY_PERIOD_US) * 1_000;
+    let hover_by = FAULT_AT + 2 * u64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1_000;
     assert!(
         hover_by < FAULT_AT + cfg.failsafe.estimate_timeout_us * 1_000,
         "the bound tells the report from the timeout"
@@ -786,7 +788,7 @@ fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
 /// target height, the touchdown confirmation, one guidance period).
 #[test]
 fn a_cut_telemetry_link_lands_and_stops_the_motors() {
-    let cfg = autopilot::app::AutopilotConfig::default();
+    let cfg = autopilot::AutopilotConfig::default();
     let promise = cfg.host_loss_motors_off_us() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     let (report, took, _, landing) = fault_stops_the_motors(Fault::TelemetryCut, promise, run_s);
@@ -850,12 +852,12 @@ fn a_host_kill_stops_the_motors_within_a_loop_period() {
 /// height goes stale after the height timeout and the drone lands blind; one guidance period,
 /// and a barometer cycle (two OSR 4096 conversions) and a bench stop of slack.
 fn baro_frozen_promise_ns() -> u64 {
-    let cfg = autopilot::app::AutopilotConfig::default();
+    let cfg = autopilot::AutopilotConfig::default();
     let cycle_us = 2 * u64::from(autopilot::ms5611::Osr::X4096.conversion_time_us());
-    (cfg.baro_stuck_us
+    (cfg.vertical.baro_stuck_us
         + cfg.failsafe.height_timeout_us
-        + cfg.blind_land_time_us
-        + u64::from(autopilot::app::GUIDANCE_PERIOD_US)
+        + cfg.setpoints.blind_land_time_us
+        + u64::from(autopilot::tasks::GUIDANCE_PERIOD_US)
         + cycle_us)
         * 1_000
         + MS

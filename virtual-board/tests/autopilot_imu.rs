@@ -22,7 +22,11 @@ const LOOP_HZ: f64 = autopilot::board::LOOP_RATE_HZ as f64;
 /// climb rate, as the height setpoint does, so that the height loop holds a steady thrust
 /// through the baseline and the test windows (they compare duties).
 fn flight_height_m() -> f64 {
-    f64::from(autopilot::app::AutopilotConfig::default().target_height_m)
+    f64::from(
+        autopilot::AutopilotConfig::default()
+            .setpoints
+            .target_height_m,
+    )
 }
 
 /// When the test arms, and the phases after it.

@@ -6,7 +6,7 @@
 //!   it reads critical, and every motor duty is 0 at touchdown, never to run again.
 //! * A flat battery on the ground: the `Arm` is refused, no motor ever runs.
 
-use autopilot::app::AutopilotConfig;
+use autopilot::AutopilotConfig;
 use autopilot::battery::BatteryMonitor;
 use protocol::{BatteryState, BoardToHost, Decoder, FlightMode, Message};
 use virtual_board::bench::{At, Flow, Options, Setup, run};
@@ -110,9 +110,9 @@ impl virtual_board::bench::Probe<Autopilot> for Pilot {
         if let Some((verdict, FlightMode::Landing)) = self.state {
             let cfg = AutopilotConfig::default();
             let rate = if verdict == BatteryState::Critical {
-                cfg.blind_land_rate_mps
+                cfg.setpoints.blind_land_rate_mps
             } else {
-                cfg.land_rate_mps
+                cfg.setpoints.land_rate_mps
             };
             let dt = (now - self.last_ns) as f64 / 1e9;
             let height = (self.ground.height_m() - f64::from(rate) * dt).max(0.0);
@@ -207,8 +207,9 @@ fn a_battery_ramped_down_in_flight_lands_then_hurries_and_stops_the_motors() {
     // Landing from HOVER_M at the land rate at worst, then the touchdown confirmation, one
     // guidance period and the telemetry's period of slack.
     let ap = AutopilotConfig::default();
-    let bound_ns =
-        (HOVER_M / f64::from(ap.land_rate_mps) * 1e9) as u64 + ap.landed_time_us * 1_000 + 400 * MS;
+    let bound_ns = (HOVER_M / f64::from(ap.setpoints.land_rate_mps) * 1e9) as u64
+        + ap.setpoints.landed_time_us * 1_000
+        + 400 * MS;
     println!(
         "every motor at 0 {:.0} ms after the landing began (bound {:.0} ms)",
         ms(off - landing),

@@ -3,7 +3,7 @@
 //!
 //! | fault | injection | what must follow |
 //! |---|---|---|
-//! | HardFault, for good | the camera board's next access to its DCMI is a bus error, and again after every reset (a board that faults at every boot) | the camera board's handler runs and its link goes silent (no estimate after the message in flight); the autopilot hovers blind, lands and stops its motors within [`autopilot::app::AutopilotConfig::link_loss_motors_off_us`] of the fault |
+//! | HardFault, for good | the camera board's next access to its DCMI is a bus error, and again after every reset (a board that faults at every boot) | the camera board's handler runs and its link goes silent (no estimate after the message in flight); the autopilot hovers blind, lands and stops its motors within [`autopilot::AutopilotConfig::link_loss_motors_off_us`] of the fault |
 //! | panic | the camera board's logger "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the link silent from the handler until the camera board's watchdog resets it (within [`WATCHDOG_MS`]); the autopilot hovers blind within its estimate timeout, and does not stop its motors before the camera board is back; the camera board boots again and its estimates resume |
 
 use std::path::PathBuf;
@@ -139,7 +139,9 @@ impl Probe<Autopilot> for AutopilotSide {
             .last()
             .is_some_and(|(_, m)| *m == FlightMode::Landing)
         {
-            let rate = autopilot::app::AutopilotConfig::default().land_rate_mps;
+            let rate = autopilot::AutopilotConfig::default()
+                .setpoints
+                .land_rate_mps;
             let dt = (now - self.last_ns) as f64 / 1e9;
             let height = (self.ground.height_m() - f64::from(rate) * dt).max(0.0);
             self.ground.set_height(height);
@@ -235,7 +237,7 @@ fn first_fault(cam: &Outcome<CameraBoard, CameraSide>, report: &str) -> (u64, St
 /// estimate, hovers, lands and stops its motors within its link-loss promise.
 #[test]
 fn a_camera_board_that_hard_faults_goes_silent_and_the_autopilot_lands() {
-    let promise = autopilot::app::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
+    let promise = autopilot::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
     let seconds = (FAULT_AT + promise) as f64 / 1e9 + 0.8;
     let (cam, ap, camera_tx) = run_fault(Injection::HardFault, seconds);
     let report = format!("{}\n{}", cam.report(), ap.report());
@@ -312,7 +314,7 @@ fn a_camera_board_that_hard_faults_goes_silent_and_the_autopilot_lands() {
     let estimate_timeout = autopilot::failsafe::FailsafeConfig::default().estimate_timeout_us;
     let hover_by = handler_at
         + estimate_timeout * 1_000
-        + 2 * u64::from(autopilot::app::TELEMETRY_PERIOD_US) * 1_000;
+        + 2 * u64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1_000;
     assert_eq!(
         pilot.mode_at(hover_by),
         Some(FlightMode::HoverNoEstimate),
@@ -391,7 +393,7 @@ fn a_camera_board_that_panics_goes_silent_until_its_watchdog_resets_it() {
     let estimate_timeout = autopilot::failsafe::FailsafeConfig::default().estimate_timeout_us;
     let hover_by = handler_at
         + estimate_timeout * 1_000
-        + 2 * u64::from(autopilot::app::TELEMETRY_PERIOD_US) * 1_000;
+        + 2 * u64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1_000;
     println!(
         "camera panic at {:.1} ms: silent, watchdog reset {:.1} ms later, estimates back at \
          {:.1} ms; the autopilot's modes {:?}",

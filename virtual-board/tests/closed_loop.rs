@@ -75,7 +75,7 @@ impl Flight {
     /// accelerometer and the user only arms.
     fn new(cfg: &FlightConfig, truth_camera: bool) -> Self {
         let plant = Plant::new(cfg, QUANTUM_NS).expect("the world");
-        let horizon_us = u64::from(cfg.autopilot.estimate_horizon_us);
+        let horizon_us = u64::from(cfg.autopilot.estimation.estimate_horizon_us);
         Self {
             plant,
             ground: GroundStation::arming_at(ARM_AT, 0.0),
@@ -138,7 +138,11 @@ impl Probe<Autopilot> for Flight {
 /// The hover point: the start position at the firmware's target height.
 fn hover_point(cfg: &FlightConfig, plant: &Plant) -> [f64; 3] {
     let start = plant.world().start;
-    [start[0], start[1], f64::from(cfg.autopilot.target_height_m)]
+    [
+        start[0],
+        start[1],
+        f64::from(cfg.autopilot.setpoints.target_height_m),
+    ]
 }
 
 fn deviation(point: [f64; 3], truth: &Truth) -> f64 {

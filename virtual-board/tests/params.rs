@@ -33,7 +33,7 @@ use std::net::TcpListener;
 use std::path::PathBuf;
 use std::process::{Child, Command};
 
-use autopilot::app::AutopilotConfig;
+use autopilot::AutopilotConfig;
 use autopilot::params::{self, TABLE};
 use protocol::params::{ParamStorage, ParamTable, RecordError, StorageStatus};
 use protocol::{BoardToHost, ParamError, ParamReply, ParamValue};

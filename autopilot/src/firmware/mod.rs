@@ -1,7 +1,7 @@
 //! RTIC 2 application of the autopilot firmware (thumbv7em-none-eabihf only).
 //!
 //! A thin shell around [`autopilot::app::Autopilot`] on the board of [`autopilot::board`]; the
-//! tasks mirror `autopilot::app::TASKS` (same names and relative priorities) and each body is
+//! tasks mirror `autopilot::tasks::TASKS` (same names and relative priorities) and each body is
 //! one call into the library. What differs between flavours is in one module each: [`real`]
 //! (own sensors, board clock) and [`lockstep`] (`hil`, `qemu`: the host's IMU samples and world
 //! time), selected as `flavour`.
@@ -168,10 +168,12 @@ mod app {
     use super::{clock, send, ticks, HostRx, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
     use super::{GUIDANCE_ALIVE, HEARTBEAT_ALIVE, RC_FLOW, RX_LOST};
     use super::{HOST_FLOW, IMU_INVALID, IMU_RECONFIGURED, LINK_FLOW, LOOP_JITTER_MAX_US};
-    use autopilot::app::{Autopilot, AutopilotConfig, HEARTBEAT_PERIOD_US};
+    use autopilot::app::Autopilot;
     use autopilot::board::{self, hw};
     use autopilot::mpu6000::{Reconfigure, SampleCheck};
     use autopilot::ms5611::{self, Calibration, Osr};
+    use autopilot::tasks::HEARTBEAT_PERIOD_US;
+    use autopilot::AutopilotConfig;
     use autopilot::HostOutcome;
     use board_support::log;
     use board_support::param_flash::{set_watchdog, FlashError, ParamSector, SAVE_WATCHDOG_MS};

@@ -83,7 +83,7 @@ pub struct Releases;
 impl Releases {
     /// The periodic tasks' ticks (guidance, gyro_tx, telemetry) and the loop's releases.
     pub fn new() -> (Tick, Tick, Tick, Self) {
-        use autopilot::app::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
+        use autopilot::tasks::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
         (
             Tick::every(GUIDANCE_PERIOD_US),
             Tick::every(GYRO_TX_PERIOD_US),

@@ -1,7 +1,7 @@
 //! The two boards as the simulator runs them: each board's own task table turned into
 //! scheduler tasks. The task bodies are the boards' own libraries, called by `flight`:
 //!
-//! * Autopilot: `autopilot::app::Autopilot` with `autopilot::app::TASKS`. Its `stereo_rx` task
+//! * Autopilot: `autopilot::app::Autopilot` with `autopilot::tasks::TASKS`. Its `stereo_rx` task
 //!   decodes the UART bytes with `protocol::Decoder` and hands each estimate to
 //!   `Autopilot::on_estimate` (what the firmware's task body does).
 //! * Camera board: `stereo_board::app::StereoBoardApp` with `stereo_board::app::TASKS`.
@@ -22,9 +22,9 @@ fn sim_tasks(board: Board, table: &'static [task_table::TaskSpec]) -> Vec<SimTas
         .collect()
 }
 
-/// Scheduler tasks from the autopilot's table (`autopilot::app::TASKS`).
+/// Scheduler tasks from the autopilot's table (`autopilot::tasks::TASKS`).
 pub fn autopilot_tasks() -> Vec<SimTask> {
-    sim_tasks(Board::Autopilot, autopilot::app::TASKS)
+    sim_tasks(Board::Autopilot, autopilot::tasks::TASKS)
 }
 
 /// Scheduler tasks from the camera board's table (`stereo_board::app::TASKS`).

@@ -383,7 +383,7 @@ pub fn run_flight_observed(
         // until it is cut.
         let host_link = t < host_cut_us;
         if t >= next_host_heartbeat {
-            next_host_heartbeat += u64::from(autopilot::app::HEARTBEAT_PERIOD_US);
+            next_host_heartbeat += u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US);
             if host_link {
                 let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
                 ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);

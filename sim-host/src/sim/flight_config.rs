@@ -8,7 +8,7 @@ use super::dynamics::DroneParams;
 use super::imu::ImuParams;
 use super::scene_spec::SceneSpec;
 use super::uart::LinkFaults;
-use autopilot::app::AutopilotConfig;
+use autopilot::AutopilotConfig;
 use stereo_board::edge_fs::EdgeFsParams;
 
 /// Everything that defines a flight.

@@ -18,7 +18,8 @@ fn main() {
 
 #[cfg(target_os = "none")]
 mod bench {
-    use autopilot::app::{Autopilot, AutopilotConfig};
+    use autopilot::app::Autopilot;
+    use autopilot::AutopilotConfig;
     use core::hint::black_box;
     use cortex_m_rt::entry;
     use cortex_m_semihosting::{debug, hprintln};

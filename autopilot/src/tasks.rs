@@ -1,0 +1,81 @@
+//! The autopilot's tasks: their periods and the task table the firmware's RTIC app mirrors
+//! and the simulator schedules from.
+
+pub use task_table::{TaskSpec, Trigger};
+
+/// IMU / INDI period: 512 Hz, µs (rounded down).
+pub const IMU_PERIOD_US: u32 = 1_953;
+/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz, µs.
+pub const GUIDANCE_PERIOD_US: u32 = 20_000;
+/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample), µs.
+pub const GYRO_TX_PERIOD_US: u32 = 7_812;
+/// Telemetry period: 10 Hz, µs.
+pub const TELEMETRY_PERIOD_US: u32 = 100_000;
+/// Heartbeat period: 1 Hz, µs.
+pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
+
+/// The autopilot's task table. The firmware's RTIC app mirrors it; `sim-host` schedules from it.
+///
+/// | task | calls |
+/// |---|---|
+/// | `imu_indi` | [`crate::Autopilot::on_imu`], motors written from its result |
+/// | `stereo_rx` | [`crate::Autopilot::on_estimate`] for each decoded estimate |
+/// | `host_rx` | [`crate::Autopilot::on_host_message`] (HIL: then `on_imu` on the samples it hands back) |
+/// | `guidance` | [`crate::Autopilot::guidance_step`], then [`crate::Autopilot::motor_safety`] |
+/// | `gyro_tx` | [`crate::Autopilot::gyro_attitude`] encoded to the camera board |
+/// | `telemetry` | [`crate::Autopilot::telemetry`] encoded to the host |
+/// | `heartbeat` | a `protocol::Heartbeat` to both links |
+pub const TASKS: &[TaskSpec] = &[
+    TaskSpec {
+        name: "imu_indi",
+        priority: 5,
+        trigger: Trigger::Periodic {
+            period_us: IMU_PERIOD_US,
+        },
+        deadline_us: 500,
+    },
+    TaskSpec {
+        name: "stereo_rx",
+        priority: 4,
+        trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
+        deadline_us: 1_000,
+    },
+    TaskSpec {
+        name: "host_rx",
+        priority: 4,
+        trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
+        deadline_us: 1_000,
+    },
+    TaskSpec {
+        name: "guidance",
+        priority: 3,
+        trigger: Trigger::Periodic {
+            period_us: GUIDANCE_PERIOD_US,
+        },
+        deadline_us: 5_000,
+    },
+    TaskSpec {
+        name: "gyro_tx",
+        priority: 2,
+        trigger: Trigger::Periodic {
+            period_us: GYRO_TX_PERIOD_US,
+        },
+        deadline_us: GYRO_TX_PERIOD_US,
+    },
+    TaskSpec {
+        name: "telemetry",
+        priority: 1,
+        trigger: Trigger::Periodic {
+            period_us: TELEMETRY_PERIOD_US,
+        },
+        deadline_us: TELEMETRY_PERIOD_US,
+    },
+    TaskSpec {
+        name: "heartbeat",
+        priority: 1,
+        trigger: Trigger::Periodic {
+            period_us: HEARTBEAT_PERIOD_US,
+        },
+        deadline_us: HEARTBEAT_PERIOD_US,
+    },
+];
