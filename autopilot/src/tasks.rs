@@ -14,6 +14,48 @@ pub const TELEMETRY_PERIOD_US: u32 = 100_000;
 /// Heartbeat period: 1 Hz, µs.
 pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
 
+/// The autopilot's tasks, in [`TASKS`]'s order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Task {
+    /// 512 Hz: IMU sample, attitude, INDI, mixer.
+    ImuIndi,
+    /// Bytes from the camera board.
+    StereoRx,
+    /// Bytes from the host (telemetry link).
+    HostRx,
+    /// 50 Hz: failsafes, avoidance, velocity and height loops.
+    Guidance,
+    /// 128 Hz: gyro and attitude to the camera board.
+    GyroTx,
+    /// 10 Hz: battery voltage, telemetry to the host.
+    Telemetry,
+    /// 1 Hz: heartbeats to both links.
+    Heartbeat,
+}
+
+impl Task {
+    /// Every task, in table order.
+    pub const ALL: [Task; 7] = [
+        Task::ImuIndi,
+        Task::StereoRx,
+        Task::HostRx,
+        Task::Guidance,
+        Task::GyroTx,
+        Task::Telemetry,
+        Task::Heartbeat,
+    ];
+
+    /// The task's entry in [`TASKS`].
+    pub const fn spec(self) -> &'static TaskSpec<Task> {
+        &TASKS[self as usize]
+    }
+
+    /// The task's name (its RTIC task's).
+    pub const fn name(self) -> &'static str {
+        self.spec().name
+    }
+}
+
 /// The autopilot's task table. The firmware's RTIC app mirrors it; `sim-host` schedules from it.
 ///
 /// | task | calls |
@@ -25,8 +67,9 @@ pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
 /// | `gyro_tx` | [`crate::Autopilot::gyro_attitude`] encoded to the camera board |
 /// | `telemetry` | [`crate::Autopilot::telemetry`] encoded to the host |
 /// | `heartbeat` | a `protocol::Heartbeat` to both links |
-pub const TASKS: &[TaskSpec] = &[
+pub const TASKS: &[TaskSpec<Task>] = &[
     TaskSpec {
+        id: Task::ImuIndi,
         name: "imu_indi",
         priority: 5,
         trigger: Trigger::Periodic {
@@ -35,18 +78,21 @@ pub const TASKS: &[TaskSpec] = &[
         deadline_us: 500,
     },
     TaskSpec {
+        id: Task::StereoRx,
         name: "stereo_rx",
         priority: 4,
         trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
         deadline_us: 1_000,
     },
     TaskSpec {
+        id: Task::HostRx,
         name: "host_rx",
         priority: 4,
         trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
         deadline_us: 1_000,
     },
     TaskSpec {
+        id: Task::Guidance,
         name: "guidance",
         priority: 3,
         trigger: Trigger::Periodic {
@@ -55,6 +101,7 @@ pub const TASKS: &[TaskSpec] = &[
         deadline_us: 5_000,
     },
     TaskSpec {
+        id: Task::GyroTx,
         name: "gyro_tx",
         priority: 2,
         trigger: Trigger::Periodic {
@@ -63,6 +110,7 @@ pub const TASKS: &[TaskSpec] = &[
         deadline_us: GYRO_TX_PERIOD_US,
     },
     TaskSpec {
+        id: Task::Telemetry,
         name: "telemetry",
         priority: 1,
         trigger: Trigger::Periodic {
@@ -71,6 +119,7 @@ pub const TASKS: &[TaskSpec] = &[
         deadline_us: TELEMETRY_PERIOD_US,
     },
     TaskSpec {
+        id: Task::Heartbeat,
         name: "heartbeat",
         priority: 1,
         trigger: Trigger::Periodic {

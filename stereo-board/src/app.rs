@@ -34,37 +34,60 @@ pub const FRAME_PERIOD_US: u32 = crate::board::FRAME_PERIOD_US;
 /// A gyro/attitude sample older than this is not used for derotation.
 pub const GYRO_TIMEOUT: Duration = Duration::from_millis(100);
 
-/// Name of the frame task.
-pub const TASK_FRAME: &str = "frame";
-/// Name of the autopilot-link receive task.
-pub const TASK_UART_RX: &str = "uart_rx";
-/// Name of the host-link receive task (HIL and QEMU flavours).
-pub const TASK_HOST_RX: &str = "host_rx";
-/// Name of the status task.
-pub const TASK_STATUS: &str = "status";
+/// The camera board's tasks, in [`TASKS`]'s order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Task {
+    /// Bytes from the autopilot.
+    UartRx,
+    /// Bytes from the host (HIL and QEMU flavours).
+    HostRx,
+    /// A whole stereo frame: Edge-FS and the estimate to the autopilot.
+    Frame,
+    /// 1 Hz: status and heartbeat to the autopilot.
+    Status,
+}
+
+impl Task {
+    /// Every task, in table order.
+    pub const ALL: [Task; 4] = [Task::UartRx, Task::HostRx, Task::Frame, Task::Status];
+
+    /// The task's entry in [`TASKS`].
+    pub const fn spec(self) -> &'static TaskSpec<Task> {
+        &TASKS[self as usize]
+    }
+
+    /// The task's name (its RTIC task's).
+    pub const fn name(self) -> &'static str {
+        self.spec().name
+    }
+}
 
 /// The camera board's tasks; the RTIC app in `src/firmware` mirrors this table.
-pub const TASKS: &[TaskSpec] = &[
+pub const TASKS: &[TaskSpec<Task>] = &[
     TaskSpec {
-        name: TASK_UART_RX,
+        id: Task::UartRx,
+        name: "uart_rx",
         priority: 3,
         trigger: Trigger::Event("bytes from the autopilot link (UART4; USART1 in QEMU), RXNE"),
         deadline_us: 2_000,
     },
     TaskSpec {
-        name: TASK_HOST_RX,
+        id: Task::HostRx,
+        name: "host_rx",
         priority: 3,
         trigger: Trigger::Event("bytes from the host link (USART2), RXNE; HIL/QEMU flavours"),
         deadline_us: 2_000,
     },
     TaskSpec {
-        name: TASK_FRAME,
+        id: Task::Frame,
+        name: "frame",
         priority: 2,
         trigger: Trigger::Event("frame complete: DCMI + DMA2 stream 1, or HIL frame assembled"),
         deadline_us: FRAME_PERIOD_US,
     },
     TaskSpec {
-        name: TASK_STATUS,
+        id: Task::Status,
+        name: "status",
         priority: 1,
         trigger: Trigger::Periodic {
             period_us: STATUS_PERIOD_US,
@@ -72,11 +95,6 @@ pub const TASKS: &[TaskSpec] = &[
         deadline_us: 100_000,
     },
 ];
-
-/// Looks a task up by name.
-pub fn task(name: &str) -> Option<&'static TaskSpec> {
-    task_table::find(TASKS, name)
-}
 
 /// Receive buffer of the autopilot link decoder, bytes.
 const A2S_N: usize = AutopilotToStereo::MAX_FRAME_BYTES;

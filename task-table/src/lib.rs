@@ -1,9 +1,11 @@
 //! The shape of a board's task table.
 //!
-//! Each board library declares its tasks in one `TASKS` table of [`TaskSpec`]s (name,
-//! priority, what starts it, deadline); its RTIC app mirrors the table (a test keeps the two in
-//! agreement) and `sim-host` schedules from it on a virtual clock. This crate holds only the
-//! types, so that both boards and the simulator share one definition.
+//! Each board library names its tasks in an enum (the task's identifier) and declares them in
+//! one `TASKS` table of [`TaskSpec`]s (identifier, name, priority, what starts it, deadline),
+//! in the enum's order; its RTIC app mirrors the table (a test keeps the two in agreement) and
+//! `sim-host` schedules from it on a virtual clock and dispatches on the identifier with an
+//! exhaustive match. This crate holds only the types, so that both boards and the simulator
+//! share one definition.
 #![no_std]
 #![warn(missing_docs)]
 
@@ -29,10 +31,12 @@ impl Trigger {
     }
 }
 
-/// One entry of a board's task table.
+/// One entry of a board's task table; `Id` is the board's task enum.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct TaskSpec {
-    /// Task name (the RTIC task and the simulator's scheduler use the same).
+pub struct TaskSpec<Id: 'static> {
+    /// The task's identifier.
+    pub id: Id,
+    /// Task name (the RTIC task's function has the same).
     pub name: &'static str,
     /// Priority, higher preempts lower (RTIC priority).
     pub priority: u8,
@@ -43,22 +47,36 @@ pub struct TaskSpec {
 }
 
 /// Looks a task up by name in `table`.
-pub fn find(table: &'static [TaskSpec], name: &str) -> Option<&'static TaskSpec> {
+pub fn find<Id>(table: &'static [TaskSpec<Id>], name: &str) -> Option<&'static TaskSpec<Id>> {
     table.iter().find(|t| t.name == name)
+}
+
+/// Whether `table` lists every identifier of `all` once, each at its own index (so a task's
+/// entry is `table[id as usize]`).
+pub fn is_indexed_by<Id: PartialEq>(table: &[TaskSpec<Id>], all: &[Id]) -> bool {
+    table.len() == all.len() && table.iter().zip(all).all(|(t, id)| t.id == *id)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    const TABLE: &[TaskSpec] = &[
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    enum Task {
+        Rx,
+        Status,
+    }
+
+    const TABLE: &[TaskSpec<Task>] = &[
         TaskSpec {
+            id: Task::Rx,
             name: "rx",
             priority: 3,
             trigger: Trigger::Event("UART"),
             deadline_us: 2_000,
         },
         TaskSpec {
+            id: Task::Status,
             name: "status",
             priority: 1,
             trigger: Trigger::Periodic { period_us: 1_000 },
@@ -72,5 +90,8 @@ mod tests {
         assert!(find(TABLE, "missing").is_none());
         assert_eq!(TABLE[0].trigger.period_us(), None);
         assert_eq!(TABLE[1].trigger.period_us(), Some(1_000));
+        assert!(is_indexed_by(TABLE, &[Task::Rx, Task::Status]));
+        assert!(!is_indexed_by(TABLE, &[Task::Status, Task::Rx]));
+        assert!(!is_indexed_by(TABLE, &[Task::Rx]));
     }
 }

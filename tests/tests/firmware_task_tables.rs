@@ -1,6 +1,6 @@
 //! The RTIC apps (every flavour of both firmwares) mirror their boards' task tables: every
-//! task of `stereo_board::app::TASKS` and `autopilot::tasks::TASKS` exists in the firmware source
-//! with the same priority, and the byte-moving interrupt handlers (those bound to a UART, a DMA
+//! task identifier (`stereo_board::app::Task::ALL`, `autopilot::tasks::Task::ALL`) has its RTIC
+//! task in the firmware source, by the name and with the priority of its table entry, and the byte-moving interrupt handlers (those bound to a UART, a DMA
 //! stream or the DCMI) preempt all of them.
 
 /// One `#[task(...)]` of a firmware source.
@@ -90,9 +90,9 @@ fn check(board: &str, src: &str, table: &[(&str, u8)]) {
 
 #[test]
 fn stereo_board_firmware_mirrors_its_task_table() {
-    let table: Vec<_> = stereo_board::app::TASKS
+    let table: Vec<_> = stereo_board::app::Task::ALL
         .iter()
-        .map(|t| (t.name, t.priority))
+        .map(|t| (t.name(), t.spec().priority))
         .collect();
     check(
         "stereo-board",
@@ -103,9 +103,9 @@ fn stereo_board_firmware_mirrors_its_task_table() {
 
 #[test]
 fn autopilot_firmware_mirrors_its_task_table() {
-    let table: Vec<_> = autopilot::tasks::TASKS
+    let table: Vec<_> = autopilot::tasks::Task::ALL
         .iter()
-        .map(|t| (t.name, t.priority))
+        .map(|t| (t.name(), t.spec().priority))
         .collect();
     check(
         "autopilot",

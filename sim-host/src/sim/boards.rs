@@ -6,16 +6,18 @@
 //!   `Autopilot::on_estimate` (what the firmware's task body does).
 //! * Camera board: `stereo_board::app::StereoBoardApp` with `stereo_board::app::TASKS`.
 
-use super::sched::{Board, SimTask};
+use super::sched::{BoardTask, SimTask};
 use protocol::{encode, Message};
 
-/// Scheduler tasks from a board's task table.
-fn sim_tasks(board: Board, table: &'static [task_table::TaskSpec]) -> Vec<SimTask> {
+/// Scheduler tasks from a board's task table, each identified by `id`.
+fn sim_tasks<Id: Copy>(
+    table: &'static [task_table::TaskSpec<Id>],
+    id: impl Fn(Id) -> BoardTask,
+) -> Vec<SimTask> {
     table
         .iter()
         .map(|t| SimTask {
-            board,
-            name: t.name,
+            task: id(t.id),
             priority: t.priority,
             period_us: t.trigger.period_us(),
         })
@@ -24,12 +26,12 @@ fn sim_tasks(board: Board, table: &'static [task_table::TaskSpec]) -> Vec<SimTas
 
 /// Scheduler tasks from the autopilot's table (`autopilot::tasks::TASKS`).
 pub fn autopilot_tasks() -> Vec<SimTask> {
-    sim_tasks(Board::Autopilot, autopilot::tasks::TASKS)
+    sim_tasks(autopilot::tasks::TASKS, BoardTask::Autopilot)
 }
 
 /// Scheduler tasks from the camera board's table (`stereo_board::app::TASKS`).
 pub fn camera_tasks() -> Vec<SimTask> {
-    sim_tasks(Board::Stereo, stereo_board::app::TASKS)
+    sim_tasks(stereo_board::app::TASKS, BoardTask::Stereo)
 }
 
 /// Encodes one message and hands the frame bytes to `tx`.
@@ -45,21 +47,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn tables_have_the_tasks_the_simulator_runs() {
-        let ap = autopilot_tasks();
-        for name in ["imu_indi", "guidance", "gyro_tx", "stereo_rx", "heartbeat"] {
-            assert!(ap.iter().any(|t| t.name == name), "autopilot task {name}");
+    fn every_task_of_both_boards_is_scheduled_once_periodic_ones_with_their_period() {
+        use autopilot::tasks::Task as Ap;
+        use stereo_board::app::Task as Cam;
+        let tasks: Vec<SimTask> = autopilot_tasks()
+            .into_iter()
+            .chain(camera_tasks())
+            .collect();
+        let want: Vec<BoardTask> = Ap::ALL
+            .map(BoardTask::Autopilot)
+            .into_iter()
+            .chain(Cam::ALL.map(BoardTask::Stereo))
+            .collect();
+        assert_eq!(tasks.iter().map(|t| t.task).collect::<Vec<_>>(), want);
+        for t in &tasks {
+            let period = match t.task {
+                BoardTask::Autopilot(a) => a.spec().trigger.period_us(),
+                BoardTask::Stereo(c) => c.spec().trigger.period_us(),
+            };
+            assert_eq!(t.period_us, period, "{}", t.task.name());
         }
-        let cam = camera_tasks();
-        for name in [
-            stereo_board::app::TASK_FRAME,
-            stereo_board::app::TASK_UART_RX,
-            stereo_board::app::TASK_STATUS,
-        ] {
-            assert!(cam.iter().any(|t| t.name == name), "camera task {name}");
-        }
-        assert!(cam
+        let status = tasks
             .iter()
-            .any(|t| t.name == stereo_board::app::TASK_STATUS && t.period_us.is_some()));
+            .find(|t| t.task == BoardTask::Stereo(Cam::Status));
+        assert_eq!(
+            status.and_then(|t| t.period_us),
+            Some(stereo_board::app::STATUS_PERIOD_US)
+        );
     }
 }

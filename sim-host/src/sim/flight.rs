@@ -10,17 +10,19 @@ pub use super::flight_config::FlightConfig;
 pub use super::log_row::LogRow;
 use super::metrics::TrackingFigures;
 use super::scene::Scene;
-use super::sched::{Board, Release, Scheduler};
+use super::sched::{BoardTask, Release, Scheduler};
 use super::uart::{SimUart, UartStats};
 use super::world::World;
 use autopilot::app::Autopilot;
 use autopilot::ms5611::BaroReading;
+use autopilot::tasks::Task as ApTask;
 use protocol::{
     AutopilotToStereo, Decoder, Estimate, FailsafeReason, FlightMode, Heartbeat, HostToBoard,
     ImuSample, Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
+use stereo_board::app::Task as CamTask;
 use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput};
 use timebase::{Instant, WorldTime};
 
@@ -421,8 +423,8 @@ pub fn run_flight_observed(
         releases.clear();
         sched.due(t, &mut releases);
         for r in &releases {
-            match (r.board, r.name) {
-                (Board::Autopilot, "imu_indi") => {
+            match r.task {
+                BoardTask::Autopilot(ApTask::ImuIndi) => {
                     let s = world.imu_sample();
                     let out = ap.on_imu(
                         &ImuSample {
@@ -435,7 +437,7 @@ pub fn run_flight_observed(
                     motors = out.map(|m| m as f64);
                     observer.on_control(t, &ap, s.gyro.to_f32(), out);
                 }
-                (Board::Autopilot, "guidance") => {
+                BoardTask::Autopilot(ApTask::Guidance) => {
                     ap.guidance_step(t);
                     if let Some(off) = ap.motor_safety(t) {
                         motors = off.map(|m| m as f64);
@@ -456,21 +458,24 @@ pub fn run_flight_observed(
                     observer.on_guidance(t, &ap, &row, &counters);
                     log.push(row);
                 }
-                (Board::Autopilot, "gyro_tx") => {
+                BoardTask::Autopilot(ApTask::GyroTx) => {
                     let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(t));
                     send(&msg, &mut |b: &[u8]| a2s.write(t, b));
                 }
-                (Board::Autopilot, "heartbeat") => {
+                BoardTask::Autopilot(ApTask::Heartbeat) => {
                     let msg = AutopilotToStereo::Heartbeat(Autopilot::heartbeat(t));
                     send(&msg, &mut |b: &[u8]| a2s.write(t, b));
                 }
-                (Board::Stereo, stereo_board::app::TASK_STATUS) => {
+                BoardTask::Stereo(CamTask::Status) => {
                     cb.status_tick(
                         WorldTime::from_micros(t).as_flight_clock(),
                         &mut |b: &[u8]| s2a.write(t, b),
                     );
                 }
-                _ => {}
+                BoardTask::Autopilot(ApTask::Telemetry) => {}
+                // Event-driven: run above, where their event happens (a frame, link bytes).
+                BoardTask::Autopilot(ApTask::StereoRx | ApTask::HostRx)
+                | BoardTask::Stereo(CamTask::UartRx | CamTask::HostRx | CamTask::Frame) => {}
             }
         }
     }

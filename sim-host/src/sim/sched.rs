@@ -3,22 +3,30 @@
 //! virtual time; the camera board's processing time is modelled separately (its output is held
 //! back by the processing delay, see `flight`).
 
-/// Which board a task belongs to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Board {
-    /// The stereo camera board.
-    Stereo,
-    /// The autopilot.
-    Autopilot,
+/// A task of either board, by the board's task identifier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BoardTask {
+    /// A task of the stereo camera board.
+    Stereo(stereo_board::app::Task),
+    /// A task of the autopilot.
+    Autopilot(autopilot::tasks::Task),
+}
+
+impl BoardTask {
+    /// The task's name in its board's table.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Stereo(t) => t.name(),
+            Self::Autopilot(t) => t.name(),
+        }
+    }
 }
 
 /// One schedulable task, taken from a board's task table.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SimTask {
-    /// Board.
-    pub board: Board,
-    /// Task name from the table.
-    pub name: &'static str,
+    /// The task.
+    pub task: BoardTask,
     /// Priority (higher first).
     pub priority: u8,
     /// Period, µs; `None` for event-triggered tasks (run by the simulator when the event
@@ -29,10 +37,8 @@ pub struct SimTask {
 /// A released task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Release {
-    /// Board.
-    pub board: Board,
-    /// Task name.
-    pub name: &'static str,
+    /// The task.
+    pub task: BoardTask,
     /// Release time, µs.
     pub at_us: u64,
 }
@@ -80,8 +86,7 @@ impl Scheduler {
                     t.priority,
                     i,
                     Release {
-                        board: t.board,
-                        name: t.name,
+                        task: t.task,
                         at_us: self.next_us[i],
                     },
                 ));
@@ -98,41 +103,42 @@ impl Scheduler {
 mod tests {
     use super::*;
 
+    use autopilot::tasks::Task;
+
     #[test]
     fn releases_in_time_then_priority_order() {
+        let (slow, fast) = (Task::Telemetry, Task::ImuIndi);
         let mut s = Scheduler::new(vec![
             SimTask {
-                board: Board::Autopilot,
-                name: "slow",
+                task: BoardTask::Autopilot(slow),
                 priority: 1,
                 period_us: Some(1000),
             },
             SimTask {
-                board: Board::Autopilot,
-                name: "fast",
+                task: BoardTask::Autopilot(fast),
                 priority: 5,
                 period_us: Some(250),
             },
             SimTask {
-                board: Board::Stereo,
-                name: "event",
+                task: BoardTask::Stereo(stereo_board::app::Task::Frame),
                 priority: 9,
                 period_us: None,
             },
         ]);
         let mut out = Vec::new();
         s.due(1000, &mut out);
-        let names: Vec<_> = out.iter().map(|r| (r.name, r.at_us)).collect();
+        let (slow, fast) = (slow.name(), fast.name());
+        let names: Vec<_> = out.iter().map(|r| (r.task.name(), r.at_us)).collect();
         assert_eq!(
             names,
             [
-                ("fast", 0),
-                ("slow", 0),
-                ("fast", 250),
-                ("fast", 500),
-                ("fast", 750),
-                ("fast", 1000),
-                ("slow", 1000)
+                (fast, 0),
+                (slow, 0),
+                (fast, 250),
+                (fast, 500),
+                (fast, 750),
+                (fast, 1000),
+                (slow, 1000)
             ]
         );
         assert_eq!(s.next_release_us(), Some(1250));

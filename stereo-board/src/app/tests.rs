@@ -63,17 +63,15 @@ fn task_table_is_consistent() {
     names.sort_unstable();
     names.dedup();
     assert_eq!(names.len(), TASKS.len(), "task names are unique");
-    for name in [TASK_FRAME, TASK_UART_RX, TASK_HOST_RX, TASK_STATUS] {
-        assert!(task(name).is_some(), "{name} declared");
-    }
-    let prio = |n| task(n).unwrap().priority;
+    assert!(task_table::is_indexed_by(TASKS, &Task::ALL));
+    let prio = |t: Task| t.spec().priority;
     assert!(
-        prio(TASK_UART_RX) > prio(TASK_FRAME),
+        prio(Task::UartRx) > prio(Task::Frame),
         "gyro keeps flowing during Edge-FS"
     );
-    assert!(prio(TASK_FRAME) > prio(TASK_STATUS));
+    assert!(prio(Task::Frame) > prio(Task::Status));
     assert_eq!(
-        task(TASK_STATUS).unwrap().trigger,
+        Task::Status.spec().trigger,
         Trigger::Periodic {
             period_us: STATUS_PERIOD_US
         }
