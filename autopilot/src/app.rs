@@ -831,6 +831,16 @@ impl Autopilot {
         }
     }
 
+    /// The telemetry task (10 Hz): the supply voltage read this period (`None`: no battery
+    /// sense; NaN: a conversion that did not end, counted as rejected), then the telemetry
+    /// for the host.
+    pub fn telemetry_task(&mut self, volts: Option<f32>, now_us: u64) -> Telemetry {
+        if let Some(v) = volts {
+            self.on_battery(v, now_us);
+        }
+        self.telemetry(now_us)
+    }
+
     /// Telemetry snapshot.
     pub fn telemetry(&self, now_us: u64) -> Telemetry {
         Telemetry {

@@ -65,7 +65,7 @@ impl Task {
 /// | `host_rx` | [`crate::Autopilot::on_host_message`] (HIL: then `on_imu` on the samples it hands back) |
 /// | `guidance` | [`crate::Autopilot::guidance_step`], then [`crate::Autopilot::motor_safety`] |
 /// | `gyro_tx` | [`crate::Autopilot::gyro_attitude`] encoded to the camera board |
-/// | `telemetry` | [`crate::Autopilot::telemetry`] encoded to the host |
+/// | `telemetry` | [`crate::Autopilot::telemetry_task`] (battery voltage in, telemetry encoded to the host) |
 /// | `heartbeat` | a `protocol::Heartbeat` to both links |
 pub const TASKS: &[TaskSpec<Task>] = &[
     TaskSpec {

@@ -266,6 +266,7 @@ fn height_holds_without_motion_capture() {
 /// the autopilot, without the host's heartbeat for `fs_host_timeout_us`, lands where it is
 /// and the motors stop within `AutopilotConfig::host_loss_motors_off_us` of the last heartbeat
 /// (at most 1 s before the cut), without touching a wall; the flight reports why it ended.
+/// Until the cut the host hears the autopilot's 10 Hz telemetry task, every message whole.
 /// Without motion capture (whose fixes travel on the same link: losing them is a height
 /// failsafe of its own), the drone flies on its barometer.
 #[test]
@@ -315,5 +316,11 @@ fn a_flight_whose_telemetry_is_cut_lands() {
     assert_eq!(
         r.failsafe_reason,
         Some(protocol::FailsafeReason::TelemetryLost)
+    );
+    let period_s = f64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1e-6;
+    assert_eq!(
+        r.telemetry_received,
+        (cut_s / period_s).round() as u32,
+        "telemetry messages the host decoded before the cut"
     );
 }

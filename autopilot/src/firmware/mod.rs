@@ -877,12 +877,7 @@ mod app {
                 .battery
                 .as_mut()
                 .map(|b| b.read_volts().unwrap_or(f32::NAN));
-            let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| {
-                if let Some(v) = volts {
-                    ap.on_battery(v, now);
-                }
-                ap.telemetry(now)
-            }));
+            let msg = BoardToHost::Telemetry(cx.shared.ap.lock(|ap| ap.telemetry_task(volts, now)));
             send::<_, B2H>(&mut cx.shared.host_tx, &msg);
         }
     }

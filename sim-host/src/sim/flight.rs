@@ -17,17 +17,15 @@ use autopilot::app::Autopilot;
 use autopilot::ms5611::BaroReading;
 use autopilot::tasks::Task as ApTask;
 use protocol::{
-    AutopilotToStereo, Decoder, Estimate, FailsafeReason, FlightMode, Heartbeat, HostToBoard,
-    ImuSample, Message, Node, PilotCommand, StereoToAutopilot, STEREO_FRAME_BYTES,
+    AutopilotToStereo, BoardToHost, BoardToHostDecoder, Decoder, Estimate, FailsafeReason,
+    FlightMode, Heartbeat, HostToBoard, ImuSample, Message, Node, PilotCommand, StereoToAutopilot,
+    STEREO_FRAME_BYTES,
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
 use stereo_board::app::Task as CamTask;
 use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput};
 use timebase::{Instant, WorldTime};
-
-/// Rate at which the autopilot reads the battery voltage, Hz (the firmware's telemetry task).
-pub const BATTERY_READ_HZ: f64 = 10.0;
 
 /// Why a flight ended: the last column of every summary.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -122,6 +120,9 @@ pub struct FlightResult {
     pub estimates: [u64; 2],
     /// Frames dropped by the camera board.
     pub frames_dropped: u32,
+    /// Telemetry messages the host decoded from the autopilot's telemetry task (10 Hz while
+    /// the host link is up).
+    pub telemetry_received: u32,
     /// The scene flown in.
     pub scene: Scene,
     /// Why the autopilot last left normal flight (`Autopilot::failsafe_reason` at the end;
@@ -237,8 +238,9 @@ pub fn run_flight_observed(
         .host_link_cut_at_s
         .map_or(u64::MAX, |s| (s * 1e6) as u64);
     let mut next_host_heartbeat = 0u64;
-    let battery_period_us = (1e6 / BATTERY_READ_HZ) as u64;
-    let mut next_battery = if cfg.battery.is_some() { 0 } else { u64::MAX };
+    // What the host hears of the autopilot's telemetry link.
+    let mut host_rx = BoardToHostDecoder::new();
+    let mut telemetry_received = 0u32;
     let mut armed = false;
     let mut motors = [0.0f64; 4];
     let mut pending: Option<PendingFrame> = None;
@@ -272,8 +274,7 @@ pub fn run_flight_observed(
             .min(next_capture)
             .min(next_height)
             .min(next_baro)
-            .min(next_host_heartbeat)
-            .min(next_battery);
+            .min(next_host_heartbeat);
         if let Some(r) = sched.next_release_us() {
             next = next.min(r);
         }
@@ -405,16 +406,6 @@ pub fn run_flight_observed(
             ap.on_baro(&reading, t);
             observer.on_baro(t, &reading);
         }
-        // The supply voltage on the autopilot's ADC, through the divider.
-        if t >= next_battery {
-            next_battery += battery_period_us;
-            if let Some(battery) = &world.battery {
-                let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
-                let volts = (battery.terminal_v() / lsb).round() * lsb;
-                ap.on_battery(volts as f32, t);
-                observer.on_battery(t, &ap, battery);
-            }
-        }
         if !armed && t >= arm_us {
             armed = true;
             ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t, None);
@@ -472,7 +463,27 @@ pub fn run_flight_observed(
                         &mut |b: &[u8]| s2a.write(t, b),
                     );
                 }
-                BoardTask::Autopilot(ApTask::Telemetry) => {}
+                BoardTask::Autopilot(ApTask::Telemetry) => {
+                    // The supply voltage on the autopilot's ADC, through the divider.
+                    let volts = world.battery.as_ref().map(|battery| {
+                        let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
+                        ((battery.terminal_v() / lsb).round() * lsb) as f32
+                    });
+                    let telemetry = ap.telemetry_task(volts, t);
+                    if let Some(battery) = &world.battery {
+                        observer.on_battery(t, &ap, battery);
+                    }
+                    if host_link {
+                        let msg = BoardToHost::Telemetry(telemetry);
+                        send(&msg, &mut |b: &[u8]| {
+                            for &byte in b {
+                                if let Some(BoardToHost::Telemetry(_)) = host_rx.push(byte) {
+                                    telemetry_received += 1;
+                                }
+                            }
+                        });
+                    }
+                }
                 // Event-driven: run above, where their event happens (a frame, link bytes).
                 BoardTask::Autopilot(ApTask::StereoRx | ApTask::HostRx)
                 | BoardTask::Stereo(CamTask::UartRx | CamTask::HostRx | CamTask::Frame) => {}
@@ -512,6 +523,7 @@ pub fn run_flight_observed(
         uart: [s2a.stats(), a2s.stats()],
         estimates,
         frames_dropped: cb.counters().frames_dropped,
+        telemetry_received,
         scene: world.scene,
         failsafe_reason: ap.failsafe_reason(),
     })

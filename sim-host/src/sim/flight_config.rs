@@ -40,7 +40,7 @@ pub struct FlightConfig {
     /// Barometer.
     pub baro: BaroParams,
     /// Flight battery, its voltage read by the autopilot at
-    /// [`BATTERY_READ_HZ`](super::flight::BATTERY_READ_HZ) (`None`: an ideal supply, no
+    /// the autopilot's telemetry task's rate (`None`: an ideal supply, no
     /// reading; the drone flies on its nominal thrust for ever).
     pub battery: Option<BatteryParams>,
     /// Camera readout time after exposure, µs.
