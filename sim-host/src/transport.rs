@@ -128,3 +128,72 @@ impl Link for SerialLink {
         Ok(Box::new(SerialLink { port }))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    #[cfg(unix)]
+    use protocol::{BoardToHost, BoardToHostDecoder, Heartbeat, Node};
+    #[cfg(unix)]
+    use stereo_board::app::send_to_host;
+
+    #[test]
+    fn addresses_parse() {
+        let e = open_link("tcp:127.0.0.1:1", 921_600)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("127.0.0.1:1"), "nothing listens: {e}");
+        let e = open_link("/dev/null", 921_600).err().unwrap().to_string();
+        assert!(
+            e.contains("/dev/null") && e.contains("not a serial device"),
+            "{e}"
+        );
+        let e = open_link("/dev/ttyNOSUCH7", 921_600)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("/dev/ttyNOSUCH7") && e.contains("no such device"),
+            "{e}"
+        );
+        let e = open_link("/dev/null", 0).err().unwrap().to_string();
+        assert!(e.contains("baud rate 0"), "{e}");
+    }
+
+    /// A pseudo-terminal is a real tty: open it at rates below 115,200 and off the standard
+    /// list, and pass a message through it both ways.
+    #[cfg(unix)]
+    #[test]
+    fn serial_ports_open_at_any_baud_rate_and_carry_bytes() {
+        use serialport::SerialPort as _;
+        for baud in [9_600, 57_600, 250_000, 921_600] {
+            let (mut master, slave) = serialport::TTYPort::pair().unwrap();
+            let path = slave.name().unwrap();
+            drop(slave);
+            master.set_timeout(Duration::from_secs(2)).unwrap();
+            let mut link = open_link(&path, baud).unwrap_or_else(|e| panic!("{path}: {e:#}"));
+            let mut reader = link.try_clone_link().unwrap();
+            let msg = BoardToHost::Heartbeat(Heartbeat::new(Node::Autopilot, 7));
+            let mut bytes = Vec::new();
+            send_to_host(&msg, &mut |b| bytes.extend_from_slice(b));
+            master.write_all(&bytes).unwrap();
+            let mut got = Vec::new();
+            let mut dec = BoardToHostDecoder::new();
+            let mut buf = [0u8; 64];
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while got.is_empty() && Instant::now() < deadline {
+                match reader.read(&mut buf) {
+                    Ok(n) => dec.feed(&buf[..n], |m| got.push(m)),
+                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                    Err(e) => panic!("{path} at {baud}: {e}"),
+                }
+            }
+            assert_eq!(got, vec![msg], "{path} at {baud} Bd");
+            link.write_all(b"pong").unwrap();
+            let mut back = [0u8; 4];
+            master.read_exact(&mut back).unwrap();
+            assert_eq!(&back, b"pong");
+        }
+    }
+}
