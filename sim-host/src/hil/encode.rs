@@ -8,7 +8,6 @@ use protocol::{
     encode, FrameChunk, HostToBoard, Message, WireTime, FRAME_CHUNK_BYTES, STEREO_FRAME_BYTES,
 };
 
-/// Encodes one host message into `out`.
 /// The signer of the host's messages to the autopilot (none without a key).
 pub(super) fn host_signer(cfg: &HilConfig) -> crate::key::HostSigner {
     cfg.key.map_or_else(crate::key::HostSigner::default, |k| {
@@ -16,6 +15,7 @@ pub(super) fn host_signer(cfg: &HilConfig) -> crate::key::HostSigner {
     })
 }
 
+/// Encodes one host message into `out`.
 pub(super) fn push_msg(msg: &HostToBoard, out: &mut Vec<u8>) -> anyhow::Result<()> {
     let mut buf = [0u8; HostToBoard::MAX_FRAME_BYTES];
     let n = encode(msg, &mut buf).map_err(|e| anyhow!("encoding a host message: {e:?}"))?;
