@@ -8,7 +8,7 @@ use super::camera::CameraParams;
 use super::dynamics::Drone;
 pub use super::flight_config::FlightConfig;
 pub use super::log_row::LogRow;
-use super::metrics::TrackingFigures;
+use super::metrics::{estimate_rmse_mps, velocity_rmse_mps, EstimateCheck, TrackingFigures};
 use super::scene::Scene;
 use super::sched::{BoardTask, Release, Scheduler};
 use super::uart::{SimUart, UartStats};
@@ -212,55 +212,10 @@ pub fn run_flight_observed(
     progress: &mut dyn FnMut(f64),
     observer: &mut dyn FlightObserver,
 ) -> anyhow::Result<FlightResult> {
-    let mut world = World::new(cfg)?;
-    observer.on_scene(&world.scene, &world.camera.params);
-    let mut ap = Autopilot::try_new(cfg.autopilot)
-        .map_err(|r| anyhow::anyhow!("autopilot configuration refused: {r}"))?;
-    let mut cb = Box::new(StereoBoardApp::new(cfg.edge_fs));
-    let mut s2a = SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a);
-    let mut a2s = SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25);
-    let mut tap: Decoder<StereoToAutopilot, { StereoToAutopilot::MAX_FRAME_BYTES }> =
-        Decoder::new();
-
-    let mut tasks = autopilot_tasks();
-    tasks.extend(camera_tasks());
-    let mut sched = Scheduler::new(tasks);
-
+    let mut flight = Flight::new(cfg)?;
+    observer.on_scene(&flight.world.scene, &flight.world.camera.params);
     let end_us = (cfg.duration_s * 1e6) as u64;
-    let frame_period_us = (1e6 / cfg.camera.fps) as u64;
-    let height_period_us = (1e6 / cfg.height_rate_hz) as u64;
-    let baro_period_us = (1e6 / cfg.baro.rate_hz) as u64;
-    let arm_us = (cfg.arm_at_s * 1e6) as u64;
-    let mut next_capture = 100_000u64;
-    let mut next_height = if cfg.mocap { 0 } else { u64::MAX };
-    let mut next_baro = 0u64;
-    let host_cut_us = cfg
-        .host_link_cut_at_s
-        .map_or(u64::MAX, |s| (s * 1e6) as u64);
-    let mut next_host_heartbeat = 0u64;
-    // What the host hears of the autopilot's telemetry link.
-    let mut host_rx = BoardToHostDecoder::new();
-    let mut telemetry_received = 0u32;
-    let mut armed = false;
-    let mut motors = [0.0f64; 4];
-    let mut pending: Option<PendingFrame> = None;
-    let mut busy_until = 0u64;
-    let mut outbox: VecDeque<(u64, Instant, EdgeFsOutput)> = VecDeque::new();
-    let mut truth_at_capture: VecDeque<(u32, [f32; 2])> = VecDeque::new();
-    let mut releases: Vec<Release> = Vec::new();
-    let mut rxbuf: Vec<u8> = Vec::new();
-    let mut last_raw = [f32::NAN; 2];
-
-    let mut log = Vec::new();
-    let mut images = Vec::new();
-    let mut frames = 0u32;
-    let mut err2 = 0.0f64;
-    let mut n_err = 0u64;
-    let mut filt_err2 = 0.0f64;
-    let mut n_filt = 0u64;
-    let mut estimates = [0u64; 2];
     let mut next_progress = 1_000_000u64;
-
     let mut t = 0u64;
     let mut flown_us = end_us;
     while t < end_us {
@@ -268,265 +223,416 @@ pub fn run_flight_observed(
             flown_us = t;
             break;
         }
-        // Next event.
-        let mut next = end_us.min(t + cfg.physics_dt_us);
-        next = next
-            .min(next_capture)
-            .min(next_height)
-            .min(next_baro)
-            .min(next_host_heartbeat);
-        if let Some(r) = sched.next_release_us() {
-            next = next.min(r);
-        }
-        if let Some(p) = &pending {
-            next = next.min(p.ready_us);
-        }
-        if let Some((r, _, _)) = outbox.front() {
-            next = next.min(*r);
-        }
-        if !armed {
-            next = next.min(arm_us);
-        }
-        let next = next.max(t);
+        let next = flight.next_event(t, end_us);
         // Physics up to the event.
         if next > t {
-            world.step(&motors, (next - t) as f64 * 1e-6, next);
+            flight
+                .world
+                .step(&flight.motors, (next - t) as f64 * 1e-6, next);
         }
         t = next;
-        if cfg.stop_on_collision && world.first_contact_s.is_some() {
+        if cfg.stop_on_collision && flight.world.first_contact_s.is_some() {
             break;
         }
         if t >= next_progress {
             progress(t as f64 * 1e-6);
             next_progress += 1_000_000;
         }
+        flight.link_arrivals(t, observer);
+        flight.camera_board(t, observer);
+        flight.exposure(t, observer);
+        flight.host_and_sensors(t, observer);
+        flight.periodic_tasks(t, observer);
+    }
+    Ok(flight.result(flown_us, end_us))
+}
 
-        // UART arrivals: both directions (the RX idle-line tasks).
-        rxbuf.clear();
-        s2a.receive(t, &mut rxbuf);
-        if !rxbuf.is_empty() {
+/// When each of the world's own events (not the boards' tasks) happens next, µs.
+struct EventClocks {
+    capture: u64,
+    height_fix: u64,
+    baro: u64,
+    host_heartbeat: u64,
+}
+
+/// What a flight records for its figures, which are computed from it afterwards.
+#[derive(Default)]
+struct FlightRecord {
+    log: Vec<LogRow>,
+    images: Vec<(f64, Vec<u8>)>,
+    frames: u32,
+    /// Estimates received / valid by the autopilot.
+    estimates: [u64; 2],
+    /// Each valid estimate against the true velocity at its capture.
+    estimate_checks: Vec<EstimateCheck>,
+    /// Telemetry messages the host decoded.
+    telemetry_received: u32,
+}
+
+/// One flight in progress: the world, both boards' task logic, the links between them and
+/// the host, and the event clocks. Each method handles one kind of event at time `t` (µs).
+struct Flight<'a> {
+    cfg: &'a FlightConfig,
+    world: World,
+    ap: Autopilot,
+    cb: Box<StereoBoardApp>,
+    /// Camera board -> autopilot, autopilot -> camera board.
+    s2a: SimUart,
+    a2s: SimUart,
+    /// The simulator's own decoder on the camera board's link (a logic analyser on the wire).
+    tap: Decoder<StereoToAutopilot, { StereoToAutopilot::MAX_FRAME_BYTES }>,
+    /// What the host hears of the autopilot's telemetry link.
+    host_rx: BoardToHostDecoder,
+    sched: Scheduler,
+    releases: Vec<Release>,
+    next: EventClocks,
+    frame_period_us: u64,
+    height_period_us: u64,
+    baro_period_us: u64,
+    arm_us: u64,
+    host_cut_us: u64,
+    armed: bool,
+    motors: [f64; 4],
+    /// A read-out frame on its way to the camera board, and when the board is free again.
+    pending: Option<PendingFrame>,
+    busy_until: u64,
+    /// Camera board results waiting for their processing time to pass.
+    outbox: VecDeque<(u64, Instant, EdgeFsOutput)>,
+    /// The true body velocity at each recent capture time.
+    truth_at_capture: VecDeque<(u32, [f32; 2])>,
+    rxbuf: Vec<u8>,
+    /// The last estimate's velocity as received (NaN: invalid), for the log.
+    last_raw: [f32; 2],
+    record: FlightRecord,
+}
+
+impl<'a> Flight<'a> {
+    fn new(cfg: &'a FlightConfig) -> anyhow::Result<Self> {
+        let world = World::new(cfg)?;
+        let ap = Autopilot::try_new(cfg.autopilot)
+            .map_err(|r| anyhow::anyhow!("autopilot configuration refused: {r}"))?;
+        let mut tasks = autopilot_tasks();
+        tasks.extend(camera_tasks());
+        Ok(Self {
+            cfg,
+            world,
+            ap,
+            cb: Box::new(StereoBoardApp::new(cfg.edge_fs)),
+            s2a: SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a),
+            a2s: SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25),
+            tap: Decoder::new(),
+            host_rx: BoardToHostDecoder::new(),
+            sched: Scheduler::new(tasks),
+            releases: Vec::new(),
+            next: EventClocks {
+                capture: 100_000,
+                height_fix: if cfg.mocap { 0 } else { u64::MAX },
+                baro: 0,
+                host_heartbeat: 0,
+            },
+            frame_period_us: (1e6 / cfg.camera.fps) as u64,
+            height_period_us: (1e6 / cfg.height_rate_hz) as u64,
+            baro_period_us: (1e6 / cfg.baro.rate_hz) as u64,
+            arm_us: (cfg.arm_at_s * 1e6) as u64,
+            host_cut_us: cfg
+                .host_link_cut_at_s
+                .map_or(u64::MAX, |s| (s * 1e6) as u64),
+            armed: false,
+            motors: [0.0; 4],
+            pending: None,
+            busy_until: 0,
+            outbox: VecDeque::new(),
+            truth_at_capture: VecDeque::new(),
+            rxbuf: Vec::new(),
+            last_raw: [f32::NAN; 2],
+            record: FlightRecord::default(),
+        })
+    }
+
+    /// The time of the next event after `t`: a physics step at the latest, never past `end_us`.
+    fn next_event(&self, t: u64, end_us: u64) -> u64 {
+        let mut next = end_us.min(t + self.cfg.physics_dt_us);
+        next = next
+            .min(self.next.capture)
+            .min(self.next.height_fix)
+            .min(self.next.baro)
+            .min(self.next.host_heartbeat);
+        if let Some(r) = self.sched.next_release_us() {
+            next = next.min(r);
+        }
+        if let Some(p) = &self.pending {
+            next = next.min(p.ready_us);
+        }
+        if let Some((r, _, _)) = self.outbox.front() {
+            next = next.min(*r);
+        }
+        if !self.armed {
+            next = next.min(self.arm_us);
+        }
+        next.max(t)
+    }
+
+    /// UART arrivals in both directions (the RX idle-line tasks).
+    fn link_arrivals(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+        self.rxbuf.clear();
+        self.s2a.receive(t, &mut self.rxbuf);
+        if !self.rxbuf.is_empty() {
             // The autopilot's stereo_rx task decodes the bytes itself; the simulator taps the
-            // same bytes with its own decoder (a logic analyser on the wire) for the metrics.
-            ap.on_stereo_bytes(&rxbuf, t);
-            tap.feed(&rxbuf, |m| {
+            // same bytes with its own decoder for the figures.
+            self.ap.on_stereo_bytes(&self.rxbuf, t);
+            let (record, last_raw) = (&mut self.record, &mut self.last_raw);
+            let (truth, height_m) = (&self.truth_at_capture, -self.world.drone.state.pos.z);
+            self.tap.feed(&self.rxbuf, |m| {
                 if let StereoToAutopilot::Estimate(e) = m {
                     observer.on_estimate(t, &e);
-                    estimates[0] += 1;
-                    last_raw = [f32::NAN; 2];
+                    record.estimates[0] += 1;
+                    *last_raw = [f32::NAN; 2];
                     if e.is_valid() {
-                        estimates[1] += 1;
-                        last_raw = [e.forward_mps, e.sideways_mps];
-                        if let Some(&(_, v)) = truth_at_capture
-                            .iter()
-                            .find(|(c, _)| *c == e.capture_us.as_micros())
+                        record.estimates[1] += 1;
+                        *last_raw = [e.forward_mps, e.sideways_mps];
+                        if let Some(&(_, v)) =
+                            truth.iter().find(|(c, _)| *c == e.capture_us.as_micros())
                         {
-                            if -world.drone.state.pos.z > 0.3 {
-                                err2 += ((e.forward_mps - v[0]) as f64).powi(2)
-                                    + ((e.sideways_mps - v[1]) as f64).powi(2);
-                                n_err += 2;
-                            }
+                            record.estimate_checks.push(EstimateCheck {
+                                estimate_mps: [e.forward_mps, e.sideways_mps],
+                                truth_mps: v,
+                                height_m,
+                            });
                         }
                     }
                 }
             });
         }
-        rxbuf.clear();
-        a2s.receive(t, &mut rxbuf);
+        self.rxbuf.clear();
+        self.a2s.receive(t, &mut self.rxbuf);
         // The simulated camera board's clock is the world's.
         let cb_now = WorldTime::from_micros(t).as_flight_clock();
-        if !rxbuf.is_empty() {
-            cb.on_rx_bytes(&rxbuf, cb_now, &mut |b: &[u8]| s2a.write(t, b), None);
+        if !self.rxbuf.is_empty() {
+            let s2a = &mut self.s2a;
+            self.cb
+                .on_rx_bytes(&self.rxbuf, cb_now, &mut |b: &[u8]| s2a.write(t, b), None);
         }
+    }
 
-        // Camera board output leaves after the processing delay.
-        while outbox.front().is_some_and(|(r, _, _)| *r <= t) {
-            if let Some((_, capture, out)) = outbox.pop_front() {
-                cb.send_estimate(&out, capture, cb_now, &mut |b: &[u8]| s2a.write(t, b));
+    /// The camera board: results leave after their processing time; a read-out frame starts
+    /// Edge-FS.
+    fn camera_board(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+        let cb_now = WorldTime::from_micros(t).as_flight_clock();
+        while self.outbox.front().is_some_and(|(r, _, _)| *r <= t) {
+            if let Some((_, capture, out)) = self.outbox.pop_front() {
+                let s2a = &mut self.s2a;
+                self.cb
+                    .send_estimate(&out, capture, cb_now, &mut |b: &[u8]| s2a.write(t, b));
             }
         }
-        // A read-out frame reaches the camera board.
-        if pending.as_ref().is_some_and(|p| p.ready_us <= t) {
-            if let Some(p) = pending.take() {
+        if self.pending.as_ref().is_some_and(|p| p.ready_us <= t) {
+            if let Some(p) = self.pending.take() {
                 // Edge-FS starts now (gyro sample as of now); the estimate leaves when the
                 // modelled processing time is over.
-                let out = cb.process_frame(&p.frame, p.capture, cb_now);
-                observer.on_edge_fs(t, cb.edge_fs().diagnostics());
-                let done = t + cfg.processing_us;
-                busy_until = done;
-                outbox.push_back((done, p.capture, out));
+                let out = self.cb.process_frame(&p.frame, p.capture, cb_now);
+                observer.on_edge_fs(t, self.cb.edge_fs().diagnostics());
+                let done = t + self.cfg.processing_us;
+                self.busy_until = done;
+                self.outbox.push_back((done, p.capture, out));
             }
         }
-        // Exposure.
-        if t >= next_capture {
-            next_capture += frame_period_us;
-            let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
-            world.render(&mut frame);
-            observer.on_frame(t, &frame);
-            let vb = world.drone.state.att.rotate_inv(world.drone.state.vel);
-            truth_at_capture.push_back((t as u32, [vb.x as f32, vb.y as f32]));
-            if truth_at_capture.len() > 32 {
-                truth_at_capture.pop_front();
-            }
-            frames += 1;
-            if cfg.keep_image_every > 0 && frames.is_multiple_of(cfg.keep_image_every) {
-                images.push((t as f64 * 1e-6, frame.iter().step_by(2).copied().collect()));
-            }
-            let ready = t + cfg.readout_us;
-            if pending.is_some() || busy_until > ready {
-                cb.frame_dropped();
-            } else {
-                pending = Some(PendingFrame {
-                    ready_us: ready,
-                    capture: WorldTime::from_micros(t).as_flight_clock(),
-                    frame,
-                });
-            }
+    }
+
+    /// The camera's exposure: a frame rendered, read out to the camera board (or dropped while
+    /// the board is busy).
+    fn exposure(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+        if t < self.next.capture {
+            return;
         }
-        // The host's heartbeat and height fixes (motion capture) on the autopilot's host link,
-        // until it is cut.
-        let host_link = t < host_cut_us;
-        if t >= next_host_heartbeat {
-            next_host_heartbeat += u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US);
+        self.next.capture += self.frame_period_us;
+        let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+        self.world.render(&mut frame);
+        observer.on_frame(t, &frame);
+        let state = &self.world.drone.state;
+        let vb = state.att.rotate_inv(state.vel);
+        self.truth_at_capture
+            .push_back((t as u32, [vb.x as f32, vb.y as f32]));
+        if self.truth_at_capture.len() > 32 {
+            self.truth_at_capture.pop_front();
+        }
+        self.record.frames += 1;
+        let keep = self.cfg.keep_image_every;
+        if keep > 0 && self.record.frames.is_multiple_of(keep) {
+            let left = frame.iter().step_by(2).copied().collect();
+            self.record.images.push((t as f64 * 1e-6, left));
+        }
+        let ready = t + self.cfg.readout_us;
+        if self.pending.is_some() || self.busy_until > ready {
+            self.cb.frame_dropped();
+        } else {
+            self.pending = Some(PendingFrame {
+                ready_us: ready,
+                capture: WorldTime::from_micros(t).as_flight_clock(),
+                frame,
+            });
+        }
+    }
+
+    /// The host's heartbeat and height fixes (motion capture) on the autopilot's host link
+    /// until it is cut, the barometer on the autopilot's SPI bus, and the host's arm command.
+    fn host_and_sensors(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+        let host_link = t < self.host_cut_us;
+        let ap = &mut self.ap;
+        if t >= self.next.host_heartbeat {
+            self.next.host_heartbeat += u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US);
             if host_link {
                 let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
                 ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);
             }
         }
-        if t >= next_height {
-            next_height += height_period_us;
-            let fix = world.height_fix(t);
+        if t >= self.next.height_fix {
+            self.next.height_fix += self.height_period_us;
+            let fix = self.world.height_fix(t);
             if host_link {
                 ap.on_host_message(HostToBoard::ExternalPosition(fix), t, None);
             }
         }
-        // The barometer on the autopilot's SPI bus.
-        if t >= next_baro {
-            next_baro += baro_period_us;
-            let reading = world.baro_reading(t, &motors);
+        if t >= self.next.baro {
+            self.next.baro += self.baro_period_us;
+            let reading = self.world.baro_reading(t, &self.motors);
             ap.on_baro(&reading, t);
             observer.on_baro(t, &reading);
         }
-        if !armed && t >= arm_us {
-            armed = true;
+        if !self.armed && t >= self.arm_us {
+            self.armed = true;
             ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t, None);
         }
-        // Periodic tasks of both boards.
-        releases.clear();
-        sched.due(t, &mut releases);
-        for r in &releases {
-            match r.task {
-                BoardTask::Autopilot(ApTask::ImuIndi) => {
-                    let s = world.imu_sample();
-                    let out = ap.on_imu(
-                        &ImuSample {
-                            timestamp_us: protocol::WireTime(t as u32),
-                            gyro_radps: s.gyro.to_f32(),
-                            accel_mps2: s.accel.to_f32(),
-                        },
-                        t,
-                    );
-                    motors = out.map(|m| m as f64);
-                    observer.on_control(t, &ap, s.gyro.to_f32(), out);
-                }
-                BoardTask::Autopilot(ApTask::Guidance) => {
-                    ap.guidance_step(t);
-                    if let Some(off) = ap.motor_safety(t) {
-                        motors = off.map(|m| m as f64);
-                    }
-                    let row = log_row(&ap, &world.drone, &world.scene, t, last_raw, motors);
-                    if row.fsm_state.is_some() && row.vel_est.iter().all(|v| v.is_finite()) {
-                        for k in 0..2 {
-                            filt_err2 += ((row.vel_est[k] - row.vel_true[k]) as f64).powi(2);
-                        }
-                        n_filt += 2;
-                    }
-                    let counters = FlightCounters {
-                        estimates,
-                        frames_dropped: cb.counters().frames_dropped,
-                        collisions: world.collisions,
-                        uart: [s2a.stats(), a2s.stats()],
-                    };
-                    observer.on_guidance(t, &ap, &row, &counters);
-                    log.push(row);
-                }
-                BoardTask::Autopilot(ApTask::GyroTx) => {
-                    let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(t));
-                    send(&msg, &mut |b: &[u8]| a2s.write(t, b));
-                }
-                BoardTask::Autopilot(ApTask::Heartbeat) => {
-                    let msg = AutopilotToStereo::Heartbeat(Autopilot::heartbeat(t));
-                    send(&msg, &mut |b: &[u8]| a2s.write(t, b));
-                }
-                BoardTask::Stereo(CamTask::Status) => {
-                    cb.status_tick(
-                        WorldTime::from_micros(t).as_flight_clock(),
-                        &mut |b: &[u8]| s2a.write(t, b),
-                    );
-                }
-                BoardTask::Autopilot(ApTask::Telemetry) => {
-                    // The supply voltage on the autopilot's ADC, through the divider.
-                    let volts = world.battery.as_ref().map(|battery| {
-                        let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
-                        ((battery.terminal_v() / lsb).round() * lsb) as f32
-                    });
-                    let telemetry = ap.telemetry_task(volts, t);
-                    if let Some(battery) = &world.battery {
-                        observer.on_battery(t, &ap, battery);
-                    }
-                    if host_link {
-                        let msg = BoardToHost::Telemetry(telemetry);
-                        send(&msg, &mut |b: &[u8]| {
-                            for &byte in b {
-                                if let Some(BoardToHost::Telemetry(_)) = host_rx.push(byte) {
-                                    telemetry_received += 1;
-                                }
-                            }
-                        });
-                    }
-                }
-                // Event-driven: run above, where their event happens (a frame, link bytes).
-                BoardTask::Autopilot(ApTask::StereoRx | ApTask::HostRx)
-                | BoardTask::Stereo(CamTask::UartRx | CamTask::HostRx | CamTask::Frame) => {}
-            }
+    }
+
+    /// The periodic tasks of both boards due at `t`, highest priority first.
+    fn periodic_tasks(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+        self.releases.clear();
+        self.sched.due(t, &mut self.releases);
+        for i in 0..self.releases.len() {
+            let task = self.releases[i].task;
+            self.run_task(task, t, observer);
         }
     }
-    let rms = |e2: f64, n: u64| {
-        if n > 0 {
-            (e2 / n as f64).sqrt()
-        } else {
-            f64::NAN
+
+    /// One task body, as the board's firmware runs it.
+    fn run_task(&mut self, task: BoardTask, t: u64, observer: &mut dyn FlightObserver) {
+        let ap = &mut self.ap;
+        match task {
+            BoardTask::Autopilot(ApTask::ImuIndi) => {
+                let s = self.world.imu_sample();
+                let out = ap.on_imu(
+                    &ImuSample {
+                        timestamp_us: protocol::WireTime(t as u32),
+                        gyro_radps: s.gyro.to_f32(),
+                        accel_mps2: s.accel.to_f32(),
+                    },
+                    t,
+                );
+                self.motors = out.map(|m| m as f64);
+                observer.on_control(t, ap, s.gyro.to_f32(), out);
+            }
+            BoardTask::Autopilot(ApTask::Guidance) => {
+                ap.guidance_step(t);
+                if let Some(off) = ap.motor_safety(t) {
+                    self.motors = off.map(|m| m as f64);
+                }
+                let world = &self.world;
+                let row = log_row(
+                    ap,
+                    &world.drone,
+                    &world.scene,
+                    t,
+                    self.last_raw,
+                    self.motors,
+                );
+                let counters = FlightCounters {
+                    estimates: self.record.estimates,
+                    frames_dropped: self.cb.counters().frames_dropped,
+                    collisions: world.collisions,
+                    uart: [self.s2a.stats(), self.a2s.stats()],
+                };
+                observer.on_guidance(t, ap, &row, &counters);
+                self.record.log.push(row);
+            }
+            BoardTask::Autopilot(ApTask::GyroTx) => {
+                let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(t));
+                send(&msg, &mut |b: &[u8]| self.a2s.write(t, b));
+            }
+            BoardTask::Autopilot(ApTask::Heartbeat) => {
+                let msg = AutopilotToStereo::Heartbeat(Autopilot::heartbeat(t));
+                send(&msg, &mut |b: &[u8]| self.a2s.write(t, b));
+            }
+            BoardTask::Autopilot(ApTask::Telemetry) => {
+                // The supply voltage on the autopilot's ADC, through the divider.
+                let volts = self.world.battery.as_ref().map(|battery| {
+                    let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
+                    ((battery.terminal_v() / lsb).round() * lsb) as f32
+                });
+                let telemetry = ap.telemetry_task(volts, t);
+                if let Some(battery) = &self.world.battery {
+                    observer.on_battery(t, ap, battery);
+                }
+                if t < self.host_cut_us {
+                    let (host_rx, record) = (&mut self.host_rx, &mut self.record);
+                    send(&BoardToHost::Telemetry(telemetry), &mut |b: &[u8]| {
+                        for &byte in b {
+                            if let Some(BoardToHost::Telemetry(_)) = host_rx.push(byte) {
+                                record.telemetry_received += 1;
+                            }
+                        }
+                    });
+                }
+            }
+            BoardTask::Stereo(CamTask::Status) => {
+                let s2a = &mut self.s2a;
+                self.cb.status_tick(
+                    WorldTime::from_micros(t).as_flight_clock(),
+                    &mut |b: &[u8]| s2a.write(t, b),
+                );
+            }
+            // Event-driven: run where their event happens (a frame, link bytes).
+            BoardTask::Autopilot(ApTask::StereoRx | ApTask::HostRx)
+            | BoardTask::Stereo(CamTask::UartRx | CamTask::HostRx | CamTask::Frame) => {}
         }
-    };
-    Ok(FlightResult {
-        seed: cfg.seed,
-        duration_s: if flown_us < end_us {
-            flown_us as f64 * 1e-6
-        } else {
-            cfg.duration_s
-        },
-        flight_time_s: world
-            .first_contact_s
-            .unwrap_or(cfg.duration_s.min(flown_us as f64 * 1e-6)),
-        end_reason: EndReason::of(&ap, armed, world.first_contact_s.is_some()),
-        collisions: world.collisions,
-        vel_rmse_mps: rms(filt_err2, n_filt),
-        raw_vel_rmse_mps: rms(err2, n_err),
-        tracking: TrackingFigures::from_log(&log),
-        min_clearance_m: if world.min_clearance_m.is_finite() {
-            world.min_clearance_m
-        } else {
-            f64::NAN
-        },
-        distance_m: world.distance_m,
-        log,
-        images,
-        uart: [s2a.stats(), a2s.stats()],
-        estimates,
-        frames_dropped: cb.counters().frames_dropped,
-        telemetry_received,
-        scene: world.scene,
-        failsafe_reason: ap.failsafe_reason(),
-    })
+    }
+
+    /// The flight's result after `flown_us` of the planned `end_us`, its figures computed from
+    /// what it recorded.
+    fn result(self, flown_us: u64, end_us: u64) -> FlightResult {
+        let cfg = self.cfg;
+        let world = self.world;
+        let record = self.record;
+        FlightResult {
+            seed: cfg.seed,
+            duration_s: if flown_us < end_us {
+                flown_us as f64 * 1e-6
+            } else {
+                cfg.duration_s
+            },
+            flight_time_s: world
+                .first_contact_s
+                .unwrap_or(cfg.duration_s.min(flown_us as f64 * 1e-6)),
+            end_reason: EndReason::of(&self.ap, self.armed, world.first_contact_s.is_some()),
+            collisions: world.collisions,
+            vel_rmse_mps: velocity_rmse_mps(&record.log),
+            raw_vel_rmse_mps: estimate_rmse_mps(&record.estimate_checks),
+            tracking: TrackingFigures::from_log(&record.log),
+            min_clearance_m: if world.min_clearance_m.is_finite() {
+                world.min_clearance_m
+            } else {
+                f64::NAN
+            },
+            distance_m: world.distance_m,
+            log: record.log,
+            images: record.images,
+            uart: [self.s2a.stats(), self.a2s.stats()],
+            estimates: record.estimates,
+            frames_dropped: self.cb.counters().frames_dropped,
+            telemetry_received: record.telemetry_received,
+            scene: world.scene,
+            failsafe_reason: self.ap.failsafe_reason(),
+        }
+    }
 }
 
 fn nan_opt(v: Option<f32>) -> f32 {

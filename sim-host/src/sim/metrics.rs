@@ -1,6 +1,8 @@
-//! How well a flight followed its setpoints, from its 50 Hz log: the figures `fly` prints and
-//! writes as `track_rmse_mps`, `hover_speed_mps`, `stop_speed_mps` and `height_rmse_m`, and the
-//! attitude estimate's error the velocity filter predicts with, `tilt_rmse_deg`.
+//! A flight's figures, computed after it from what it recorded: how well it followed its
+//! setpoints, from its 50 Hz log (the figures `fly` prints and writes as `track_rmse_mps`,
+//! `hover_speed_mps`, `stop_speed_mps` and `height_rmse_m`, and the attitude estimate's error the
+//! velocity filter predicts with, `tilt_rmse_deg`), and the velocity errors (`vel_rmse_mps`
+//! from the log, the raw Edge-FS error from the estimates as received).
 //!
 //! All of them use the true state (the simulator's; the tilt error is the autopilot's estimate
 //! against it) and only rows in level flight: flight mode `Flying` with the avoidance FSM running (it starts once the take-off
@@ -8,6 +10,64 @@
 
 use super::log_row::LogRow;
 use protocol::{FlightMode, FsmState};
+
+/// Flights below this height (m, when the estimate arrives) do not count towards the raw
+/// estimate error: on the floor and during the take-off the view is mostly floor.
+const ESTIMATE_CHECK_MIN_HEIGHT_M: f64 = 0.3;
+
+/// One valid Edge-FS estimate as the autopilot received it, against the true body velocity
+/// at its capture.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EstimateCheck {
+    /// Forward and sideways estimate, m/s.
+    pub estimate_mps: [f32; 2],
+    /// True forward and sideways body velocity at the capture, m/s.
+    pub truth_mps: [f32; 2],
+    /// True height when the estimate arrived, m.
+    pub height_m: f64,
+}
+
+/// RMS error per axis of the raw estimates above [`ESTIMATE_CHECK_MIN_HEIGHT_M`], m/s (NaN
+/// without one).
+pub fn estimate_rmse_mps(checks: &[EstimateCheck]) -> f64 {
+    let mut e2 = 0.0f64;
+    let mut n = 0u64;
+    for c in checks
+        .iter()
+        .filter(|c| c.height_m > ESTIMATE_CHECK_MIN_HEIGHT_M)
+    {
+        e2 += ((c.estimate_mps[0] - c.truth_mps[0]) as f64).powi(2)
+            + ((c.estimate_mps[1] - c.truth_mps[1]) as f64).powi(2);
+        n += 2;
+    }
+    rms(e2, n)
+}
+
+/// RMS error per axis of the autopilot's velocity estimate against the true velocity in the
+/// heading frame, over the log rows with the avoidance FSM running and an estimate, m/s (NaN
+/// without one).
+pub fn velocity_rmse_mps(log: &[LogRow]) -> f64 {
+    let mut e2 = 0.0f64;
+    let mut n = 0u64;
+    for row in log {
+        if row.fsm_state.is_some() && row.vel_est.iter().all(|v| v.is_finite()) {
+            for k in 0..2 {
+                e2 += ((row.vel_est[k] - row.vel_true[k]) as f64).powi(2);
+            }
+            n += 2;
+        }
+    }
+    rms(e2, n)
+}
+
+/// `sqrt(e2 / n)`, NaN for `n == 0`.
+fn rms(e2: f64, n: u64) -> f64 {
+    if n > 0 {
+        (e2 / n as f64).sqrt()
+    } else {
+        f64::NAN
+    }
+}
 
 /// Setpoint-tracking figures of one flight. A figure is NaN when the flight has no row it
 /// applies to (no `Forward` phase, say).
