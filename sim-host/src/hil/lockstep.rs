@@ -11,6 +11,7 @@ use super::result::{HilResult, HilRow};
 use super::HilConfig;
 use crate::log::FlightLog;
 use crate::param::{FileSection, LinkClosed, MessageSource, ParamClient};
+use crate::sim::sched::SensorSchedule;
 use crate::sim::world::World;
 use crate::transport::Link;
 use anyhow::{anyhow, bail, Context as _};
@@ -148,8 +149,6 @@ fn lockstep(
     const IMU_HZ: u64 = 512;
     let wall0 = Instant::now();
     let end_us = (cfg.duration_s * 1e6) as u64;
-    let frame_period_us = (1e6 / cfg.fps) as u64;
-    let height_period_us = (1e6 / cfg.height_rate_hz) as u64;
     let arm_us = (cfg.arm_at_s * 1e6) as u64;
     let physics_dt_us = cfg.world.physics_dt_us.max(1);
     let mut r = HilResult {
@@ -158,9 +157,8 @@ fn lockstep(
     };
     let mut k = 0u64;
     let mut t = 0u64;
-    let mut next_frame = 100_000u64;
-    let mut next_height = 0u64;
-    let mut next_heartbeat = 0u64;
+    // The autopilot reads its own barometer (or, in the lockstep images, none).
+    let mut sensors = SensorSchedule::new(cfg.fps, Some(cfg.height_rate_hz), None);
     let mut next_log = 0u64;
     let mut next_progress = 1_000_000u64;
     let mut armed = false;
@@ -183,7 +181,7 @@ fn lockstep(
             break;
         }
         // Camera: hold the world at the exposure time until the previous frame is answered.
-        if t >= next_frame {
+        if sensors.frame.due(t) {
             if let Some((_, sent)) = in_flight {
                 let held = Instant::now();
                 let deadline = sent + cfg.frame_timeout;
@@ -221,7 +219,6 @@ fn lockstep(
             in_flight = Some((capture, Instant::now()));
             frame_id = frame_id.wrapping_add(1);
             r.frames_sent += 1;
-            next_frame += frame_period_us;
         }
         while let Ok(m) = cam_rx.rx.try_recv() {
             if let BoardToHost::Estimate(e) = m {
@@ -233,13 +230,11 @@ fn lockstep(
         // Autopilot: the host's heartbeat (the autopilot lands without it), height fix, arm,
         // then the IMU sample of this instant.
         out.clear();
-        if t >= next_heartbeat {
-            next_heartbeat += u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US);
+        if sensors.host_heartbeat.due(t) {
             let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
             push_msg(&signer.wrap(HostToBoard::Heartbeat(hb))?, &mut out)?;
         }
-        if t >= next_height {
-            next_height += height_period_us;
+        if sensors.height_fix.due(t) {
             push_msg(
                 &signer.wrap(HostToBoard::ExternalPosition(world.height_fix(t)))?,
                 &mut out,

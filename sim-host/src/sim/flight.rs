@@ -10,7 +10,7 @@ pub use super::flight_config::FlightConfig;
 pub use super::log_row::LogRow;
 use super::metrics::{estimate_rmse_mps, velocity_rmse_mps, EstimateCheck, TrackingFigures};
 use super::scene::Scene;
-use super::sched::{BoardTask, Release, Scheduler};
+use super::sched::{BoardTask, Release, Scheduler, SensorSchedule};
 use super::uart::{SimUart, UartStats};
 use super::world::World;
 use autopilot::app::Autopilot;
@@ -247,14 +247,6 @@ pub fn run_flight_observed(
     Ok(flight.result(flown_us, end_us))
 }
 
-/// When each of the world's own events (not the boards' tasks) happens next, µs.
-struct EventClocks {
-    capture: u64,
-    height_fix: u64,
-    baro: u64,
-    host_heartbeat: u64,
-}
-
 /// What a flight records for its figures, which are computed from it afterwards.
 #[derive(Default)]
 struct FlightRecord {
@@ -285,10 +277,7 @@ struct Flight<'a> {
     host_rx: BoardToHostDecoder,
     sched: Scheduler,
     releases: Vec<Release>,
-    next: EventClocks,
-    frame_period_us: u64,
-    height_period_us: u64,
-    baro_period_us: u64,
+    sensors: SensorSchedule,
     arm_us: u64,
     host_cut_us: u64,
     armed: bool,
@@ -324,15 +313,11 @@ impl<'a> Flight<'a> {
             host_rx: BoardToHostDecoder::new(),
             sched: Scheduler::new(tasks),
             releases: Vec::new(),
-            next: EventClocks {
-                capture: 100_000,
-                height_fix: if cfg.mocap { 0 } else { u64::MAX },
-                baro: 0,
-                host_heartbeat: 0,
-            },
-            frame_period_us: (1e6 / cfg.camera.fps) as u64,
-            height_period_us: (1e6 / cfg.height_rate_hz) as u64,
-            baro_period_us: (1e6 / cfg.baro.rate_hz) as u64,
+            sensors: SensorSchedule::new(
+                cfg.camera.fps,
+                cfg.mocap.then_some(cfg.height_rate_hz),
+                Some(cfg.baro.rate_hz),
+            ),
             arm_us: (cfg.arm_at_s * 1e6) as u64,
             host_cut_us: cfg
                 .host_link_cut_at_s
@@ -352,11 +337,7 @@ impl<'a> Flight<'a> {
     /// The time of the next event after `t`: a physics step at the latest, never past `end_us`.
     fn next_event(&self, t: u64, end_us: u64) -> u64 {
         let mut next = end_us.min(t + self.cfg.physics_dt_us);
-        next = next
-            .min(self.next.capture)
-            .min(self.next.height_fix)
-            .min(self.next.baro)
-            .min(self.next.host_heartbeat);
+        next = next.min(self.sensors.next_us());
         if let Some(r) = self.sched.next_release_us() {
             next = next.min(r);
         }
@@ -441,10 +422,9 @@ impl<'a> Flight<'a> {
     /// The camera's exposure: a frame rendered, read out to the camera board (or dropped while
     /// the board is busy).
     fn exposure(&mut self, t: u64, observer: &mut dyn FlightObserver) {
-        if t < self.next.capture {
+        if !self.sensors.frame.due(t) {
             return;
         }
-        self.next.capture += self.frame_period_us;
         let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
         self.world.render(&mut frame);
         observer.on_frame(t, &frame);
@@ -478,22 +458,18 @@ impl<'a> Flight<'a> {
     fn host_and_sensors(&mut self, t: u64, observer: &mut dyn FlightObserver) {
         let host_link = t < self.host_cut_us;
         let ap = &mut self.ap;
-        if t >= self.next.host_heartbeat {
-            self.next.host_heartbeat += u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US);
-            if host_link {
-                let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
-                ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);
-            }
+        // Due first: the clock runs on while the link is cut.
+        if self.sensors.host_heartbeat.due(t) && host_link {
+            let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
+            ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);
         }
-        if t >= self.next.height_fix {
-            self.next.height_fix += self.height_period_us;
+        if self.sensors.height_fix.due(t) {
             let fix = self.world.height_fix(t);
             if host_link {
                 ap.on_host_message(HostToBoard::ExternalPosition(fix), t, None);
             }
         }
-        if t >= self.next.baro {
-            self.next.baro += self.baro_period_us;
+        if self.sensors.baro.due(t) {
             let reading = self.world.baro_reading(t, &self.motors);
             ap.on_baro(&reading, t);
             observer.on_baro(t, &reading);
