@@ -267,7 +267,8 @@ impl FlyArgs {
 macro_rules! summary_columns {
     () => {
         "seed,duration_s,flight_time_s,collisions,vel_rmse_mps,min_clearance_m,distance_m,\
-         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,stop_speed_mps,end_reason"
+         track_rmse_mps,hover_speed_mps,height_rmse_m,tilt_rmse_deg,stop_speed_mps,\
+         hover_drift_m,end_reason"
     };
 }
 
@@ -277,7 +278,7 @@ pub const CSV_HEADER: &str = summary_columns!();
 /// One CSV summary row.
 pub fn csv_row(r: &FlightResult) -> String {
     format!(
-        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3},{:.4},{}",
+        "{},{:.1},{:.2},{},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.3},{:.4},{:.3},{}",
         r.seed,
         r.duration_s,
         r.flight_time_s,
@@ -290,6 +291,7 @@ pub fn csv_row(r: &FlightResult) -> String {
         r.tracking.height_rmse_m,
         r.tracking.tilt_rmse_deg,
         r.tracking.stop_speed_mps,
+        r.tracking.hover_drift_m,
         r.end_reason.describe()
     )
 }
@@ -411,6 +413,11 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         r.tracking.height_rmse_m
                     );
                     println!(
+                        "hover drift     {:.3} m (largest distance from where a Hover began, within {:.0} s of it; true position)",
+                        r.tracking.hover_drift_m,
+                        crate::sim::metrics::HOVER_DRIFT_WINDOW_S
+                    );
+                    println!(
                         "attitude        {:.2} deg RMS tilt error of the estimate (level flight)",
                         r.tracking.tilt_rmse_deg
                     );
@@ -459,7 +466,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 Format::Csv => print!("{csv}"),
                 Format::Table => {
                     println!(
-                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}  end",
+                        "{:>6} {:>10} {:>10} {:>5} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}  end",
                         "seed",
                         "duration",
                         "flight",
@@ -470,11 +477,12 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                         "track",
                         "hover_v",
                         "stop_v",
-                        "height"
+                        "height",
+                        "h_drift"
                     );
                     for r in &results {
                         println!(
-                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3} {:>9.3}  {}",
+                            "{:>6} {:>10.1} {:>10.1} {:>5} {:>9.3} {:>9.3} {:>9.1} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3}  {}",
                             r.seed,
                             r.duration_s,
                             r.flight_time_s,
@@ -486,6 +494,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
                             r.tracking.hover_speed_mps,
                             r.tracking.stop_speed_mps,
                             r.tracking.height_rmse_m,
+                            r.tracking.hover_drift_m,
                             r.end_reason.describe()
                         );
                     }

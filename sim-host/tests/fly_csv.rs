@@ -1,6 +1,6 @@
 //! `sim-host fly --format csv` prints one summary row per flight whose columns a user's script
 //! reads by name: the tracking figures among them (velocity against its setpoint in `Forward`,
-//! speed in `Hover`, height in level flight), measured from the true state, and why each
+//! speed and drift in `Hover`, height in level flight), measured from the true state, and why each
 //! flight ended (`end_reason`).
 
 use std::collections::HashMap;
@@ -49,6 +49,7 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
         "height_rmse_m",
         "tilt_rmse_deg",
         "vel_rmse_mps",
+        "hover_drift_m",
     ] {
         assert!(row[column].is_finite(), "{column}: {text}");
     }
@@ -56,6 +57,8 @@ fn csv_summary_has_the_tracking_columns_with_measured_values() {
     // zeros: it never tracks its setpoints perfectly.
     assert!((0.01..0.6).contains(&row["track_rmse_mps"]), "{text}");
     assert!((0.0..0.6).contains(&row["hover_speed_mps"]), "{text}");
+    // A hover of a few seconds at a few cm/s: centimetres, not metres.
+    assert!((0.0..0.5).contains(&row["hover_drift_m"]), "{text}");
     assert!((0.005..0.3).contains(&row["height_rmse_m"]), "{text}");
     // The attitude estimate is never exact (sensor noise, biases), and a degree and more is
     // what the velocity filter cannot live with.

@@ -87,7 +87,15 @@ pub struct TrackingFigures {
     /// RMS of the attitude estimate's roll and pitch error (as one 2-D vector) in level
     /// flight, deg.
     pub tilt_rmse_deg: f64,
+    /// How far the drone strayed from where a `Hover` began, within the first
+    /// [`HOVER_DRIFT_WINDOW_S`] of it: the largest horizontal distance over every `Hover` of
+    /// the flight, m (the true position; the FSM asks for zero velocity there, so any distance
+    /// is drift).
+    pub hover_drift_m: f64,
 }
+
+/// The span of a `Hover` over which [`TrackingFigures::hover_drift_m`] looks, s.
+pub const HOVER_DRIFT_WINDOW_S: f64 = 60.0;
 
 impl TrackingFigures {
     /// The figures of a flight's log.
@@ -97,10 +105,23 @@ impl TrackingFigures {
         let mut stop = Mean::default();
         let mut height = Mean::default();
         let mut tilt = Mean::default();
+        // Where and when the current Hover began, and the largest drift of any.
+        let mut hover_start: Option<(f64, [f32; 2])> = None;
+        let mut drift: Option<f64> = None;
         for row in log.iter().filter(|r| r.mode == FlightMode::Flying) {
             let Some(state) = row.fsm_state else {
+                hover_start = None;
                 continue;
             };
+            if state == FsmState::Hover {
+                let (t0, p0) = *hover_start.get_or_insert((row.t_s, [row.pos[0], row.pos[1]]));
+                if row.t_s - t0 <= HOVER_DRIFT_WINDOW_S {
+                    let d = f64::from((row.pos[0] - p0[0]).hypot(row.pos[1] - p0[1]));
+                    drift = Some(drift.map_or(d, |m: f64| m.max(d)));
+                }
+            } else {
+                hover_start = None;
+            }
             height.add(f64::from(row.pos[2] - row.height_sp_m).powi(2));
             let [er, ep] = row.tilt_err_deg.map(f64::from);
             tilt.add(er * er + ep * ep);
@@ -125,6 +146,7 @@ impl TrackingFigures {
             stop_speed_mps: stop.value(),
             height_rmse_m: height.value().sqrt(),
             tilt_rmse_deg: tilt.value().sqrt(),
+            hover_drift_m: drift.unwrap_or(f64::NAN),
         }
     }
 }
@@ -214,6 +236,33 @@ mod tests {
         )];
         let f = TrackingFigures::from_log(&log);
         assert!(f.track_rmse_mps.is_nan() && f.hover_speed_mps.is_nan());
+        assert!(f.hover_drift_m.is_nan());
         assert_eq!(f.height_rmse_m, 0.0);
+    }
+
+    #[test]
+    fn hover_drift_is_the_largest_distance_from_each_hovers_start_within_its_window() {
+        use FlightMode::Flying;
+        use FsmState::*;
+        let at = |t_s: f64, state: FsmState, x: f32, y: f32| LogRow {
+            t_s,
+            pos: [x, y, 1.0],
+            ..row(Flying, Some(state), [0.0; 2], [0.0; 2], 1.0)
+        };
+        let w = HOVER_DRIFT_WINDOW_S;
+        let log = [
+            // The first hover drifts 0.5 m (3-4-5), then comes back.
+            at(1.0, Hover, 1.0, 1.0),
+            at(2.0, Hover, 1.3, 1.4),
+            at(3.0, Hover, 1.0, 1.1),
+            // Forward ends it; a new hover starts from where it is.
+            at(4.0, Forward, 5.0, 5.0),
+            at(5.0, Hover, 6.0, 6.0),
+            at(5.0 + w, Hover, 6.2, 6.0),
+            // Past the window: not counted.
+            at(5.1 + w, Hover, 9.0, 6.0),
+        ];
+        let f = TrackingFigures::from_log(&log);
+        assert!((f.hover_drift_m - 0.5).abs() < 1e-6, "{f:?}");
     }
 }
