@@ -12,7 +12,7 @@ use crate::battery::BatteryState;
 use crate::estimation::VelocitySource;
 use crate::indi::IndiConfig;
 use crate::setpoints::SetpointConfig;
-use crate::tasks::{Task, Trigger, IMU_PERIOD_US, TASKS};
+use crate::tasks::{Task, TaskId, Trigger, IMU_PERIOD_US, TASKS};
 use crate::test_support::{camera_status, forward_estimate};
 use proptest::prelude::*;
 use protocol::params::MemStore;
@@ -240,7 +240,7 @@ impl Run {
 
 #[test]
 fn task_table_is_consistent() {
-    assert!(task_table::is_indexed_by(TASKS, &Task::ALL));
+    assert!(task_table::is_indexed_by(TASKS, Task::ALL));
     assert_eq!(Task::ImuIndi.name(), "imu_indi");
     let top = TASKS.iter().map(|t| t.priority).max().unwrap();
     assert_eq!(

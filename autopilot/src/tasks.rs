@@ -1,7 +1,7 @@
 //! The autopilot's tasks: their periods and the task table the firmware's RTIC app mirrors
 //! and the simulator schedules from.
 
-pub use task_table::{TaskSpec, Trigger};
+pub use task_table::{TaskId, TaskSpec, Trigger};
 
 /// IMU / INDI period: 512 Hz, µs (rounded down).
 pub const IMU_PERIOD_US: u32 = 1_953;
@@ -33,9 +33,8 @@ pub enum Task {
     Heartbeat,
 }
 
-impl Task {
-    /// Every task, in table order.
-    pub const ALL: [Task; 7] = [
+impl TaskId for Task {
+    const ALL: &'static [Task] = &[
         Task::ImuIndi,
         Task::StereoRx,
         Task::HostRx,
@@ -44,15 +43,10 @@ impl Task {
         Task::Telemetry,
         Task::Heartbeat,
     ];
+    const TABLE: &'static [TaskSpec<Task>] = TASKS;
 
-    /// The task's entry in [`TASKS`].
-    pub const fn spec(self) -> &'static TaskSpec<Task> {
-        &TASKS[self as usize]
-    }
-
-    /// The task's name (its RTIC task's).
-    pub const fn name(self) -> &'static str {
-        self.spec().name
+    fn index(self) -> usize {
+        self as usize
     }
 }
 

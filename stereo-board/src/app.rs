@@ -24,7 +24,7 @@ use protocol::{
 };
 use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
-pub use task_table::{TaskSpec, Trigger};
+pub use task_table::{TaskId, TaskSpec, Trigger};
 
 /// Period of the status task (Status + Heartbeat to the autopilot), µs.
 pub const STATUS_PERIOD_US: u32 = 1_000_000;
@@ -47,18 +47,12 @@ pub enum Task {
     Status,
 }
 
-impl Task {
-    /// Every task, in table order.
-    pub const ALL: [Task; 4] = [Task::UartRx, Task::HostRx, Task::Frame, Task::Status];
+impl TaskId for Task {
+    const ALL: &'static [Task] = &[Task::UartRx, Task::HostRx, Task::Frame, Task::Status];
+    const TABLE: &'static [TaskSpec<Task>] = TASKS;
 
-    /// The task's entry in [`TASKS`].
-    pub const fn spec(self) -> &'static TaskSpec<Task> {
-        &TASKS[self as usize]
-    }
-
-    /// The task's name (its RTIC task's).
-    pub const fn name(self) -> &'static str {
-        self.spec().name
+    fn index(self) -> usize {
+        self as usize
     }
 }
 

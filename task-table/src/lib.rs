@@ -46,6 +46,27 @@ pub struct TaskSpec<Id: 'static> {
     pub deadline_us: u32,
 }
 
+/// A board's task enum: every variant has its entry in the board's table, at its own index.
+pub trait TaskId: Copy + 'static {
+    /// Every task, in table order.
+    const ALL: &'static [Self];
+    /// The board's task table.
+    const TABLE: &'static [TaskSpec<Self>];
+
+    /// The task's index in [`TaskId::TABLE`] (`self as usize` for a plain enum).
+    fn index(self) -> usize;
+
+    /// The task's entry in the table.
+    fn spec(self) -> &'static TaskSpec<Self> {
+        &Self::TABLE[self.index()]
+    }
+
+    /// The task's name (its RTIC task's).
+    fn name(self) -> &'static str {
+        self.spec().name
+    }
+}
+
 /// Looks a task up by name in `table`.
 pub fn find<Id>(table: &'static [TaskSpec<Id>], name: &str) -> Option<&'static TaskSpec<Id>> {
     table.iter().find(|t| t.name == name)

@@ -3,6 +3,8 @@
 //! task in the firmware source, by the name and with the priority of its table entry, and the byte-moving interrupt handlers (those bound to a UART, a DMA
 //! stream or the DCMI) preempt all of them.
 
+use autopilot::tasks::TaskId;
+
 /// One `#[task(...)]` of a firmware source.
 #[derive(Debug)]
 struct RticTask {

@@ -50,14 +50,15 @@ mod tests {
     fn every_task_of_both_boards_is_scheduled_once_periodic_ones_with_their_period() {
         use autopilot::tasks::Task as Ap;
         use stereo_board::app::Task as Cam;
+        use task_table::TaskId;
         let tasks: Vec<SimTask> = autopilot_tasks()
             .into_iter()
             .chain(camera_tasks())
             .collect();
         let want: Vec<BoardTask> = Ap::ALL
-            .map(BoardTask::Autopilot)
-            .into_iter()
-            .chain(Cam::ALL.map(BoardTask::Stereo))
+            .iter()
+            .map(|&t| BoardTask::Autopilot(t))
+            .chain(Cam::ALL.iter().map(|&t| BoardTask::Stereo(t)))
             .collect();
         assert_eq!(tasks.iter().map(|t| t.task).collect::<Vec<_>>(), want);
         for t in &tasks {

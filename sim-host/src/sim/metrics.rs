@@ -13,7 +13,7 @@ use protocol::{FlightMode, FsmState};
 
 /// Flights below this height (m, when the estimate arrives) do not count towards the raw
 /// estimate error: on the floor and during the take-off the view is mostly floor.
-const ESTIMATE_CHECK_MIN_HEIGHT_M: f64 = 0.3;
+pub const ESTIMATE_CHECK_MIN_HEIGHT_M: f64 = 0.3;
 
 /// One valid Edge-FS estimate as the autopilot received it, against the true body velocity
 /// at its capture.

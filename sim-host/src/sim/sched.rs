@@ -1,8 +1,10 @@
 //! Virtual-clock scheduler: releases each board's periodic tasks from the boards' own task
 //! tables, in priority order when several fall due at the same instant; and the world's own
-//! events (camera, height fixes, barometer, the host's heartbeat), [`SensorSchedule`]. Board code runs in zero
-//! virtual time; the camera board's processing time is modelled separately (its output is held
-//! back by the processing delay, see `flight`).
+//! events (camera, height fixes, barometer, the host's heartbeat), [`SensorSchedule`]. Board
+//! code runs in zero virtual time; the camera board's processing time is modelled separately
+//! (its output is held back by the processing delay, see `flight`).
+
+use task_table::TaskId as _;
 
 /// A task of either board, by the board's task identifier.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

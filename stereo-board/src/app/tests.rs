@@ -63,7 +63,7 @@ fn task_table_is_consistent() {
     names.sort_unstable();
     names.dedup();
     assert_eq!(names.len(), TASKS.len(), "task names are unique");
-    assert!(task_table::is_indexed_by(TASKS, &Task::ALL));
+    assert!(task_table::is_indexed_by(TASKS, Task::ALL));
     let prio = |t: Task| t.spec().priority;
     assert!(
         prio(Task::UartRx) > prio(Task::Frame),
