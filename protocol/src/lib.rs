@@ -13,6 +13,7 @@
 
 pub mod envelope;
 pub mod messages;
+pub mod node;
 pub mod params;
 pub mod signing;
 

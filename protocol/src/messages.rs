@@ -18,6 +18,7 @@
 //! Adding a variant at the end of an enum is backwards compatible for the decoder's "unknown
 //! message" check; changing or reordering fields is not: bump [`PROTOCOL_VERSION`].
 
+pub use crate::node::Node;
 use serde::{Deserialize, Serialize};
 pub use timebase::WireTime;
 
@@ -40,18 +41,6 @@ pub trait Message: Serialize + for<'de> Deserialize<'de> {
     /// Largest encoded frame of this type on the wire (COBS, CRC and delimiter included).
     /// Receive buffers are sized from it.
     const MAX_FRAME_BYTES: usize;
-}
-
-/// Which board (or host tool) sent a [`Heartbeat`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Node {
-    /// The stereo camera board running Edge-FS.
-    StereoBoard,
-    /// The autopilot.
-    Autopilot,
-    /// A host tool: simulator, HIL bridge or ground station.
-    Host,
 }
 
 /// Periodic liveness message (1 Hz). Lets each side detect a lost link and a peer built with

@@ -30,7 +30,8 @@ use sha2::{Digest, Sha256};
 use crate::messages::{HostToBoard, PROTOCOL_VERSION};
 
 pub use crate::envelope::{
-    KeyTextError, LinkKey, SignedMessage, KEY_BYTES, MAC_BYTES, SIGNED_PAYLOAD_MAX, TIMESTAMP_MAX,
+    KeyRecord, KeyRecordError, KeyTextError, LinkKey, SignedMessage, KEY_BYTES, KEY_RECORD_BYTES,
+    MAC_BYTES, SIGNED_PAYLOAD_MAX, TIMESTAMP_MAX,
 };
 
 /// Signing timestamps per second (the unit is 10 µs).
@@ -289,77 +290,6 @@ pub const SIGNING_EPOCH_UNIX_S: u64 = 1_420_070_400;
 /// A signing timestamp (10 µs units since 2015-01-01 UTC) from Unix time in µs.
 pub fn timestamp_from_unix_us(unix_us: u64) -> u64 {
     unix_us.saturating_sub(SIGNING_EPOCH_UNIX_S * 1_000_000) / 10
-}
-
-/// Why a key record could not be read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum KeyRecordError {
-    /// Erased flash: no key provisioned.
-    Blank,
-    /// Wrong magic, length or CRC.
-    Corrupt,
-}
-
-/// The link key as stored in the parameter record (`crate::params`, format
-/// `RECORD_FORMAT_KEYED`): written over SWD by `cargo xtask flash --key`, or by the board when
-/// a key is provisioned over the link, and with every parameter save.
-///
-/// Layout, 48 bytes: `b"PDK1"`, the key (32 bytes), `min_timestamp` (u64 little endian), and a
-/// CRC-32/ISO-HDLC of the preceding 44 bytes (little endian).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct KeyRecord {
-    /// The key.
-    pub key: LinkKey,
-    /// Replay floor after boot ([`ReplayGuard::new`]): the signing time of the provisioning.
-    pub min_timestamp: u64,
-}
-
-/// Bytes of an encoded [`KeyRecord`].
-pub const KEY_RECORD_BYTES: usize = 48;
-const KEY_RECORD_MAGIC: [u8; 4] = *b"PDK1";
-const KEY_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
-impl KeyRecord {
-    /// The record's bytes.
-    pub fn encode(&self) -> [u8; KEY_RECORD_BYTES] {
-        let mut out = [0u8; KEY_RECORD_BYTES];
-        let (body, crc) = out.split_at_mut(KEY_RECORD_BYTES - 4);
-        let (magic, rest) = body.split_at_mut(4);
-        magic.copy_from_slice(&KEY_RECORD_MAGIC);
-        let (key, ts) = rest.split_at_mut(KEY_BYTES);
-        key.copy_from_slice(&self.key.0);
-        ts.copy_from_slice(&self.min_timestamp.to_le_bytes());
-        crc.copy_from_slice(&KEY_CRC.checksum(body).to_le_bytes());
-        out
-    }
-
-    /// Reads a record from the start of `bytes`.
-    pub fn decode(bytes: &[u8]) -> Result<Self, KeyRecordError> {
-        let record = bytes
-            .get(..KEY_RECORD_BYTES)
-            .ok_or(KeyRecordError::Corrupt)?;
-        if record.iter().all(|&b| b == 0xFF) {
-            return Err(KeyRecordError::Blank);
-        }
-        let (body, crc) = record.split_at(KEY_RECORD_BYTES - 4);
-        let stored_crc = u32::from_le_bytes(crc.try_into().map_err(|_| KeyRecordError::Corrupt)?);
-        if body.get(..4) != Some(&KEY_RECORD_MAGIC[..]) || KEY_CRC.checksum(body) != stored_crc {
-            return Err(KeyRecordError::Corrupt);
-        }
-        let key: [u8; KEY_BYTES] = body
-            .get(4..4 + KEY_BYTES)
-            .and_then(|k| k.try_into().ok())
-            .ok_or(KeyRecordError::Corrupt)?;
-        let ts: [u8; 8] = body
-            .get(4 + KEY_BYTES..)
-            .and_then(|t| t.try_into().ok())
-            .ok_or(KeyRecordError::Corrupt)?;
-        Ok(Self {
-            key: LinkKey(key),
-            min_timestamp: u64::from_le_bytes(ts),
-        })
-    }
 }
 
 #[cfg(test)]

@@ -30,7 +30,7 @@
 //! `error` ([`ParamError`]), `store` ([`RecordStore`], [`ParamStorage`]) and `record` (the
 //! flash record format).
 //!
-//! [`KeyRecord`]: crate::signing::KeyRecord
+//! [`KeyRecord`]: crate::envelope::KeyRecord
 
 mod error;
 #[cfg(test)]

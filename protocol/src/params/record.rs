@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::value::{table_hash, ParamSpec, ParamValue};
-use crate::signing::{KeyRecord, KEY_RECORD_BYTES};
+use crate::envelope::{KeyRecord, KEY_RECORD_BYTES};
 
 /// First word of a parameter record ("PDPR" little-endian).
 pub const RECORD_MAGIC: u32 = u32::from_le_bytes(*b"PDPR");

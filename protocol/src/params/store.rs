@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::error::ParamError;
 use super::record::RecordError;
-use crate::signing::KeyRecord;
+use crate::envelope::KeyRecord;
 
 /// What a board's parameter storage says (the answer to [`ParamOp::Storage`]).
 ///

@@ -10,7 +10,7 @@ use super::record::{
 use super::store::{ParamStorage, RecordStore, StorageStatus};
 use super::value::{find_param, table_hash, ParamSpec, ParamValue};
 use super::wire::{ParamEntry, ParamOp, ParamReply, ParamRequest, ParamResponse};
-use crate::signing::KeyRecord;
+use crate::envelope::KeyRecord;
 use crate::Node;
 
 /// Reads and writes one field of a configuration `C` (one per [`ParamSpec`]; built by
@@ -546,11 +546,11 @@ impl<C: Copy> ParamTable<C> {
 mod tests {
     extern crate std;
     use super::*;
+    use crate::envelope::KEY_RECORD_BYTES;
     use crate::params::fixtures::{Cfg, CFG_DEFAULT, CFG_SPECS, CFG_TABLE};
     use crate::params::record::{encode_record, record_bytes};
     use crate::params::store::{MemSlots, MemStore};
     use crate::params::value::ParamName;
-    use crate::signing::KEY_RECORD_BYTES;
 
     #[test]
     fn a_table_sets_checks_and_answers_through_its_accessors() {

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use super::error::ParamError;
 use super::store::StorageStatus;
 use super::value::{ParamName, ParamUnit, ParamValue};
-use crate::Node;
+use crate::node::Node;
 
 /// What a host asks a board's parameter table.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
