@@ -40,16 +40,20 @@ static MS_EXTENDER: cortex_m::interrupt::Mutex<core::cell::Cell<TickExtender>> =
 /// tick count (RTIC's `systick_monotonic!` type is generated in each firmware); `systick_hz` is
 /// its input clock. Runs with interrupts masked for a few dozen cycles, so that callers at
 /// every priority extend the tick count in the order they read it.
+///
+/// The tick count never lags the SysTick counter read after it, even while the SysTick
+/// interrupt is pending (masked here, or below the caller's priority): the monotonic's `now()`
+/// counts a wrap itself from the counter's COUNTFLAG before its interrupt runs. A wrap between
+/// the two reads changes the count, and the pair is read again. (Adding a millisecond for a
+/// pending SysTick as well counted such a wrap twice: a clock 1 ms ahead until the interrupt
+/// ran, seen as a 1 ms jump in the 512 Hz loop's period.)
 #[cfg(target_os = "none")]
 pub fn now_us(ms_ticks: impl Fn() -> u32, systick_hz: u32) -> u64 {
-    use cortex_m::peripheral::{SCB, SYST};
+    use cortex_m::peripheral::SYST;
     let ticks_per_ms = (systick_hz / 1_000).max(1);
     cortex_m::interrupt::free(|cs| loop {
         let ms = ms_ticks();
         let val = SYST::get_current();
-        // A SysTick wrap whose interrupt has not run yet (masked here, or we are above its
-        // priority).
-        let pending = SCB::is_pendst_pending();
         if ms_ticks() != ms {
             continue;
         }
@@ -57,7 +61,7 @@ pub fn now_us(ms_ticks: impl Fn() -> u32, systick_hz: u32) -> u64 {
         let sub_us = u64::from(into_tick) * 1_000 / u64::from(ticks_per_ms);
         let cell = MS_EXTENDER.borrow(cs);
         let mut extender = cell.get();
-        let ms = extender.extend(ms) + u64::from(pending && val > ticks_per_ms / 2);
+        let ms = extender.extend(ms);
         cell.set(extender);
         return ms * 1_000 + sub_us;
     })
