@@ -849,7 +849,14 @@ impl EdgeFs {
         frame: &[u8; STEREO_FRAME_BYTES],
         has_gyro: bool,
     ) -> EdgeFsOutput {
-        let (mut out, sigma) = self.fit_default(frame, has_gyro);
+        let mut out = EdgeFsOutput::EMPTY;
+        let sigma = match self.fit_default(frame, has_gyro, &mut out) {
+            Ok(sigma) => Some(sigma),
+            Err(flag) => {
+                out.flags.insert(flag);
+                None
+            }
+        };
         if out.flags.is_valid() {
             out.fit = Some(FrameFit {
                 forward_mps: out.forward_mps,
