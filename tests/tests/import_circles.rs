@@ -237,6 +237,44 @@ fn absolute(path: &[String], here: &[String]) -> Option<Vec<String>> {
     Some(out)
 }
 
+/// The names of the items a file's code declares public (`pub`, `pub(crate)`, ...): structs,
+/// enums, traits, functions, constants, statics, types and unions.
+fn public_items(code: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for line in code.lines() {
+        let mut rest = line.trim_start();
+        let Some(after) = rest.strip_prefix("pub") else {
+            continue;
+        };
+        rest = after;
+        if let Some(after) = rest.strip_prefix('(') {
+            rest = after.split_once(')').map_or("", |(_, r)| r);
+        }
+        let mut words = rest.split_whitespace();
+        let mut kind = words.next().unwrap_or("");
+        while matches!(kind, "const" | "unsafe" | "async" | "extern") {
+            match words.clone().next() {
+                Some(next) if ["fn", "unsafe", "async", "extern"].contains(&next) => {
+                    kind = words.next().unwrap_or("");
+                }
+                _ => break,
+            }
+        }
+        let kinds = [
+            "struct", "enum", "trait", "fn", "const", "static", "type", "union",
+        ];
+        if kinds.contains(&kind) {
+            if let Some(word) = words.next() {
+                let ident: String = word.chars().take_while(|&c| is_ident(c)).collect();
+                if !ident.is_empty() && ident != "mut" {
+                    out.push(ident);
+                }
+            }
+        }
+    }
+    out
+}
+
 /// Finds the strongly connected components with more than one file (Tarjan).
 fn circles(edges: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
     struct State<'a> {
@@ -312,21 +350,42 @@ fn crate_edges(src_rel: &str) -> BTreeMap<String, BTreeSet<String>> {
             )
         })
         .collect();
+    let codes: Vec<String> = files
+        .iter()
+        .map(|f| {
+            code_of(&std::fs::read_to_string(f).unwrap_or_else(|e| panic!("{}: {e}", f.display())))
+        })
+        .collect();
+    // Which files define each public item, to follow a path through a parent's re-export.
+    let mut definers: BTreeMap<String, BTreeSet<Vec<String>>> = BTreeMap::new();
+    for (f, code) in files.iter().zip(&codes) {
+        for name in public_items(code) {
+            definers.entry(name).or_default().insert(module_of(&src, f));
+        }
+    }
     let mut edges: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for f in &files {
+    for (f, code) in files.iter().zip(&codes) {
         let here = module_of(&src, f);
         let name = &modules[&here];
-        let text = std::fs::read_to_string(f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
         let entry = edges.entry(name.clone()).or_default();
-        for path in referenced_paths(&code_of(&text), &here) {
+        for path in referenced_paths(code, &here) {
             // The deepest file module the path names.
-            let Some(target) = (0..=path.len())
+            let Some(mut target) = (0..=path.len())
                 .rev()
                 .find(|&n| modules.contains_key(&path[..n]))
                 .map(|n| path[..n].to_vec())
             else {
                 continue;
             };
+            // An item named through an ancestor's re-export: the one descendant defining it.
+            if here.starts_with(&target) {
+                if let Some(owners) = path.get(target.len()).and_then(|item| definers.get(item)) {
+                    let mut below = owners.iter().filter(|m| m.starts_with(&target));
+                    if let (Some(owner), None) = (below.next(), below.next()) {
+                        target = owner.clone();
+                    }
+                }
+            }
             let related = target.starts_with(&here) || here.starts_with(&target);
             if !related {
                 entry.insert(modules[&target].clone());
