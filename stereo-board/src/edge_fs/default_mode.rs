@@ -535,8 +535,9 @@ impl EdgeFs {
                 }
             });
         }
-        // Most columns disagreeing with the filter: it may have lost the motion, so the next
-        // frame searches the whole range (a real change then restarts the filter).
+        // Over one in PRIOR_DOUBT_SHARE columns disagreeing with the filter: it may have lost
+        // the motion, so the next frame searches the whole range (a real change then restarts
+        // the filter).
         self.prior_doubted =
             prior.is_some() && counts.prior_misses * PRIOR_DOUBT_SHARE > counts.textured;
         self.diag.guided = prior.is_some();
