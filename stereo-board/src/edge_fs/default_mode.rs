@@ -7,6 +7,8 @@
 //! stages compile into one function, as the single function did (`cargo xtask insns`). The
 //! stages hand their per-frame results on in small fixed-size structs on the stack; no heap.
 
+use super::fit::MAD_TO_SIGMA;
+use super::histogram::NOISE_DIFF_PER_SIGMA;
 use super::{
     coverage_u8, flow_row, histogram_steps, longest_run, median, pixel_noise_dn, robust_line_fit,
     stereo_row, window_sums, wrap_pi, EdgeFs, EdgeFsOutput, LineFit, Slot, IMG_H, IMG_W,
@@ -21,10 +23,6 @@ const TOO_DARK_MEAN: u8 = 12;
 /// Mean intensity of the left image, DN, above which the frame is flagged
 /// [`EstimateFlags::TOO_BRIGHT`].
 const TOO_BRIGHT_MEAN: u8 = 243;
-
-/// The mean absolute difference of two pixels of white noise, in units of the noise's σ:
-/// 2/√π = 1.128.
-const NOISE_DIFF_PER_SIGMA: f32 = 1.128;
 
 /// The mean step between neighbouring histogram bins that pixel noise of 1 DN gives alone.
 /// Each bin sums `IMG_H` absolute differences of two pixels, each of variance 2σ²(1 - 2/π);
@@ -86,10 +84,6 @@ const HORIZON_LENGTHEN_SHARE: usize = 32;
 
 /// Huber reweighting rounds of the robust line fit ([`robust_line_fit`]).
 const ROBUST_FIT_ROUNDS: usize = 4;
-
-/// The robust residual scale is this many times the median absolute residual: for normal
-/// errors, 1.4826 times their median absolute deviation is their σ.
-const MAD_TO_SIGMA: f32 = 1.4826;
 
 /// Columns in the fit for full [`EdgeFsOutput::quality`]; fewer scale it down in proportion.
 const FULL_QUALITY_COLUMNS: f32 = 32.0;

@@ -1,5 +1,9 @@
 //! Line fits of depth-scaled flow against the column index.
 
+/// The robust residual scale is this many times the median absolute residual: for normal
+/// errors, 1.4826 times their median absolute deviation is their σ.
+pub(super) const MAD_TO_SIGMA: f32 = 1.4826;
+
 /// A fitted line `v = slope * x + intercept`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct LineFit {
@@ -313,7 +317,7 @@ pub fn robust_line_fit(
         } else {
             *res.select_nth_unstable_by_key(m / 2, magnitude_key).1
         };
-        let scale = (1.4826 * mad).max(1e-6);
+        let scale = (MAD_TO_SIGMA * mad).max(1e-6);
         let cut = huber_k * scale;
         let reject = REJECT_SCALES * scale;
         for (p, &w0) in points.iter_mut().zip(prior.iter()) {
@@ -357,7 +361,7 @@ mod tests {
             }
             res[..m].sort_unstable_by(|x, y| x.total_cmp(y));
             let mad = res[..m].get(m / 2).copied().unwrap_or(0.0);
-            let scale = (1.4826 * mad).max(1e-6);
+            let scale = (MAD_TO_SIGMA * mad).max(1e-6);
             let cut = huber_k * scale;
             for (p, &w0) in points.iter_mut().zip(prior.iter()) {
                 let r = (p.1 - (a * p.0 + b)).abs();

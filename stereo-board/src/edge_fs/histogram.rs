@@ -2,6 +2,10 @@
 
 use super::{IMG_H, IMG_W};
 
+/// The mean absolute difference of two pixels of white noise, in units of the noise's σ:
+/// 2/√π = 1.128.
+pub(super) const NOISE_DIFF_PER_SIGMA: f32 = 1.128;
+
 /// Column edge histogram of one camera image, one bin per image column.
 ///
 /// Bin `c` is `sum over rows r of |I(r, c+1) - I(r, c-1)|` with zero padding outside the image
@@ -415,7 +419,7 @@ pub fn pixel_noise_dn(frame: &[u8; protocol::STEREO_FRAME_BYTES]) -> f32 {
         }
     }
     let k = NOISE_BLOCKS / 10;
-    *blocks.select_nth_unstable(k).1 as f32 / (NOISE_BLOCK_W as f32 * 1.128)
+    *blocks.select_nth_unstable(k).1 as f32 / (NOISE_BLOCK_W as f32 * NOISE_DIFF_PER_SIGMA)
 }
 
 /// Mean intensity of the left image (0..=255), for the too-dark / too-bright flags.

@@ -1022,7 +1022,7 @@ impl EdgeFs {
         for (r, pt) in res.iter_mut().zip(rows.iter()) {
             *r = (pt.1 - (a0 * pt.0 + b0)).abs();
         }
-        let scale = (1.4826 * median(res.get_mut(..nr).unwrap_or(&mut []))).max(1e-6);
+        let scale = (fit::MAD_TO_SIGMA * median(res.get_mut(..nr).unwrap_or(&mut []))).max(1e-6);
         let (cut, reject) = (p.huber_k * scale, fit::REJECT_SCALES * scale);
         for pt in rows.iter_mut() {
             let r = (pt.1 - (a0 * pt.0 + b0)).abs();
