@@ -1059,6 +1059,7 @@ proptest! {
                     up_mps: 0.0,
                     up_flags: EstimateFlags::NO_FLOW_MATCH,
                     fit_r2: 0,
+                    divergence: None,
                 }, now),
                 Input::Pos(z) => ap.on_external_position(&ExternalPosition {
                     timestamp_us: WireTime(now as u32), position_m: [0.0, 0.0, z],

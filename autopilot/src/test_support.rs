@@ -32,6 +32,7 @@ pub fn estimate(velocity_mps: [f32; 2], obstacle_m: Option<f32>) -> Estimate {
         up_mps: 0.0,
         up_flags: EstimateFlags::NO_FLOW_MATCH,
         fit_r2: 0,
+        divergence: None,
     }
 }
 

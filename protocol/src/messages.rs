@@ -24,7 +24,7 @@ pub use timebase::WireTime;
 
 /// Version of this wire format. Sent in every frame header and in [`Heartbeat`]; a frame with
 /// another version is rejected and counted (see [`LinkErrorCounts::version_mismatch`]).
-pub const PROTOCOL_VERSION: u8 = 11;
+pub const PROTOCOL_VERSION: u8 = 12;
 
 /// Bytes of one 128x96 stereo frame as the camera delivers it: left and right pixels
 /// interleaved, `[L0 R0 L1 R1 ...]`, row-major, top row first.
@@ -126,7 +126,7 @@ impl core::ops::BitOr for EstimateFlags {
 /// Edge-FS result for one processed stereo frame (camera board -> autopilot, at the frame rate).
 ///
 /// Body axes of the camera: forward along the optical axis, sideways positive to the right.
-/// Worst case 46 bytes on the wire (tested).
+/// Worst case 59 bytes on the wire (tested).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Estimate {
@@ -170,6 +170,51 @@ pub struct Estimate {
     /// Coefficient of determination R² of the frame's coupled three-axis flow fit, 0 (the
     /// flow model explains nothing, e.g. no motion) ..= 255 (all of the flow).
     pub fit_r2: u8,
+    /// The expansion of the view, from which the time to contact follows
+    /// ([`Divergence::time_to_contact_s`]); it needs no stereo range, only flow (`None`: too
+    /// few flow columns, too narrow a patch of them, or the paper's estimator).
+    pub divergence: Option<Divergence>,
+}
+
+/// The divergence of the horizontal image flow: how fast the view expands, and the time to
+/// contact that follows from it without any range measurement.
+///
+/// For a surface facing the camera at distance `Z` approached at speed `F`, the flow at column
+/// `x` (px from the image centre) is `x·F/Z` plus a uniform part from sideways motion and
+/// rotation, so the slope of flow against column is `F/Z`, and `Z/F` is the time to contact.
+/// Over a scene of several depths it is a flow-weighted average; a sideways motion past a
+/// surface that is not facing the camera adds to it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Divergence {
+    /// Slope of the derotated horizontal flow against the column, 1/s (positive: the view
+    /// expands, the camera closes on the scene ahead).
+    pub rate_hz: f32,
+    /// Standard error of [`Self::rate_hz`], 1/s.
+    pub sigma_hz: f32,
+}
+
+impl Divergence {
+    /// Time to contact at the current closing speed, s: `1 / rate_hz`; `None` when the view
+    /// does not expand (not approaching) or the rate is not finite.
+    pub fn time_to_contact_s(&self) -> Option<f32> {
+        (self.rate_hz.is_finite() && self.rate_hz > 0.0).then(|| 1.0 / self.rate_hz)
+    }
+
+    /// The time to contact at `k` standard errors towards contact, s: `1 / (rate + k·sigma)`,
+    /// the short end of the time's uncertainty; `None` when even that rate is not an approach.
+    pub fn time_to_contact_within_s(&self, k: f32) -> Option<f32> {
+        let rate = self.rate_hz + k * self.sigma_hz;
+        (rate.is_finite() && rate > 0.0).then(|| 1.0 / rate)
+    }
+
+    /// Standard error of [`Self::time_to_contact_s`], s (first order: `sigma / rate²`);
+    /// `None` when there is no time to contact.
+    pub fn time_to_contact_sigma_s(&self) -> Option<f32> {
+        self.time_to_contact_s()
+            .map(|t| self.sigma_hz * t * t)
+            .filter(|s| s.is_finite())
+    }
 }
 
 /// One frame's Edge-FS velocity fit, before any filtering across frames (see

@@ -39,6 +39,10 @@ fn random_estimate(rng: &mut ChaCha8Rng) -> Estimate {
         up_mps: random_f32(rng),
         up_flags: EstimateFlags(rng.random()),
         fit_r2: rng.random(),
+        divergence: rng.random_bool(0.5).then(|| Divergence {
+            rate_hz: random_f32(rng),
+            sigma_hz: random_f32(rng),
+        }),
     }
 }
 

@@ -423,6 +423,7 @@ impl StereoBoardApp {
             up_mps: out.up_mps,
             up_flags: out.up_flags,
             fit_r2: out.fit_r2,
+            divergence: out.divergence,
         };
         self.seq = self.seq.wrapping_add(1);
         self.counters.frames_processed = self.counters.frames_processed.wrapping_add(1);

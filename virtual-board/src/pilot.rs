@@ -421,6 +421,7 @@ impl CameraStandIn {
                 up_mps: 0.0,
                 up_flags: EstimateFlags::NO_FLOW_MATCH,
                 fit_r2: 0,
+                divergence: None,
             }));
         }
     }

@@ -413,6 +413,7 @@ impl TruthCamera {
                 up_mps: 0.0,
                 up_flags: EstimateFlags::NO_FLOW_MATCH,
                 fit_r2: 0,
+                divergence: None,
             };
             self.pending
                 .push_back((now_ns + self.processing_ns, estimate));

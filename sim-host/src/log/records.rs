@@ -73,6 +73,10 @@ pub struct EstimateRecord {
     pub fit_sideways_mps: Option<f32>,
     /// The frame's own fit: confidence, 0 ..= 255.
     pub fit_quality: Option<u8>,
+    /// Divergence of the flow (the view's expansion), 1/s (null: none).
+    pub divergence_hz: Option<f32>,
+    /// Time to contact from the divergence, s (null: none, or the view does not expand).
+    pub time_to_contact_s: Option<f32>,
 }
 
 impl Record for EstimateRecord {
@@ -98,6 +102,8 @@ impl From<&Estimate> for EstimateRecord {
             fit_forward_mps: e.fit.map(|f| f.forward_mps),
             fit_sideways_mps: e.fit.map(|f| f.sideways_mps),
             fit_quality: e.fit.map(|f| f.quality),
+            divergence_hz: e.divergence.map(|d| d.rate_hz),
+            time_to_contact_s: e.divergence.and_then(|d| d.time_to_contact_s()),
         }
     }
 }

@@ -7,6 +7,7 @@
 //! stages compile into one function, as the single function did (`cargo xtask insns`). The
 //! stages hand their per-frame results on in small fixed-size structs on the stack; no heap.
 
+use super::divergence::FlowSamples;
 use super::fit::MAD_TO_SIGMA;
 use super::histogram::NOISE_DIFF_PER_SIGMA;
 use super::{
@@ -180,6 +181,8 @@ struct FrameLine {
     b: f32,
     /// Robust residual scale, m/s.
     rms_mps: f32,
+    /// Sum of the depths of the columns it used (in column order), m.
+    depth_sum_m: f32,
 }
 
 /// Brightness flags of a frame from the mean intensity of its left image.
@@ -223,7 +226,9 @@ impl EdgeFs {
         let horizon = self.flow_horizon()?;
         out.flags.insert(self.derotation_flags(&horizon));
         let mut pts = [(0.0f32, 0.0f32, 0.0f32); IMG_W];
-        let flow = self.flow_stage(&noise, &stereo, &horizon, &mut pts);
+        let mut samples = FlowSamples::EMPTY;
+        let flow = self.flow_stage(&noise, &stereo, &horizon, &mut pts, &mut samples);
+        out.divergence = samples.divergence();
         self.adapt_horizon(&flow);
         out.flags.insert(self.history_flags(horizon.n));
         let pts = pts.get_mut(..flow.points).unwrap_or(&mut []);
@@ -449,6 +454,7 @@ impl EdgeFs {
         stereo: &StereoColumns,
         horizon: &FlowHorizon,
         pts: &mut [(f32, f32, f32); IMG_W],
+        samples: &mut FlowSamples,
     ) -> FlowCounts {
         let p = self.params;
         let (w, d) = (p.half_window as usize, p.search_range as usize);
@@ -515,6 +521,7 @@ impl EdgeFs {
                 let motion = offset as f32 + best as f32 - d as f32 + m.subpixel();
                 let u = (motion - rot_px) / dt_s;
                 diag.flow_pxps[c] = u;
+                samples.push(c as f32 - CENTRE_COLUMN, u);
                 if stereo.ok[c] && m.confidence() >= p.min_flow_confidence {
                     let z = diag.depth_m[c];
                     if let Some(pt) = pts.get_mut(counts.points) {
@@ -583,7 +590,7 @@ impl EdgeFs {
         };
         let (a, b) = (fit.slope as f32, fit.intercept as f32);
         // Robust residual scale (1.4826 · median |residual|), converted to m/s.
-        let mut m = 0;
+        let (mut m, mut depth_sum_m) = (0, 0.0f32);
         for pt in pts.iter() {
             if let Some(r) = scratch.get_mut(m) {
                 *r = (pt.1 - (a * pt.0 + b)).abs();
@@ -593,14 +600,22 @@ impl EdgeFs {
             // rounding.
             let col = pt.0 + CENTRE_COLUMN;
             if (0.0..IMG_W as f32).contains(&col) {
-                if let Some(u) = self.diag.used.get_mut(col as usize) {
+                let c = col as usize;
+                if let (Some(u), Some(z)) = (self.diag.used.get_mut(c), self.diag.depth_m.get(c)) {
                     *u = true;
+                    depth_sum_m += z;
                 }
             }
         }
         let res = scratch.get_mut(..m).unwrap_or(&mut []);
         let rms_mps = MAD_TO_SIGMA * median(res) / f;
-        Ok(FrameLine { fit, a, b, rms_mps })
+        Ok(FrameLine {
+            fit,
+            a,
+            b,
+            rms_mps,
+            depth_sum_m,
+        })
     }
 
     /// The velocity of the fit into `out`, flagged [`EstimateFlags::POOR_FIT`] when its
@@ -679,13 +694,7 @@ impl EdgeFs {
         let sigma_res = rms_mps * f;
         // A derotation error of `e` px over `dt_s` biases every column's flow by `e/dt_s`,
         // i.e. the sideways velocity by `mean(Z)·e/(dt_s·f)`.
-        let mut z_sum = 0.0f32;
-        for (c, &u) in self.diag.used.iter().enumerate() {
-            if u {
-                z_sum += self.diag.depth_m.get(c).copied().unwrap_or(0.0);
-            }
-        }
-        let rot_sigma = z_sum / n * horizon.derot_err_px / (dt_s * f);
+        let rot_sigma = line.depth_sum_m / n * horizon.derot_err_px / (dt_s * f);
         let side = rms_mps / libm::sqrtf(n);
         [
             sigma_res / libm::sqrtf(spread),

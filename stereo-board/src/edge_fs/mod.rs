@@ -45,6 +45,10 @@
 //!   divergence of both axes, with the fit's R² ([`EdgeFsOutput::fit_r2`]) and the vertical
 //!   velocity's own validity ([`EdgeFsOutput::up_flags`]).
 //!
+//!   Time to contact ([`EdgeFsOutput::divergence`]): the slope of the derotated flow against
+//!   the column over every column with a flow match, with or without a stereo depth, so it
+//!   needs no range (a surface nearer than the stereo search, a plain object's textured edges).
+//!
 //! Conventions: column `x` is 0-based from the left of the image (in docs "1-based" is said
 //! where the MATLAB index is meant). Image motion is positive towards larger `x`. The yaw in
 //! [`protocol::GyroAttitude::attitude_rad`]`[2]` is the body-frame yaw (z down: positive turns
@@ -56,6 +60,7 @@
 //! How the default parameters were chosen: see [`EdgeFsParams::default_config`].
 
 mod default_mode;
+mod divergence;
 mod fit;
 mod histogram;
 mod matching;
@@ -73,7 +78,8 @@ pub use matching::{
 pub use temporal::{AxisFilter, Update};
 
 use protocol::{
-    ConfigError, EdgeFsConfig, EstimateFlags, FrameFit, GyroAttitude, STEREO_FRAME_BYTES,
+    ConfigError, Divergence, EdgeFsConfig, EstimateFlags, FrameFit, GyroAttitude,
+    STEREO_FRAME_BYTES,
 };
 
 /// Image width, px.
@@ -486,6 +492,10 @@ pub struct EdgeFsOutput {
     pub up_flags: EstimateFlags,
     /// Default mode: R² of the coupled three-axis fit, 0..=255 (paper mode: 0).
     pub fit_r2: u8,
+    /// Default mode: the divergence of the horizontal flow, from every column with a flow
+    /// match (with or without depth), and so the time to contact; `None` when too few columns
+    /// have flow, and in paper mode.
+    pub divergence: Option<Divergence>,
 }
 
 impl EdgeFsOutput {
@@ -501,6 +511,7 @@ impl EdgeFsOutput {
         up_mps: 0.0,
         up_flags: EstimateFlags::NO_FLOW_MATCH,
         fit_r2: 0,
+        divergence: None,
     };
 }
 
