@@ -37,6 +37,7 @@ use crate::indi::Indi;
 use crate::mixer::{self, MOTORS_OFF};
 use crate::ms5611::BaroReading;
 use crate::params::{self, Rejected};
+use crate::range_rate::Closing;
 use crate::setpoints::Guidance;
 pub use crate::setpoints::Setpoints;
 use crate::velocity_kf::VelocityKf;
@@ -290,6 +291,23 @@ impl Autopilot {
         self.avoidance.fsm()
     }
 
+    /// The closing speed on the nearest obstacle at `now_us`, from its stereo distances.
+    pub fn closing(&self, now_us: u64) -> Option<Closing> {
+        self.avoidance.closing(now_us)
+    }
+
+    /// Guidance steps at which the obstacle's range rate overruled the velocity estimate
+    /// ([`Avoidance::cross_check`]).
+    pub fn velocity_overruled(&self) -> u32 {
+        self.avoidance.overruled()
+    }
+
+    /// The forward velocity guidance flew on at its last step in place of the estimate's,
+    /// overruled by the obstacle's range rate, m/s (`None`: the estimate stood).
+    pub fn velocity_overrule(&self) -> Option<f32> {
+        self.avoidance.overrule()
+    }
+
     /// Current setpoints.
     pub fn setpoints(&self) -> Setpoints {
         *self.guidance.setpoints()
@@ -494,7 +512,7 @@ impl Autopilot {
     /// goes to avoidance ([`Avoidance::on_estimate`]), its velocity through estimation's gates
     /// ([`VelocityEstimation::on_estimate`]) with the height and climb rate of now.
     pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
-        self.avoidance.on_estimate(est, now_us);
+        self.avoidance.on_estimate(est, self.att.euler()[2], now_us);
         let ctx = VisionContext {
             now_us,
             height_m: self.height.height_m(),
@@ -729,7 +747,10 @@ impl Autopilot {
             cfg.failsafe.estimate_timeout_us,
             &cfg.setpoints,
         );
-        let fresh_velocity = velocity.fresh(now_us, cfg.estimation.velocity_max_age_us);
+        let fresh_velocity = self.avoidance.cross_check(
+            velocity.fresh(now_us, cfg.estimation.velocity_max_age_us),
+            now_us,
+        );
         let request = self.avoidance.step(
             &AvoidanceInput {
                 now_us,

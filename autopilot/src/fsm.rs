@@ -4,7 +4,9 @@
 //!
 //! Each obstacle reading is one of three kinds of evidence ([`Evidence`]):
 //!
-//! * blocked: an obstacle nearer than the state's threshold;
+//! * blocked: an obstacle nearer than the state's threshold, or a time to contact (from the
+//!   flow's divergence, no range needed) confidently shorter than
+//!   [`FsmConfig::contact_time_s`];
 //! * clear: nothing nearer than the threshold over a view of which at least
 //!   [`FsmConfig::min_clear_depth`] has a stereo depth;
 //! * unknown: nothing nearer, but too little of the view has depth to say so (a plain wall, a
@@ -110,6 +112,11 @@ pub struct FsmConfig {
     /// Turn-until-clear: longest time turning without a confirmed clear direction before the
     /// FSM asks to land, µs.
     pub search_timeout_us: u64,
+    /// A reading whose time to contact ([`ObstacleReading::contact_s`]) is below this blocks
+    /// the way whatever its stereo distance, s (0: off). The second obstacle cue: it needs no
+    /// stereo range, so it sees a surface nearer than the stereo search or one whose stereo
+    /// failed, as long as the drone closes on it faster than it should.
+    pub contact_time_s: f32,
 }
 
 impl Default for FsmConfig {
@@ -136,6 +143,7 @@ impl Default for FsmConfig {
             brake_speed_mps: 0.05,
             brake_timeout_us: 1_500_000,
             search_timeout_us: 6_000_000,
+            contact_time_s: 1.5,
         }
     }
 }
@@ -149,6 +157,9 @@ pub struct ObstacleReading {
     pub distance_m: Option<f32>,
     /// Fraction of the view with a stereo depth, 0..=1 (how much `distance_m == None` says).
     pub depth_fraction: f32,
+    /// Time to contact with the scene ahead from the flow's divergence, at the long end of its
+    /// uncertainty (so a short one is certain), s; `None`: not confidently approaching.
+    pub contact_s: Option<f32>,
 }
 
 /// What one obstacle reading says about the way ahead, against a distance threshold.
@@ -307,6 +318,9 @@ impl AvoidanceFsm {
     }
 
     fn evidence(&self, r: &ObstacleReading, threshold_m: f32) -> Evidence {
+        if r.contact_s.is_some_and(|t| t < self.cfg.contact_time_s) {
+            return Evidence::Blocked;
+        }
         r.evidence(threshold_m, self.cfg.min_clear_depth)
     }
 
@@ -479,6 +493,7 @@ mod tests {
             received_us: t,
             distance_m: d,
             depth_fraction: 1.0,
+            contact_s: None,
         })
     }
 
@@ -488,6 +503,7 @@ mod tests {
             received_us: t,
             distance_m: None,
             depth_fraction: 0.05,
+            contact_s: None,
         })
     }
 
@@ -750,12 +766,73 @@ mod tests {
         assert!(f.output().yaw_sp_rad <= 0.5 + 1e-4);
     }
 
+    /// A surface nearer than the stereo search (no distance, little depth) that the drone
+    /// closes on: the time to contact stops `Forward`, confirmed like a distance; a long one
+    /// does not, and turn-until-clear does not take a short one for clear.
+    #[test]
+    fn a_short_time_to_contact_blocks_without_a_distance() {
+        let contact = |t: u64, contact_s: f32| {
+            Some(ObstacleReading {
+                contact_s: Some(contact_s),
+                ..unknown(t).unwrap()
+            })
+        };
+        let mut f = AvoidanceFsm::new(FsmConfig::default(), 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, None), None);
+        assert_eq!(f.state(), FsmState::Forward);
+        for k in 2..10 {
+            f.step(k * STEP, 0.0, contact(k * STEP, 4.0), None);
+        }
+        assert_eq!(f.state(), FsmState::Forward, "a long time to contact");
+        f.step(10 * STEP, 0.0, contact(10 * STEP, 0.9), None);
+        assert_eq!(
+            f.state(),
+            FsmState::Forward,
+            "one short reading is an outlier"
+        );
+        f.step(11 * STEP, 0.0, contact(11 * STEP, 0.8), None);
+        assert_eq!(f.state(), FsmState::Brake);
+
+        let off = FsmConfig {
+            contact_time_s: 0.0,
+            ..FsmConfig::default()
+        };
+        let mut f = AvoidanceFsm::new(off, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, None), None);
+        for k in 2..10 {
+            f.step(k * STEP, 0.0, contact(k * STEP, 0.5), None);
+        }
+        assert_eq!(f.state(), FsmState::Forward, "the cue switched off");
+
+        let turn = FsmConfig {
+            variant: FsmVariant::TurnUntilClear,
+            ..FsmConfig::default()
+        };
+        let clear_but_closing = |t: u64| {
+            Some(ObstacleReading {
+                contact_s: Some(0.5),
+                ..reading(t, None).unwrap()
+            })
+        };
+        let mut f = AvoidanceFsm::new(turn, 0, 0.0);
+        f.step(STEP, 0.0, reading(STEP, Some(0.5)), None);
+        f.step(STEP + S + STEP, 0.0, None, None);
+        assert_eq!(f.state(), FsmState::Turn);
+        let mut t = STEP + S + STEP;
+        for _ in 0..10 {
+            t += STEP;
+            f.step(t, 0.0, clear_but_closing(t), None);
+        }
+        assert_eq!(f.state(), FsmState::Turn, "closing fast is not clear");
+    }
+
     #[test]
     fn evidence_needs_depth_to_be_clear() {
         let r = |d, depth| ObstacleReading {
             received_us: 0,
             distance_m: d,
             depth_fraction: depth,
+            contact_s: None,
         };
         assert_eq!(r(Some(0.5), 0.0).evidence(1.0, 0.25), Evidence::Blocked);
         assert_eq!(r(Some(1.5), 0.3).evidence(1.0, 0.25), Evidence::Clear);

@@ -23,8 +23,9 @@
 //!   share.
 //! * [`force_field`]: backward velocity near walls.
 //! * [`fsm`]: the paper's 4-state avoidance FSM and the turn-until-clear variant.
+//! * [`range_rate`]: the closing speed on the nearest obstacle from its stereo distances.
 //! * [`avoidance`]: the avoidance stage: obstacle readings, the FSM and the force field make
-//!   guidance's velocity and heading request.
+//!   guidance's velocity and heading request; the range rate checks the velocity estimate.
 //! * [`failsafe`]: flight modes, kill, estimate/IMU/height timeouts, why a landing began.
 //! * [`battery`]: the supply voltage filtered and compensated for its sag under thrust, the
 //!   arming, landing and critical thresholds.
@@ -69,6 +70,7 @@ pub mod mixer;
 pub mod mpu6000;
 pub mod ms5611;
 pub mod params;
+pub mod range_rate;
 pub mod rc;
 pub mod setpoints;
 pub mod tasks;

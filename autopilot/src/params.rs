@@ -171,6 +171,7 @@ protocol::param_table! {
     "fsm_max_searches": U32 ["-"] 1, 60, true => |c| c.fsm.max_searches;
     "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;
     "fsm_search_timeout_us": U32 ["us"] 500_000, 60_000_000, true => |c| c.fsm.search_timeout_us;
+    "fsm_contact_time": F32 ["s"] 0.0, 10.0, true => |c| c.fsm.contact_time_s;
     "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout_us;
     "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
     "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;

@@ -92,7 +92,10 @@ fn suite_room_logs_are_written_by_room_name() {
         let path = out_dir.join(room).join("log.csv");
         let log = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
         let header = log.lines().next().expect("header");
-        assert!(header.ends_with("roll_err_deg,pitch_err_deg"), "{header}");
+        assert!(
+            header.ends_with("roll_err_deg,pitch_err_deg,closing_mps,overrule_mps,contact_s"),
+            "{header}"
+        );
         // 3 s at 50 Hz.
         assert!(
             log.lines().count() > 140,

@@ -129,6 +129,9 @@ pub struct FlightResult {
     /// `None`: it flew normally to the end); `Some(FailsafeReason::TelemetryLost)` after a
     /// landing for a lost host link.
     pub failsafe_reason: Option<FailsafeReason>,
+    /// Guidance steps at which the obstacle's range rate overruled the velocity estimate
+    /// (`Autopilot::velocity_overruled` at the end).
+    pub velocity_overruled: u32,
 }
 
 /// Counters of a flight so far, as an observer sees them.
@@ -290,8 +293,8 @@ struct Flight<'a> {
     /// The true body velocity at each recent capture time.
     truth_at_capture: VecDeque<(u32, [f32; 2])>,
     rxbuf: Vec<u8>,
-    /// The last estimate's velocity as received (NaN: invalid), for the log.
-    last_raw: [f32; 2],
+    /// The last estimate as received, for the log.
+    latest: LatestEstimate,
     record: FlightRecord,
 }
 
@@ -329,7 +332,7 @@ impl<'a> Flight<'a> {
             outbox: VecDeque::new(),
             truth_at_capture: VecDeque::new(),
             rxbuf: Vec::new(),
-            last_raw: [f32::NAN; 2],
+            latest: LatestEstimate::NONE,
             record: FlightRecord::default(),
         })
     }
@@ -361,16 +364,19 @@ impl<'a> Flight<'a> {
             // The autopilot's stereo_rx task decodes the bytes itself; the simulator taps the
             // same bytes with its own decoder for the figures.
             self.ap.on_stereo_bytes(&self.rxbuf, t);
-            let (record, last_raw) = (&mut self.record, &mut self.last_raw);
+            let (record, latest) = (&mut self.record, &mut self.latest);
             let (truth, height_m) = (&self.truth_at_capture, -self.world.drone.state.pos.z);
             self.tap.feed(&self.rxbuf, |m| {
                 if let StereoToAutopilot::Estimate(e) = m {
                     observer.on_estimate(t, &e);
                     record.estimates[0] += 1;
-                    *last_raw = [f32::NAN; 2];
+                    *latest = LatestEstimate {
+                        velocity_mps: [f32::NAN; 2],
+                        contact_s: nan_opt(e.divergence.and_then(|d| d.time_to_contact_s())),
+                    };
                     if e.is_valid() {
                         record.estimates[1] += 1;
-                        *last_raw = [e.forward_mps, e.sideways_mps];
+                        latest.velocity_mps = [e.forward_mps, e.sideways_mps];
                         if let Some(&(_, v)) =
                             truth.iter().find(|(c, _)| *c == e.capture_us.as_micros())
                         {
@@ -513,14 +519,7 @@ impl<'a> Flight<'a> {
                     self.motors = off.map(|m| m as f64);
                 }
                 let world = &self.world;
-                let row = log_row(
-                    ap,
-                    &world.drone,
-                    &world.scene,
-                    t,
-                    self.last_raw,
-                    self.motors,
-                );
+                let row = log_row(ap, &world.drone, &world.scene, t, self.latest, self.motors);
                 let counters = FlightCounters {
                     estimates: self.record.estimates,
                     frames_dropped: self.cb.counters().frames_dropped,
@@ -607,8 +606,26 @@ impl<'a> Flight<'a> {
             telemetry_received: record.telemetry_received,
             scene: world.scene,
             failsafe_reason: self.ap.failsafe_reason(),
+            velocity_overruled: self.ap.velocity_overruled(),
         }
     }
+}
+
+/// The last Edge-FS estimate the autopilot received, as the log shows it.
+#[derive(Debug, Clone, Copy)]
+struct LatestEstimate {
+    /// Forward and sideways velocity, m/s (NaN: invalid).
+    velocity_mps: [f32; 2],
+    /// Time to contact, s (NaN: none, or the view does not expand).
+    contact_s: f32,
+}
+
+impl LatestEstimate {
+    /// No estimate yet.
+    const NONE: Self = Self {
+        velocity_mps: [f32::NAN; 2],
+        contact_s: f32::NAN,
+    };
 }
 
 fn nan_opt(v: Option<f32>) -> f32 {
@@ -620,7 +637,7 @@ fn log_row(
     drone: &Drone,
     scene: &Scene,
     t: u64,
-    raw: [f32; 2],
+    latest: LatestEstimate,
     motors: [f64; 4],
 ) -> LogRow {
     let s = &drone.state;
@@ -640,8 +657,11 @@ fn log_row(
         vel_est: [nan_opt(v.map(|v| v[0])), nan_opt(v.map(|v| v[1]))],
         vel_sp: tel.velocity_setpoint_mps,
         height_sp_m: ap.setpoints().height_m,
-        vel_raw: raw,
+        vel_raw: latest.velocity_mps,
         obstacle_m: nan_opt(tel.obstacle_m),
+        closing_mps: nan_opt(ap.closing(t).map(|c| c.mps)),
+        overrule_mps: nan_opt(ap.velocity_overrule()),
+        contact_s: latest.contact_s,
         clearance_m: scene.clearance(s.pos.x as f32, s.pos.y as f32, h)
             - drone.params.radius_m as f32,
         fsm_state: tel.fsm_state,

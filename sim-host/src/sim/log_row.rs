@@ -27,6 +27,15 @@ pub struct LogRow {
     pub vel_raw: [f32; 2],
     /// Obstacle distance the autopilot holds, m (NaN: none).
     pub obstacle_m: f32,
+    /// The autopilot's closing speed on that obstacle from its stereo distances (the range
+    /// rate), m/s (NaN: none).
+    pub closing_mps: f32,
+    /// The forward velocity guidance flew on in place of the estimate's when the range rate
+    /// overruled it, m/s (NaN: the estimate stood).
+    pub overrule_mps: f32,
+    /// Time to contact of the latest Edge-FS estimate (the flow's divergence), s (NaN: none,
+    /// or the view does not expand).
+    pub contact_s: f32,
     /// Clearance to the nearest wall/obstacle minus the drone radius, m.
     pub clearance_m: f32,
     /// FSM state (`None`: the state machine is not running).

@@ -17,12 +17,12 @@ pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
         f,
         "t_s,x_m,y_m,height_m,yaw_rad,vf_true_mps,vs_true_mps,vf_est_mps,vs_est_mps,\
          vf_sp_mps,vs_sp_mps,height_sp_m,vf_raw_mps,vs_raw_mps,obstacle_m,clearance_m,fsm_state,mode,\
-         m1,m2,m3,m4,roll_err_deg,pitch_err_deg"
+         m1,m2,m3,m4,roll_err_deg,pitch_err_deg,closing_mps,overrule_mps,contact_s"
     )?;
     for l in &r.log {
         writeln!(
             f,
-            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},{:.4},{:.4},{:.3},{:.4},{},{},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3}",
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},{:.4},{:.4},{:.3},{:.4},{},{},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
             l.t_s,
             l.pos[0],
             l.pos[1],
@@ -46,7 +46,10 @@ pub fn write_log_csv(r: &FlightResult, path: &Path) -> anyhow::Result<()> {
             l.motors[2],
             l.motors[3],
             l.tilt_err_deg[0],
-            l.tilt_err_deg[1]
+            l.tilt_err_deg[1],
+            l.closing_mps,
+            l.overrule_mps,
+            l.contact_s
         )?;
     }
     // Explicitly, so a failed write is an error rather than lost when the writer drops.
