@@ -2,6 +2,8 @@
 //! STM32F415, the same clock tree from a 12 MHz crystal, the same QEMU flavour).
 //!
 //! * [`link`]: the board-to-board link's baud rate, one constant both boards use (host too).
+//! * [`pins`]: the wiring tables' vocabulary (port, pin, function, pull, output stage), one for
+//!   both boards' tables (host too).
 //! * `clocks`: clock tree and link constants per flavour (MCU only).
 //! * [`clock`]: the board's microsecond clock from the RTIC SysTick monotonic (MCU only), and
 //!   the extender that carries its 32-bit millisecond tick on across the wrap.
@@ -38,6 +40,7 @@ pub mod link;
 pub mod log;
 #[cfg(target_os = "none")]
 pub mod param_flash;
+pub mod pins;
 #[cfg(target_os = "none")]
 pub mod stack;
 #[cfg(target_os = "none")]

@@ -44,12 +44,18 @@ fn apply(a: &PinAssignment) {
     // SAFETY: called from `init` only (interrupts off), on the pins of the board table, which
     // no HAL driver owns.
     unsafe {
-        set_field(port, OTYPER, n, 1, u32::from(a.drive == Drive::OpenDrain));
-        let speed = match a.speed {
-            Speed::Low => 0,
-            Speed::VeryHigh => 3,
-        };
-        set_field(port, OSPEEDR, n, 2, speed);
+        // A row without an output stage leaves OTYPER and OSPEEDR as they are (every row of
+        // this board's tables states both).
+        if let Some(drive) = a.drive {
+            set_field(port, OTYPER, n, 1, u32::from(drive == Drive::OpenDrain));
+        }
+        if let Some(speed) = a.speed {
+            let code = match speed {
+                Speed::Low => 0,
+                Speed::VeryHigh => 3,
+            };
+            set_field(port, OSPEEDR, n, 2, code);
+        }
         let pull = match a.pull {
             Pull::None => 0,
             Pull::Up => 1,
