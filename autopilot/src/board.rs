@@ -315,14 +315,10 @@ pub const TELEMETRY_BAUD: u32 = board_support::link::HOST_BAUD;
 /// starves it within [`GUIDANCE_ALIVE_US`]; one below (telemetry, gyro, barometer, heartbeat)
 /// within [`HEARTBEAT_ALIVE_US`]. [`WATCHDOG`] is programmed so that the guidance window plus
 /// the timeout at the slowest LSI is at most this. In the lockstep flavours (`hil`, `qemu`)
-/// the world clock may stall while the host computes, so the 1 Hz heartbeat feeds a 2 s
-/// watchdog there.
-#[cfg(not(any(feature = "hil", feature = "qemu")))]
+/// the world clock may stall while the host computes, so the 1 Hz heartbeat feeds the
+/// watchdog there, with [`board_support::watchdog::HEARTBEAT_FED`] (the boards' timeouts side
+/// by side: [`board_support::watchdog`]).
 pub const WATCHDOG_MS: u32 = 50;
-/// Independent-watchdog timeout of the lockstep flavours, ms at the typical LSI (see the real
-/// flavour's): 1.36 s at the fastest LSI, above the heartbeat's 1 s feeding period.
-#[cfg(any(feature = "hil", feature = "qemu"))]
-pub const WATCHDOG_MS: u32 = 2_000;
 /// How recently the 50 Hz guidance task must have run for the control loop to feed the
 /// watchdog, µs: its 20 ms period and 5 ms for a release delayed by the tasks above it.
 pub const GUIDANCE_ALIVE_US: u32 = 25_000;
@@ -332,17 +328,9 @@ pub const HEARTBEAT_ALIVE_US: u32 = 1_500_000;
 /// The independent watchdog's programmed timeout (real flavour): [`WATCHDOG_MS`] less the
 /// guidance window at the slowest LSI (24.9 ms there, 9.0 ms at the fastest, where the 512 Hz
 /// loop feeds it every 1.95 ms).
-#[cfg(not(any(feature = "hil", feature = "qemu")))]
 pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
     WATCHDOG_MS - GUIDANCE_ALIVE_US / 1_000,
     board_support::watchdog::LSI_HZ_SLOWEST,
-);
-/// The independent watchdog's programmed timeout (lockstep flavours): [`WATCHDOG_MS`] at the
-/// typical LSI.
-#[cfg(any(feature = "hil", feature = "qemu"))]
-pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
-    WATCHDOG_MS,
-    board_support::watchdog::LSI_HZ_TYPICAL,
 );
 
 /// The longest time from a panic or HardFault to every motor at 0, µs: the fault path's first

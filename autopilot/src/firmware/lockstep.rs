@@ -7,7 +7,7 @@
 //!   the periodic tasks when the world clock passes their periods ([`Releases`]).
 //! * The board's own IMU and barometer are not read, and the RC receiver is not listened to.
 //! * The world clock may stall while the host computes, so the 1 Hz heartbeat (board clock)
-//!   feeds a 2 s watchdog.
+//!   feeds the watchdog ([`board_support::watchdog::HEARTBEAT_FED`], 2 s).
 //! * The PWM outputs stay at 0 unless the host enabled them
 //!   ([`protocol::PilotCommand::HilOutputs`], see [`autopilot::app::Autopilot::hil_outputs`]),
 //!   and go to 0 when no host sample arrived for [`SAMPLES_TIMEOUT_US`] of board time
@@ -23,6 +23,8 @@ use protocol::ImuSample;
 pub const OWN_SENSORS: bool = false;
 /// The heartbeat feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
 pub const FEED_WATCHDOG_IN_LOOP: bool = false;
+/// The watchdog's timeout: the heartbeat-fed one both boards share.
+pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::HEARTBEAT_FED;
 /// Motor commands also go to the host (the simulated drone flies on them).
 pub const MOTORS_TO_HOST: bool = true;
 

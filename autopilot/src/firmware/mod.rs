@@ -32,7 +32,7 @@
 //! or it is bad (logged, and answered to `ParamOp::Storage`). A save (`ParamOp::Save`, only
 //! with the motors off) erases and programs the sector in `host_rx` with the `ap` lock held:
 //! the core stalls for the erase anyway (a second or two), so the watchdog is given
-//! `board_support::param_flash::SAVE_WATCHDOG_MS` for it. A link key provisioned over the
+//! [`board_support::watchdog::SAVE`] for it ([`board_support::param_flash::WatchedSector`]). A link key provisioned over the
 //! link is written the same way at once, beside the saved parameters
 //! (`Autopilot::save_link_key`), and every save carries it; the boot loads it with the
 //! parameters. The `qemu` flavour has no parameter storage.
@@ -176,12 +176,12 @@ mod app {
     use autopilot::AutopilotConfig;
     use autopilot::HostOutcome;
     use board_support::log;
-    use board_support::param_flash::{set_watchdog, FlashError, ParamSector, SAVE_WATCHDOG_MS};
+    use board_support::param_flash::{FlashError, ParamSector, WatchedSector};
     use board_support::uart_rx::RxFlow;
     use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
+    use board_support::watchdog::Timeout;
     use core::sync::atomic::Ordering;
     use heapless::spsc::{Consumer, Producer, Queue};
-    use protocol::params::RecordStore;
     use protocol::{
         AutopilotToStereo, BoardToHost, HostToBoard, HostToBoardDecoder, ImuSample, Message as _,
         Node, ParamOp, ParamReply,
@@ -316,7 +316,7 @@ mod app {
         let battery = flavour::OWN_SENSORS.then(|| hw::BatteryInput::new(b.battery, &mut b.rcc));
 
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
-        board_support::watchdog::set(&mut iwdg, board::WATCHDOG);
+        board_support::watchdog::set(&mut iwdg, flavour::WATCHDOG);
         let started = clock::now_us();
         GUIDANCE_ALIVE.ran(started);
         HEARTBEAT_ALIVE.ran(started);
@@ -674,33 +674,35 @@ mod app {
                         continue;
                     };
                     let now = flavour::lib_now_us();
-                    let sector = cx.local.param_sector.as_mut();
-                    // A save of this board's table (the camera board's is passed on).
-                    let saving = sector.is_some()
+                    // A save of this board's table (the camera board's is passed on): logged.
+                    let saving = cx.local.param_sector.is_some()
                         && matches!(&msg, HostToBoard::Param(r)
                             if r.op == ParamOp::Save && r.board == Node::Autopilot);
-                    if saving {
-                        cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
-                    }
                     let started_us = clock::now_us();
+                    let iwdg = &mut cx.shared.iwdg;
                     let (outcome, new_key) = cx.shared.ap.lock(|ap| {
-                        let store = sector.map(|s| s as &mut dyn RecordStore);
-                        let outcome = ap.on_host_message(msg, now, store);
+                        let outcome = match cx.local.param_sector.as_mut() {
+                            Some(sector) => {
+                                let mut store =
+                                    WatchedSector::new(sector, flavour::WATCHDOG, |t| {
+                                        program_watchdog(iwdg, t)
+                                    });
+                                ap.on_host_message(msg, now, Some(&mut store))
+                            }
+                            None => ap.on_host_message(msg, now, None),
+                        };
                         (outcome, ap.take_link_key_to_store().is_some())
                     });
                     if new_key {
                         // Into the parameter sector at once, beside the saved parameters
                         // (the motors are off: a key is only taken then).
                         let started_us = clock::now_us();
-                        let saved = match cx.local.param_sector.as_mut() {
-                            Some(sector) => {
-                                cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
-                                let saved = cx.shared.ap.lock(|ap| ap.save_link_key(sector));
-                                resume_after_flash(&mut cx.shared.iwdg);
-                                Some(saved)
-                            }
-                            None => None,
-                        };
+                        let saved = cx.local.param_sector.as_mut().map(|sector| {
+                            let mut store = WatchedSector::new(sector, flavour::WATCHDOG, |t| {
+                                program_watchdog(&mut cx.shared.iwdg, t)
+                            });
+                            cx.shared.ap.lock(|ap| ap.save_link_key(&mut store))
+                        });
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
                         match saved {
                             Some(Ok(())) => {
@@ -714,7 +716,6 @@ mod app {
                         }
                     }
                     if saving {
-                        resume_after_flash(&mut cx.shared.iwdg);
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
                         let error = cx.local.param_sector.as_ref().and_then(|s| s.last_error());
                         log_save(&outcome, error, ms);
@@ -736,13 +737,16 @@ mod app {
         }
     }
 
-    /// Back from a flash write that held every task (a save, a key): the loop-fed watchdog's
-    /// own timeout again, and its fed tasks counted alive from here.
-    fn resume_after_flash(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>) {
-        iwdg.lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
-        let now = clock::now_us();
-        GUIDANCE_ALIVE.ran(now);
-        HEARTBEAT_ALIVE.ran(now);
+    /// Programs the watchdog for a flash write ([`WatchedSector`]): the save's timeout before
+    /// it; after it the board's own again, and the tasks its feeder watches counted alive from
+    /// here (the write held every task).
+    fn program_watchdog(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>, timeout: Timeout) {
+        iwdg.lock(|w| board_support::watchdog::set(w, timeout));
+        if timeout != board_support::watchdog::SAVE {
+            let now = clock::now_us();
+            GUIDANCE_ALIVE.ran(now);
+            HEARTBEAT_ALIVE.ran(now);
+        }
     }
 
     /// The log line of a save: done, or why not, and how long the flash held it.

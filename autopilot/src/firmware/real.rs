@@ -18,6 +18,8 @@ use rtic_monotonics::Timebase as _;
 pub const OWN_SENSORS: bool = true;
 /// The control loop feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
 pub const FEED_WATCHDOG_IN_LOOP: bool = true;
+/// The watchdog's timeout: the loop-fed one of the board's 50 ms bound.
+pub const WATCHDOG: board_support::watchdog::Timeout = autopilot::board::WATCHDOG;
 /// Motor commands go to the PWM outputs only.
 pub const MOTORS_TO_HOST: bool = false;
 

@@ -7,7 +7,7 @@ use stm32f4xx_hal::rcc::Config;
 /// Baud rate of the host link (USART2, `hil` and `qemu` flavours).
 #[cfg(any(feature = "qemu", feature = "hil"))]
 pub use board_support::clocks::HOST_BAUD;
-pub use board_support::clocks::{SYSTICK_HZ, WATCHDOG_MS};
+pub use board_support::clocks::SYSTICK_HZ;
 
 /// Clock configuration of this flavour (the board's 12 MHz crystal and PLL to 168 MHz; the HSI
 /// in QEMU).

@@ -34,8 +34,7 @@
 //! is none or it is bad (logged, and answered to `ParamOp::Storage`). A save, passed on by the
 //! autopilot only while its motors are off, erases and programs the sector in `uart_rx` with
 //! the board lock held: the core stalls for the erase anyway (a second or two; no frame is
-//! processed meanwhile), and the watchdog is given
-//! [`board_support::param_flash::SAVE_WATCHDOG_MS`] for it
+//! processed meanwhile), and the watchdog is given [`board_support::watchdog::SAVE`] for it
 //! ([`board_support::param_flash::WatchedSector`]). The `qemu` flavour has no parameter
 //! storage.
 //!
@@ -289,6 +288,7 @@ mod app {
 
     use super::{FrameReady, Frames, LinkUart};
     use board_support::param_flash::{ParamSector, WatchedSector};
+    use board_support::watchdog::HEARTBEAT_FED;
     use protocol::BoardToHost;
     use rtic::mutex::prelude::*;
     use stereo_board::app::send_to_host;
@@ -446,7 +446,7 @@ mod app {
         super::pins::configure(&[stereo_board::board::LED]);
 
         let mut iwdg = IndependentWatchdog::new(cx.device.IWDG);
-        iwdg.start(board::WATCHDOG_MS.millis());
+        board_support::watchdog::set(&mut iwdg, HEARTBEAT_FED);
 
         log::info!("stereo-board up, sysclk {} Hz", rcc.clocks.sysclk().raw());
         status::spawn().ok();
@@ -553,11 +553,10 @@ mod app {
                     match sector {
                         Some(sector) => {
                             let before = board.storage();
-                            let mut store = WatchedSector {
-                                sector: &mut *sector,
-                                watchdog,
-                                timeout_ms: board::WATCHDOG_MS,
-                            };
+                            let mut store =
+                                WatchedSector::new(&mut *sector, HEARTBEAT_FED, |timeout| {
+                                    board_support::watchdog::set(watchdog, timeout)
+                                });
                             board.on_rx_bytes(bytes, now, &mut tx, Some(&mut store));
                             super::log_save(before, board.storage(), sector.last_error());
                         }
