@@ -14,12 +14,23 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use protocol::ImuSample;
 use rtic_monotonics::Timebase as _;
 
-/// The board reads its own IMU and barometer and listens to its RC receiver.
-pub const OWN_SENSORS: bool = true;
+/// The flavour's side of the contract both boards' flavour modules fulfil.
+pub struct Current;
+
+impl board_support::flavour::Flavour for Current {
+    /// The board reads its own IMU and barometer and listens to its RC receiver.
+    const OWN_SENSORS: bool = true;
+    /// The loop-fed timeout of the board's 50 ms bound.
+    const WATCHDOG: board_support::watchdog::Timeout = autopilot::board::WATCHDOG;
+
+    /// The board clock.
+    fn lib_now_us() -> u64 {
+        clock::now_us()
+    }
+}
+
 /// The control loop feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
 pub const FEED_WATCHDOG_IN_LOOP: bool = true;
-/// The watchdog's timeout: the loop-fed one of the board's 50 ms bound.
-pub const WATCHDOG: board_support::watchdog::Timeout = autopilot::board::WATCHDOG;
 /// Motor commands go to the PWM outputs only.
 pub const MOTORS_TO_HOST: bool = false;
 
@@ -40,11 +51,6 @@ pub const OUTPUTS_CHECK_US: u32 = 0;
 /// [`protocol::PilotCommand::HilOutputs`] gates only the lockstep flavours).
 pub fn outputs_live(_enabled: bool, _board_now_us: u64) -> bool {
     true
-}
-
-/// The time the flight library sees, µs: the board clock.
-pub fn lib_now_us() -> u64 {
-    clock::now_us()
 }
 
 /// Release of one periodic task: a SysTick period.
