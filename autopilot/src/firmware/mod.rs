@@ -4,11 +4,12 @@
 //! tasks mirror `autopilot::tasks::TASKS` (same names and relative priorities) and each body is
 //! one call into the library. What differs between flavours is in one module each: [`real`]
 //! (own sensors, board clock) and [`lockstep`] (`hil`, `qemu`: the host's IMU samples and world
-//! time), selected as `flavour`.
+//! time), selected as `flavour`; each fulfils the contract both boards share
+//! ([`board_support::flavour::Flavour`]), as the camera board's do.
 //!
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
-//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]) |
+//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]); one [`board_support::uart_link`] each |
 //! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour) | half/full buffer: pends `telemetry_uart` |
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors; feeds the watchdog while `guidance` and `heartbeat` run |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors (only once the host enabled them), releases the periodic tasks |

@@ -7,7 +7,7 @@
 //! output, and an alternate function is selected before the pin leaves input mode, so no pin
 //! glitches.
 
-use stereo_board::board::{Drive, Function, PinAssignment, Pull, Speed, PINS};
+use stereo_board::board::{Drive, Function, PinAssignment, Pull, Speed};
 use stm32f4xx_hal::pac;
 
 const GPIO_BASE: usize = 0x4002_0000;
@@ -96,14 +96,7 @@ pub fn configure(pins: &[PinAssignment]) {
     }
 }
 
-/// Configures every pin of the board table, in its order.
-#[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
-pub fn configure_all() {
-    configure(&PINS);
-}
-
 /// Drives output pin `a` to `high` (BSRR, atomic).
-#[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
 pub fn set(a: &PinAssignment, high: bool) {
     let n = a.pin.number & 0xF;
     let bit = if high { 1u32 << n } else { 1u32 << (n + 16) };

@@ -96,7 +96,7 @@ impl super::FrameSource for Camera {
 /// Every pin of the board table (CPLD in pixel-mux mode, cameras held in reset, clock, DCMI
 /// and SCCB pins, the link's pull-ups, the LED), the cameras brought up, capture started.
 pub fn start_frames(i2c: pac::I2C2) -> (Frames, CaptureMonitor) {
-    pins::configure_all();
+    pins::configure(&stereo_board::board::PINS);
     match bring_up_cameras(i2c) {
         Ok(()) => log::info!("cameras configured"),
         Err((reg, e)) => {
