@@ -36,70 +36,8 @@
 //!   UART5 RX (PD2, Spektrum in Paparazzi), decodes SBUS ([`crate::rc`]).
 //! * Status LED: LED 1 (PA8) blinks at 1 Hz; the other LEDs stay off (inputs).
 
-/// A GPIO port.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Port {
-    /// GPIOA.
-    A,
-    /// GPIOB.
-    B,
-    /// GPIOC.
-    C,
-    /// GPIOD.
-    D,
-}
-
-/// A pin: port and number (0..=15).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Pin {
-    /// The port.
-    pub port: Port,
-    /// The pin number in the port.
-    pub number: u8,
-}
-
-const fn pin(port: Port, number: u8) -> Pin {
-    Pin { port, number }
-}
-
-/// How the firmware configures a pin (GPIO MODER/OTYPER/PUPDR, RM0090 section 8.4).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PinMode {
-    /// Alternate function `af` (AFRL/AFRH), push-pull output stage.
-    Alternate {
-        /// The alternate function number.
-        af: u8,
-    },
-    /// General-purpose push-pull output, starting at the given level.
-    Output {
-        /// Level written before the pin becomes an output (true: high).
-        initial_high: bool,
-    },
-}
-
-/// Pull resistor (PUPDR).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Pull {
-    /// No pull.
-    None,
-    /// Pull-up.
-    Up,
-}
-
-/// One pin the firmware configures.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct PinAssignment {
-    /// The pin.
-    pub pin: Pin,
-    /// What it carries.
-    pub signal: &'static str,
-    /// Mode the firmware puts it in.
-    pub mode: PinMode,
-    /// Pull resistor.
-    pub pull: Pull,
-    /// Where the assignment comes from.
-    pub source: &'static str,
-}
+use board_support::pins::pin;
+pub use board_support::pins::{Function, Pin, PinAssignment, Port, Pull};
 
 /// Every pin the `real` firmware configures (and [`RC_PIN`] with [`RC_RECEIVER`]); all others
 /// stay in their reset state (input,
@@ -110,99 +48,127 @@ pub const PINS: [PinAssignment; 14] = [
     PinAssignment {
         pin: pin(Port::B, 13),
         signal: "SPI2 SCK (MPU-6000, MS5611)",
-        mode: PinMode::Alternate { af: 5 },
+        function: Function::Alternate(5),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] lisa_mx_common.h:273-288",
     },
     PinAssignment {
         pin: pin(Port::B, 14),
         signal: "SPI2 MISO",
-        mode: PinMode::Alternate { af: 5 },
+        function: Function::Alternate(5),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] lisa_mx_common.h:273-288",
     },
     PinAssignment {
         pin: pin(Port::B, 15),
         signal: "SPI2 MOSI",
-        mode: PinMode::Alternate { af: 5 },
+        function: Function::Alternate(5),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] lisa_mx_common.h:273-288",
     },
     PinAssignment {
         pin: pin(Port::B, 12),
         signal: "MPU-6000 chip select (active low)",
-        mode: PinMode::Output { initial_high: true },
+        function: Function::Output { high: true },
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] imu_lisa_m_v2.1.xml:21-27, board.h:209-212",
     },
     PinAssignment {
         pin: pin(Port::C, 13),
         signal: "MS5611 chip select (active low)",
-        mode: PinMode::Output { initial_high: true },
+        function: Function::Output { high: true },
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] board.h:326, baro_board.makefile:95-97",
     },
     PinAssignment {
         pin: pin(Port::C, 6),
         signal: "motor NE / front-right (TIM3 CH1)",
-        mode: PinMode::Alternate { af: 2 },
+        function: Function::Alternate(2),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:30-33, lisa_mx_common.h:421-491",
     },
     PinAssignment {
         pin: pin(Port::C, 7),
         signal: "motor NW / front-left (TIM3 CH2)",
-        mode: PinMode::Alternate { af: 2 },
+        function: Function::Alternate(2),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:30-33, lisa_mx_common.h:421-491",
     },
     PinAssignment {
         pin: pin(Port::A, 0),
         signal: "motor SW / rear-left (TIM5 CH1)",
-        mode: PinMode::Alternate { af: 2 },
+        function: Function::Alternate(2),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:30-33, lisa_mx_common.h:421-491",
     },
     PinAssignment {
         pin: pin(Port::A, 1),
         signal: "motor SE / rear-right (TIM5 CH2)",
-        mode: PinMode::Alternate { af: 2 },
+        function: Function::Alternate(2),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:30-33, lisa_mx_common.h:421-491",
     },
     PinAssignment {
         pin: pin(Port::A, 2),
         signal: "USART2 TX (link to the camera board)",
-        mode: PinMode::Alternate { af: 7 },
+        function: Function::Alternate(7),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:232-233, lisa_mx_common.h:152-156",
     },
     PinAssignment {
         pin: pin(Port::A, 3),
         signal: "USART2 RX (link to the camera board)",
-        mode: PinMode::Alternate { af: 7 },
+        function: Function::Alternate(7),
         pull: Pull::Up,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:232-233, lisa_mx_common.h:152-156",
     },
     PinAssignment {
         pin: pin(Port::A, 9),
         signal: "USART1 TX (telemetry / host)",
-        mode: PinMode::Alternate { af: 7 },
+        function: Function::Alternate(7),
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:268-270, lisa_mx_common.h:145-149",
     },
     PinAssignment {
         pin: pin(Port::A, 10),
         signal: "USART1 RX (telemetry / host)",
-        mode: PinMode::Alternate { af: 7 },
+        function: Function::Alternate(7),
         pull: Pull::Up,
+        drive: None,
+        speed: None,
         source: "[PZ] airframe xml:268-270, lisa_mx_common.h:145-149",
     },
     PinAssignment {
         pin: pin(Port::A, 8),
         signal: "LED 1 (status, active low)",
-        mode: PinMode::Output { initial_high: true },
+        function: Function::Output { high: true },
         pull: Pull::None,
+        drive: None,
+        speed: None,
         source: "[PZ] lisa_mx_common.h:36-84",
     },
 ];
@@ -217,8 +183,10 @@ pub const RC_RECEIVER: bool = false;
 pub const RC_PIN: PinAssignment = PinAssignment {
     pin: pin(Port::D, 2),
     signal: "UART5 RX (RC receiver, SBUS; only with RC_RECEIVER)",
-    mode: PinMode::Alternate { af: 8 },
+    function: Function::Alternate(8),
     pull: Pull::Up,
+    drive: None,
+    speed: None,
     source: "[PZ] airframe xml:242 (receiver port; open)",
 };
 
@@ -347,14 +315,10 @@ pub const TELEMETRY_BAUD: u32 = board_support::link::HOST_BAUD;
 /// starves it within [`GUIDANCE_ALIVE_US`]; one below (telemetry, gyro, barometer, heartbeat)
 /// within [`HEARTBEAT_ALIVE_US`]. [`WATCHDOG`] is programmed so that the guidance window plus
 /// the timeout at the slowest LSI is at most this. In the lockstep flavours (`hil`, `qemu`)
-/// the world clock may stall while the host computes, so the 1 Hz heartbeat feeds a 2 s
-/// watchdog there.
-#[cfg(not(any(feature = "hil", feature = "qemu")))]
+/// the world clock may stall while the host computes, so the 1 Hz heartbeat feeds the
+/// watchdog there, with [`board_support::watchdog::HEARTBEAT_FED`] (the boards' timeouts side
+/// by side: [`board_support::watchdog`]).
 pub const WATCHDOG_MS: u32 = 50;
-/// Independent-watchdog timeout of the lockstep flavours, ms at the typical LSI (see the real
-/// flavour's): 1.36 s at the fastest LSI, above the heartbeat's 1 s feeding period.
-#[cfg(any(feature = "hil", feature = "qemu"))]
-pub const WATCHDOG_MS: u32 = 2_000;
 /// How recently the 50 Hz guidance task must have run for the control loop to feed the
 /// watchdog, µs: its 20 ms period and 5 ms for a release delayed by the tasks above it.
 pub const GUIDANCE_ALIVE_US: u32 = 25_000;
@@ -364,17 +328,9 @@ pub const HEARTBEAT_ALIVE_US: u32 = 1_500_000;
 /// The independent watchdog's programmed timeout (real flavour): [`WATCHDOG_MS`] less the
 /// guidance window at the slowest LSI (24.9 ms there, 9.0 ms at the fastest, where the 512 Hz
 /// loop feeds it every 1.95 ms).
-#[cfg(not(any(feature = "hil", feature = "qemu")))]
 pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
     WATCHDOG_MS - GUIDANCE_ALIVE_US / 1_000,
     board_support::watchdog::LSI_HZ_SLOWEST,
-);
-/// The independent watchdog's programmed timeout (lockstep flavours): [`WATCHDOG_MS`] at the
-/// typical LSI.
-#[cfg(any(feature = "hil", feature = "qemu"))]
-pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
-    WATCHDOG_MS,
-    board_support::watchdog::LSI_HZ_TYPICAL,
 );
 
 /// The longest time from a panic or HardFault to every motor at 0, µs: the fault path's first
@@ -828,7 +784,7 @@ mod tests {
                 .iter()
                 .find(|a| a.pin == m.pin)
                 .expect("motor pin in PINS");
-            assert_eq!(a.mode, PinMode::Alternate { af: 2 }, "{}", a.signal);
+            assert_eq!(a.function, Function::Alternate(2), "{}", a.signal);
         }
     }
 }

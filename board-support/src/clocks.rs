@@ -17,9 +17,6 @@ pub const CORE_HZ: u32 = 16_000_000;
 /// the emulated SysTick from a fixed 168 MHz whatever the RCC says.
 pub const SYSTICK_HZ: u32 = 168_000_000;
 
-/// Independent-watchdog timeout, ms (each board's 1 Hz task feeds it).
-pub const WATCHDOG_MS: u32 = 2_000;
-
 /// Clock configuration of this flavour for a board with an `hse_hz` crystal (unused in QEMU).
 pub fn config(hse_hz: u32) -> Config {
     #[cfg(not(feature = "qemu"))]

@@ -19,10 +19,9 @@
 //! word) and asserts (panics) when the unlock sequence fails; a firmware here never panics.
 //! After a write the data cache is reset (RM0090 3.5.2: it may hold lines of the erased sector).
 
+use crate::watchdog::{self, Timeout};
 use protocol::params::{ParamError, RecordStore};
 use stm32f4xx_hal::pac::FLASH;
-use stm32f4xx_hal::prelude::*;
-use stm32f4xx_hal::watchdog::IndependentWatchdog;
 
 /// First address of slot 0, sector 11 (RM0090 table 5).
 pub const BASE: usize = 0x080E_0000;
@@ -33,13 +32,6 @@ pub const SECTOR: u8 = 11;
 /// The slots: (first address, sector number), slot 0 first. Sector 11 is slot 0 so a record
 /// saved in it before the second slot existed is still found.
 pub const SLOTS: [(usize, u8); 2] = [(BASE, SECTOR), (0x080C_0000, 10)];
-
-/// Independent-watchdog timeout while a save erases and programs the sector, ms. The core
-/// stalls for the whole erase (2 s at most at x32, see above), so no task feeds the watchdog
-/// meanwhile; 6 s at the LSI's nominal 32 kHz is 4 s at its fastest 47 kHz, still twice the
-/// erase. Each board saves only on the ground (the autopilot with its motors off; it passes a
-/// save on to the camera board only then) and restores its own timeout after the save.
-pub const SAVE_WATCHDOG_MS: u32 = 6_000;
 
 /// RM0090 3.9.2: the unlock keys of `FLASH_CR`.
 const KEY1: u32 = 0x4567_0123;
@@ -230,29 +222,30 @@ impl RecordStore for ParamSector {
     }
 }
 
-/// Gives the watchdog a new timeout and feeds it once the new one is in use (RM0090 21.3.2:
-/// the prescaler and reload reach the watchdog's domain some LSI cycles after the write).
-pub fn set_watchdog(w: &mut IndependentWatchdog, ms: u32) {
-    w.start(ms.millis());
-    // SAFETY: reading IWDG_SR has no side effect; the watchdog itself is `w`'s.
-    let updating = || unsafe { (*stm32f4xx_hal::pac::IWDG::ptr()).sr().read().bits() & 0b11 };
-    while updating() != 0 {}
-    w.feed();
+/// The parameter sector with the board's watchdog, the one way both boards save: a write runs
+/// under [`watchdog::SAVE`] (the flash stalls the core, nothing feeds the watchdog meanwhile)
+/// and the board's own timeout is given back after it. Passed as the
+/// [`protocol::params::RecordStore`] of the boards' libraries, it programs the watchdog only
+/// when they write.
+pub struct WatchedSector<'a, F: FnMut(Timeout)> {
+    sector: &'a mut ParamSector,
+    own: Timeout,
+    program: F,
 }
 
-/// The parameter sector with the board's watchdog: a write runs under [`SAVE_WATCHDOG_MS`] and
-/// the board's own timeout is given back after it. For a board that saves from inside its
-/// library's message handling, where the firmware cannot tell a save is coming.
-pub struct WatchedSector<'a> {
-    /// The sector.
-    pub sector: &'a mut ParamSector,
-    /// The board's watchdog.
-    pub watchdog: &'a mut IndependentWatchdog,
-    /// The board's own timeout, ms, restored after a write.
-    pub timeout_ms: u32,
+impl<'a, F: FnMut(Timeout)> WatchedSector<'a, F> {
+    /// `sector` under the board's watchdog: `program` programs a timeout into it
+    /// ([`watchdog::set`], under the firmware's lock); `own` is the board's own timeout.
+    pub fn new(sector: &'a mut ParamSector, own: Timeout, program: F) -> Self {
+        Self {
+            sector,
+            own,
+            program,
+        }
+    }
 }
 
-impl RecordStore for WatchedSector<'_> {
+impl<F: FnMut(Timeout)> RecordStore for WatchedSector<'_, F> {
     fn bytes(&self) -> &[u8] {
         self.sector.bytes()
     }
@@ -270,9 +263,9 @@ impl RecordStore for WatchedSector<'_> {
     }
 
     fn write_slot(&mut self, slot: usize, record: &[u8]) -> Result<(), ParamError> {
-        set_watchdog(self.watchdog, SAVE_WATCHDOG_MS);
+        (self.program)(watchdog::SAVE);
         let result = self.sector.write_slot(slot, record);
-        set_watchdog(self.watchdog, self.timeout_ms);
+        (self.program)(self.own);
         result
     }
 }

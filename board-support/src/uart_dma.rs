@@ -17,6 +17,7 @@
 //! loses the bytes that do not fit, counted: the line does not wait, and a DMA cannot be paused
 //! by a queue.
 
+use core::marker::PhantomData;
 use core::sync::atomic::{AtomicU32, Ordering};
 use heapless::spsc::Producer;
 use stm32f4xx_hal::pac;
@@ -85,9 +86,11 @@ const TCIF: u32 = 1 << 5;
 /// Every flag of a stream: FIFO, direct mode and transfer errors, half, complete.
 const ALL_FLAGS: u32 = 0b11_1101;
 
-/// One UART's receiver on a circular DMA stream.
-pub struct DmaRx {
+/// The receiver of USART `U` on a circular DMA stream.
+pub struct DmaRx<U> {
     usart: &'static pac::usart1::RegisterBlock,
+    /// The USART whose registers `usart` are.
+    _usart: PhantomData<U>,
     stream: RxStream,
     /// The circular buffer: written by the DMA only, read here only behind its write position.
     buf: *const u8,
@@ -98,25 +101,21 @@ pub struct DmaRx {
 
 // SAFETY: the buffer is only read, behind the DMA's write position, by the one handler that
 // owns this value (an RTIC resource moved into that handler); the registers are MMIO.
-unsafe impl Send for DmaRx {}
+unsafe impl<U> Send for DmaRx<U> {}
 
-impl DmaRx {
-    /// Starts circular DMA on `usart`'s receiver into `buf` (at most 65,535 bytes; the stream's
+impl<U: stm32f4xx_hal::Ptr<RB = pac::usart1::RegisterBlock>> DmaRx<U> {
+    /// Starts circular DMA on USART `U`'s receiver into `buf` (at most 65,535 bytes; the stream's
     /// half-transfer interrupt fires every `buf.len() / 2` bytes) and enables the IDLE interrupt
     /// in place of RXNE. Call after the UART is configured (baud, receiver on) and before its
     /// interrupt is unmasked.
     ///
     /// # Safety
-    /// `usart` is the register block of USART1, 2, 3 or 6 (`pac::USART2::ptr()`), whose receive
-    /// side no other code reads from here on; `stream` serves that USART's receive requests and
-    /// no other driver uses it; `buf` lies in memory the DMA controller reaches (SRAM, not CCM).
-    pub unsafe fn start(
-        usart: *const pac::usart1::RegisterBlock,
-        stream: RxStream,
-        buf: &'static mut [u8],
-    ) -> Self {
-        // SAFETY: the caller passes a USART's register block, which lives for the program.
-        let usart = unsafe { &*usart };
+    /// No other code reads `U`'s receive side from here on; `stream` serves that USART's
+    /// receive requests and no other driver uses it; `buf` lies in memory the DMA controller
+    /// reaches (SRAM, not CCM).
+    pub unsafe fn start(stream: RxStream, buf: &'static mut [u8]) -> Self {
+        // SAFETY: a USART's register block lives for the program.
+        let usart = unsafe { &*U::ptr() };
         let len = buf.len().min(usize::from(u16::MAX));
         // SAFETY: one read-modify-write of AHB1ENR (the DMA clock), before the stream runs.
         let rcc = unsafe { &*pac::RCC::ptr() };
@@ -158,6 +157,7 @@ impl DmaRx {
             .modify(|_, w| w.rxneie().clear_bit().idleie().set_bit());
         Self {
             usart,
+            _usart: PhantomData,
             stream,
             buf: buf.as_ptr(),
             len,
@@ -195,7 +195,7 @@ impl DmaRx {
     }
 }
 
-impl crate::uart_rx::Receiver for DmaRx {
+impl<U: stm32f4xx_hal::Ptr<RB = pac::usart1::RegisterBlock>> crate::uart_rx::Receiver for DmaRx<U> {
     /// [`DmaRx::drain`]: a DMA never pauses, so `flow` is not used.
     fn receive(
         &mut self,

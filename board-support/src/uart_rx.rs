@@ -73,6 +73,15 @@ pub trait Receiver {
     fn receive(&mut self, queue: &mut Producer<'static, u8>, flow: &RxFlow, lost: &AtomicU32);
 }
 
+/// A receiver the board may not have (an RC receiver port left unused): receives nothing.
+impl<R: Receiver> Receiver for Option<R> {
+    fn receive(&mut self, queue: &mut Producer<'static, u8>, flow: &RxFlow, lost: &AtomicU32) {
+        if let Some(rx) = self {
+            rx.receive(queue, flow, lost);
+        }
+    }
+}
+
 impl<U: serial::Instance> Receiver for serial::Rx<U> {
     /// [`drain`].
     fn receive(&mut self, queue: &mut Producer<'static, u8>, flow: &RxFlow, lost: &AtomicU32) {

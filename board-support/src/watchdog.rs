@@ -7,6 +7,19 @@
 //! end of that spread ([`Timeout::within_ms`]) and states its time at any LSI
 //! ([`Timeout::us_at`]), so a firmware can promise a bound at the slowest LSI and check its
 //! feeding period against the fastest.
+//!
+//! The boards' timeouts:
+//!
+//! | timeout | whose | fed by |
+//! |---|---|---|
+//! | [`HEARTBEAT_FED`], 2 s | the camera board (every flavour); the autopilot's lockstep flavours (`hil`, `qemu`) | the board's 1 Hz task |
+//! | `autopilot::board::WATCHDOG`, 50 ms with its guidance window at the slowest LSI | the autopilot's `real` flavour | the 512 Hz control loop, while its guidance task and heartbeat run |
+//! | [`SAVE`], 6 s | both boards, while a parameter save erases and programs flash | nobody (the core stalls) |
+//!
+//! The autopilot's real flavour needs the short one: a hung firmware must not keep the motors
+//! running (a drone falls 1.2 cm in 50 ms). The camera board drives no actuator, and in the
+//! lockstep flavours the world clock (and with it the autopilot's periodic tasks) may stall
+//! while the host computes, so a 1 Hz task on the board clock feeds those.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -76,6 +89,22 @@ impl Timeout {
         self.reload
     }
 }
+
+/// Timeout of a watchdog fed by a board's 1 Hz task, ms at the typical LSI.
+pub const HEARTBEAT_FED_MS: u32 = 2_000;
+/// [`HEARTBEAT_FED_MS`] at the typical LSI: 1.36 s at the fastest, still above the 1 s feeding
+/// period; 3.76 s at the slowest.
+pub const HEARTBEAT_FED: Timeout = Timeout::within_ms(HEARTBEAT_FED_MS, LSI_HZ_TYPICAL);
+
+/// Timeout while a parameter save erases and programs a flash sector, ms at the typical LSI.
+/// The core stalls for the whole erase (2 s at most for a 128 KiB sector at x32, DS8626 /
+/// DS8597), so no task feeds the watchdog meanwhile; 6 s at the LSI's nominal 32 kHz is 4 s at
+/// its fastest 47 kHz, still twice the erase. Each board saves only on the ground (the
+/// autopilot with its motors off; it passes a save on to the camera board only then) and gives
+/// its own timeout back after the save (`param_flash::WatchedSector`).
+pub const SAVE_MS: u32 = 6_000;
+/// [`SAVE_MS`] at the typical LSI.
+pub const SAVE: Timeout = Timeout::within_ms(SAVE_MS, LSI_HZ_TYPICAL);
 
 /// When a task last ran, on the board's microsecond clock (32 bits, wrapping: only ages much
 /// shorter than 2^31 µs are compared). Written by the task, read by the watchdog's feeder at
@@ -171,6 +200,16 @@ mod tests {
         let t = Timeout::within_ms(2_000, LSI_HZ_TYPICAL);
         assert_eq!((t.prescaler_bits(), t.reload_bits()), (2, 3_999));
         assert_eq!(t.us_at(LSI_HZ_TYPICAL), 2_000_000);
+    }
+
+    #[test]
+    fn the_heartbeat_and_save_timeouts_outlast_their_feeding_and_the_erase_at_every_lsi() {
+        // The HAL's 2 s and 6 s at 32 kHz (its prescaler /256, reloads 249 and 749): the same
+        // LSI cycles.
+        assert_eq!(HEARTBEAT_FED.lsi_cycles(), 250 * 256);
+        assert_eq!(SAVE.lsi_cycles(), 750 * 256);
+        assert!(HEARTBEAT_FED.us_at(LSI_HZ_FASTEST) > 1_000_000);
+        assert!(SAVE.us_at(LSI_HZ_FASTEST) >= 2 * 2_000_000);
     }
 
     #[test]

@@ -17,116 +17,8 @@
 //! * [`CAMERA_STOPPED_FRAMES`]: how many frame periods without a VSYNC make the camera stopped.
 //! * [`LINK_BAUD`]: 115,200 Bd as the original harness; one setting both boards share.
 
-/// A GPIO port of the STM32F407.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Port {
-    /// GPIOA.
-    A,
-    /// GPIOB.
-    B,
-    /// GPIOC.
-    C,
-    /// GPIOD.
-    D,
-    /// GPIOE.
-    E,
-}
-
-impl Port {
-    /// Index of the port (A = 0): its GPIO block sits at `0x4002_0000 + 0x400 * index` and its
-    /// clock-enable bit in RCC_AHB1ENR is bit `index`.
-    pub const fn index(self) -> u8 {
-        match self {
-            Port::A => 0,
-            Port::B => 1,
-            Port::C => 2,
-            Port::D => 3,
-            Port::E => 4,
-        }
-    }
-
-    /// The port letter.
-    pub const fn letter(self) -> char {
-        match self {
-            Port::A => 'A',
-            Port::B => 'B',
-            Port::C => 'C',
-            Port::D => 'D',
-            Port::E => 'E',
-        }
-    }
-}
-
-/// One pin: port and number 0..=15.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Pin {
-    /// Port.
-    pub port: Port,
-    /// Pin number, 0..=15.
-    pub number: u8,
-}
-
-/// What a pin is set to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Function {
-    /// Alternate function `af` (0..=15, RM0090 / datasheet alternate-function table).
-    Alternate(u8),
-    /// General-purpose output, driven to `high` before the pin is switched to output.
-    Output {
-        /// Level at start-up.
-        high: bool,
-    },
-}
-
-/// Output driver of a pin.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Drive {
-    /// Push-pull.
-    PushPull,
-    /// Open drain (external pull-up).
-    OpenDrain,
-}
-
-/// Internal pull resistor of a pin.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Pull {
-    /// None.
-    None,
-    /// Pull-up.
-    Up,
-}
-
-/// Output speed (slew rate) of a pin, as the GPIOx_OSPEEDR codes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Speed {
-    /// 2 MHz (code 0).
-    Low,
-    /// 100 MHz (code 3).
-    VeryHigh,
-}
-
-/// One row of the wiring table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct PinAssignment {
-    /// The signal on the pin.
-    pub signal: &'static str,
-    /// The pin.
-    pub pin: Pin,
-    /// Mode and alternate function.
-    pub function: Function,
-    /// Output driver.
-    pub drive: Drive,
-    /// Pull resistor.
-    pub pull: Pull,
-    /// Output speed.
-    pub speed: Speed,
-    /// Where the fact comes from.
-    pub source: &'static str,
-}
-
-const fn pin(port: Port, number: u8) -> Pin {
-    Pin { port, number }
-}
+use board_support::pins::pin;
+pub use board_support::pins::{Drive, Function, Pin, PinAssignment, Port, Pull, Speed};
 
 /// Alternate function of the DCMI pins.
 pub const AF_DCMI: u8 = 13;
@@ -144,9 +36,9 @@ const fn dcmi(signal: &'static str, pin: Pin) -> PinAssignment {
         signal,
         pin,
         function: Function::Alternate(AF_DCMI),
-        drive: Drive::PushPull,
+        drive: Some(Drive::PushPull),
         pull: Pull::Up,
-        speed: Speed::VeryHigh,
+        speed: Some(Speed::VeryHigh),
         source: "[SB] dcmi.c:187-199 (AF13, 100 MHz, pull-up)",
     }
 }
@@ -161,9 +53,9 @@ const fn gpio_out(
         signal,
         pin,
         function: Function::Output { high },
-        drive: Drive::PushPull,
+        drive: Some(Drive::PushPull),
         pull: Pull::None,
-        speed: Speed::Low,
+        speed: Some(Speed::Low),
         source,
     }
 }
@@ -191,9 +83,9 @@ pub const CAMERA_CLOCK_PIN: PinAssignment = PinAssignment {
     signal: "CAM_XCLK (TIM3_CH2)",
     pin: pin(Port::A, 7),
     function: Function::Alternate(AF_TIM3),
-    drive: Drive::PushPull,
+    drive: Some(Drive::PushPull),
     pull: Pull::None,
-    speed: Speed::VeryHigh,
+    speed: Some(Speed::VeryHigh),
     source: "[SB] dcmi.c:116-177",
 };
 
@@ -221,9 +113,9 @@ const fn sccb(signal: &'static str, pin: Pin) -> PinAssignment {
         function: Function::Alternate(AF_I2C2),
         // Open drain, no internal pull: the bus has 2.8 V pull-ups; driving it to 3.3 V would
         // harm the sensors.
-        drive: Drive::OpenDrain,
+        drive: Some(Drive::OpenDrain),
         pull: Pull::None,
-        speed: Speed::Low,
+        speed: Some(Speed::Low),
         source: "[SB] tcm8230.c:54-85",
     }
 }
@@ -240,9 +132,9 @@ const fn uart(signal: &'static str, pin: Pin, af: u8, source: &'static str) -> P
         signal,
         pin,
         function: Function::Alternate(af),
-        drive: Drive::PushPull,
+        drive: Some(Drive::PushPull),
         pull: Pull::Up,
-        speed: Speed::Low,
+        speed: Some(Speed::Low),
         source,
     }
 }

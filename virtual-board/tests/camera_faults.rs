@@ -26,7 +26,7 @@ const FAULT_AT: u64 = 2_030 * MS;
 const HOVER_M: f64 = 0.5;
 /// The camera board's DCMI registers (RM0090 table 1).
 const DCMI: (u64, u64) = (0x5005_0000, 0x5005_0400);
-/// The camera board's independent-watchdog period, ms (board_support::clocks::WATCHDOG_MS:
+/// The camera board's independent-watchdog period, ms (board_support::watchdog::HEARTBEAT_FED_MS:
 /// fed by its 1 Hz task).
 const WATCHDOG_MS: u64 = 2_000;
 /// One largest camera-board message on the wire, ns (10 bits a byte at the link's baud): what

@@ -1,6 +1,6 @@
 //! The board's microsecond clock: the RTIC SysTick monotonic refined with the SysTick
 //! down-counter (shared with the other board in `board_support::clock`). The time the library
-//! sees is the flavour's (`flavour::lib_now_us`).
+//! sees is the flavour's (`board_support::flavour::Flavour::lib_now_us`).
 
 use super::Mono;
 use rtic_monotonics::Timebase as _;

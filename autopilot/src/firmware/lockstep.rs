@@ -3,11 +3,11 @@
 //!
 //! * IMU samples arrive over the host link; each one runs the control loop at its world time
 //!   ([`host_imu`]), and the motor command goes back over the link as well as to the PWM.
-//! * The library clock is the world time of those samples ([`lib_now_us`]); the loop releases
+//! * The library clock is the world time of those samples ([`Current`]); the loop releases
 //!   the periodic tasks when the world clock passes their periods ([`Releases`]).
 //! * The board's own IMU and barometer are not read, and the RC receiver is not listened to.
 //! * The world clock may stall while the host computes, so the 1 Hz heartbeat (board clock)
-//!   feeds a 2 s watchdog.
+//!   feeds the watchdog ([`board_support::watchdog::HEARTBEAT_FED`], 2 s).
 //! * The PWM outputs stay at 0 unless the host enabled them
 //!   ([`protocol::PilotCommand::HilOutputs`], see [`autopilot::app::Autopilot::hil_outputs`]),
 //!   and go to 0 when no host sample arrived for [`SAMPLES_TIMEOUT_US`] of board time
@@ -19,8 +19,21 @@ use core::sync::atomic::AtomicU32;
 use cortex_m::interrupt::Mutex;
 use protocol::ImuSample;
 
-/// The host sends the sensor data; the board's own sensors stay unused.
-pub const OWN_SENSORS: bool = false;
+/// The flavour's side of the contract both boards' flavour modules fulfil.
+pub struct Current;
+
+impl board_support::flavour::Flavour for Current {
+    /// The host sends the sensor data; the board's own sensors stay unused.
+    const OWN_SENSORS: bool = false;
+    /// The heartbeat-fed timeout both boards share.
+    const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::HEARTBEAT_FED;
+
+    /// The host's world time, as its IMU samples carry it.
+    fn lib_now_us() -> u64 {
+        cortex_m::interrupt::free(|cs| WORLD_US.borrow(cs).get())
+    }
+}
+
 /// The heartbeat feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
 pub const FEED_WATCHDOG_IN_LOOP: bool = false;
 /// Motor commands also go to the host (the simulated drone flies on them).
@@ -61,11 +74,6 @@ pub fn host_imu(world: &mut autopilot::lockstep::WorldClock, sample: &ImuSample)
 pub fn outputs_live(enabled: bool, board_now_us: u64) -> bool {
     let last = cortex_m::interrupt::free(|cs| LAST_SAMPLE_BOARD_US.borrow(cs).get());
     enabled && last.is_some_and(|t| board_now_us.saturating_sub(t) <= SAMPLES_TIMEOUT_US)
-}
-
-/// The time the flight library sees, µs: the host's world time.
-pub fn lib_now_us() -> u64 {
-    cortex_m::interrupt::free(|cs| WORLD_US.borrow(cs).get())
 }
 
 /// Release of one periodic task: world times sent by the control loop.

@@ -4,11 +4,12 @@
 //! tasks mirror `autopilot::tasks::TASKS` (same names and relative priorities) and each body is
 //! one call into the library. What differs between flavours is in one module each: [`real`]
 //! (own sensors, board clock) and [`lockstep`] (`hil`, `qemu`: the host's IMU samples and world
-//! time), selected as `flavour`.
+//! time), selected as `flavour`; each fulfils the contract both boards share
+//! ([`board_support::flavour::Flavour`]), as the camera board's do.
 //!
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
-//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]) |
+//! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]); one [`board_support::uart_link`] each |
 //! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour) | half/full buffer: pends `telemetry_uart` |
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors; feeds the watchdog while `guidance` and `heartbeat` run |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors (only once the host enabled them), releases the periodic tasks |
@@ -32,7 +33,7 @@
 //! or it is bad (logged, and answered to `ParamOp::Storage`). A save (`ParamOp::Save`, only
 //! with the motors off) erases and programs the sector in `host_rx` with the `ap` lock held:
 //! the core stalls for the erase anyway (a second or two), so the watchdog is given
-//! `board_support::param_flash::SAVE_WATCHDOG_MS` for it. A link key provisioned over the
+//! [`board_support::watchdog::SAVE`] for it ([`board_support::param_flash::WatchedSector`]). A link key provisioned over the
 //! link is written the same way at once, beside the saved parameters
 //! (`Autopilot::save_link_key`), and every save carries it; the boot loads it with the
 //! parameters. The `qemu` flavour has no parameter storage.
@@ -57,7 +58,6 @@ mod sensors;
 
 use autopilot::app::Autopilot;
 use autopilot::board::hw;
-use board_support::uart_rx::RxFlow;
 use core::mem::MaybeUninit;
 use core::sync::atomic::AtomicU32;
 use defmt_rtt as _;
@@ -93,47 +93,6 @@ static GUIDANCE_ALIVE: board_support::watchdog::Liveness = board_support::watchd
 static HEARTBEAT_ALIVE: board_support::watchdog::Liveness =
     board_support::watchdog::Liveness::new();
 
-/// The telemetry port's receiver: its RXNE interrupt, or in the `hil` flavour a circular DMA
-/// (921,600 Bd: a byte lasts less than logging holds the interrupts off, see
-/// [`board_support::uart_dma`]).
-#[cfg(not(all(feature = "hil", not(feature = "qemu"))))]
-type HostRx = stm32f4xx_hal::serial::Rx<hw::TelemetryUart>;
-/// The telemetry port's receiver (see the other flavours').
-#[cfg(all(feature = "hil", not(feature = "qemu")))]
-type HostRx = board_support::uart_dma::DmaRx;
-
-/// Takes over the telemetry port's receive side: its RXNE interrupt on.
-#[cfg(not(all(feature = "hil", not(feature = "qemu"))))]
-fn host_receiver(mut rx: stm32f4xx_hal::serial::Rx<hw::TelemetryUart>) -> HostRx {
-    use stm32f4xx_hal::serial::RxListen as _;
-    rx.listen();
-    rx
-}
-
-/// Takes over the telemetry port's receive side (the HAL's `rx`, consumed): circular DMA into
-/// a buffer in SRAM.
-#[cfg(all(feature = "hil", not(feature = "qemu")))]
-fn host_receiver(_rx: stm32f4xx_hal::serial::Rx<hw::TelemetryUart>) -> HostRx {
-    let buf = cortex_m::singleton!(: [u8; 1024] = [0; 1024])
-        .unwrap_or_else(|| panic!("the telemetry port's DMA buffer is taken once"));
-    // SAFETY: USART1's receive side is handed over here (its HAL `Rx` is consumed); DMA2
-    // stream 2 serves only it; the buffer is a static in SRAM, which DMA2 reaches.
-    unsafe {
-        board_support::uart_dma::DmaRx::start(
-            stm32f4xx_hal::pac::USART1::ptr(),
-            hw::TELEMETRY_RX_DMA,
-            buf,
-        )
-    }
-}
-
-/// Back-pressure of the camera link's receive interrupt.
-static LINK_FLOW: RxFlow = RxFlow::new(hw::LINK_IRQ);
-/// Back-pressure of the telemetry port's receive interrupt.
-static HOST_FLOW: RxFlow = RxFlow::new(hw::TELEMETRY_IRQ);
-/// Back-pressure of the RC receiver's interrupt.
-static RC_FLOW: RxFlow = RxFlow::new(hw::RC_IRQ);
-
 /// Encodes one message (outside any lock) and queues it on a UART's transmit queue: the lock
 /// is held for the copy only, a full queue drops the frame and counts it.
 fn send<M: protocol::Message, const N: usize>(
@@ -163,11 +122,11 @@ const fn ticks(period_us: u32) -> u32 {
     dispatchers = [SPI3, UART4, TIM8_UP_TIM13, TIM8_BRK_TIM12, TIM8_TRG_COM_TIM14]
 )]
 mod app {
-    use super::flavour::{self, Releases, Tick};
+    use super::flavour::{self, Current as Flavour, Releases, Tick};
     use super::sensors::SensorBus;
-    use super::{clock, send, ticks, HostRx, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
-    use super::{GUIDANCE_ALIVE, HEARTBEAT_ALIVE, RC_FLOW, RX_LOST};
-    use super::{HOST_FLOW, IMU_INVALID, IMU_RECONFIGURED, LINK_FLOW, LOOP_JITTER_MAX_US};
+    use super::{clock, send, ticks, Mono, AP, RC_QUEUE, RX_QUEUE, TX_QUEUE};
+    use super::{GUIDANCE_ALIVE, HEARTBEAT_ALIVE, RX_LOST};
+    use super::{IMU_INVALID, IMU_RECONFIGURED, LOOP_JITTER_MAX_US};
     use autopilot::app::Autopilot;
     use autopilot::board::{self, hw};
     use autopilot::mpu6000::{Reconfigure, SampleCheck};
@@ -175,19 +134,18 @@ mod app {
     use autopilot::tasks::HEARTBEAT_PERIOD_US;
     use autopilot::AutopilotConfig;
     use autopilot::HostOutcome;
+    use board_support::flavour::{host_receiver, Flavour as _, HostRx, PARAM_STORAGE};
     use board_support::log;
-    use board_support::param_flash::{set_watchdog, FlashError, ParamSector, SAVE_WATCHDOG_MS};
-    use board_support::uart_rx::RxFlow;
-    use board_support::uart_tx::{TxPump, TxQueue, TxWriter};
+    use board_support::param_flash::{FlashError, ParamSector, WatchedSector};
+    use board_support::uart_link::{LinkInterrupt, LinkReader, ReceiveLink, RxInterrupt, UartLink};
+    use board_support::uart_tx::TxWriter;
+    use board_support::watchdog::Timeout;
     use core::sync::atomic::Ordering;
-    use heapless::spsc::{Consumer, Producer, Queue};
-    use protocol::params::RecordStore;
     use protocol::{
         AutopilotToStereo, BoardToHost, HostToBoard, HostToBoardDecoder, ImuSample, Message as _,
         Node, ParamOp, ParamReply,
     };
     use rtic_monotonics::Timebase as _;
-    use rtic_sync::channel::{Receiver, Sender};
     use stm32f4xx_hal::{prelude::*, serial::Rx, timer::CounterHz, watchdog::IndependentWatchdog};
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
@@ -212,27 +170,19 @@ mod app {
     #[local]
     struct Local {
         led: hw::Led,
-        link_rx: Rx<hw::LinkUart>,
-        link_pump: TxPump<hw::LinkUart>,
-        link_in: Producer<'static, u8>,
-        link_out: Consumer<'static, u8>,
-        link_wake_tx: Sender<'static, (), 1>,
-        link_wake_rx: Receiver<'static, (), 1>,
-        host_rx: HostRx,
-        host_pump: TxPump<hw::TelemetryUart>,
-        host_in: Producer<'static, u8>,
-        host_out: Consumer<'static, u8>,
-        host_wake_tx: Sender<'static, (), 1>,
-        host_wake_rx: Receiver<'static, (), 1>,
+        /// The camera-board link's interrupt end and its decoding task's.
+        link: LinkInterrupt<hw::LinkUart, Rx<hw::LinkUart>>,
+        link_reader: LinkReader,
+        /// The telemetry port's interrupt end and its decoding task's.
+        host: LinkInterrupt<hw::TelemetryUart, HostRx<hw::TelemetryUart>>,
+        host_reader: LinkReader,
         host_decoder: HostToBoardDecoder,
         /// The parameter sector (`None` in the `qemu` flavour).
         param_sector: Option<ParamSector>,
-        /// The RC receiver's UART (`None` without `board::RC_RECEIVER`).
-        rc_uart: Option<Rx<hw::RcUart>>,
-        rc_in: Producer<'static, u8>,
-        rc_out: Consumer<'static, u8>,
-        rc_wake_tx: Sender<'static, (), 1>,
-        rc_wake_rx: Receiver<'static, (), 1>,
+        /// The RC receiver's interrupt end (its UART `None` without `board::RC_RECEIVER`) and
+        /// its decoding task's.
+        rc_link: RxInterrupt<Option<Rx<hw::RcUart>>>,
+        rc_reader: LinkReader,
         loop_timer: CounterHz<hw::LoopTimer>,
         imu_check: SampleCheck,
         guidance_tick: Tick,
@@ -245,11 +195,9 @@ mod app {
     }
 
     #[init(local = [
-        link_q: Queue<u8, RX_QUEUE> = Queue::new(),
-        host_q: Queue<u8, RX_QUEUE> = Queue::new(),
-        rc_q: Queue<u8, RC_QUEUE> = Queue::new(),
-        link_txq: TxQueue<TX_QUEUE> = TxQueue::new(),
-        host_txq: TxQueue<TX_QUEUE> = TxQueue::new(),
+        link_store: UartLink<RX_QUEUE, TX_QUEUE> = UartLink::new(),
+        host_store: UartLink<RX_QUEUE, TX_QUEUE> = UartLink::new(),
+        rc_store: ReceiveLink<RC_QUEUE> = ReceiveLink::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         // First: the status line's `stack_free` is the headroom left from here on.
@@ -259,7 +207,7 @@ mod app {
         Mono::start(cx.core.SYST, board_support::clocks::SYSTICK_HZ);
 
         // The saved parameters, or the defaults and why (QEMU models no flash interface).
-        let param_sector = (!cfg!(feature = "qemu")).then(|| ParamSector::new(b.flash));
+        let param_sector = PARAM_STORAGE.then(|| ParamSector::new(b.flash));
         let autopilot = match &param_sector {
             Some(sector) => {
                 let (autopilot, loaded) = Autopilot::from_store(sector);
@@ -281,20 +229,12 @@ mod app {
 
         let (link_tx, mut link_rx) = b.link.split();
         link_rx.listen();
-        let (link_tx, link_pump) = cx.local.link_txq.split(link_tx, hw::LINK_IRQ);
         let (host_tx, mut host_rx) = b.telemetry.split();
-        let (host_tx, host_pump) = cx.local.host_txq.split(host_tx, hw::TELEMETRY_IRQ);
-        let (link_in, link_out) = cx.local.link_q.split();
-        let (host_in, host_out) = cx.local.host_q.split();
-        let (rc_in, rc_out) = cx.local.rc_q.split();
-        let (link_wake_tx, link_wake_rx) = rtic_sync::make_channel!((), 1);
-        let (host_wake_tx, host_wake_rx) = rtic_sync::make_channel!((), 1);
-        let (rc_wake_tx, rc_wake_rx) = rtic_sync::make_channel!((), 1);
 
         let mut rc_uart = b.rc;
         let mut loop_timer = b.loop_timer;
         let sysclk = b.rcc.clocks.sysclk().raw();
-        let sensors = if flavour::OWN_SENSORS {
+        let sensors = if Flavour::OWN_SENSORS {
             let mut bus = SensorBus::new(b.spi, b.imu_cs, b.baro_cs);
             match bus.imu_init(|ms| cortex_m::asm::delay(ms.saturating_mul(sysclk / 1_000))) {
                 Ok(autopilot::mpu6000::WHO_AM_I_VALUE) => log::info!("MPU-6000 configured"),
@@ -313,10 +253,10 @@ mod app {
             None
         };
         let (guidance_tick, gyro_tick, telemetry_tick, releases) = Releases::new();
-        let battery = flavour::OWN_SENSORS.then(|| hw::BatteryInput::new(b.battery, &mut b.rcc));
+        let battery = Flavour::OWN_SENSORS.then(|| hw::BatteryInput::new(b.battery, &mut b.rcc));
 
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
-        board_support::watchdog::set(&mut iwdg, board::WATCHDOG);
+        board_support::watchdog::set(&mut iwdg, Flavour::WATCHDOG);
         let started = clock::now_us();
         GUIDANCE_ALIVE.ran(started);
         HEARTBEAT_ALIVE.ran(started);
@@ -328,7 +268,16 @@ mod app {
             + rc_uart
                 .as_mut()
                 .map_or(0, board_support::uart_rx::discard_pending);
-        let host_rx = super::host_receiver(host_rx);
+        let host_rx = host_receiver(host_rx, hw::TELEMETRY_RX_DMA);
+        let (link_tx, link, link_reader) =
+            cx.local
+                .link_store
+                .split(hw::LINK_IRQ, link_tx, link_rx, &RX_LOST);
+        let (host_tx, host, host_reader) =
+            cx.local
+                .host_store
+                .split(hw::TELEMETRY_IRQ, host_tx, host_rx, &RX_LOST);
+        let (rc_link, rc_reader) = cx.local.rc_store.split(hw::RC_IRQ, rc_uart, &RX_LOST);
         log::info!(
             "autopilot up, sysclk {} Hz, reset cause {}, {} bytes received before the UARTs were served",
             sysclk,
@@ -360,25 +309,14 @@ mod app {
             },
             Local {
                 led: b.led,
-                link_rx,
-                link_pump,
-                link_in,
-                link_out,
-                link_wake_tx,
-                link_wake_rx,
-                host_rx,
-                host_pump,
-                host_in,
-                host_out,
-                host_wake_tx,
-                host_wake_rx,
+                link,
+                link_reader,
+                host,
+                host_reader,
                 host_decoder: HostToBoardDecoder::new_mid_stream(),
                 param_sector,
-                rc_uart,
-                rc_in,
-                rc_out,
-                rc_wake_tx,
-                rc_wake_rx,
+                rc_link,
+                rc_reader,
                 loop_timer,
                 imu_check: SampleCheck::new(board::IMU_AXES, board::Mounting::default()),
                 guidance_tick,
@@ -402,40 +340,16 @@ mod app {
         }
     }
 
-    /// Moves the received bytes of a UART into its queue (pausing the interrupt at a full
-    /// queue) and wakes the decoding task.
-    fn drain_uart(
-        rx: &mut impl board_support::uart_rx::Receiver,
-        queue: &mut Producer<'static, u8>,
-        flow: &RxFlow,
-        wake: &mut Sender<'static, (), 1>,
-    ) {
-        rx.receive(queue, flow, &RX_LOST);
-        let _ = wake.try_send(());
-    }
-
     /// USART2, the camera-board link: transmit queued frames, receive bytes.
-    #[task(binds = USART2, priority = 6, local = [link_rx, link_in, link_wake_tx, link_pump])]
+    #[task(binds = USART2, priority = 6, local = [link])]
     fn link_uart(cx: link_uart::Context) {
-        cx.local.link_pump.pump();
-        drain_uart(
-            cx.local.link_rx,
-            cx.local.link_in,
-            &LINK_FLOW,
-            cx.local.link_wake_tx,
-        );
+        cx.local.link.serve();
     }
 
     /// USART1, the telemetry port: transmit queued frames, receive bytes.
-    #[task(binds = USART1, priority = 6, local = [host_rx, host_in, host_wake_tx, host_pump])]
+    #[task(binds = USART1, priority = 6, local = [host])]
     fn telemetry_uart(cx: telemetry_uart::Context) {
-        cx.local.host_pump.pump();
-        drain_uart(
-            cx.local.host_rx,
-            cx.local.host_in,
-            &HOST_FLOW,
-            cx.local.host_wake_tx,
-        );
+        cx.local.host.serve();
     }
 
     /// DMA2 stream 2 (`hil` flavour): the telemetry port's receive buffer is half or wholly
@@ -449,27 +363,24 @@ mod app {
 
     /// UART5, the RC receiver (real flavour with `board::RC_RECEIVER` only; otherwise its
     /// interrupt is never enabled).
-    #[task(binds = UART5, priority = 6, local = [rc_uart, rc_in, rc_wake_tx])]
+    #[task(binds = UART5, priority = 6, local = [rc_link])]
     fn rc_uart(cx: rc_uart::Context) {
-        if let Some(rc) = cx.local.rc_uart.as_mut() {
-            drain_uart(rc, cx.local.rc_in, &RC_FLOW, cx.local.rc_wake_tx);
-        }
+        cx.local.rc_link.serve();
     }
 
     /// RC: SBUS frames to pilot commands and the RC kill latch; also wakes every 20 ms so that
     /// a receiver gone silent kills the motors (see [`autopilot::rc`]).
     #[task(priority = 4, shared = [ap], local = [
-        rc_out,
-        rc_wake_rx,
+        rc_reader,
         sbus: autopilot::rc::SbusDecoder = autopilot::rc::SbusDecoder::new(),
         rc: autopilot::rc::RcCommands = autopilot::rc::RcCommands::new(autopilot::rc::RcConfig::DEFAULT),
     ])]
     async fn rc_rx(mut cx: rc_rx::Context) {
         loop {
-            let _ = Mono::timeout_after(Duration::from_ticks(20), cx.local.rc_wake_rx.recv()).await;
+            let _ = Mono::timeout_after(Duration::from_ticks(20), cx.local.rc_reader.woken()).await;
             let mut buf = [0u8; 32];
             loop {
-                let n = RC_FLOW.take(cx.local.rc_out, &mut buf);
+                let n = cx.local.rc_reader.take(&mut buf);
                 if n == 0 {
                     break;
                 }
@@ -632,16 +543,16 @@ mod app {
 
     /// Camera-board bytes: estimates, status, heartbeats, config acks; a parameter answer is
     /// passed on to the host.
-    #[task(priority = 4, shared = [ap, stereo_msgs, host_tx], local = [link_out, link_wake_rx])]
+    #[task(priority = 4, shared = [ap, stereo_msgs, host_tx], local = [link_reader])]
     async fn stereo_rx(mut cx: stereo_rx::Context) {
         let mut buf = [0u8; 64];
-        while cx.local.link_wake_rx.recv().await.is_ok() {
+        while cx.local.link_reader.woken().await {
             loop {
-                let n = LINK_FLOW.take(cx.local.link_out, &mut buf);
+                let n = cx.local.link_reader.take(&mut buf);
                 if n == 0 {
                     break;
                 }
-                let now = flavour::lib_now_us();
+                let now = Flavour::lib_now_us();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 let (decoded, answer) = cx
                     .shared
@@ -660,12 +571,12 @@ mod app {
     /// Host bytes: external position (motion capture), pilot commands, parameter requests
     /// (answered on the telemetry port), and IMU samples (only the lockstep flavours take them;
     /// the real flavour refuses and counts them).
-    #[task(priority = 4, shared = [ap, host_tx, link_tx, iwdg], local = [host_out, host_wake_rx, host_decoder, world, param_sector])]
+    #[task(priority = 4, shared = [ap, host_tx, link_tx, iwdg], local = [host_reader, host_decoder, world, param_sector])]
     async fn host_rx(mut cx: host_rx::Context) {
         let mut buf = [0u8; 64];
-        while cx.local.host_wake_rx.recv().await.is_ok() {
+        while cx.local.host_reader.woken().await {
             loop {
-                let n = HOST_FLOW.take(cx.local.host_out, &mut buf);
+                let n = cx.local.host_reader.take(&mut buf);
                 if n == 0 {
                     break;
                 }
@@ -673,34 +584,36 @@ mod app {
                     let Some(msg) = cx.local.host_decoder.push(byte) else {
                         continue;
                     };
-                    let now = flavour::lib_now_us();
-                    let sector = cx.local.param_sector.as_mut();
-                    // A save of this board's table (the camera board's is passed on).
-                    let saving = sector.is_some()
+                    let now = Flavour::lib_now_us();
+                    // A save of this board's table (the camera board's is passed on): logged.
+                    let saving = cx.local.param_sector.is_some()
                         && matches!(&msg, HostToBoard::Param(r)
                             if r.op == ParamOp::Save && r.board == Node::Autopilot);
-                    if saving {
-                        cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
-                    }
                     let started_us = clock::now_us();
+                    let iwdg = &mut cx.shared.iwdg;
                     let (outcome, new_key) = cx.shared.ap.lock(|ap| {
-                        let store = sector.map(|s| s as &mut dyn RecordStore);
-                        let outcome = ap.on_host_message(msg, now, store);
+                        let outcome = match cx.local.param_sector.as_mut() {
+                            Some(sector) => {
+                                let mut store =
+                                    WatchedSector::new(sector, Flavour::WATCHDOG, |t| {
+                                        program_watchdog(iwdg, t)
+                                    });
+                                ap.on_host_message(msg, now, Some(&mut store))
+                            }
+                            None => ap.on_host_message(msg, now, None),
+                        };
                         (outcome, ap.take_link_key_to_store().is_some())
                     });
                     if new_key {
                         // Into the parameter sector at once, beside the saved parameters
                         // (the motors are off: a key is only taken then).
                         let started_us = clock::now_us();
-                        let saved = match cx.local.param_sector.as_mut() {
-                            Some(sector) => {
-                                cx.shared.iwdg.lock(|w| set_watchdog(w, SAVE_WATCHDOG_MS));
-                                let saved = cx.shared.ap.lock(|ap| ap.save_link_key(sector));
-                                resume_after_flash(&mut cx.shared.iwdg);
-                                Some(saved)
-                            }
-                            None => None,
-                        };
+                        let saved = cx.local.param_sector.as_mut().map(|sector| {
+                            let mut store = WatchedSector::new(sector, Flavour::WATCHDOG, |t| {
+                                program_watchdog(&mut cx.shared.iwdg, t)
+                            });
+                            cx.shared.ap.lock(|ap| ap.save_link_key(&mut store))
+                        });
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
                         match saved {
                             Some(Ok(())) => {
@@ -714,7 +627,6 @@ mod app {
                         }
                     }
                     if saving {
-                        resume_after_flash(&mut cx.shared.iwdg);
                         let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
                         let error = cx.local.param_sector.as_ref().and_then(|s| s.last_error());
                         log_save(&outcome, error, ms);
@@ -736,13 +648,16 @@ mod app {
         }
     }
 
-    /// Back from a flash write that held every task (a save, a key): the loop-fed watchdog's
-    /// own timeout again, and its fed tasks counted alive from here.
-    fn resume_after_flash(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>) {
-        iwdg.lock(|w| board_support::watchdog::set(w, board::WATCHDOG));
-        let now = clock::now_us();
-        GUIDANCE_ALIVE.ran(now);
-        HEARTBEAT_ALIVE.ran(now);
+    /// Programs the watchdog for a flash write ([`WatchedSector`]): the save's timeout before
+    /// it; after it the board's own again, and the tasks its feeder watches counted alive from
+    /// here (the write held every task).
+    fn program_watchdog(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>, timeout: Timeout) {
+        iwdg.lock(|w| board_support::watchdog::set(w, timeout));
+        if timeout != board_support::watchdog::SAVE {
+            let now = clock::now_us();
+            GUIDANCE_ALIVE.ran(now);
+            HEARTBEAT_ALIVE.ran(now);
+        }
     }
 
     /// The log line of a save: done, or why not, and how long the flash held it.
@@ -860,7 +775,7 @@ mod app {
             // A result of 0 is a conversion the chip did not finish (or a read too early).
             if d[0] != 0 && d[1] != 0 {
                 let reading = cal.compensate(d[0], d[1]);
-                let now = flavour::lib_now_us();
+                let now = Flavour::lib_now_us();
                 cx.shared.ap.lock(|ap| ap.on_baro(&reading, now));
             }
         }

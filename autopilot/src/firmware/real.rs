@@ -14,8 +14,21 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use protocol::ImuSample;
 use rtic_monotonics::Timebase as _;
 
-/// The board reads its own IMU and barometer and listens to its RC receiver.
-pub const OWN_SENSORS: bool = true;
+/// The flavour's side of the contract both boards' flavour modules fulfil.
+pub struct Current;
+
+impl board_support::flavour::Flavour for Current {
+    /// The board reads its own IMU and barometer and listens to its RC receiver.
+    const OWN_SENSORS: bool = true;
+    /// The loop-fed timeout of the board's 50 ms bound.
+    const WATCHDOG: board_support::watchdog::Timeout = autopilot::board::WATCHDOG;
+
+    /// The board clock.
+    fn lib_now_us() -> u64 {
+        clock::now_us()
+    }
+}
+
 /// The control loop feeds the watchdog (see [`autopilot::board::WATCHDOG_MS`]).
 pub const FEED_WATCHDOG_IN_LOOP: bool = true;
 /// Motor commands go to the PWM outputs only.
@@ -38,11 +51,6 @@ pub const OUTPUTS_CHECK_US: u32 = 0;
 /// [`protocol::PilotCommand::HilOutputs`] gates only the lockstep flavours).
 pub fn outputs_live(_enabled: bool, _board_now_us: u64) -> bool {
     true
-}
-
-/// The time the flight library sees, µs: the board clock.
-pub fn lib_now_us() -> u64 {
-    clock::now_us()
 }
 
 /// Release of one periodic task: a SysTick period.

@@ -7,7 +7,7 @@
 //! output, and an alternate function is selected before the pin leaves input mode, so no pin
 //! glitches.
 
-use stereo_board::board::{Drive, Function, PinAssignment, Pull, Speed, PINS};
+use stereo_board::board::{Drive, Function, PinAssignment, Pull, Speed};
 use stm32f4xx_hal::pac;
 
 const GPIO_BASE: usize = 0x4002_0000;
@@ -44,12 +44,18 @@ fn apply(a: &PinAssignment) {
     // SAFETY: called from `init` only (interrupts off), on the pins of the board table, which
     // no HAL driver owns.
     unsafe {
-        set_field(port, OTYPER, n, 1, u32::from(a.drive == Drive::OpenDrain));
-        let speed = match a.speed {
-            Speed::Low => 0,
-            Speed::VeryHigh => 3,
-        };
-        set_field(port, OSPEEDR, n, 2, speed);
+        // A row without an output stage leaves OTYPER and OSPEEDR as they are (every row of
+        // this board's tables states both).
+        if let Some(drive) = a.drive {
+            set_field(port, OTYPER, n, 1, u32::from(drive == Drive::OpenDrain));
+        }
+        if let Some(speed) = a.speed {
+            let code = match speed {
+                Speed::Low => 0,
+                Speed::VeryHigh => 3,
+            };
+            set_field(port, OSPEEDR, n, 2, code);
+        }
         let pull = match a.pull {
             Pull::None => 0,
             Pull::Up => 1,
@@ -90,14 +96,7 @@ pub fn configure(pins: &[PinAssignment]) {
     }
 }
 
-/// Configures every pin of the board table, in its order.
-#[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
-pub fn configure_all() {
-    configure(&PINS);
-}
-
 /// Drives output pin `a` to `high` (BSRR, atomic).
-#[cfg_attr(any(feature = "qemu", feature = "hil"), allow(dead_code))]
 pub fn set(a: &PinAssignment, high: bool) {
     let n = a.pin.number & 0xF;
     let bit = if high { 1u32 << n } else { 1u32 << (n + 16) };

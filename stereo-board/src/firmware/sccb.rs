@@ -3,7 +3,7 @@
 //! Written on the PAC rather than with the HAL's I2C driver because that one waits for bus
 //! flags without a limit: a missing or stuck camera would hang start-up before the watchdog
 //! runs. Here a bus that does not answer gives [`SccbError`] and start-up goes on (the camera is
-//! then reported stopped). Pins are set up from the board table by [`super::pins`].
+//! then reported stopped). Pins are set up from the board table by [`crate::firmware::pins`].
 
 use stereo_board::board;
 use stm32f4xx_hal::pac;
