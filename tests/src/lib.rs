@@ -1,9 +1,70 @@
 //! Shared helpers for the cross-crate integration tests in `tests/tests/`.
 
+use protocol::{GyroAttitude, WireTime, STEREO_FRAME_BYTES};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use sim_host::sim::camera::{CameraParams, Motion, StereoCamera};
+use sim_host::sim::math::{Quat, V3};
+use sim_host::sim::scene::Scene;
 use std::path::PathBuf;
+use stereo_board::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
 
 /// Path of the shared recorded data set used by tests and CI (`../shared/data/stereoboard_testing`
 /// beside the checkout). The product itself never assumes this path.
 pub fn shared_dataset_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/stereoboard_testing")
+}
+
+/// A camera flying straight at a constant velocity and heading (no rotation), each frame
+/// rendered by the simulator's camera and processed by the camera board's Edge-FS with a level
+/// gyro and attitude sample, at 25 fps.
+pub struct StraightFlight {
+    camera: StereoCamera,
+    rng: ChaCha8Rng,
+    frame: Box<[u8; STEREO_FRAME_BYTES]>,
+    edge_fs: Box<EdgeFs>,
+    yaw_rad: f64,
+    velocity: V3,
+}
+
+impl StraightFlight {
+    /// Frame period, µs (25 fps).
+    pub const FRAME_US: u64 = 40_000;
+
+    /// A flight of `camera` along the heading `yaw_rad` at `velocity` (world frame, m/s), its
+    /// noise from `seed`, processed with `params`.
+    pub fn new(
+        camera: CameraParams,
+        params: EdgeFsParams,
+        yaw_rad: f64,
+        velocity: V3,
+        seed: u64,
+    ) -> Self {
+        Self {
+            camera: StereoCamera::new(camera),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            frame: Box::new([0; STEREO_FRAME_BYTES]),
+            edge_fs: Box::new(EdgeFs::new(params)),
+            yaw_rad,
+            velocity,
+        }
+    }
+
+    /// Frame `k` (at `k` frame periods), taken at `pos`: Edge-FS's output.
+    pub fn frame(&mut self, scene: &Scene, pos: V3, k: u64) -> EdgeFsOutput {
+        let motion = Motion {
+            vel: self.velocity,
+            rates: V3::new(0.0, 0.0, 0.0),
+        };
+        let att = Quat::from_euler(0.0, 0.0, self.yaw_rad);
+        self.camera
+            .render_moving(scene, pos, att, motion, &mut self.rng, &mut self.frame);
+        let t_us = k * Self::FRAME_US;
+        let gyro = GyroAttitude {
+            timestamp_us: WireTime(t_us as u32),
+            rates_radps: [0.0; 3],
+            attitude_rad: [0.0, 0.0, self.yaw_rad as f32],
+        };
+        self.edge_fs.process(&self.frame, t_us, Some(&gyro))
+    }
 }

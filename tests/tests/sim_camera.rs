@@ -3,10 +3,11 @@
 //! matches Z; moving towards it, the forward velocity is recovered, also where stripes alias
 //! the flow search.
 
+use integration_tests::StraightFlight;
 use protocol::{GyroAttitude, WireTime, STEREO_FRAME_BYTES};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sim_host::sim::camera::{CameraParams, Motion, StereoCamera};
+use sim_host::sim::camera::{CameraParams, StereoCamera};
 use sim_host::sim::math::{Quat, V3};
 use sim_host::sim::scene::Scene;
 use stereo_board::edge_fs::{EdgeFs, EdgeFsParams};
@@ -93,12 +94,9 @@ fn approach_fit_rms(seed: u64, yaw_deg: f64, params: EdgeFsParams) -> f64 {
     // The ideal camera: these approaches were found to alias with it (with the calibrated
     // camera's fixed patterns and vignetting the same approach at seed 903 no longer aliases:
     // fit RMS 0.011 m/s unguided).
-    let mut cam = StereoCamera::new(CameraParams::ideal());
-    let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
-    let mut ef = Box::new(EdgeFs::new(params));
     let (v, yaw) = (0.4, yaw_deg.to_radians());
     let dir = V3::new(yaw.cos(), yaw.sin(), 0.0);
+    let mut flight = StraightFlight::new(CameraParams::ideal(), params, yaw, dir * v, 1);
     let (mut sq, mut n) = (0.0, 0);
     for k in 0..200u64 {
         let pos = V3::new(2.0, 2.0, -1.0) + dir * (v * k as f64 * 0.04);
@@ -109,18 +107,7 @@ fn approach_fit_rms(seed: u64, yaw_deg: f64, params: EdgeFsParams) -> f64 {
         if ahead < 0.55 {
             break;
         }
-        let motion = Motion {
-            vel: dir * v,
-            rates: V3::new(0.0, 0.0, 0.0),
-        };
-        let att = Quat::from_euler(0.0, 0.0, yaw);
-        cam.render_moving(&scene, pos, att, motion, &mut rng, &mut frame);
-        let gyro = GyroAttitude {
-            timestamp_us: WireTime((k * 40_000) as u32),
-            rates_radps: [0.0; 3],
-            attitude_rad: [0.0, 0.0, yaw as f32],
-        };
-        let o = ef.process(&frame, k * 40_000, Some(&gyro));
+        let o = flight.frame(&scene, pos, k);
         if let (Some(fit), true) = (o.fit, o.flags.is_valid()) {
             sq += (f64::from(fit.forward_mps) - v).powi(2);
             n += 1;
@@ -165,28 +152,15 @@ fn valid_frames_drifting(
     speed_mps: f64,
     params: EdgeFsParams,
 ) -> usize {
-    let mut cam = StereoCamera::new(CameraParams::default());
-    let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
-    let mut ef = Box::new(EdgeFs::new(params));
     let yaw = yaw_deg.to_radians();
     let dir = V3::new(yaw.cos(), yaw.sin(), 0.0);
+    let vel = dir * speed_mps;
+    let mut flight = StraightFlight::new(CameraParams::default(), params, yaw, vel, 3);
     let start = V3::new(f64::from(start[0]), f64::from(start[1]), -1.0);
     let mut valid = 0;
     for k in 0..100u64 {
         let pos = start + dir * (speed_mps * k as f64 * 0.04);
-        let motion = Motion {
-            vel: dir * speed_mps,
-            rates: V3::new(0.0, 0.0, 0.0),
-        };
-        let att = Quat::from_euler(0.0, 0.0, yaw);
-        cam.render_moving(scene, pos, att, motion, &mut rng, &mut frame);
-        let gyro = GyroAttitude {
-            timestamp_us: WireTime((k * 40_000) as u32),
-            rates_radps: [0.0; 3],
-            attitude_rad: [0.0, 0.0, yaw as f32],
-        };
-        valid += usize::from(ef.process(&frame, k * 40_000, Some(&gyro)).flags.is_valid());
+        valid += usize::from(flight.frame(scene, pos, k).flags.is_valid());
     }
     valid
 }

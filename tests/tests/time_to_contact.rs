@@ -3,13 +3,12 @@
 //! the wall is nearer than the stereo search reaches; flying along a wall it reports no
 //! approach.
 
-use protocol::{Divergence, GyroAttitude, WireTime, STEREO_FRAME_BYTES};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use sim_host::sim::camera::{CameraParams, Motion, StereoCamera};
-use sim_host::sim::math::{Quat, V3};
+use integration_tests::StraightFlight;
+use protocol::Divergence;
+use sim_host::sim::camera::CameraParams;
+use sim_host::sim::math::V3;
 use sim_host::sim::scene::Scene;
-use stereo_board::edge_fs::{EdgeFs, EdgeFsOutput, EdgeFsParams};
+use stereo_board::edge_fs::{EdgeFsOutput, EdgeFsParams};
 
 /// One frame of a straight flight: the camera's true distance to the surface straight ahead,
 /// m, and Edge-FS's output.
@@ -21,37 +20,24 @@ struct Sample {
 /// Flies the camera from `start` along the heading `yaw_deg` with velocity `vel` (world frame,
 /// m/s) for up to `frames` frames at 25 fps, stopping `stop_m` before the surface ahead.
 fn fly(scene: &Scene, start: V3, yaw_deg: f64, vel: V3, frames: u64, stop_m: f32) -> Vec<Sample> {
-    let params = CameraParams::default();
-    let mut cam = StereoCamera::new(params.clone());
-    let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
-    let mut ef = Box::new(EdgeFs::new(EdgeFsParams::default_config()));
+    let camera = CameraParams::default();
+    let lens_offset = camera.forward_offset_m;
     let yaw = yaw_deg.to_radians();
+    let mut flight = StraightFlight::new(camera, EdgeFsParams::default_config(), yaw, vel, 7);
     let dir = [yaw.cos() as f32, yaw.sin() as f32, 0.0];
     let mut samples = Vec::new();
     for k in 0..frames {
         let pos = start + vel * (k as f64 * 0.04);
         let lens = [
-            pos.x as f32 + dir[0] * params.forward_offset_m,
-            pos.y as f32 + dir[1] * params.forward_offset_m,
+            pos.x as f32 + dir[0] * lens_offset,
+            pos.y as f32 + dir[1] * lens_offset,
             pos.z as f32,
         ];
         let (_, ahead_m) = scene.trace(lens, dir);
         if ahead_m < stop_m {
             break;
         }
-        let motion = Motion {
-            vel,
-            rates: V3::new(0.0, 0.0, 0.0),
-        };
-        let att = Quat::from_euler(0.0, 0.0, yaw);
-        cam.render_moving(scene, pos, att, motion, &mut rng, &mut frame);
-        let gyro = GyroAttitude {
-            timestamp_us: WireTime((k * 40_000) as u32),
-            rates_radps: [0.0; 3],
-            attitude_rad: [0.0, 0.0, yaw as f32],
-        };
-        let out = ef.process(&frame, k * 40_000, Some(&gyro));
+        let out = flight.frame(scene, pos, k);
         samples.push(Sample { ahead_m, out });
     }
     samples
