@@ -231,9 +231,10 @@ impl Avoidance {
         if now_us.saturating_sub(since) < DISPUTE_US {
             return velocity;
         }
+        let raised = forward.max(sure);
         self.overruled = self.overruled.wrapping_add(1);
-        self.overrule = Some(forward.max(sure));
-        Some([forward.max(sure), sideways])
+        self.overrule = Some(raised);
+        Some([raised, sideways])
     }
 
     /// The closing speed on the nearest obstacle at `now_us`, from the stereo distances.
