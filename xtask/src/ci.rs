@@ -10,18 +10,23 @@
 //!    virtual-board bench, its own workspace) and on thumbv7em, builds the docs of both
 //!    workspaces with rustdoc's warnings denied (a link to a renamed item fails), runs all host
 //!    tests, builds both firmwares in release, runs them (and their `hil` images) on the virtual
-//!    boards (`cargo xtask vboard`), and, beside the virtual boards, fuzzes the protocol
-//!    decoder and encoder briefly (after fmt and clippy in `fuzz/`, its own workspace).
+//!    boards (what `cargo xtask vboard` runs), and, beside the virtual boards, fuzzes the
+//!    protocol decoder and encoder briefly (after fmt and clippy in `fuzz/`, its own
+//!    workspace). The bench's lints, docs and build run beside the main workspace's steps: they
+//!    use their own target directory, and the release build leaves a core idle much of the time.
 //! 3. Prints a one-line summary, each step's wall time and a closing `N passed, N failed`
 //!    line.
 //!
 //! Options: `--fuzz-seconds N` (default 60; 0 skips the fuzz run, for local iteration only).
 
 use anyhow::{bail, Context, Result};
+use std::io::Write;
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use crate::cargo::{cargo, cargo_test, run_checked, workspace_root, FIRMWARE_TARGET};
+use crate::size::{firmware_build_command, Flavour, FIRMWARES};
 
 /// The Python MCAP reader the flight-log test uses, and its protobuf decoder for Foxglove's
 /// well-known types (pip requirements).
@@ -61,6 +66,18 @@ pub fn run(args: &[String]) -> Result<()> {
     .context("cargo fmt --check failed in virtual-board/: run cargo fmt there")?;
     steps.done("fmt(workspace, virtual-board)");
 
+    // The virtual-board bench is its own workspace and target directory: its lints, its docs,
+    // its release build (about 6 minutes, mostly on one core) and the `hil` and `qemu` firmware
+    // images are made beside the main workspace's steps, into a log printed when they are joined.
+    let bench_log = workspace_root().join("target").join("ci-bench.log");
+    let bench = {
+        let log = bench_log.clone();
+        std::thread::spawn(move || {
+            let start = Instant::now();
+            prepare_bench(&log).map(|()| start.elapsed().as_secs_f64())
+        })
+    };
+
     cargo(&[
         "clippy",
         "--workspace",
@@ -69,20 +86,7 @@ pub fn run(args: &[String]) -> Result<()> {
         "-D",
         "warnings",
     ])?;
-    run_checked(
-        Command::new("cargo")
-            .args([
-                "clippy",
-                "--ignore-rust-version",
-                "--all-targets",
-                "--",
-                "-D",
-                "warnings",
-            ])
-            .current_dir(&bench),
-    )
-    .context("clippy failed in virtual-board/ (its own workspace)")?;
-    steps.done("clippy(host, virtual-board)");
+    steps.done("clippy(host)");
     // One invocation per firmware package: each selects its own part's HAL feature, and cargo
     // unifies features within an invocation (insns-firmware builds both libraries for QEMU's
     // STM32F405).
@@ -103,19 +107,13 @@ pub fn run(args: &[String]) -> Result<()> {
     steps.done("clippy(thumbv7em: real, qemu, hil)");
 
     // Docs whose links point nowhere have drifted from the code: rustdoc's lints catch them.
-    for dir in [workspace_root(), bench.clone()] {
-        let mut doc = Command::new("cargo");
-        doc.args(["doc", "--no-deps"])
-            .env("RUSTDOCFLAGS", "-D warnings")
-            .current_dir(&dir);
-        if dir == bench {
-            doc.arg("--ignore-rust-version");
-        } else {
-            doc.arg("--workspace");
-        }
-        run_checked(&mut doc).with_context(|| format!("cargo doc failed in {}", dir.display()))?;
-    }
-    steps.done("doc(workspace, virtual-board; rustdoc warnings denied)");
+    run_checked(
+        Command::new("cargo")
+            .args(["doc", "--no-deps", "--workspace"])
+            .env("RUSTDOCFLAGS", "-D warnings"),
+    )
+    .context("cargo doc failed")?;
+    steps.done("doc(workspace; rustdoc warnings denied)");
 
     let (passed, failed) = cargo_test(&["test", "--workspace"])?;
     steps.done(format!("tests({passed} passed)"));
@@ -128,6 +126,22 @@ pub fn run(args: &[String]) -> Result<()> {
     }
     steps.done("size and start-up layout (real, qemu)");
 
+    let bench_built = bench.join().expect("the bench thread does not panic");
+    let bench_output = std::fs::read_to_string(&bench_log)
+        .with_context(|| format!("reading {}", bench_log.display()))?;
+    eprintln!(
+        "xtask: output of the virtual-board preparation ({}):",
+        bench_log.display()
+    );
+    eprint!("{bench_output}");
+    let bench_seconds = bench_built.context("preparing the virtual-board bench failed")?;
+    steps.push_beside(
+        "clippy, doc and release build in virtual-board/, hil and qemu firmwares",
+        bench_seconds,
+        "the main workspace",
+    );
+    steps.done("waiting for the virtual-board build");
+
     // The fuzz targets (their own workspace and toolchain, one libFuzzer process at a time)
     // run beside the virtual boards, whose emulators leave a core idle for much of their run.
     let fuzz = (fuzz_seconds > 0).then(|| {
@@ -136,14 +150,14 @@ pub fn run(args: &[String]) -> Result<()> {
             fuzz_run(fuzz_seconds).map(|name| (name, start.elapsed().as_secs_f64()))
         })
     });
-    // The virtual boards run the real images just built.
-    let vboard = crate::vboard::run_tests();
+    // The virtual boards run the real images just built, and `sim-host` as the tests built it.
+    let vboard = crate::vboard::run_built_tests(&[]);
     let fuzzed = fuzz.map(|handle| handle.join().expect("the fuzz thread does not panic"));
     let (vb_passed, vb_failed) = vboard?;
     steps.done(format!("vboard({vb_passed} passed)"));
     if let Some(fuzzed) = fuzzed {
         let (name, seconds) = fuzzed?;
-        steps.push_concurrent(name, seconds);
+        steps.push_beside(name, seconds, "vboard");
     }
     let (passed, failed) = (passed + vb_passed, failed + vb_failed);
 
@@ -154,6 +168,50 @@ pub fn run(args: &[String]) -> Result<()> {
     );
     steps.print_table();
     println!("{passed} passed, {failed} failed");
+    Ok(())
+}
+
+/// The virtual-board bench made ready to run: clippy and rustdoc (warnings denied) in its
+/// workspace, its tests built in release, and both firmwares in the `hil` flavour (which the
+/// bench flies) and the `qemu` one (which the size step checks). Every command's output goes
+/// to `log`.
+fn prepare_bench(log: &Path) -> Result<()> {
+    let log = std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+    let bench = crate::vboard::bench_dir();
+    let logged = |cmd: &mut Command| -> Result<()> {
+        writeln!(&log, "xtask: running {cmd:?}")?;
+        let status = cmd
+            .stdout(log.try_clone()?)
+            .stderr(log.try_clone()?)
+            .status()
+            .with_context(|| format!("could not start {cmd:?}"))?;
+        if !status.success() {
+            bail!("{cmd:?} failed with {status}");
+        }
+        Ok(())
+    };
+    logged(
+        Command::new("cargo")
+            .args(["clippy", "--ignore-rust-version", "--all-targets", "--"])
+            .args(["-D", "warnings"])
+            .current_dir(&bench),
+    )
+    .context("clippy failed in virtual-board/ (its own workspace)")?;
+    logged(
+        Command::new("cargo")
+            .args(["doc", "--no-deps", "--ignore-rust-version"])
+            .env("RUSTDOCFLAGS", "-D warnings")
+            .current_dir(&bench),
+    )
+    .context("cargo doc failed in virtual-board/")?;
+    logged(crate::vboard::bench_test_command().arg("--no-run"))
+        .context("building the virtual-board tests failed")?;
+    for flavour in [Flavour::Hil, Flavour::Qemu] {
+        for name in FIRMWARES {
+            logged(&mut firmware_build_command(flavour, name))
+                .with_context(|| format!("firmware build failed ({flavour:?}: {name})"))?;
+        }
+    }
     Ok(())
 }
 
@@ -203,8 +261,8 @@ fn fuzz_run(fuzz_seconds: u64) -> Result<String> {
 
 /// The CI's steps with their wall times.
 struct Steps {
-    /// Name, wall time in s, and whether it ran beside the others.
-    list: Vec<(String, f64, bool)>,
+    /// Name, wall time in s, and what it ran beside (empty: it ran alone).
+    list: Vec<(String, f64, &'static str)>,
     lap: Instant,
 }
 
@@ -222,21 +280,25 @@ impl Steps {
         let seconds = (now - self.lap).as_secs_f64();
         let name = name.into();
         eprintln!("xtask: step {name} took {seconds:.0} s");
-        self.list.push((name, seconds, false));
+        self.list.push((name, seconds, ""));
         self.lap = now;
     }
 
-    /// Records a step that ran beside the others for `seconds`.
-    fn push_concurrent(&mut self, name: String, seconds: f64) {
-        self.list.push((name, seconds, true));
+    /// Records a step that ran for `seconds` beside `beside`.
+    fn push_beside(&mut self, name: impl Into<String>, seconds: f64, beside: &'static str) {
+        self.list.push((name.into(), seconds, beside));
     }
 
     /// `name (N s), ...`.
     fn summary(&self) -> String {
         self.list
             .iter()
-            .map(|(name, seconds, concurrent)| {
-                let beside = if *concurrent { ", beside vboard" } else { "" };
+            .map(|(name, seconds, beside)| {
+                let beside = if beside.is_empty() {
+                    String::new()
+                } else {
+                    format!(", beside {beside}")
+                };
                 format!("{name} ({seconds:.0} s{beside})")
             })
             .collect::<Vec<_>>()
@@ -246,9 +308,12 @@ impl Steps {
     /// One line per step: its wall time and its name.
     fn print_table(&self) {
         println!("xtask test: wall time per step");
-        for (name, seconds, concurrent) in &self.list {
-            let beside = if *concurrent { " (beside vboard)" } else { "" };
-            println!("{seconds:>8.0} s  {name}{beside}");
+        for (name, seconds, beside) in &self.list {
+            if beside.is_empty() {
+                println!("{seconds:>8.0} s  {name}");
+            } else {
+                println!("{seconds:>8.0} s  {name} (beside {beside})");
+            }
         }
     }
 }

@@ -188,23 +188,30 @@ pub fn firmware_elf(flavour: Flavour, name: &str) -> PathBuf {
 /// Builds the named firmwares of a flavour in release, one cargo invocation per firmware: each
 /// board selects its own part's HAL feature, and cargo unifies features within an invocation.
 pub fn build_firmwares(flavour: Flavour, names: &[&str]) -> Result<()> {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     for name in names {
-        let mut cmd = Command::new(&cargo);
-        cmd.current_dir(workspace_root())
-            .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
-            .arg("--target-dir")
-            .arg(flavour.target_dir())
-            .args(["-p", name]);
-        if let Some(feature) = flavour.feature() {
-            cmd.args(["--features", &format!("{name}/{feature}")]);
-        }
-        let status = cmd.status().context("running cargo build")?;
+        let status = firmware_build_command(flavour, name)
+            .status()
+            .context("running cargo build")?;
         if !status.success() {
             bail!("firmware build failed ({flavour:?}: {name})");
         }
     }
     Ok(())
+}
+
+/// The `cargo build` of one firmware in `flavour` (release, its own target directory).
+pub fn firmware_build_command(flavour: Flavour, name: &str) -> Command {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.current_dir(workspace_root())
+        .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
+        .arg("--target-dir")
+        .arg(flavour.target_dir())
+        .args(["-p", name]);
+    if let Some(feature) = flavour.feature() {
+        cmd.args(["--features", &format!("{name}/{feature}")]);
+    }
+    cmd
 }
 
 /// Static memory use of an ELF32 little-endian image, from its section headers.
