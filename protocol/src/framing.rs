@@ -155,68 +155,56 @@ pub fn encode_to_vec<M: Serialize + ?Sized, const N: usize>(
 
 /// COBS-encodes `buf[src..src + len]` into `buf[0..]`, returning the encoded length.
 ///
-/// Requires `src >= cobs_overhead(len)` so that the write index never passes the read index;
-/// returns `None` (instead of panicking) if the buffer is too short.
+/// The `cobs` crate's encoder state machine says where each byte goes; the bytes are written
+/// into the front of the same buffer. Requires `src >= cobs_overhead(len)`, so that the write
+/// index never passes the read index; returns `None` (instead of panicking) if the buffer is
+/// too short.
 fn cobs_encode_in_place(buf: &mut [u8], src: usize, len: usize) -> Option<usize> {
     let end = src.checked_add(len)?;
     if end > buf.len() || src < cobs_overhead(len) {
         return None;
     }
-    let mut code_at = 0usize;
+    let mut state = cobs::EncoderState::default();
+    // Index 0 holds the first block's code, written when the block closes.
     let mut write = 1usize;
-    let mut code: u8 = 1;
+    // Whether the last byte closed a full block: then no empty block follows it (as the
+    // crate's own `CobsEncoder` ends a message).
+    let mut closed_full_block = false;
     for read in src..end {
         let byte = *buf.get(read)?;
-        if byte == 0 {
-            *buf.get_mut(code_at)? = code;
-            code_at = write;
-            write += 1;
-            code = 1;
-        } else {
-            *buf.get_mut(write)? = byte;
-            write += 1;
-            code += 1;
-            if code == 0xFF {
-                *buf.get_mut(code_at)? = code;
-                code_at = write;
+        closed_full_block = false;
+        match state.push(byte) {
+            cobs::PushResult::AddSingle(byte) => {
+                *buf.get_mut(write)? = byte;
                 write += 1;
-                code = 1;
+            }
+            cobs::PushResult::ModifyFromStartAndSkip((code_at, code)) => {
+                *buf.get_mut(code_at)? = code;
+                write += 1;
+            }
+            cobs::PushResult::ModifyFromStartAndPushAndSkip((code_at, code, byte)) => {
+                *buf.get_mut(code_at)? = code;
+                *buf.get_mut(write)? = byte;
+                write += 2;
+                closed_full_block = true;
             }
         }
     }
+    if closed_full_block {
+        return Some(write - 1);
+    }
+    let (code_at, code) = state.finalize();
     *buf.get_mut(code_at)? = code;
     Some(write)
-}
-
-/// Decodes a COBS block (no delimiters inside) in place, returning the decoded length.
-fn cobs_decode_in_place(buf: &mut [u8]) -> Result<usize, FrameError> {
-    let len = buf.len();
-    let (mut read, mut write) = (0usize, 0usize);
-    while read < len {
-        let code = buf[read];
-        if code == 0 {
-            return Err(FrameError::Cobs);
-        }
-        read += 1;
-        let run = usize::from(code) - 1;
-        if read + run > len {
-            return Err(FrameError::Cobs);
-        }
-        buf.copy_within(read..read + run, write);
-        read += run;
-        write += run;
-        if code != 0xFF && read < len {
-            buf[write] = 0;
-            write += 1;
-        }
-    }
-    Ok(write)
 }
 
 /// Checks the COBS, length, CRC and version of a frame received in `buf` (delimiter removed)
 /// and returns the range of the payload inside `buf`.
 fn check_frame(buf: &mut [u8]) -> Result<core::ops::Range<usize>, FrameError> {
-    let raw_len = cobs_decode_in_place(buf)?;
+    let raw_len = cobs::decode_in_place(buf).map_err(|e| match e {
+        cobs::DecodeError::EmptyFrame => FrameError::TooShort,
+        _ => FrameError::Cobs,
+    })?;
     if raw_len < MIN_RAW_LEN {
         return Err(FrameError::TooShort);
     }
@@ -455,6 +443,7 @@ pub type BoardToHostDecoder =
 mod tests {
     use super::*;
     use crate::*;
+    use rand::{Rng, SeedableRng};
 
     fn estimate() -> Estimate {
         Estimate {
@@ -510,8 +499,34 @@ mod tests {
             heapless::Vec::from_slice(&data[src..src + len]).unwrap();
         let enc = cobs_encode_in_place(&mut data, src, len).unwrap();
         assert!(!data[..enc].contains(&0));
-        let dec = cobs_decode_in_place(&mut data[..enc]).unwrap();
+        let dec = cobs::decode_in_place(&mut data[..enc]).unwrap();
         assert_eq!(&data[..dec], &expect[..]);
+    }
+
+    #[test]
+    fn in_place_encoding_equals_the_crates_two_buffer_encoding() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(35);
+        // From 1 byte: a raw frame is never empty (the crate encodes nothing as nothing).
+        for len in (1..700).chain([253, 254, 255, 508, 509, 510]) {
+            // Runs of zeros, runs without, and mixtures: every code path of the encoder.
+            let zeros_per_256 = [0u32, 1, 16, 128, 256][len % 5];
+            let raw: heapless::Vec<u8, 800> = (0..len)
+                .map(|_| {
+                    if rng.random_range(0..256) < zeros_per_256 {
+                        0
+                    } else {
+                        rng.random_range(1..=255)
+                    }
+                })
+                .collect();
+            let mut expected = [0u8; 800];
+            let expected_len = cobs::encode(&raw, &mut expected);
+            let mut buf = [0u8; 800];
+            let src = cobs_overhead(len);
+            buf[src..src + len].copy_from_slice(&raw);
+            let enc = cobs_encode_in_place(&mut buf, src, len).unwrap();
+            assert_eq!(&buf[..enc], &expected[..expected_len], "length {len}");
+        }
     }
 
     #[test]
