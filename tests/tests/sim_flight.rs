@@ -2,6 +2,7 @@
 //! simulated UART (sim-host's `sim::flight`). Each test states the bound it checks.
 
 use autopilot::fsm::FsmVariant;
+use integration_tests::fly_all;
 use protocol::{FlightMode, FsmState};
 use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, LogRow};
 use sim_host::sim::uart::LinkFaults;
@@ -117,33 +118,36 @@ const ROOM_SEEDS: std::ops::RangeInclusive<u64> = 1..=6;
 /// of 600 s per FSM) give the rate over long flights.
 #[test]
 fn room_flights_without_collision() {
-    let fsms = [
-        (FsmVariant::Paper, ROOM_SEEDS),
-        (FsmVariant::TurnUntilClear, ROOM_SEEDS),
-    ];
-    for (fsm, seeds) in fsms {
-        for seed in seeds {
+    let flights: Vec<(FsmVariant, u64)> = [FsmVariant::Paper, FsmVariant::TurnUntilClear]
+        .into_iter()
+        .flat_map(|fsm| ROOM_SEEDS.map(move |seed| (fsm, seed)))
+        .collect();
+    let configs: Vec<FlightConfig> = flights
+        .iter()
+        .map(|&(fsm, seed)| {
             let mut cfg = FlightConfig {
                 seed,
                 ..FlightConfig::default()
             };
             cfg.autopilot.fsm.variant = fsm;
-            let r = fly(&cfg);
-            println!(
-                "seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, {:.1} m flown",
-                r.collisions, r.min_clearance_m, r.distance_m
-            );
-            assert_eq!(
-                r.collisions, 0,
-                "seed {seed} {fsm:?}: min clearance {}",
-                r.min_clearance_m
-            );
-            assert!(
-                r.distance_m > 10.0,
-                "seed {seed} {fsm:?}: flew only {} m",
-                r.distance_m
-            );
-        }
+            cfg
+        })
+        .collect();
+    for ((fsm, seed), r) in flights.iter().zip(fly_all(&configs)) {
+        println!(
+            "seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, {:.1} m flown",
+            r.collisions, r.min_clearance_m, r.distance_m
+        );
+        assert_eq!(
+            r.collisions, 0,
+            "seed {seed} {fsm:?}: min clearance {}",
+            r.min_clearance_m
+        );
+        assert!(
+            r.distance_m > 10.0,
+            "seed {seed} {fsm:?}: flew only {} m",
+            r.distance_m
+        );
     }
 }
 

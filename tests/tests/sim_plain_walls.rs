@@ -8,6 +8,7 @@
 //! 701-703, which were not used for tuning.
 
 use autopilot::fsm::FsmVariant;
+use integration_tests::fly_all;
 use protocol::FlightMode;
 use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult};
 use sim_host::sim::scene_spec::SceneSpec;
@@ -32,8 +33,13 @@ fn max_speed(r: &FlightResult) -> f32 {
 #[test]
 fn plain_room_flights_touch_no_wall() {
     let scene = SceneSpec::preset("plain-room").expect("plain-room preset");
-    for fsm in [FsmVariant::Paper, FsmVariant::TurnUntilClear] {
-        for seed in SEEDS {
+    let flights: Vec<(FsmVariant, u64)> = [FsmVariant::Paper, FsmVariant::TurnUntilClear]
+        .into_iter()
+        .flat_map(|fsm| SEEDS.map(move |seed| (fsm, seed)))
+        .collect();
+    let configs: Vec<FlightConfig> = flights
+        .iter()
+        .map(|&(fsm, seed)| {
             let mut cfg = FlightConfig {
                 scene: scene.clone(),
                 seed,
@@ -41,16 +47,18 @@ fn plain_room_flights_touch_no_wall() {
                 ..FlightConfig::default()
             };
             cfg.autopilot.fsm.variant = fsm;
-            let r = fly(&cfg);
-            let v = max_speed(&r);
-            let last = r.log.last().expect("a log");
-            println!(
-                "plain-room seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, max speed {v:.2} m/s, {:.1} m flown, end mode {:?}",
-                r.collisions, r.min_clearance_m, r.distance_m, last.mode
-            );
-            assert_eq!(r.collisions, 0, "seed {seed} {fsm:?}");
-            assert!(v < 0.6, "seed {seed} {fsm:?}: {v} m/s");
-        }
+            cfg
+        })
+        .collect();
+    for ((fsm, seed), r) in flights.iter().zip(fly_all(&configs)) {
+        let v = max_speed(&r);
+        let last = r.log.last().expect("a log");
+        println!(
+            "plain-room seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, max speed {v:.2} m/s, {:.1} m flown, end mode {:?}",
+            r.collisions, r.min_clearance_m, r.distance_m, last.mode
+        );
+        assert_eq!(r.collisions, 0, "seed {seed} {fsm:?}");
+        assert!(v < 0.6, "seed {seed} {fsm:?}: {v} m/s");
     }
 }
 
