@@ -389,8 +389,7 @@ impl StereoBoardApp {
         now: Instant,
     ) -> EdgeFsOutput {
         let gyro = self.current_gyro(now).copied();
-        self.edge_fs
-            .process(frame, capture.as_micros(), gyro.as_ref())
+        self.edge_fs.process(frame, capture, gyro.as_ref())
     }
 
     /// Frame task, second half: wraps `out` into the next [`Estimate`] (processing time =

@@ -144,7 +144,9 @@ mod bench {
             };
             let t = 40_000 * k as u64;
             let g = gyro(k);
-            measure("edge_fs_frame_worst", || edge_fs.process(f, t, Some(&g)));
+            measure("edge_fs_frame_worst", || {
+                edge_fs.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
             k += 1;
         }
         // SAFETY: semihosting CLOSE of the handle OPEN gave.
@@ -174,13 +176,17 @@ mod bench {
             let Some(f) = frame(k) else { break };
             let t = 40_000 * k as u64;
             let g = gyro(k);
-            measure("edge_fs_frame_default", || default.process(f, t, Some(&g)));
+            measure("edge_fs_frame_default", || {
+                default.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
         }
         for k in 0..frames {
             let Some(f) = frame(k) else { break };
             let t = 40_000 * k as u64;
             let g = gyro(k);
-            measure("edge_fs_frame_paper", || paper.process(f, t, Some(&g)));
+            measure("edge_fs_frame_paper", || {
+                paper.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
         }
 
         worst_frames(default);
