@@ -2,17 +2,23 @@
 //! and the simulator schedules from.
 
 pub use task_table::{TaskId, TaskSpec, Trigger};
+use timebase::Duration;
 
-/// IMU / INDI period: 512 Hz, µs (rounded down).
-pub const IMU_PERIOD_US: u32 = 1_953;
-/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz, µs.
-pub const GUIDANCE_PERIOD_US: u32 = 20_000;
-/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample), µs.
-pub const GYRO_TX_PERIOD_US: u32 = 7_812;
-/// Telemetry period: 10 Hz, µs.
-pub const TELEMETRY_PERIOD_US: u32 = 100_000;
-/// Heartbeat period: 1 Hz, µs.
-pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
+/// IMU / INDI period: 512 Hz (rounded down to a microsecond).
+pub const IMU_PERIOD: Duration = Duration::from_hz(512);
+/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz.
+pub const GUIDANCE_PERIOD: Duration = Duration::from_hz(50);
+/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample).
+pub const GYRO_TX_PERIOD: Duration = Duration::from_hz(128);
+/// Telemetry period: 10 Hz.
+pub const TELEMETRY_PERIOD: Duration = Duration::from_hz(10);
+/// Heartbeat period: 1 Hz.
+pub const HEARTBEAT_PERIOD: Duration = Duration::from_hz(1);
+
+/// `d` in the task table's microseconds.
+const fn us(d: Duration) -> u32 {
+    d.as_micros() as u32
+}
 
 /// The autopilot's tasks, in [`TASKS`]'s order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -67,7 +73,7 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         name: "imu_indi",
         priority: 5,
         trigger: Trigger::Periodic {
-            period_us: IMU_PERIOD_US,
+            period_us: us(IMU_PERIOD),
         },
         deadline_us: 500,
     },
@@ -90,7 +96,7 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         name: "guidance",
         priority: 3,
         trigger: Trigger::Periodic {
-            period_us: GUIDANCE_PERIOD_US,
+            period_us: us(GUIDANCE_PERIOD),
         },
         deadline_us: 5_000,
     },
@@ -99,26 +105,26 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         name: "gyro_tx",
         priority: 2,
         trigger: Trigger::Periodic {
-            period_us: GYRO_TX_PERIOD_US,
+            period_us: us(GYRO_TX_PERIOD),
         },
-        deadline_us: GYRO_TX_PERIOD_US,
+        deadline_us: us(GYRO_TX_PERIOD),
     },
     TaskSpec {
         id: Task::Telemetry,
         name: "telemetry",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: TELEMETRY_PERIOD_US,
+            period_us: us(TELEMETRY_PERIOD),
         },
-        deadline_us: TELEMETRY_PERIOD_US,
+        deadline_us: us(TELEMETRY_PERIOD),
     },
     TaskSpec {
         id: Task::Heartbeat,
         name: "heartbeat",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: HEARTBEAT_PERIOD_US,
+            period_us: us(HEARTBEAT_PERIOD),
         },
-        deadline_us: HEARTBEAT_PERIOD_US,
+        deadline_us: us(HEARTBEAT_PERIOD),
     },
 ];

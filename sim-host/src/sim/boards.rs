@@ -8,6 +8,12 @@
 
 use super::sched::{BoardTask, SimTask};
 use protocol::{encode, Message};
+use timebase::Duration;
+
+/// A task table's period (`u32` µs) as a span.
+fn period(t: &task_table::Trigger) -> Option<Duration> {
+    t.period_us().map(|us| Duration::from_micros(u64::from(us)))
+}
 
 /// Scheduler tasks from a board's task table, each identified by `id`.
 fn sim_tasks<Id: Copy>(
@@ -19,7 +25,7 @@ fn sim_tasks<Id: Copy>(
         .map(|t| SimTask {
             task: id(t.id),
             priority: t.priority,
-            period_us: t.trigger.period_us(),
+            period: period(&t.trigger),
         })
         .collect()
 }
@@ -63,17 +69,19 @@ mod tests {
         assert_eq!(tasks.iter().map(|t| t.task).collect::<Vec<_>>(), want);
         for t in &tasks {
             let period = match t.task {
-                BoardTask::Autopilot(a) => a.spec().trigger.period_us(),
-                BoardTask::Stereo(c) => c.spec().trigger.period_us(),
+                BoardTask::Autopilot(a) => period(&a.spec().trigger),
+                BoardTask::Stereo(c) => period(&c.spec().trigger),
             };
-            assert_eq!(t.period_us, period, "{}", t.task.name());
+            assert_eq!(t.period, period, "{}", t.task.name());
         }
         let status = tasks
             .iter()
             .find(|t| t.task == BoardTask::Stereo(Cam::Status));
         assert_eq!(
-            status.and_then(|t| t.period_us),
-            Some(stereo_board::app::STATUS_PERIOD_US)
+            status.and_then(|t| t.period),
+            Some(Duration::from_micros(u64::from(
+                stereo_board::app::STATUS_PERIOD_US
+            )))
         );
     }
 }
