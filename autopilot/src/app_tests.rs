@@ -250,8 +250,8 @@ fn task_table_is_consistent() {
         "the 512 Hz loop has the highest priority"
     );
     for t in TASKS {
-        if let Trigger::Periodic { period_us } = t.trigger {
-            assert!(t.deadline_us <= period_us, "{}", t.name);
+        if let Trigger::Periodic { period } = t.trigger {
+            assert!(t.deadline <= period, "{}", t.name);
         }
     }
     let mut names: Vec<_> = TASKS.iter().map(|t| t.name).collect();

@@ -15,11 +15,6 @@ pub const TELEMETRY_PERIOD: Duration = Duration::from_hz(10);
 /// Heartbeat period: 1 Hz.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_hz(1);
 
-/// `d` in the task table's microseconds.
-const fn us(d: Duration) -> u32 {
-    d.as_micros() as u32
-}
-
 /// The autopilot's tasks, in [`TASKS`]'s order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Task {
@@ -72,59 +67,57 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         id: Task::ImuIndi,
         name: "imu_indi",
         priority: 5,
-        trigger: Trigger::Periodic {
-            period_us: us(IMU_PERIOD),
-        },
-        deadline_us: 500,
+        trigger: Trigger::Periodic { period: IMU_PERIOD },
+        deadline: Duration::from_micros(500),
     },
     TaskSpec {
         id: Task::StereoRx,
         name: "stereo_rx",
         priority: 4,
         trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
-        deadline_us: 1_000,
+        deadline: Duration::from_millis(1),
     },
     TaskSpec {
         id: Task::HostRx,
         name: "host_rx",
         priority: 4,
         trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
-        deadline_us: 1_000,
+        deadline: Duration::from_millis(1),
     },
     TaskSpec {
         id: Task::Guidance,
         name: "guidance",
         priority: 3,
         trigger: Trigger::Periodic {
-            period_us: us(GUIDANCE_PERIOD),
+            period: GUIDANCE_PERIOD,
         },
-        deadline_us: 5_000,
+        deadline: Duration::from_millis(5),
     },
     TaskSpec {
         id: Task::GyroTx,
         name: "gyro_tx",
         priority: 2,
         trigger: Trigger::Periodic {
-            period_us: us(GYRO_TX_PERIOD),
+            period: GYRO_TX_PERIOD,
         },
-        deadline_us: us(GYRO_TX_PERIOD),
+        deadline: GYRO_TX_PERIOD,
     },
     TaskSpec {
         id: Task::Telemetry,
         name: "telemetry",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: us(TELEMETRY_PERIOD),
+            period: TELEMETRY_PERIOD,
         },
-        deadline_us: us(TELEMETRY_PERIOD),
+        deadline: TELEMETRY_PERIOD,
     },
     TaskSpec {
         id: Task::Heartbeat,
         name: "heartbeat",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: us(HEARTBEAT_PERIOD),
+            period: HEARTBEAT_PERIOD,
         },
-        deadline_us: us(HEARTBEAT_PERIOD),
+        deadline: HEARTBEAT_PERIOD,
     },
 ];

@@ -8,12 +8,6 @@
 
 use super::sched::{BoardTask, SimTask};
 use protocol::{encode, Message};
-use timebase::Duration;
-
-/// A task table's period (`u32` µs) as a span.
-fn period(t: &task_table::Trigger) -> Option<Duration> {
-    t.period_us().map(|us| Duration::from_micros(u64::from(us)))
-}
 
 /// Scheduler tasks from a board's task table, each identified by `id`.
 fn sim_tasks<Id: Copy>(
@@ -25,7 +19,7 @@ fn sim_tasks<Id: Copy>(
         .map(|t| SimTask {
             task: id(t.id),
             priority: t.priority,
-            period: period(&t.trigger),
+            period: t.trigger.period(),
         })
         .collect()
 }
@@ -69,8 +63,8 @@ mod tests {
         assert_eq!(tasks.iter().map(|t| t.task).collect::<Vec<_>>(), want);
         for t in &tasks {
             let period = match t.task {
-                BoardTask::Autopilot(a) => period(&a.spec().trigger),
-                BoardTask::Stereo(c) => period(&c.spec().trigger),
+                BoardTask::Autopilot(a) => a.spec().trigger.period(),
+                BoardTask::Stereo(c) => c.spec().trigger.period(),
             };
             assert_eq!(t.period, period, "{}", t.task.name());
         }
@@ -79,7 +73,7 @@ mod tests {
             .find(|t| t.task == BoardTask::Stereo(Cam::Status));
         assert_eq!(
             status.and_then(|t| t.period),
-            Some(Duration::from_micros(u64::from(
+            Some(timebase::Duration::from_micros(u64::from(
                 stereo_board::app::STATUS_PERIOD_US
             )))
         );

@@ -73,10 +73,12 @@ fn task_table_is_consistent() {
     assert_eq!(
         Task::Status.spec().trigger,
         Trigger::Periodic {
-            period_us: STATUS_PERIOD_US
+            period: Duration::from_micros(u64::from(STATUS_PERIOD_US))
         }
     );
-    assert!(TASKS.iter().all(|t| t.deadline_us > 0 && t.priority >= 1));
+    assert!(TASKS
+        .iter()
+        .all(|t| t.deadline > Duration::ZERO && t.priority >= 1));
 }
 
 #[test]
