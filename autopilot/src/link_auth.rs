@@ -128,7 +128,7 @@ impl LinkAuth {
                 let opened = match self.key {
                     Some(key) => envelope.open(&key).and_then(|inner| {
                         self.guard
-                            .accept(envelope.link_id, envelope.timestamp, now.as_micros())
+                            .accept(envelope.link_id, envelope.timestamp, now)
                             .map(|()| inner)
                     }),
                     // An unsigned link takes a signed message's content as it takes unsigned
