@@ -19,8 +19,8 @@
 //!   the [`VelocityState`](crate::estimation::VelocityState) and the height loop ->
 //!   [`Setpoints`].
 //!
-//! Failsafes over all of it. Time is passed in by the caller (µs, `u64`, monotonic); the
-//! library never reads a clock.
+//! Failsafes over all of it. Time is passed in by the caller (a monotonic
+//! [`timebase::Instant`]); the library never reads a clock.
 
 use crate::attitude::{attitude_error, AttitudeEstimator, Quat, GRAVITY};
 use crate::avoidance::{Avoidance, AvoidanceInput};
@@ -48,7 +48,7 @@ use protocol::{
     ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
     StereoToAutopilot, Telemetry,
 };
-use timebase::WireTime;
+use timebase::Instant;
 
 /// Ground signature: the low-passed squared body rate stays below this, rad/s.
 pub const GROUND_MAX_RATE_RADPS: f32 = 0.5;
@@ -68,7 +68,7 @@ pub struct Autopilot {
     indi: Indi,
     gyro: [f32; 3],
     accel: [f32; 3],
-    last_imu_us: Option<u64>,
+    last_imu: Option<Instant>,
     motors: [f32; 4],
     /// Low-passed squared specific force, (m/s²)², and squared body rate, (rad/s)²: the
     /// ground signature's inputs.
@@ -78,9 +78,9 @@ pub struct Autopilot {
     /// Height: vertical estimator, the last barometer reading, the height loop (which holds
     /// the height measurement it flies on).
     vertical: VerticalEstimator,
-    baro: Option<(u64, BaroReading)>,
-    /// When the barometer's reading last changed, µs, and frozen readings refused since boot.
-    baro_changed_us: u64,
+    baro: Option<(Instant, BaroReading)>,
+    /// When the barometer's reading last changed, and frozen readings refused since boot.
+    baro_changed: Instant,
     baro_frozen: u32,
     /// External height fixes not used (gated, or fixes disabled).
     fixes_refused: u32,
@@ -100,8 +100,8 @@ pub struct Autopilot {
     arm_refused: u32,
     /// The lockstep images' PWM gate ([`PilotCommand::HilOutputs`]); off at boot.
     hil_outputs: bool,
-    /// When the host's last heartbeat arrived, µs.
-    last_host_us: Option<u64>,
+    /// When the host's last heartbeat arrived.
+    last_host: Option<Instant>,
     /// The supply voltage: filter, sag compensation, verdict.
     battery: BatteryMonitor,
     /// The parameter storage's state (`None`: a build without storage).
@@ -141,13 +141,13 @@ impl Autopilot {
             indi: Indi::new(config.indi),
             gyro: [0.0; 3],
             accel: [0.0, 0.0, -GRAVITY],
-            last_imu_us: None,
+            last_imu: None,
             motors: MOTORS_OFF,
             ground_lp: [GRAVITY * GRAVITY, 0.0],
             camera: CameraLink::new(),
             vertical: VerticalEstimator::new(config.vertical),
             baro: None,
-            baro_changed_us: 0,
+            baro_changed: Instant::ZERO,
             baro_frozen: 0,
             fixes_refused: 0,
             fixes_in_row: 0,
@@ -159,7 +159,7 @@ impl Autopilot {
             rc_kill_latched: false,
             arm_refused: 0,
             hil_outputs: false,
-            last_host_us: None,
+            last_host: None,
             battery: BatteryMonitor::new(config.battery),
             storage: None,
             link_auth: crate::link_auth::LinkAuth::new(),
@@ -291,9 +291,9 @@ impl Autopilot {
         self.avoidance.fsm()
     }
 
-    /// The closing speed on the nearest obstacle at `now_us`, from its stereo distances.
-    pub fn closing(&self, now_us: u64) -> Option<Closing> {
-        self.avoidance.closing(now_us)
+    /// The closing speed on the nearest obstacle at `now`, from its stereo distances.
+    pub fn closing(&self, now: Instant) -> Option<Closing> {
+        self.avoidance.closing(now)
     }
 
     /// Guidance steps at which the obstacle's range rate overruled the velocity estimate
@@ -378,8 +378,8 @@ impl Autopilot {
         self.estimation.outliers()
     }
 
-    /// The camera board's last heartbeat and when it arrived (µs).
-    pub fn stereo_heartbeat(&self) -> Option<(u64, Heartbeat)> {
+    /// The camera board's last heartbeat and when it arrived.
+    pub fn stereo_heartbeat(&self) -> Option<(Instant, Heartbeat)> {
         self.camera.heartbeat()
     }
 
@@ -390,22 +390,22 @@ impl Autopilot {
 
     /// Bytes from the camera-board UART, as they arrive (any chunking). Complete frames are
     /// decoded (bad ones counted in [`Autopilot::link_errors`]) and handled: estimates go to
-    /// [`Autopilot::on_estimate`] with time `now_us`. Returns the number of messages decoded.
-    pub fn on_stereo_bytes(&mut self, bytes: &[u8], now_us: u64) -> usize {
+    /// [`Autopilot::on_estimate`] with time `now`. Returns the number of messages decoded.
+    pub fn on_stereo_bytes(&mut self, bytes: &[u8], now: Instant) -> usize {
         let mut n = 0;
         for &b in bytes {
             if let Some(msg) = self.camera.push(b) {
                 n += 1;
-                self.on_stereo_message(msg, now_us);
+                self.on_stereo_message(msg, now);
             }
         }
         n
     }
 
     /// One decoded camera-board message (for callers that run their own decoder).
-    pub fn on_stereo_message(&mut self, msg: StereoToAutopilot, now_us: u64) {
-        match self.camera.on_message(msg, now_us) {
-            Some(CameraNews::Estimate(e)) => self.on_estimate(&e, now_us),
+    pub fn on_stereo_message(&mut self, msg: StereoToAutopilot, now: Instant) {
+        match self.camera.on_message(msg, now) {
+            Some(CameraNews::Estimate(e)) => self.on_estimate(&e, now),
             // The camera board sees no frames: fly as blind from now on instead of waiting out
             // the estimate timeout (a valid estimate ends it).
             Some(CameraNews::CameraStopped) => self.estimation.camera_stopped(),
@@ -415,23 +415,23 @@ impl Autopilot {
 
     fn freshness(&self) -> Freshness {
         Freshness {
-            last_valid_estimate_us: self.estimation.last_valid_estimate_us(),
-            last_imu_us: self.last_imu_us,
-            last_height_us: self.height.last_measurement_us(),
-            last_host_us: self.last_host_us,
+            last_valid_estimate: self.estimation.last_valid_estimate(),
+            last_imu: self.last_imu,
+            last_height: self.height.last_measurement(),
+            last_host: self.last_host,
             baro_frozen: self.baro_is_frozen(),
         }
     }
 
-    /// A heartbeat from the host (ground tool, simulator, HIL bridge) arrived at `now_us`:
+    /// A heartbeat from the host (ground tool, simulator, HIL bridge) arrived at `now`:
     /// the telemetry link is alive (see [`crate::failsafe`]'s host timeout).
-    pub fn on_host_heartbeat(&mut self, now_us: u64) {
-        self.last_host_us = Some(now_us);
+    pub fn on_host_heartbeat(&mut self, now: Instant) {
+        self.last_host = Some(now);
     }
 
-    /// When the host's last heartbeat arrived, µs (`None`: none since boot).
-    pub fn last_host_heartbeat_us(&self) -> Option<u64> {
-        self.last_host_us
+    /// When the host's last heartbeat arrived (`None`: none since boot).
+    pub fn last_host_heartbeat(&self) -> Option<Instant> {
+        self.last_host
     }
 
     /// Why the drone last left normal flight since it was armed (`None`: it has not); after
@@ -445,23 +445,23 @@ impl Autopilot {
     /// [0, 1]: all zero unless armed and flying. A sample with non-finite or absurd values
     /// (|gyro| > 35 rad/s, |accel| > 160 m/s²) is dropped; if no usable sample arrives for the
     /// IMU timeout the motors go off (see [`crate::failsafe`]).
-    pub fn on_imu(&mut self, imu: &ImuSample, now_us: u64) -> [f32; 4] {
+    pub fn on_imu(&mut self, imu: &ImuSample, now: Instant) -> [f32; 4] {
         let ok = finite3(&imu.gyro_radps, 35.0) && finite3(&imu.accel_mps2, 160.0);
         // A gap before this sample trips the IMU failsafe even if guidance did not run.
         let f = self.freshness();
-        self.failsafe.update(&f, now_us);
+        self.failsafe.update(&f, now);
         if !ok {
-            if !self.failsafe.imu_fresh(&f, now_us) || !self.failsafe.mode().motors_enabled() {
+            if !self.failsafe.imu_fresh(&f, now) || !self.failsafe.mode().motors_enabled() {
                 self.motors = MOTORS_OFF;
             }
             return self.motors;
         }
-        let dt = match self.last_imu_us {
-            Some(t) if now_us > t => ((now_us - t) as f32 * 1e-6).min(0.02),
+        let dt = match self.last_imu {
+            Some(t) if now > t => (now - t).as_secs_f32().min(0.02),
             Some(_) => 0.0,
             None => 1.0 / self.cfg.indi.rate_hz.max(1.0),
         };
-        self.last_imu_us = Some(now_us);
+        self.last_imu = Some(now);
         if !self.failsafe.mode().motors_enabled()
             && self.gyro_cal.update(
                 imu,
@@ -483,7 +483,7 @@ impl Autopilot {
         self.vertical
             .predict(vertical_acceleration(imu.accel_mps2, q), dt);
         self.estimation
-            .predict(roll, pitch, gyro[2], dt, now_us, &self.cfg.estimation);
+            .predict(roll, pitch, gyro[2], dt, now, &self.cfg.estimation);
         let thrust = if self.failsafe.mode().motors_enabled() {
             tilt_compensate(
                 self.guidance.setpoints().thrust,
@@ -508,13 +508,13 @@ impl Autopilot {
         self.motors
     }
 
-    /// An Edge-FS estimate from the camera board, received at `now_us`: its obstacle reading
+    /// An Edge-FS estimate from the camera board, received at `now`: its obstacle reading
     /// goes to avoidance ([`Avoidance::on_estimate`]), its velocity through estimation's gates
     /// ([`VelocityEstimation::on_estimate`]) with the height and climb rate of now.
-    pub fn on_estimate(&mut self, est: &Estimate, now_us: u64) {
-        self.avoidance.on_estimate(est, self.att.euler()[2], now_us);
+    pub fn on_estimate(&mut self, est: &Estimate, now: Instant) {
+        self.avoidance.on_estimate(est, self.att.euler()[2], now);
         let ctx = VisionContext {
-            now_us,
+            now,
             height_m: self.height.height_m(),
             climb_mps: self.height.climb_mps(),
         };
@@ -529,7 +529,7 @@ impl Autopilot {
     /// height fresh for arming, only once [`FIXES_TO_LEAD`] in a row have been taken: a lone
     /// fix moves the estimate but neither the height loop nor the arming check. The estimator
     /// keeps the height when fixes stop.
-    pub fn on_external_position(&mut self, pos: &ExternalPosition, now_us: u64) {
+    pub fn on_external_position(&mut self, pos: &ExternalPosition, now: Instant) {
         if !self.cfg.vertical.external_fixes {
             self.fixes_refused = self.fixes_refused.wrapping_add(1);
             return;
@@ -547,7 +547,7 @@ impl Autopilot {
             1
         };
         if self.fixes_lead() {
-            self.height.on_measurement(h, now_us);
+            self.height.on_measurement(h, now);
         }
     }
 
@@ -571,7 +571,7 @@ impl Autopilot {
     /// fault). Every `Arm` that does not leave the drone flying is counted in
     /// [`Autopilot::arm_refused`]. [`PilotCommand::HilOutputs`] sets
     /// [`Autopilot::hil_outputs`] (enabling only while the motors are off).
-    pub fn on_command(&mut self, cmd: PilotCommand, now_us: u64) {
+    pub fn on_command(&mut self, cmd: PilotCommand, now: Instant) {
         if let PilotCommand::HilOutputs(on) = cmd {
             if !on || !self.failsafe.mode().motors_enabled() {
                 self.hil_outputs = on;
@@ -584,7 +584,7 @@ impl Autopilot {
         }
         let before = self.failsafe.mode();
         let f = self.freshness();
-        let after = self.failsafe.command(cmd, &f, now_us);
+        let after = self.failsafe.command(cmd, &f, now);
         if cmd == PilotCommand::Arm && after != FlightMode::Flying {
             // The failsafe refused it: a stale IMU or height, or not on the ground.
             self.arm_refused = self.arm_refused.wrapping_add(1);
@@ -607,9 +607,9 @@ impl Autopilot {
     /// reports failsafe or has gone silent (see [`crate::rc::RcCommands::kill_reason`]). Engaging
     /// kills at once; while engaged, no `Arm` from any source is accepted. Releasing it does not
     /// arm: the drone stays killed until an explicit `Arm`.
-    pub fn set_rc_kill(&mut self, engaged: bool, now_us: u64) {
+    pub fn set_rc_kill(&mut self, engaged: bool, now: Instant) {
         if engaged && !self.rc_kill_latched {
-            self.on_command(PilotCommand::Kill, now_us);
+            self.on_command(PilotCommand::Kill, now);
         }
         self.rc_kill_latched = engaged;
     }
@@ -648,34 +648,34 @@ impl Autopilot {
         self.hil_outputs
     }
 
-    /// A barometer reading (pressure, temperature) taken at `now_us`, fused by the vertical
+    /// A barometer reading (pressure, temperature) taken at `now`, fused by the vertical
     /// estimator the height loop flies on when no external fixes come. A reading identical to
-    /// the ones before it for longer than [`VerticalConfig::baro_stuck_us`](crate::vertical::VerticalConfig::baro_stuck_us) is a frozen
+    /// the ones before it for longer than [`VerticalConfig::baro_stuck`](crate::vertical::VerticalConfig::baro_stuck) is a frozen
     /// sensor's: kept for telemetry, not fused, and counted ([`Autopilot::baro_frozen`]).
-    pub fn on_baro(&mut self, reading: &BaroReading, now_us: u64) {
+    pub fn on_baro(&mut self, reading: &BaroReading, now: Instant) {
         if reading.pressure_pa.is_finite() && reading.temperature_c.is_finite() {
             let same = matches!(self.baro, Some((_, last)) if last == *reading);
             if !same {
-                self.baro_changed_us = now_us;
+                self.baro_changed = now;
             }
-            self.baro = Some((now_us, *reading));
+            self.baro = Some((now, *reading));
             if self.baro_is_frozen() {
                 self.baro_frozen = self.baro_frozen.wrapping_add(1);
                 return;
             }
             let running = self.motors.iter().any(|&m| m > 0.0);
             if self.vertical.on_pressure(reading.pressure_pa, running) && !self.fixes_lead() {
-                self.height.on_measurement(self.vertical.height_m(), now_us);
+                self.height.on_measurement(self.vertical.height_m(), now);
             }
         }
     }
 
-    /// A supply-voltage reading, V, taken at `now_us` (the firmware's ADC through the divider,
+    /// A supply-voltage reading, V, taken at `now` (the firmware's ADC through the divider,
     /// [`crate::board::BATTERY_ADC`]; the simulated battery), judged with the motor duties of
     /// now (see [`crate::battery`]). A flight ends in a landing once it reads low.
-    pub fn on_battery(&mut self, volts: f32, now_us: u64) {
+    pub fn on_battery(&mut self, volts: f32, now: Instant) {
         let flying = self.failsafe.mode().motors_enabled();
-        self.battery.on_sample(volts, &self.motors, flying, now_us);
+        self.battery.on_sample(volts, &self.motors, flying, now);
     }
 
     /// The battery monitor (last reading, resting voltage, verdict).
@@ -683,16 +683,16 @@ impl Autopilot {
         &self.battery
     }
 
-    /// The last barometer reading and when it was taken, µs.
-    pub fn baro(&self) -> Option<(u64, BaroReading)> {
+    /// The last barometer reading and when it was taken.
+    pub fn baro(&self) -> Option<(Instant, BaroReading)> {
         self.baro
     }
 
     /// The barometer's readings have stayed identical for longer than
-    /// [`VerticalConfig::baro_stuck_us`](crate::vertical::VerticalConfig::baro_stuck_us): a frozen sensor.
+    /// [`VerticalConfig::baro_stuck`](crate::vertical::VerticalConfig::baro_stuck): a frozen sensor.
     pub fn baro_is_frozen(&self) -> bool {
         matches!(self.baro, Some((t, _))
-            if t.saturating_sub(self.baro_changed_us) > self.cfg.vertical.baro_stuck_us)
+            if t.since(self.baro_changed) > self.cfg.vertical.baro_stuck)
     }
 
     /// Frozen barometer readings refused since boot (wrapping).
@@ -714,8 +714,8 @@ impl Autopilot {
 
     /// Guidance step (e.g. 50 Hz): failsafes, avoidance FSM, force field, velocity guidance and
     /// the height loop update the setpoints the 512 Hz loop flies.
-    pub fn guidance_step(&mut self, now_us: u64) {
-        let dt = self.guidance.tick(now_us);
+    pub fn guidance_step(&mut self, now: Instant) {
+        let dt = self.guidance.tick(now);
         let [ax, ay, az] = self.accel;
         let [p, q, r] = self.gyro;
         let squares = [ax * ax + ay * ay + az * az, p * p + q * q + r * r];
@@ -723,16 +723,16 @@ impl Autopilot {
             *lp += GROUND_LP_ALPHA * (x - *lp);
         }
         let f = self.freshness();
-        let mut mode = self.failsafe.update(&f, now_us);
+        let mut mode = self.failsafe.update(&f, now);
         if !mode.motors_enabled() {
-            self.rest(mode, now_us);
+            self.rest(mode, now);
             return;
         }
         match self.battery.state() {
             BatteryState::Ok => {}
-            BatteryState::Low => mode = self.failsafe.land(FailsafeReason::BatteryLow, now_us),
+            BatteryState::Low => mode = self.failsafe.land(FailsafeReason::BatteryLow, now),
             BatteryState::Critical => {
-                mode = self.failsafe.land(FailsafeReason::BatteryCritical, now_us);
+                mode = self.failsafe.land(FailsafeReason::BatteryCritical, now);
                 self.guidance.hurry_landing();
             }
         }
@@ -742,18 +742,17 @@ impl Autopilot {
         let height_sp = self.guidance.height_setpoint(
             mode,
             &velocity,
-            now_us,
+            now,
             dt,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
             &cfg.setpoints,
         );
-        let fresh_velocity = self.avoidance.cross_check(
-            velocity.fresh(now_us, cfg.estimation.velocity_max_age_us),
-            now_us,
-        );
+        let fresh_velocity = self
+            .avoidance
+            .cross_check(velocity.fresh(now, cfg.estimation.velocity_max_age), now);
         let request = self.avoidance.step(
             &AvoidanceInput {
-                now_us,
+                now,
                 // A lost host link with the hold action: hover where it is.
                 flying: mode == FlightMode::Flying && !self.failsafe.holding(),
                 at_flight_height: self.guidance.at_flight_height(h, &cfg.setpoints),
@@ -762,51 +761,51 @@ impl Autopilot {
                 speed_mps: fresh_velocity.map(|[f, s]| libm::sqrtf(f * f + s * s)),
             },
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         if request.land {
             // No way to go found within the FSM's timeouts: land where it is.
-            self.failsafe.land(FailsafeReason::NoWayFound, now_us);
+            self.failsafe.land(FailsafeReason::NoWayFound, now);
         }
         self.guidance.fly(&request, fresh_velocity, dt);
-        let height_fresh = matches!(self.height.last_measurement_us(),
-            Some(t) if now_us.saturating_sub(t) <= cfg.failsafe.height_timeout_us);
+        let height_fresh = matches!(self.height.last_measurement(),
+            Some(t) if now.since(t) <= cfg.failsafe.height_timeout);
         let landing = mode == FlightMode::Landing;
         let down = if height_fresh {
             self.guidance
                 .hold_height(&mut self.height, height_sp, h, dt, &cfg.setpoints);
             let on_ground = landing && self.ground_signature();
             self.guidance
-                .touched_down(landing, h, on_ground, now_us, &cfg.setpoints)
+                .touched_down(landing, h, on_ground, now, &cfg.setpoints)
         } else {
             // Blind landing (the failsafe switched to Landing): reduced thrust, then off.
             self.guidance
-                .blind_landing(self.failsafe.since_us(), now_us, &cfg.setpoints)
+                .blind_landing(self.failsafe.since(), now, &cfg.setpoints)
         };
         if down {
-            self.touchdown(now_us);
+            self.touchdown(now);
             return;
         }
         // A landing that does not end (a biased barometer holds the height above the landed
         // height): cut near the floor or on the ground signature once it has taken too long.
-        let landing_for = now_us.saturating_sub(self.failsafe.since_us());
+        let landing_for = now.since(self.failsafe.since());
         if landing
-            && landing_for >= self.cfg.setpoints.land_timeout_us
+            && landing_for >= self.cfg.setpoints.land_timeout
             && ((height_fresh && h <= self.cfg.setpoints.land_cut_height_m)
                 || self.ground_signature())
         {
-            self.failsafe.cut(FailsafeReason::LandTimeout, now_us);
-            self.touchdown(now_us);
+            self.failsafe.cut(FailsafeReason::LandTimeout, now);
+            self.touchdown(now);
         }
     }
 
     /// Motors off (disarmed, killed, IMU fault): everything that integrates is held at zero;
     /// standing disarmed on the floor, the barometer's reading is its offset and the drone is
     /// not moving whatever the camera makes of a blank wall.
-    fn rest(&mut self, mode: FlightMode, now_us: u64) {
+    fn rest(&mut self, mode: FlightMode, now: Instant) {
         if mode == FlightMode::Disarmed {
             self.vertical.on_ground();
-            self.estimation.hold_still(now_us);
+            self.estimation.hold_still(now);
         }
         self.height.reset_integral();
         self.guidance.rest(self.att.euler()[2]);
@@ -816,8 +815,8 @@ impl Autopilot {
 
     /// Touchdown confirmed (or a landing cut): disarmed, motors off, integrators empty, the
     /// FSM stopped.
-    fn touchdown(&mut self, now_us: u64) {
-        self.failsafe.landed(now_us);
+    fn touchdown(&mut self, now: Instant) {
+        self.failsafe.landed(now);
         self.guidance.landed();
         self.motors = MOTORS_OFF;
         self.height.reset_integral();
@@ -827,26 +826,26 @@ impl Autopilot {
     /// Motor override for the firmware's lower-priority tasks: `Some(all off)` when the motors
     /// must be off now (not armed, killed, or the IMU stale so `on_imu` is not running), `None`
     /// when the 512 Hz loop's output stands.
-    pub fn motor_safety(&self, now_us: u64) -> Option<[f32; 4]> {
+    pub fn motor_safety(&self, now: Instant) -> Option<[f32; 4]> {
         let f = self.freshness();
-        if !self.failsafe.mode().motors_enabled() || !self.failsafe.imu_fresh(&f, now_us) {
+        if !self.failsafe.mode().motors_enabled() || !self.failsafe.imu_fresh(&f, now) {
             Some(MOTORS_OFF)
         } else {
             None
         }
     }
 
-    /// The `heartbeat` task's message at board time `now_us`, to both links (the camera board
+    /// The `heartbeat` task's message at board time `now`, to both links (the camera board
     /// and the host): this node, the protocol version and the uptime, ms (wrapping as the
     /// wire's `u32` does).
-    pub fn heartbeat(now_us: u64) -> Heartbeat {
-        Heartbeat::new(Node::Autopilot, (now_us / 1_000) as u32)
+    pub fn heartbeat(now: Instant) -> Heartbeat {
+        Heartbeat::new(Node::Autopilot, now.since(Instant::ZERO).as_millis() as u32)
     }
 
     /// Gyro and attitude for the camera board's derotation.
-    pub fn gyro_attitude(&self, now_us: u64) -> GyroAttitude {
+    pub fn gyro_attitude(&self, now: Instant) -> GyroAttitude {
         GyroAttitude {
-            timestamp_us: WireTime(now_us as u32),
+            timestamp_us: now.to_wire(),
             rates_radps: self.gyro,
             attitude_rad: self.att.euler(),
         }
@@ -855,17 +854,17 @@ impl Autopilot {
     /// The telemetry task (10 Hz): the supply voltage read this period (`None`: no battery
     /// sense; NaN: a conversion that did not end, counted as rejected), then the telemetry
     /// for the host.
-    pub fn telemetry_task(&mut self, volts: Option<f32>, now_us: u64) -> Telemetry {
+    pub fn telemetry_task(&mut self, volts: Option<f32>, now: Instant) -> Telemetry {
         if let Some(v) = volts {
-            self.on_battery(v, now_us);
+            self.on_battery(v, now);
         }
-        self.telemetry(now_us)
+        self.telemetry(now)
     }
 
     /// Telemetry snapshot.
-    pub fn telemetry(&self, now_us: u64) -> Telemetry {
+    pub fn telemetry(&self, now: Instant) -> Telemetry {
         Telemetry {
-            timestamp_us: WireTime(now_us as u32),
+            timestamp_us: now.to_wire(),
             fsm_state: self.avoidance.state(),
             flight_mode: self.failsafe.mode(),
             attitude_rad: self.att.euler(),

@@ -12,12 +12,13 @@ use crate::battery::BatteryState;
 use crate::estimation::VelocitySource;
 use crate::indi::IndiConfig;
 use crate::setpoints::SetpointConfig;
-use crate::tasks::{Task, TaskId, Trigger, IMU_PERIOD_US, TASKS};
-use crate::test_support::{camera_status, forward_estimate};
+use crate::tasks::{Task, TaskId, Trigger, IMU_PERIOD, TASKS};
+use crate::test_support::{at, camera_status, forward_estimate};
 use proptest::prelude::*;
 use protocol::params::MemStore;
 use protocol::{EstimateFlags, FrameFit, ParamOp};
 use std::vec::Vec;
+use timebase::WireTime;
 
 const IMU_US: u64 = 1_953;
 
@@ -198,19 +199,19 @@ impl Run {
         while self.now < end {
             let k = self.now / IMU_US;
             if self.imu {
-                motors = self.ap.on_imu(&self.quad.imu(self.now), self.now);
+                motors = self.ap.on_imu(&self.quad.imu(self.now), at(self.now));
             }
             if k.is_multiple_of(10) {
                 if self.host {
-                    self.ap.on_host_heartbeat(self.now);
+                    self.ap.on_host_heartbeat(at(self.now));
                 }
-                self.ap.guidance_step(self.now);
-                if let Some(m) = self.ap.motor_safety(self.now) {
+                self.ap.guidance_step(at(self.now));
+                if let Some(m) = self.ap.motor_safety(at(self.now)) {
                     motors = m;
                 }
                 let mut fix = self.quad.position(self.now);
                 fix.position_m[2] -= self.height_bias;
-                self.ap.on_external_position(&fix, self.now);
+                self.ap.on_external_position(&fix, at(self.now));
                 let mode = self.ap.mode();
                 if self.modes.last().map(|m| m.1) != Some(mode) {
                     self.modes.push((self.now, mode));
@@ -218,7 +219,8 @@ impl Run {
             }
             if k.is_multiple_of(17) && self.estimates {
                 self.seq = self.seq.wrapping_add(1);
-                self.ap.on_estimate(&self.quad.estimate(self.seq), self.now);
+                self.ap
+                    .on_estimate(&self.quad.estimate(self.seq), at(self.now));
             }
             for m in motors {
                 assert!((0.0..=1.0).contains(&m), "motor {m}");
@@ -233,7 +235,7 @@ impl Run {
 
     fn takeoff(&mut self) {
         self.fly(0.5);
-        self.ap.on_command(PilotCommand::Arm, self.now);
+        self.ap.on_command(PilotCommand::Arm, at(self.now));
         assert_eq!(self.ap.mode(), FlightMode::Flying);
     }
 }
@@ -248,15 +250,15 @@ fn task_table_is_consistent() {
         "the 512 Hz loop has the highest priority"
     );
     for t in TASKS {
-        if let Trigger::Periodic { period_us } = t.trigger {
-            assert!(t.deadline_us <= period_us, "{}", t.name);
+        if let Trigger::Periodic { period } = t.trigger {
+            assert!(t.deadline <= period, "{}", t.name);
         }
     }
     let mut names: Vec<_> = TASKS.iter().map(|t| t.name).collect();
     names.sort_unstable();
     names.dedup();
     assert_eq!(names.len(), TASKS.len());
-    assert_eq!(IMU_PERIOD_US, 1_000_000 / 512);
+    assert_eq!(IMU_PERIOD.as_micros(), 1_000_000 / 512);
 }
 
 #[test]
@@ -321,7 +323,10 @@ fn estimate_loss_hovers_then_lands_and_disarms() {
         (land - lost_at) / 1000
     );
     assert!(hover - lost_at <= 560_000);
-    let hover_time = AutopilotConfig::default().failsafe.hover_before_land_us;
+    let hover_time = AutopilotConfig::default()
+        .failsafe
+        .hover_before_land
+        .as_micros();
     assert!((land - hover).abs_diff(hover_time) <= 40_000);
     assert_eq!(disarm.1, FlightMode::Disarmed);
     assert!(r.quad.height() < 0.02);
@@ -334,10 +339,10 @@ fn a_stopped_camera_reported_in_status_hovers_without_waiting_for_the_estimate_t
     r.takeoff();
     r.fly(2.0);
     // The last estimate is fresh; then the camera board reports its camera stopped.
-    r.ap.on_estimate(&r.quad.estimate(r.seq.wrapping_add(1)), r.now);
+    r.ap.on_estimate(&r.quad.estimate(r.seq.wrapping_add(1)), at(r.now));
     r.estimates = false;
     let stopped_at = r.now;
-    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
+    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), at(r.now));
     r.fly(0.1);
     let hover = r
         .modes
@@ -361,12 +366,12 @@ fn a_stopped_camera_lands_and_stops_the_motors_within_its_promise() {
     assert!((r.quad.height() - cfg.setpoints.target_height_m).abs() < 0.1);
     r.estimates = false;
     let stopped_at = r.now;
-    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), r.now);
-    let promise = cfg.camera_stopped_motors_off_us();
+    r.ap.on_stereo_message(StereoToAutopilot::Status(camera_status(true)), at(r.now));
+    let promise = cfg.camera_stopped_motors_off().as_micros();
     let mut off_at = None;
     while r.now < stopped_at + promise + 1_000_000 {
         r.fly(0.02);
-        if off_at.is_none() && r.ap.motors() == [0.0; 4] && r.ap.motor_safety(r.now).is_some() {
+        if off_at.is_none() && r.ap.motors() == [0.0; 4] && r.ap.motor_safety(at(r.now)).is_some() {
             off_at = Some(r.now);
         }
     }
@@ -404,12 +409,15 @@ fn a_silent_host_lands_the_drone_and_stops_the_motors_within_its_promise() {
     r.fly(4.0);
     assert!((r.quad.height() - cfg.setpoints.target_height_m).abs() < 0.1);
     r.host = false;
-    let last_heartbeat = r.ap.last_host_heartbeat_us().expect("heartbeats came");
-    let promise = cfg.host_loss_motors_off_us();
+    let last_heartbeat =
+        r.ap.last_host_heartbeat()
+            .expect("heartbeats came")
+            .as_micros();
+    let promise = cfg.host_loss_motors_off().as_micros();
     let mut off_at = None;
     while r.now < last_heartbeat + promise + 1_000_000 {
         r.fly(0.02);
-        if off_at.is_none() && r.ap.motors() == [0.0; 4] && r.ap.motor_safety(r.now).is_some() {
+        if off_at.is_none() && r.ap.motors() == [0.0; 4] && r.ap.motor_safety(at(r.now)).is_some() {
             off_at = Some(r.now);
         }
     }
@@ -426,12 +434,12 @@ fn a_silent_host_lands_the_drone_and_stops_the_motors_within_its_promise() {
         promise / 1000
     );
     assert_eq!(modes[0].1, FlightMode::Landing);
-    assert!(modes[0].0 - last_heartbeat > cfg.failsafe.host_timeout_us);
+    assert!(modes[0].0 - last_heartbeat > cfg.failsafe.host_timeout.as_micros());
     assert_eq!(modes[1].1, FlightMode::Disarmed);
     assert!(off_at - last_heartbeat <= promise);
     assert!(r.quad.height() < 0.02);
     assert_eq!(
-        r.ap.telemetry(r.now).failsafe_reason,
+        r.ap.telemetry(at(r.now)).failsafe_reason,
         Some(FailsafeReason::TelemetryLost)
     );
 }
@@ -445,7 +453,7 @@ fn a_biased_height_still_touches_down_on_the_ground_signature() {
     r.takeoff();
     r.fly(4.0);
     r.height_bias = 0.3;
-    r.ap.on_command(PilotCommand::Land, r.now);
+    r.ap.on_command(PilotCommand::Land, at(r.now));
     let land_at = r.now;
     r.fly(8.0);
     let down = r.modes.last().unwrap();
@@ -455,7 +463,7 @@ fn a_biased_height_still_touches_down_on_the_ground_signature() {
         (down.0 - land_at) / 1000
     );
     assert!(
-        down.0 - land_at < cfg.setpoints.land_timeout_us,
+        down.0 - land_at < cfg.setpoints.land_timeout.as_micros(),
         "before the timeout"
     );
     assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::Command));
@@ -479,19 +487,19 @@ fn a_landing_that_does_not_end_is_cut_after_its_timeout() {
     r.takeoff();
     r.fly(4.0);
     r.height_bias = 0.2;
-    r.ap.on_command(PilotCommand::Land, r.now);
+    r.ap.on_command(PilotCommand::Land, at(r.now));
     let land_at = r.now;
-    r.fly(cfg.setpoints.land_timeout_us as f32 * 1e-6 - 0.1);
+    r.fly(cfg.setpoints.land_timeout.as_secs_f32() - 0.1);
     assert_eq!(r.ap.mode(), FlightMode::Landing, "still landing");
     r.fly(0.2);
     let down = r.modes.last().unwrap();
     assert_eq!(down.1, FlightMode::Disarmed);
-    assert!(down.0 - land_at >= cfg.setpoints.land_timeout_us);
+    assert!(down.0 - land_at >= cfg.setpoints.land_timeout.as_micros());
     assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::LandTimeout));
     assert_eq!(r.ap.motors(), [0.0; 4]);
 }
 
-/// A barometer whose readings freeze is refused after `baro_stuck_us` (its heights no longer
+/// A barometer whose readings freeze is refused after `baro_stuck` (its heights no longer
 /// reach the height loop); a reading that moves again is used again.
 #[test]
 fn a_frozen_barometer_is_refused_and_counted() {
@@ -503,22 +511,23 @@ fn a_frozen_barometer_is_refused_and_counted() {
     };
     let mut t = 0;
     for k in 0..50 {
-        ap.on_baro(&reading(101_325.0 + (k % 3) as f32), t);
+        ap.on_baro(&reading(101_325.0 + (k % 3) as f32), at(t));
         t += 20_000;
     }
     assert!(!ap.baro_is_frozen());
     assert_eq!(ap.baro_frozen(), 0);
     let frozen_from = t;
-    while t <= frozen_from + cfg.vertical.baro_stuck_us + 100_000 {
-        ap.on_baro(&reading(101_330.0), t);
+    while t <= frozen_from + cfg.vertical.baro_stuck.as_micros() + 100_000 {
+        ap.on_baro(&reading(101_330.0), at(t));
         t += 20_000;
     }
     assert!(ap.baro_is_frozen());
     assert!(ap.baro_frozen() >= 4);
-    let last_height = ap.height.last_measurement_us();
-    assert!(last_height.is_none_or(|h| h <= frozen_from + cfg.vertical.baro_stuck_us));
+    let last_height = ap.height.last_measurement();
+    assert!(last_height
+        .is_none_or(|h| h.as_micros() <= frozen_from + cfg.vertical.baro_stuck.as_micros()));
     assert!(ap.freshness().baro_frozen);
-    ap.on_baro(&reading(101_331.0), t);
+    ap.on_baro(&reading(101_331.0), at(t));
     assert!(!ap.baro_is_frozen());
 }
 
@@ -530,18 +539,18 @@ fn a_barometer_frozen_in_flight_lands_the_drone_and_says_why() {
     let mut ap = Autopilot::new(cfg);
     let mut f = Failsafe::new(cfg.failsafe);
     let fresh = Freshness {
-        last_valid_estimate_us: Some(0),
-        last_imu_us: Some(0),
-        last_height_us: Some(0),
-        last_host_us: Some(0),
+        last_valid_estimate: Some(at(0)),
+        last_imu: Some(at(0)),
+        last_height: Some(at(0)),
+        last_host: Some(at(0)),
         baro_frozen: false,
     };
-    f.command(PilotCommand::Arm, &fresh, 0);
-    let t = cfg.failsafe.height_timeout_us + 1;
+    f.command(PilotCommand::Arm, &fresh, at(0));
+    let t = at(cfg.failsafe.height_timeout.as_micros() + 1);
     let stale = Freshness {
-        last_valid_estimate_us: Some(t),
-        last_imu_us: Some(t),
-        last_host_us: Some(t),
+        last_valid_estimate: Some(t),
+        last_imu: Some(t),
+        last_host: Some(t),
         baro_frozen: true,
         ..fresh
     };
@@ -553,14 +562,14 @@ fn a_barometer_frozen_in_flight_lands_the_drone_and_says_why() {
             pressure_pa: 1.0e5,
             temperature_c: 20.0,
         },
-        0,
+        at(0),
     );
     ap.on_baro(
         &BaroReading {
             pressure_pa: 1.0e5,
             temperature_c: 20.0,
         },
-        cfg.vertical.baro_stuck_us + 1,
+        at(cfg.vertical.baro_stuck.as_micros() + 1),
     );
     assert!(ap.freshness().baro_frozen);
 }
@@ -570,12 +579,12 @@ fn an_arm_without_a_host_heartbeat_is_refused_and_counted() {
     let mut r = Run::new(AutopilotConfig::default());
     r.host = false;
     r.fly(0.5);
-    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
     assert_eq!(r.ap.arm_refused(), 1);
     r.host = true;
     r.fly(0.1);
-    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Flying);
 }
 
@@ -593,19 +602,19 @@ fn arm_is_refused_until_the_attitude_is_initialised() {
             gyro_radps: [0.0; 3],
             accel_mps2: [0.0, 0.0, -2.0 * GRAVITY],
         };
-        ap.on_imu(&imu, k * IMU_US);
-        ap.on_external_position(&pos, k * IMU_US);
+        ap.on_imu(&imu, at(k * IMU_US));
+        ap.on_external_position(&pos, at(k * IMU_US));
     }
-    ap.on_host_heartbeat(100 * IMU_US);
-    ap.on_command(PilotCommand::Arm, 100 * IMU_US);
+    ap.on_host_heartbeat(at(100 * IMU_US));
+    ap.on_command(PilotCommand::Arm, at(100 * IMU_US));
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     let imu = ImuSample {
         timestamp_us: WireTime(0),
         gyro_radps: [0.0; 3],
         accel_mps2: [0.0, 0.0, -GRAVITY],
     };
-    ap.on_imu(&imu, 101 * IMU_US);
-    ap.on_command(PilotCommand::Arm, 101 * IMU_US);
+    ap.on_imu(&imu, at(101 * IMU_US));
+    ap.on_command(PilotCommand::Arm, at(101 * IMU_US));
     assert_eq!(ap.mode(), FlightMode::Flying);
 }
 
@@ -620,7 +629,7 @@ fn autopilot_at_height() -> Autopilot {
                 timestamp_us: WireTime(0),
                 position_m: [0.0, 0.0, -1.0],
             },
-            0,
+            at(0),
         );
     }
     ap
@@ -644,18 +653,18 @@ fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
                 timestamp_us: WireTime(t as u32),
                 position_m: [0.0, 0.0, -h],
             },
-            t,
+            at(t),
         );
         if k >= 40 && t.is_multiple_of(40_000) {
             let floor_only = Estimate {
                 depth_coverage: 40,
                 ..forward_estimate(1.1)
             };
-            ap.on_estimate(&floor_only, t);
+            ap.on_estimate(&floor_only, at(t));
         }
     }
     assert!(ap.height.climb_mps() > AutopilotConfig::default().estimation.max_vision_climb_mps);
-    assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
+    assert_eq!(ap.freshness().last_valid_estimate, Some(at(t)));
     assert_eq!(ap.velocity(), None);
     assert_eq!(ap.velocity_estimate(), None);
     // Level again: the same estimates are fused.
@@ -666,10 +675,10 @@ fn estimates_during_a_fast_climb_keep_the_failsafe_quiet_but_are_not_fused() {
                 timestamp_us: WireTime(t as u32),
                 position_m: [0.0, 0.0, -h],
             },
-            t,
+            at(t),
         );
         if t.is_multiple_of(40_000) {
-            ap.on_estimate(&forward_estimate(0.4), t);
+            ap.on_estimate(&forward_estimate(0.4), at(t));
         }
     }
     assert_eq!(ap.velocity(), Some([0.4, 0.0]));
@@ -688,7 +697,7 @@ fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
                 gyro_radps: gyro,
                 accel_mps2: [0.0, 0.0, -GRAVITY],
             },
-            t,
+            at(t),
         );
     };
     for _ in 0..200 {
@@ -712,7 +721,7 @@ fn gyro_offset_is_calibrated_on_the_ground_and_motion_restarts_it() {
         imu(&mut ap, bias);
     }
     assert!(ap
-        .gyro_attitude(t)
+        .gyro_attitude(at(t))
         .rates_radps
         .iter()
         .all(|w| w.abs() < 1e-6));
@@ -732,11 +741,11 @@ fn an_estimate_under_fast_yaw_is_gated() {
     let mut t = 0;
     for yaw_rate in [0.0, 0.0, 1.5] {
         t += 40_000;
-        ap.on_imu(&imu(yaw_rate), t);
-        ap.on_estimate(&forward_estimate(0.1), t);
+        ap.on_imu(&imu(yaw_rate), at(t));
+        ap.on_estimate(&forward_estimate(0.1), at(t));
     }
     assert_eq!(ap.yaw_gated_estimates(), 1);
-    assert_eq!(ap.freshness().last_valid_estimate_us, Some(t));
+    assert_eq!(ap.freshness().last_valid_estimate, Some(at(t)));
     assert_eq!(ap.velocity(), None);
 }
 
@@ -745,12 +754,12 @@ fn kill_stops_motors_at_once() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
     r.fly(3.0);
-    r.ap.on_command(PilotCommand::Kill, r.now);
-    let m = r.ap.on_imu(&r.quad.imu(r.now), r.now);
+    r.ap.on_command(PilotCommand::Kill, at(r.now));
+    let m = r.ap.on_imu(&r.quad.imu(r.now), at(r.now));
     assert_eq!(m, [0.0; 4]);
-    assert_eq!(r.ap.motor_safety(r.now), Some([0.0; 4]));
+    assert_eq!(r.ap.motor_safety(at(r.now)), Some([0.0; 4]));
     // Arm/land cannot be confused with a kill: land does not restart anything.
-    r.ap.on_command(PilotCommand::Land, r.now);
+    r.ap.on_command(PilotCommand::Land, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Killed);
 }
 
@@ -759,23 +768,23 @@ fn an_rc_kill_latches_until_released_and_no_arm_overrides_it() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
     r.fly(1.0);
-    r.ap.set_rc_kill(true, r.now);
+    r.ap.set_rc_kill(true, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Killed);
     assert_eq!(r.ap.arm_blocker(), Some(ArmBlock::RcKill));
     r.fly(0.2);
     // A host (or RC) Arm while the switch is on is refused and counted.
-    r.ap.on_command(PilotCommand::Arm, r.now);
-    r.ap.set_rc_kill(true, r.now);
-    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
+    r.ap.set_rc_kill(true, at(r.now));
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Killed);
     assert_eq!(r.ap.arm_refused(), 2);
-    assert_eq!(r.ap.on_imu(&r.quad.imu(r.now), r.now), [0.0; 4]);
+    assert_eq!(r.ap.on_imu(&r.quad.imu(r.now), at(r.now)), [0.0; 4]);
     // Releasing the switch does not arm; an explicit Arm afterwards does.
-    r.ap.set_rc_kill(false, r.now);
+    r.ap.set_rc_kill(false, at(r.now));
     r.fly(0.1);
     assert_eq!(r.ap.mode(), FlightMode::Killed);
     assert_eq!(r.ap.arm_blocker(), None);
-    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Flying);
 }
 
@@ -791,41 +800,41 @@ fn every_refused_arm_is_counted() {
         position_m: [0.0; 3],
     };
     let mut ap = Autopilot::new(AutopilotConfig::default());
-    ap.on_host_heartbeat(0);
+    ap.on_host_heartbeat(at(0));
     // Not initialised (no IMU sample yet): refused before the failsafe.
-    ap.on_command(PilotCommand::Arm, 0);
+    ap.on_command(PilotCommand::Arm, at(0));
     assert_eq!(ap.arm_refused(), 1);
     // The attitude initialised, but no height measurement: the failsafe refuses.
     let mut t = 0;
     for _ in 0..50 {
         t += IMU_US;
-        ap.on_imu(&level(t), t);
+        ap.on_imu(&level(t), at(t));
     }
-    ap.on_command(PilotCommand::Arm, t);
+    ap.on_command(PilotCommand::Arm, at(t));
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     assert_eq!(ap.arm_refused(), 2);
     // Height fresh (a stream of fixes), IMU stale (its last sample 21 ms ago, the timeout
     // 20 ms): refused.
     for _ in 0..FIXES_TO_LEAD {
-        ap.on_external_position(&floor(t), t);
+        ap.on_external_position(&floor(t), at(t));
     }
-    let stale = t + AutopilotConfig::default().failsafe.imu_timeout_us + 1_000;
-    ap.on_external_position(&floor(stale), stale);
-    ap.on_command(PilotCommand::Arm, stale);
+    let stale = t + AutopilotConfig::default().failsafe.imu_timeout.as_micros() + 1_000;
+    ap.on_external_position(&floor(stale), at(stale));
+    ap.on_command(PilotCommand::Arm, at(stale));
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     assert_eq!(ap.arm_refused(), 3);
     // Everything fresh: accepted, not counted; a second Arm while flying changes nothing and
     // is not counted either.
     t = stale + IMU_US;
-    ap.on_imu(&level(t), t);
-    ap.on_command(PilotCommand::Arm, t);
+    ap.on_imu(&level(t), at(t));
+    ap.on_command(PilotCommand::Arm, at(t));
     assert_eq!(ap.mode(), FlightMode::Flying);
-    ap.on_command(PilotCommand::Arm, t);
+    ap.on_command(PilotCommand::Arm, at(t));
     assert_eq!(ap.arm_refused(), 3);
     // Landing: not on the ground, so an Arm is refused (it would cancel the landing).
-    ap.on_command(PilotCommand::Land, t);
+    ap.on_command(PilotCommand::Land, at(t));
     assert_eq!(ap.mode(), FlightMode::Landing);
-    ap.on_command(PilotCommand::Arm, t);
+    ap.on_command(PilotCommand::Arm, at(t));
     assert_eq!(ap.mode(), FlightMode::Landing);
     assert_eq!(ap.arm_refused(), 4);
 }
@@ -884,15 +893,15 @@ fn a_camera_board_of_another_protocol_version_blocks_arming() {
     raw[body..].copy_from_slice(&crc.to_le_bytes());
     let mut wire = buf[..n].to_vec(); // one good frame first (the decoder joins mid-stream)
     wire.extend(cobs_encode(&raw));
-    assert_eq!(r.ap.on_stereo_bytes(&wire, r.now), 1);
+    assert_eq!(r.ap.on_stereo_bytes(&wire, at(r.now)), 1);
     assert_eq!(r.ap.link_errors().version_mismatch, 1);
     let theirs = protocol::PROTOCOL_VERSION.wrapping_add(1);
     assert_eq!(r.ap.arm_blocker(), Some(ArmBlock::PeerVersion(theirs)));
-    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
     assert_eq!(r.ap.arm_refused(), 1);
     // Reported to the host: telemetry carries the link's error counters.
-    assert_eq!(r.ap.telemetry(r.now).link_errors.version_mismatch, 1);
+    assert_eq!(r.ap.telemetry(at(r.now)).link_errors.version_mismatch, 1);
 }
 
 #[test]
@@ -903,15 +912,15 @@ fn barometer_readings_are_kept_and_garbage_is_dropped() {
         pressure_pa: 100_009.0,
         temperature_c: 20.07,
     };
-    ap.on_baro(&good, 5);
+    ap.on_baro(&good, at(5));
     ap.on_baro(
         &BaroReading {
             pressure_pa: f32::NAN,
             temperature_c: 20.0,
         },
-        6,
+        at(6),
     );
-    assert_eq!(ap.baro(), Some((5, good)));
+    assert_eq!(ap.baro(), Some((at(5), good)));
 }
 
 #[test]
@@ -919,10 +928,10 @@ fn stale_imu_makes_motors_safe() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
     r.fly(3.0);
-    assert_eq!(r.ap.motor_safety(r.now), None);
+    assert_eq!(r.ap.motor_safety(at(r.now)), None);
     r.imu = false;
     r.fly(0.05);
-    assert_eq!(r.ap.motor_safety(r.now), Some([0.0; 4]));
+    assert_eq!(r.ap.motor_safety(at(r.now)), Some([0.0; 4]));
     assert_eq!(r.ap.mode(), FlightMode::ImuFault);
     // The IMU coming back does not restart the motors.
     r.imu = true;
@@ -935,7 +944,7 @@ fn land_command_lands_and_disarms() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
     r.fly(4.0);
-    r.ap.on_command(PilotCommand::Land, r.now);
+    r.ap.on_command(PilotCommand::Land, at(r.now));
     r.fly(6.0);
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
     assert!(r.quad.height() < 0.02);
@@ -946,11 +955,11 @@ fn telemetry_and_gyro_attitude_reflect_state() {
     let mut r = Run::new(AutopilotConfig::default());
     r.takeoff();
     r.fly(4.0);
-    let t = r.ap.telemetry(r.now);
+    let t = r.ap.telemetry(at(r.now));
     assert_eq!(t.flight_mode, FlightMode::Flying);
     assert!(t.fsm_state.is_some());
     assert!((t.height_m - r.quad.height()).abs() < 0.05);
-    let g = r.ap.gyro_attitude(r.now);
+    let g = r.ap.gyro_attitude(at(r.now));
     assert_eq!(g.timestamp_us, WireTime(r.now as u32));
     let truth = r.quad.q.to_euler();
     for i in 0..2 {
@@ -985,11 +994,11 @@ fn stereo_bytes_are_decoded_in_any_chunking() {
     bad.splice(first_frame_len..first_frame_len, [1u8, 2, 3, 0]);
     let mut decoded = 0;
     for chunk in bad.chunks(7) {
-        decoded += ap.on_stereo_bytes(chunk, 1_000);
+        decoded += ap.on_stereo_bytes(chunk, at(1_000));
     }
     assert_eq!(decoded, 4);
     assert_eq!(ap.estimates_received(), 3);
-    assert_eq!(ap.stereo_heartbeat(), Some((1_000, hb)));
+    assert_eq!(ap.stereo_heartbeat(), Some((at(1_000), hb)));
     // Only the third of a run of valid estimates counts (`min_valid_run`).
     assert_eq!(ap.velocity(), Some([0.2, 0.0]));
     let errors = ap.link_errors();
@@ -997,7 +1006,7 @@ fn stereo_bytes_are_decoded_in_any_chunking() {
         errors.crc + errors.cobs + errors.too_short + errors.malformed,
         1
     );
-    assert_eq!(ap.telemetry(0).link_errors, errors);
+    assert_eq!(ap.telemetry(at(0)).link_errors, errors);
 }
 
 fn arb_f32() -> impl Strategy<Value = f32> {
@@ -1046,7 +1055,7 @@ proptest! {
             now += 1_953;
             match input {
                 Input::Imu(g, a) => {
-                    let m = ap.on_imu(&ImuSample { timestamp_us: WireTime(now as u32), gyro_radps: g, accel_mps2: a }, now);
+                    let m = ap.on_imu(&ImuSample { timestamp_us: WireTime(now as u32), gyro_radps: g, accel_mps2: a }, at(now));
                     for x in m {
                         prop_assert!(x.is_finite() && (0.0..=1.0).contains(&x), "{:?}", m);
                     }
@@ -1060,15 +1069,15 @@ proptest! {
                     up_flags: EstimateFlags::NO_FLOW_MATCH,
                     fit_r2: 0,
                     divergence: None,
-                }, now),
+                }, at(now)),
                 Input::Pos(z) => ap.on_external_position(&ExternalPosition {
                     timestamp_us: WireTime(now as u32), position_m: [0.0, 0.0, z],
-                }, now),
+                }, at(now)),
                 Input::Cmd(c) => ap.on_command(
-                    [PilotCommand::Arm, PilotCommand::Land, PilotCommand::Kill][c as usize], now),
+                    [PilotCommand::Arm, PilotCommand::Land, PilotCommand::Kill][c as usize], at(now)),
                 Input::Guidance => {
-                    ap.on_host_heartbeat(now);
-                    ap.guidance_step(now);
+                    ap.on_host_heartbeat(at(now));
+                    ap.guidance_step(at(now));
                 }
                 Input::Wait(us) => now += us as u64,
             }
@@ -1077,11 +1086,11 @@ proptest! {
             prop_assert!(sp.thrust.is_finite() && (0.0..=1.0).contains(&sp.thrust));
             prop_assert!(sp.attitude_rad[0].abs() <= 15.0f32.to_radians() + 1e-5);
             prop_assert!(sp.attitude_rad[1].abs() <= 15.0f32.to_radians() + 1e-5);
-            let t = ap.telemetry(now);
+            let t = ap.telemetry(at(now));
             prop_assert!(t.attitude_rad.iter().all(|x| x.is_finite()));
             prop_assert!(t.velocity_mps.iter().all(|x| x.is_finite()));
             prop_assert!(t.height_m.is_finite());
-            let g = ap.gyro_attitude(now);
+            let g = ap.gyro_attitude(at(now));
             prop_assert!(g.rates_radps.iter().chain(g.attitude_rad.iter()).all(|x| x.is_finite()));
             prop_assert!(ap.indi().g1().iter().all(|g| g.is_finite() && *g > 0.0));
         }
@@ -1191,7 +1200,7 @@ fn parameters_set_on_the_ground_take_effect_and_are_refused_in_flight() {
                 board: Node::StereoBoard,
                 op,
             }),
-            0,
+            at(0),
             None,
         )
     };
@@ -1378,7 +1387,7 @@ fn a_failed_parameter_load_blocks_arming_until_acknowledged_or_saved() {
             r.ap.arm_blocker(),
             Some(ArmBlock::ParamsNotLoaded(RecordError::BadCrc))
         );
-        r.ap.on_command(PilotCommand::Arm, r.now);
+        r.ap.on_command(PilotCommand::Arm, at(r.now));
         assert_eq!(r.ap.mode(), FlightMode::Disarmed);
         assert_eq!(r.ap.arm_refused(), 1);
         let mut store = slots.clone();
@@ -1496,21 +1505,21 @@ fn the_fit_source_takes_each_frames_own_fit() {
     let mut output = autopilot_at_height();
     for k in 1..=10u64 {
         let (e, t) = frame(k * 40_000);
-        fits.on_estimate(&e, t);
-        output.on_estimate(&e, t);
+        fits.on_estimate(&e, at(t));
+        output.on_estimate(&e, at(t));
     }
-    assert_eq!(fits.freshness().last_valid_estimate_us, Some(400_000));
+    assert_eq!(fits.freshness().last_valid_estimate, Some(at(400_000)));
     assert_eq!(fits.velocity(), Some([0.3, 0.0]));
-    assert_eq!(output.freshness().last_valid_estimate_us, None);
+    assert_eq!(output.freshness().last_valid_estimate, None);
     // Without a fit, the fit source has nothing.
     let mut e = forward_estimate(0.3);
     e.fit = None;
     let mut fits = autopilot_at_height();
     fits.set_config(cfg).unwrap();
     for k in 1..=10u64 {
-        fits.on_estimate(&e, k * 40_000);
+        fits.on_estimate(&e, at(k * 40_000));
     }
-    assert_eq!(fits.freshness().last_valid_estimate_us, None);
+    assert_eq!(fits.freshness().last_valid_estimate, None);
 }
 
 /// Flies `seconds` on a battery resting at `resting_v` with 0.1 Ω of internal resistance, read
@@ -1518,7 +1527,7 @@ fn the_fit_source_takes_each_frames_own_fit() {
 fn fly_on_battery(r: &mut Run, resting_v: f32, seconds: f32) {
     for _ in 0..(seconds * 10.0).round() as u32 {
         let sag = 0.1 * r.ap.battery().current_a(&r.ap.motors(), resting_v);
-        r.ap.on_battery(resting_v - sag, r.now);
+        r.ap.on_battery(resting_v - sag, at(r.now));
         r.fly(0.1);
     }
 }
@@ -1528,7 +1537,7 @@ fn a_flat_battery_refuses_to_arm_and_a_low_one_lands_the_flight() {
     let mut r = Run::new(AutopilotConfig::default());
     fly_on_battery(&mut r, 3.6, 2.0);
     assert_eq!(r.ap.arm_blocker(), Some(ArmBlock::BatteryLow));
-    r.ap.on_command(PilotCommand::Arm, r.now);
+    r.ap.on_command(PilotCommand::Arm, at(r.now));
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
     assert_eq!(r.ap.arm_refused(), 1);
     // Charged: arms. Under hover thrust a 3.8 V battery reads about 3.5 V, below the landing
@@ -1540,7 +1549,7 @@ fn a_flat_battery_refuses_to_arm_and_a_low_one_lands_the_flight() {
     assert!(reading < 3.55, "reads {reading} V under thrust");
     assert_eq!(r.ap.mode(), FlightMode::Flying);
     assert_eq!(
-        r.ap.telemetry(r.now).battery.unwrap().state,
+        r.ap.telemetry(at(r.now)).battery.unwrap().state,
         BatteryState::Ok
     );
     // Discharged below the low threshold: lands, and stays landed as the voltage recovers.
@@ -1551,7 +1560,7 @@ fn a_flat_battery_refuses_to_arm_and_a_low_one_lands_the_flight() {
     assert_eq!(r.ap.mode(), FlightMode::Disarmed);
     assert!(r.quad.height() < 0.02);
     assert_eq!(r.ap.failsafe_reason(), Some(FailsafeReason::BatteryLow));
-    let tel = r.ap.telemetry(r.now).battery.unwrap();
+    let tel = r.ap.telemetry(at(r.now)).battery.unwrap();
     assert_eq!(tel.state, BatteryState::Low);
     assert!((tel.resting_v - 3.4).abs() < 0.02, "{tel:?}");
 }
@@ -1585,24 +1594,24 @@ fn a_critical_battery_lands_at_once_at_the_fast_descent_rate() {
 fn hil_outputs_are_off_at_boot_and_enabled_only_with_the_motors_off() {
     let mut r = Run::new(AutopilotConfig::default());
     assert!(!r.ap.hil_outputs(), "off at boot");
-    r.ap.on_command(PilotCommand::HilOutputs(true), r.now);
+    r.ap.on_command(PilotCommand::HilOutputs(true), at(r.now));
     assert!(r.ap.hil_outputs());
-    r.ap.on_command(PilotCommand::HilOutputs(false), r.now);
+    r.ap.on_command(PilotCommand::HilOutputs(false), at(r.now));
     assert!(!r.ap.hil_outputs());
     r.takeoff();
     r.fly(1.0);
     // Flying: enabling is refused (the outputs would jump to the flight's duty), the flight
     // goes on untouched.
-    r.ap.on_command(PilotCommand::HilOutputs(true), r.now);
+    r.ap.on_command(PilotCommand::HilOutputs(true), at(r.now));
     assert!(!r.ap.hil_outputs());
     assert_eq!(r.ap.mode(), FlightMode::Flying);
     // Disabling is always taken.
-    r.ap.on_command(PilotCommand::Kill, r.now);
-    r.ap.on_command(PilotCommand::HilOutputs(true), r.now);
+    r.ap.on_command(PilotCommand::Kill, at(r.now));
+    r.ap.on_command(PilotCommand::HilOutputs(true), at(r.now));
     assert!(r.ap.hil_outputs(), "the motors are off again");
     r.takeoff();
     r.fly(0.5);
-    r.ap.on_command(PilotCommand::HilOutputs(false), r.now);
+    r.ap.on_command(PilotCommand::HilOutputs(false), at(r.now));
     assert!(!r.ap.hil_outputs());
     assert_eq!(r.ap.mode(), FlightMode::Flying, "the gate is not a kill");
 }
@@ -1633,13 +1642,13 @@ fn external_fixes_pass_the_vertical_gate_or_go_nowhere() {
     let mut t = 0;
     for _ in 0..50 {
         t += 10_000;
-        ap.on_external_position(&height_fix(0.0, t), t);
+        ap.on_external_position(&height_fix(0.0, t), at(t));
     }
     assert_eq!(ap.fixes_refused(), 0);
-    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    assert_eq!(ap.height.last_measurement(), Some(at(t)));
     let taken = t;
     t += 10_000;
-    ap.on_external_position(&height_fix(3.0, t), t);
+    ap.on_external_position(&height_fix(3.0, t), at(t));
     assert_eq!(ap.fixes_refused(), 1);
     assert!(
         ap.vertical.height_m().abs() < 0.01,
@@ -1651,19 +1660,19 @@ fn external_fixes_pass_the_vertical_gate_or_go_nowhere() {
         "{}",
         ap.height.height_m()
     );
-    assert_eq!(ap.height.last_measurement_us(), Some(taken));
-    assert_eq!(ap.freshness().last_height_us, Some(taken));
+    assert_eq!(ap.height.last_measurement(), Some(at(taken)));
+    assert_eq!(ap.freshness().last_height, Some(at(taken)));
 
     let mut cfg = AutopilotConfig::default();
     cfg.vertical.external_fixes = false;
     let mut ap = Autopilot::new(cfg);
     for k in 1..=50 {
-        ap.on_external_position(&height_fix(0.5, k * 20_000), k * 20_000);
+        ap.on_external_position(&height_fix(0.5, k * 20_000), at(k * 20_000));
     }
     assert_eq!(ap.fixes_refused(), 50);
     assert_eq!(ap.vertical.height_m(), 0.0, "the estimator never saw them");
-    assert_eq!(ap.height.last_measurement_us(), None);
-    assert_eq!(ap.freshness().last_height_us, None);
+    assert_eq!(ap.height.last_measurement(), None);
+    assert_eq!(ap.freshness().last_height, None);
 }
 
 /// What a motion-capture system reports of a drone taking off: 50 Hz fixes on the floor, then
@@ -1678,14 +1687,14 @@ fn a_motion_capture_take_off_passes_the_gate_fix_by_fix() {
     let mut worst = 0.0f32;
     while t < 6_000_000 {
         t += IMU_US;
-        ap.on_imu(&still_imu(t), t);
+        ap.on_imu(&still_imu(t), at(t));
         if t >= next_fix {
             next_fix += 20_000;
             let climbing = t > 1_000_000;
             if climbing {
                 h = (h + cfg.setpoints.climb_rate_mps * 0.02).min(1.0);
             }
-            ap.on_external_position(&height_fix(h, t), t);
+            ap.on_external_position(&height_fix(h, t), at(t));
             worst = worst.max((ap.height.height_m() - h).abs());
         }
     }
@@ -1706,25 +1715,25 @@ fn a_single_fix_does_not_satisfy_the_arming_check() {
     let mut t = 0;
     for _ in 0..100 {
         t += IMU_US;
-        ap.on_imu(&still_imu(t), t);
+        ap.on_imu(&still_imu(t), at(t));
     }
-    ap.on_host_heartbeat(t);
-    ap.on_external_position(&height_fix(0.0, t), t);
+    ap.on_host_heartbeat(at(t));
+    ap.on_external_position(&height_fix(0.0, t), at(t));
     assert_eq!(ap.fixes_refused(), 0, "the gate took it");
-    assert_eq!(ap.freshness().last_height_us, None);
-    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.freshness().last_height, None);
+    ap.on_command(PilotCommand::Arm, at(t));
     assert_eq!(ap.mode(), FlightMode::Disarmed);
     assert_eq!(ap.arm_refused(), 1);
     for k in 1..FIXES_TO_LEAD {
-        let at = t + u64::from(k) * 20_000;
-        while t < at {
+        let until = t + u64::from(k) * 20_000;
+        while t < until {
             t += IMU_US;
-            ap.on_imu(&still_imu(t), t);
+            ap.on_imu(&still_imu(t), at(t));
         }
-        ap.on_external_position(&height_fix(0.0, t), t);
+        ap.on_external_position(&height_fix(0.0, t), at(t));
     }
-    assert_eq!(ap.freshness().last_height_us, Some(t));
-    ap.on_command(PilotCommand::Arm, t);
+    assert_eq!(ap.freshness().last_height, Some(at(t)));
+    ap.on_command(PilotCommand::Arm, at(t));
     assert_eq!(ap.mode(), FlightMode::Flying);
     assert_eq!(ap.arm_refused(), 1);
 }
@@ -1739,17 +1748,17 @@ fn a_fix_stream_that_pauses_must_build_up_again() {
         for _ in 0..fixes {
             for _ in 0..period / IMU_US {
                 *t += IMU_US;
-                ap.on_imu(&still_imu(*t), *t);
+                ap.on_imu(&still_imu(*t), at(*t));
             }
-            ap.on_external_position(&height_fix(0.0, *t), *t);
+            ap.on_external_position(&height_fix(0.0, *t), at(*t));
         }
     };
     fix_every(&mut ap, &mut t, 10, 20_000);
-    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    assert_eq!(ap.height.last_measurement(), Some(at(t)));
     let before_pause = t;
     fix_every(&mut ap, &mut t, 1, 1_000_000);
-    assert_eq!(ap.height.last_measurement_us(), Some(before_pause));
+    assert_eq!(ap.height.last_measurement(), Some(at(before_pause)));
     fix_every(&mut ap, &mut t, u32::from(FIXES_TO_LEAD) - 1, 20_000);
-    assert_eq!(ap.height.last_measurement_us(), Some(t));
+    assert_eq!(ap.height.last_measurement(), Some(at(t)));
     assert_eq!(ap.fixes_refused(), 0);
 }

@@ -25,6 +25,7 @@ use crate::force_field::ForceFieldConfig;
 use crate::fsm::{AvoidanceFsm, FsmConfig, FsmState, ObstacleReading};
 use crate::range_rate::{Closing, RangeRate};
 use protocol::{Estimate, EstimateFlags};
+use timebase::{Duration, Instant};
 
 /// Flags of a frame that says nothing about obstacles (the image itself is unusable).
 const UNSEEN: EstimateFlags =
@@ -53,16 +54,16 @@ pub const MIN_CLOSING_SIGMA_MPS: f32 = 0.05;
 pub const CLOSING_MARGIN_MPS: f32 = 0.15;
 
 /// The closing speed overrules the estimate only once it has disagreed this long without a
-/// break, µs: a nearer surface sliding into the view's edge shrinks the nearest distance for a
+/// break: a nearer surface sliding into the view's edge shrinks the nearest distance for a
 /// few tenths of a second without any motion (in flight up to 0.36 s), while a wrong velocity
 /// estimate persists (the suite's room 7 flew seconds at 0.3 m/s on a reading of 0.03).
-pub const DISPUTE_US: u64 = 500_000;
+pub const DISPUTE: Duration = Duration::from_millis(500);
 
 /// What avoidance needs to know at a guidance step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AvoidanceInput {
-    /// Time, µs.
-    pub now_us: u64,
+    /// Time.
+    pub now: Instant,
     /// Normal flight: the FSM may run (in any other mode it stops).
     pub flying: bool,
     /// The drone is at its flight height: a stopped FSM starts.
@@ -102,15 +103,15 @@ pub struct Avoidance {
     /// The forward velocity the last cross-check put in the estimate's place, m/s (`None`: it
     /// let the estimate stand).
     overrule: Option<f32>,
-    /// Since when the closing speed has disagreed with the estimate, µs.
-    disputed_since: Option<u64>,
+    /// Since when the closing speed has disagreed with the estimate.
+    disputed_since: Option<Instant>,
 }
 
 impl Avoidance {
     /// FSM stopped, no reading yet.
     pub fn new(cfg: FsmConfig) -> Self {
         Self {
-            fsm: AvoidanceFsm::new(cfg, 0, 0.0),
+            fsm: AvoidanceFsm::new(cfg, Instant::ZERO, 0.0),
             active: false,
             obstacle: None,
             range_rate: RangeRate::new(),
@@ -125,9 +126,9 @@ impl Avoidance {
         self.fsm.set_config(cfg);
     }
 
-    /// The obstacle reading of an estimate received at `now_us` at heading `yaw_rad`, if it has
+    /// The obstacle reading of an estimate received at `now` at heading `yaw_rad`, if it has
     /// one (see the module documentation).
-    pub fn on_estimate(&mut self, est: &Estimate, yaw_rad: f32, now_us: u64) {
+    pub fn on_estimate(&mut self, est: &Estimate, yaw_rad: f32, now: Instant) {
         if est.flags.0 & UNSEEN.0 != 0 {
             return;
         }
@@ -144,7 +145,7 @@ impl Avoidance {
             0.0
         };
         if let Some(distance_m) = d {
-            self.range_rate.on_distance(distance_m, yaw_rad, now_us);
+            self.range_rate.on_distance(distance_m, yaw_rad, now);
         }
         let contact_s = est
             .divergence
@@ -155,7 +156,7 @@ impl Avoidance {
         let d = d.or_else(|| blocking.map(|_| None));
         if let Some(distance_m) = d {
             self.obstacle = Some(ObstacleReading {
-                received_us: now_us,
+                received: now,
                 distance_m,
                 depth_fraction,
                 contact_s,
@@ -168,24 +169,22 @@ impl Avoidance {
         &mut self,
         input: &AvoidanceInput,
         force_field: &ForceFieldConfig,
-        estimate_timeout_us: u64,
+        estimate_timeout: Duration,
     ) -> AvoidanceOutput {
-        let now_us = input.now_us;
+        let now = input.now;
         let obstacle = self
             .obstacle
-            .filter(|o| now_us.saturating_sub(o.received_us) <= estimate_timeout_us);
+            .filter(|o| now.since(o.received) <= estimate_timeout);
         let mut v_sp = [0.0f32; 2];
         let mut yaw_sp = input.held_yaw_rad;
         let mut land = false;
         if input.flying {
             if !self.active && input.at_flight_height {
-                self.fsm.reset(now_us, yaw_sp);
+                self.fsm.reset(now, yaw_sp);
                 self.active = true;
             }
             if self.active {
-                let out = self
-                    .fsm
-                    .step(now_us, input.yaw_rad, obstacle, input.speed_mps);
+                let out = self.fsm.step(now, input.yaw_rad, obstacle, input.speed_mps);
                 v_sp[0] = out.forward_mps;
                 yaw_sp = out.yaw_sp_rad;
                 land = out.land;
@@ -208,16 +207,16 @@ impl Avoidance {
     }
 
     /// The velocity estimate `[forward, sideways]` (m/s) checked against the obstacle's range
-    /// rate at `now_us`: a static obstacle cannot close faster than the drone moves, so when
+    /// rate at `now`: a static obstacle cannot close faster than the drone moves, so when
     /// the stereo distance shrinks faster ([`CLOSING_SIGMAS`] standard errors, at least
     /// [`MIN_CLOSING_SIGMA_MPS`] each, below its estimate) than the estimate's speed plus
     /// [`CLOSING_MARGIN_MPS`], the estimate is wrong, and once the disagreement has lasted
-    /// [`DISPUTE_US`] its forward velocity is raised to that closing speed (the obstacle is in
+    /// [`DISPUTE`] its forward velocity is raised to that closing speed (the obstacle is in
     /// the camera's view, ahead). Guidance then brakes what the drone really does; the
     /// estimate itself is not changed.
-    pub fn cross_check(&mut self, velocity: Option<[f32; 2]>, now_us: u64) -> Option<[f32; 2]> {
+    pub fn cross_check(&mut self, velocity: Option<[f32; 2]>, now: Instant) -> Option<[f32; 2]> {
         self.overrule = None;
-        let (Some([forward, sideways]), Some(closing)) = (velocity, self.closing(now_us)) else {
+        let (Some([forward, sideways]), Some(closing)) = (velocity, self.closing(now)) else {
             self.disputed_since = None;
             return velocity;
         };
@@ -227,8 +226,8 @@ impl Avoidance {
             self.disputed_since = None;
             return velocity;
         }
-        let since = *self.disputed_since.get_or_insert(now_us);
-        if now_us.saturating_sub(since) < DISPUTE_US {
+        let since = *self.disputed_since.get_or_insert(now);
+        if now.since(since) < DISPUTE {
             return velocity;
         }
         let raised = forward.max(sure);
@@ -237,9 +236,9 @@ impl Avoidance {
         Some([raised, sideways])
     }
 
-    /// The closing speed on the nearest obstacle at `now_us`, from the stereo distances.
-    pub fn closing(&self, now_us: u64) -> Option<Closing> {
-        self.range_rate.closing(now_us)
+    /// The closing speed on the nearest obstacle at `now`, from the stereo distances.
+    pub fn closing(&self, now: Instant) -> Option<Closing> {
+        self.range_rate.closing(now)
     }
 
     /// Guidance steps at which the range rate overruled the velocity estimate
@@ -278,12 +277,13 @@ impl Avoidance {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
     use crate::test_support::forward_estimate;
     use crate::AutopilotConfig;
 
     fn input(now_us: u64, flying: bool, at_flight_height: bool) -> AvoidanceInput {
         AvoidanceInput {
-            now_us,
+            now: at(now_us),
             flying,
             at_flight_height,
             yaw_rad: 0.2,
@@ -307,29 +307,29 @@ mod tests {
             flags,
             ..sees(obstacle_m)
         };
-        a.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 0.0, 40_000);
+        a.on_estimate(&est(Some(2.0), EstimateFlags::NONE), 0.0, at(40_000));
         assert_eq!(distance(&a), Some(2.0));
         // A plain view: its "nothing in range" does not clear the last reading.
-        a.on_estimate(&est(None, EstimateFlags::NO_STEREO_MATCH), 0.0, 80_000);
-        a.on_estimate(&est(None, EstimateFlags::NO_TEXTURE), 0.0, 120_000);
+        a.on_estimate(&est(None, EstimateFlags::NO_STEREO_MATCH), 0.0, at(80_000));
+        a.on_estimate(&est(None, EstimateFlags::NO_TEXTURE), 0.0, at(120_000));
         assert_eq!(distance(&a), Some(2.0));
         // A surface nearer than the stereo range, reported from a frame with few matches: kept,
         // with no depth to speak of.
         a.on_estimate(
             &est(Some(0.53), EstimateFlags::NO_STEREO_MATCH),
             0.0,
-            160_000,
+            at(160_000),
         );
         assert_eq!(distance(&a), Some(0.53));
         assert_eq!(a.obstacle().unwrap().depth_fraction, 0.0);
         // A dark frame says nothing at all, nor does a garbage distance.
-        a.on_estimate(&est(Some(0.2), EstimateFlags::TOO_DARK), 0.0, 200_000);
-        a.on_estimate(&est(Some(f32::NAN), EstimateFlags::NONE), 0.0, 210_000);
+        a.on_estimate(&est(Some(0.2), EstimateFlags::TOO_DARK), 0.0, at(200_000));
+        a.on_estimate(&est(Some(f32::NAN), EstimateFlags::NONE), 0.0, at(210_000));
         assert_eq!(distance(&a), Some(0.53));
         // A usable view with nothing in range clears it.
-        a.on_estimate(&est(None, EstimateFlags::NONE), 0.0, 240_000);
+        a.on_estimate(&est(None, EstimateFlags::NONE), 0.0, at(240_000));
         assert_eq!(distance(&a), None);
-        assert_eq!(a.obstacle().unwrap().received_us, 240_000);
+        assert_eq!(a.obstacle().unwrap().received, at(240_000));
     }
 
     /// The suite's room 7 (seed 9001): the drone closes on an obstacle at 0.3 m/s while the
@@ -345,9 +345,9 @@ mod tests {
                 let t = k * 20_000;
                 if k % 2 == 0 {
                     let d = 1.5 - closing_mps * t as f32 * 1e-6;
-                    a.on_estimate(&sees(Some(d)), 0.0, t);
+                    a.on_estimate(&sees(Some(d)), 0.0, at(t));
                 }
-                *o = a.cross_check(Some(estimate), t);
+                *o = a.cross_check(Some(estimate), at(t));
             }
             (out, a.overruled())
         };
@@ -367,7 +367,7 @@ mod tests {
         }
         // No estimate: nothing to check.
         let mut a = Avoidance::new(FsmConfig::default());
-        assert_eq!(a.cross_check(None, 0), None);
+        assert_eq!(a.cross_check(None, at(0)), None);
     }
 
     #[test]
@@ -378,7 +378,7 @@ mod tests {
         let out = a.step(
             &input(0, true, false),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         assert_eq!(
             out,
@@ -393,25 +393,25 @@ mod tests {
         a.step(
             &input(20_000, true, true),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         assert_eq!(a.state(), Some(FsmState::Check));
-        a.on_estimate(&sees(None), 0.0, 30_000);
+        a.on_estimate(&sees(None), 0.0, at(30_000));
         let out = a.step(
             &input(40_000, true, true),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         assert_eq!(a.state(), Some(FsmState::Forward));
         a.step(
             &input(60_000, true, true),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         let out2 = a.step(
             &input(80_000, true, true),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         assert_eq!(out.yaw_sp_rad, 0.2);
         assert_eq!(out2.velocity_mps, [cfg.fsm.forward_speed_mps, 0.0]);
@@ -419,14 +419,14 @@ mod tests {
         let out = a.step(
             &input(100_000, false, true),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         assert_eq!(out.velocity_mps, [0.0; 2]);
         assert!(!a.active());
         a.step(
             &input(120_000, true, true),
             &cfg.force_field,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
         );
         assert_eq!(a.state(), Some(FsmState::Check));
         a.stop();
@@ -437,23 +437,23 @@ mod tests {
     fn the_force_field_pushes_back_in_any_mode_until_the_reading_is_stale() {
         let cfg = AutopilotConfig::default();
         let mut a = Avoidance::new(cfg.fsm);
-        a.on_estimate(&sees(Some(0.4)), 0.0, 1_000_000);
+        a.on_estimate(&sees(Some(0.4)), 0.0, at(1_000_000));
         let push = backward_velocity(&cfg.force_field, Some(0.4));
         assert!(push < 0.0);
         for flying in [true, false] {
             let out = a.step(
                 &input(1_000_000, flying, false),
                 &cfg.force_field,
-                cfg.failsafe.estimate_timeout_us,
+                cfg.failsafe.estimate_timeout,
             );
             assert_eq!(out.velocity_mps, [push, 0.0]);
         }
-        let stale = 1_000_000 + cfg.failsafe.estimate_timeout_us + 1;
+        let stale = 1_000_000 + cfg.failsafe.estimate_timeout.as_micros() + 1;
         assert_eq!(
             a.step(
                 &input(stale, false, false),
                 &cfg.force_field,
-                cfg.failsafe.estimate_timeout_us
+                cfg.failsafe.estimate_timeout
             )
             .velocity_mps,
             [0.0; 2]
@@ -473,7 +473,7 @@ mod tests {
                 .step(
                     &input(t, true, true),
                     &cfg.force_field,
-                    cfg.failsafe.estimate_timeout_us,
+                    cfg.failsafe.estimate_timeout,
                 )
                 .land;
         }

@@ -22,6 +22,7 @@
 
 pub use protocol::BatteryState;
 use protocol::BatteryTelemetry;
+use timebase::{Duration, Instant};
 
 /// Battery thresholds and the sag model.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,8 +37,8 @@ pub struct BatteryConfig {
     pub resistance_ohm: f32,
     /// Battery current with all four motors at full duty on a [`NOMINAL_V`] supply, A.
     pub full_throttle_current_a: f32,
-    /// Time constant of the low-pass filter over the compensated voltage, µs.
-    pub filter_tau_us: u32,
+    /// Time constant of the low-pass filter over the compensated voltage.
+    pub filter_tau: Duration,
 }
 
 impl Default for BatteryConfig {
@@ -52,7 +53,7 @@ impl Default for BatteryConfig {
             critical_v: 3.4,
             resistance_ohm: 0.12,
             full_throttle_current_a: 11.0,
-            filter_tau_us: 1_000_000,
+            filter_tau: Duration::from_secs(1),
         }
     }
 }
@@ -67,8 +68,8 @@ const PLAUSIBLE_V: core::ops::RangeInclusive<f32> = 0.5..=10.0;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BatteryMonitor {
     cfg: BatteryConfig,
-    /// The last accepted reading (V) and when it was taken (µs).
-    last: Option<(u64, f32)>,
+    /// The last accepted reading (V) and when it was taken.
+    last: Option<(Instant, f32)>,
     /// The filtered, compensated voltage, V.
     resting_v: f32,
     /// The verdict of this flight (latched).
@@ -108,11 +109,11 @@ impl BatteryMonitor {
         self.cfg.full_throttle_current_a * mean_cube * v * v
     }
 
-    /// A supply reading of `volts` taken at `now_us` while the motors ran at `duties`. In
+    /// A supply reading of `volts` taken at `now` while the motors ran at `duties`. In
     /// flight (`flying`), the verdict may worsen; it never improves until
     /// [`BatteryMonitor::rearm`]. An implausible reading (not finite, outside 0.5-10 V) is
     /// counted in [`BatteryMonitor::rejected`] and changes nothing.
-    pub fn on_sample(&mut self, volts: f32, duties: &[f32; 4], flying: bool, now_us: u64) {
+    pub fn on_sample(&mut self, volts: f32, duties: &[f32; 4], flying: bool, now: Instant) {
         if !volts.is_finite() || !PLAUSIBLE_V.contains(&volts) {
             self.rejected = self.rejected.wrapping_add(1);
             return;
@@ -120,13 +121,14 @@ impl BatteryMonitor {
         let compensated = volts + self.cfg.resistance_ohm * self.current_a(duties, volts);
         self.resting_v = match self.last {
             Some((t, _)) => {
-                let dt = now_us.saturating_sub(t) as f32;
-                let alpha = dt / (dt + self.cfg.filter_tau_us as f32).max(1.0);
+                // µs, as are the time constant's.
+                let dt = now.since(t).as_micros() as f32;
+                let alpha = dt / (dt + self.cfg.filter_tau.as_micros() as f32).max(1.0);
                 self.resting_v + alpha * (compensated - self.resting_v)
             }
             None => compensated,
         };
-        self.last = Some((now_us, volts));
+        self.last = Some((now, volts));
         if flying {
             let verdict = if self.resting_v < self.cfg.critical_v {
                 BatteryState::Critical
@@ -154,8 +156,8 @@ impl BatteryMonitor {
         self.last.map(|_| self.resting_v)
     }
 
-    /// The last accepted reading, V, and when it was taken, µs.
-    pub fn last_reading(&self) -> Option<(u64, f32)> {
+    /// The last accepted reading, V, and when it was taken.
+    pub fn last_reading(&self) -> Option<(Instant, f32)> {
         self.last
     }
 
@@ -200,6 +202,7 @@ fn worst(a: BatteryState, b: BatteryState) -> BatteryState {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
 
     const HOVER: [f32; 4] = [0.65; 4];
     const OFF: [f32; 4] = [0.0; 4];
@@ -216,7 +219,7 @@ mod tests {
         let mut t = t0_us;
         for _ in 0..seconds * 10 {
             t += 100_000;
-            m.on_sample(volts, duties, flying, t);
+            m.on_sample(volts, duties, flying, at(t));
         }
         t
     }
@@ -249,7 +252,7 @@ mod tests {
         t = feed(&mut m, 3.65, &OFF, true, t, 5);
         assert_eq!(m.state(), BatteryState::Ok);
         // One bad sample does not trip it (the filter); a sustained drop does.
-        m.on_sample(3.3, &OFF, true, t + 100_000);
+        m.on_sample(3.3, &OFF, true, at(t + 100_000));
         assert_eq!(m.state(), BatteryState::Ok);
         t = feed(&mut m, 3.5, &OFF, true, t + 100_000, 5);
         assert_eq!(m.state(), BatteryState::Low);
@@ -280,12 +283,12 @@ mod tests {
     fn implausible_readings_are_counted_and_ignored() {
         let mut m = BatteryMonitor::new(BatteryConfig::default());
         for v in [f32::NAN, f32::INFINITY, -1.0, 0.0, 12.0] {
-            m.on_sample(v, &OFF, true, 1_000);
+            m.on_sample(v, &OFF, true, at(1_000));
         }
         assert_eq!(m.rejected(), 5);
         assert_eq!(m.resting_v(), None);
         assert_eq!(m.telemetry(), None);
-        m.on_sample(3.9, &OFF, true, 2_000);
+        m.on_sample(3.9, &OFF, true, at(2_000));
         let tel = m.telemetry().unwrap();
         assert_eq!((tel.voltage_v, tel.resting_v), (3.9, 3.9));
     }

@@ -38,6 +38,7 @@
 
 use board_support::pins::pin;
 pub use board_support::pins::{Function, Pin, PinAssignment, Port, Pull};
+use timebase::Duration;
 
 /// Every pin the `real` firmware configures (and [`RC_PIN`] with [`RC_RECEIVER`]); all others
 /// stay in their reset state (input,
@@ -310,33 +311,33 @@ pub const TELEMETRY_BAUD: u32 = board_support::link::HOST_BAUD;
 /// DS8626 table 41; real flavour). 50 ms: from rest a drone falls g t^2 / 2 = 1.2 cm in 50 ms,
 /// so a hung firmware is reset before it has dropped noticeably or flown far on its last
 /// command. The 512 Hz control loop feeds the watchdog, and only while the guidance task ran
-/// within [`GUIDANCE_ALIVE_US`] and the heartbeat within [`HEARTBEAT_ALIVE_US`]: a hang in the
+/// within [`GUIDANCE_ALIVE`] and the heartbeat within [`HEARTBEAT_ALIVE`]: a hang in the
 /// loop or at any priority above starves it at once; one at the guidance priority or above
-/// starves it within [`GUIDANCE_ALIVE_US`]; one below (telemetry, gyro, barometer, heartbeat)
-/// within [`HEARTBEAT_ALIVE_US`]. [`WATCHDOG`] is programmed so that the guidance window plus
+/// starves it within [`GUIDANCE_ALIVE`]; one below (telemetry, gyro, barometer, heartbeat)
+/// within [`HEARTBEAT_ALIVE`]. [`WATCHDOG`] is programmed so that the guidance window plus
 /// the timeout at the slowest LSI is at most this. In the lockstep flavours (`hil`, `qemu`)
 /// the world clock may stall while the host computes, so the 1 Hz heartbeat feeds the
 /// watchdog there, with [`board_support::watchdog::HEARTBEAT_FED`] (the boards' timeouts side
 /// by side: [`board_support::watchdog`]).
 pub const WATCHDOG_MS: u32 = 50;
 /// How recently the 50 Hz guidance task must have run for the control loop to feed the
-/// watchdog, µs: its 20 ms period and 5 ms for a release delayed by the tasks above it.
-pub const GUIDANCE_ALIVE_US: u32 = 25_000;
+/// watchdog: its 20 ms period and 5 ms for a release delayed by the tasks above it.
+pub const GUIDANCE_ALIVE: Duration = Duration::from_millis(25);
 /// How recently the 1 Hz heartbeat (the lowest priority) must have run for the control loop to
-/// feed the watchdog, µs: its period and half a period of delay.
-pub const HEARTBEAT_ALIVE_US: u32 = 1_500_000;
+/// feed the watchdog: its period and half a period of delay.
+pub const HEARTBEAT_ALIVE: Duration = Duration::from_millis(1_500);
 /// The independent watchdog's programmed timeout (real flavour): [`WATCHDOG_MS`] less the
 /// guidance window at the slowest LSI (24.9 ms there, 9.0 ms at the fastest, where the 512 Hz
 /// loop feeds it every 1.95 ms).
 pub const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::Timeout::within_ms(
-    WATCHDOG_MS - GUIDANCE_ALIVE_US / 1_000,
+    WATCHDOG_MS - GUIDANCE_ALIVE.as_millis() as u32,
     board_support::watchdog::LSI_HZ_SLOWEST,
 );
 
-/// The longest time from a panic or HardFault to every motor at 0, µs: the fault path's first
+/// The longest time from a panic or HardFault to every motor at 0: the fault path's first
 /// act after masking interrupts is the register writes of `hw::motors_off` (a few dozen
 /// instructions; `board_support::fault`).
-pub const FAULT_MOTORS_OFF_US: u64 = 10;
+pub const FAULT_MOTORS_OFF: Duration = Duration::from_micros(10);
 
 /// The MPU-6000's axes on the board: board axis i is `sign[i]` times chip axis `axis[i]`.
 /// Paparazzi's Lisa/MX 2.1 mapping is board = (-chip y, chip x, chip z) (\[PZ\]

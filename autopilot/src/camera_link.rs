@@ -11,6 +11,7 @@ use protocol::{
     Estimate, Heartbeat, LinkErrorCounts, ParamResponse, StereoStatus, StereoToAutopilot,
     StereoToAutopilotDecoder,
 };
+use timebase::Instant;
 
 /// What a camera-board message asks of the rest of the autopilot.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,7 +27,7 @@ pub enum CameraNews {
 #[derive(Debug, Clone)]
 pub struct CameraLink {
     rx: StereoToAutopilotDecoder,
-    heartbeat: Option<(u64, Heartbeat)>,
+    heartbeat: Option<(Instant, Heartbeat)>,
     status: Option<StereoStatus>,
     param_reply: Option<ParamResponse>,
 }
@@ -54,12 +55,12 @@ impl CameraLink {
         self.rx.push(byte)
     }
 
-    /// One decoded message received at `now_us`: heartbeats, status reports, configuration and
+    /// One decoded message received at `now`: heartbeats, status reports, configuration and
     /// parameter answers are kept here; what the rest of the autopilot acts on is returned.
-    pub fn on_message(&mut self, msg: StereoToAutopilot, now_us: u64) -> Option<CameraNews> {
+    pub fn on_message(&mut self, msg: StereoToAutopilot, now: Instant) -> Option<CameraNews> {
         match msg {
             StereoToAutopilot::Estimate(e) => return Some(CameraNews::Estimate(e)),
-            StereoToAutopilot::Heartbeat(h) => self.heartbeat = Some((now_us, h)),
+            StereoToAutopilot::Heartbeat(h) => self.heartbeat = Some((now, h)),
             StereoToAutopilot::Status(s) => {
                 self.status = Some(s);
                 if s.camera_stopped {
@@ -81,8 +82,8 @@ impl CameraLink {
         self.rx.peer_version_mismatch()
     }
 
-    /// The board's last heartbeat and when it arrived, µs.
-    pub fn heartbeat(&self) -> Option<(u64, Heartbeat)> {
+    /// The board's last heartbeat and when it arrived.
+    pub fn heartbeat(&self) -> Option<(Instant, Heartbeat)> {
         self.heartbeat
     }
 
@@ -100,6 +101,7 @@ impl CameraLink {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
     use crate::test_support::{camera_status as status, forward_estimate};
     use protocol::{Node, ParamError, ParamReply};
 
@@ -107,14 +109,17 @@ mod tests {
     fn reports_are_kept_and_only_estimates_and_a_stopped_camera_are_passed_on() {
         let mut link = CameraLink::new();
         let hb = Heartbeat::new(Node::StereoBoard, 1_000);
-        assert_eq!(link.on_message(StereoToAutopilot::Heartbeat(hb), 7), None);
-        assert_eq!(link.heartbeat(), Some((7, hb)));
         assert_eq!(
-            link.on_message(StereoToAutopilot::Status(status(false)), 8),
+            link.on_message(StereoToAutopilot::Heartbeat(hb), at(7)),
+            None
+        );
+        assert_eq!(link.heartbeat(), Some((at(7), hb)));
+        assert_eq!(
+            link.on_message(StereoToAutopilot::Status(status(false)), at(8)),
             None
         );
         assert_eq!(
-            link.on_message(StereoToAutopilot::Status(status(true)), 9),
+            link.on_message(StereoToAutopilot::Status(status(true)), at(9)),
             Some(CameraNews::CameraStopped)
         );
         assert_eq!(link.status(), Some(status(true)));
@@ -123,7 +128,7 @@ mod tests {
             reply: ParamReply::Error(ParamError::Armed),
         };
         assert_eq!(
-            link.on_message(StereoToAutopilot::Param(reply.clone()), 10),
+            link.on_message(StereoToAutopilot::Param(reply.clone()), at(10)),
             None
         );
         assert_eq!(link.take_param_reply(), Some(reply));
@@ -133,7 +138,7 @@ mod tests {
             ..forward_estimate(0.1)
         };
         assert_eq!(
-            link.on_message(StereoToAutopilot::Estimate(est), 11),
+            link.on_message(StereoToAutopilot::Estimate(est), at(11)),
             Some(CameraNews::Estimate(est))
         );
     }

@@ -12,8 +12,9 @@ use crate::gyro_calibration::GyroCalibrationConfig;
 use crate::height::HeightConfig;
 use crate::indi::IndiConfig;
 use crate::setpoints::{SetpointConfig, LAND_SETPOINT_FLOOR_M};
-use crate::tasks::GUIDANCE_PERIOD_US;
+use crate::tasks::GUIDANCE_PERIOD;
 use crate::vertical::VerticalConfig;
+use timebase::Duration;
 
 /// Every tunable of the autopilot, with pocket-drone defaults, one configuration per stage.
 /// Units are on each field.
@@ -47,17 +48,17 @@ pub struct AutopilotConfig {
 
 impl AutopilotConfig {
     /// The longest time from the camera board's estimates stopping (a cut link, a dead board)
-    /// to every motor at 0, µs, for a drone flying at up to `setpoints.target_height_m`: the estimate
-    /// timeout, then as [`AutopilotConfig::camera_stopped_motors_off_us`].
-    pub fn link_loss_motors_off_us(&self) -> u64 {
-        self.failsafe.estimate_timeout_us + self.camera_stopped_motors_off_us()
+    /// to every motor at 0, for a drone flying at up to `setpoints.target_height_m`: the estimate
+    /// timeout, then as [`AutopilotConfig::camera_stopped_motors_off`].
+    pub fn link_loss_motors_off(&self) -> Duration {
+        self.failsafe.estimate_timeout + self.camera_stopped_motors_off()
     }
 
-    /// The longest time from the host's last heartbeat to every motor at 0, µs, with the
+    /// The longest time from the host's last heartbeat to every motor at 0, with the
     /// default host action (land) for a drone flying at up to `setpoints.target_height_m` (the host
-    /// timeout, then a landing as in [`AutopilotConfig::camera_stopped_motors_off_us`] at the
+    /// timeout, then a landing as in [`AutopilotConfig::camera_stopped_motors_off`] at the
     /// slower of the two landing rates, without the hover).
-    pub fn host_loss_motors_off_us(&self) -> u64 {
+    pub fn host_loss_motors_off(&self) -> Duration {
         let ramp_m = self.setpoints.target_height_m.max(0.0) - LAND_SETPOINT_FLOOR_M;
         let rate = self
             .setpoints
@@ -65,24 +66,24 @@ impl AutopilotConfig {
             .abs()
             .min(self.setpoints.blind_land_rate_mps.abs())
             .max(0.01);
-        self.failsafe.host_timeout_us
-            + ((ramp_m / rate) * 1e6) as u64
-            + self.setpoints.landed_time_us
-            + u64::from(GUIDANCE_PERIOD_US)
+        self.failsafe.host_timeout
+            + Duration::from_micros(((ramp_m / rate) * 1e6) as u64)
+            + self.setpoints.landed_time
+            + GUIDANCE_PERIOD
     }
 
     /// The longest time from the camera board's `Status` reporting its camera stopped to every
-    /// motor at 0, µs (the report ends the estimates at once): the hover before landing; the
+    /// motor at 0 (the report ends the estimates at once): the hover before landing; the
     /// height setpoint's ramp at `setpoints.blind_land_rate_mps` from the target height down to its stop
     /// 0.2 m below the floor (not just to the floor: the drone lags the ramp, by more the
     /// faster it is, and is down when the setpoint stops at the latest); the touchdown
     /// confirmation; one guidance period.
-    pub fn camera_stopped_motors_off_us(&self) -> u64 {
+    pub fn camera_stopped_motors_off(&self) -> Duration {
         let ramp_m = self.setpoints.target_height_m.max(0.0) - LAND_SETPOINT_FLOOR_M;
         let descent_s = ramp_m / self.setpoints.blind_land_rate_mps.abs().max(0.01);
-        self.failsafe.hover_before_land_us
-            + (descent_s * 1e6) as u64
-            + self.setpoints.landed_time_us
-            + u64::from(GUIDANCE_PERIOD_US)
+        self.failsafe.hover_before_land
+            + Duration::from_micros((descent_s * 1e6) as u64)
+            + self.setpoints.landed_time
+            + GUIDANCE_PERIOD
     }
 }

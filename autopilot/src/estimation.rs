@@ -5,7 +5,7 @@
 //! climb rate), and at 512 Hz the attitude and the yaw rate ([`VelocityEstimation::predict`]).
 //! Gives: the [`VelocityState`] guidance flies on (the velocity of the configured
 //! [`VelocitySource`] and when that source last took an estimate), the time of the last valid
-//! estimate for the failsafe ([`VelocityEstimation::last_valid_estimate_us`]), and for each
+//! estimate for the failsafe ([`VelocityEstimation::last_valid_estimate`]), and for each
 //! estimate the [`Gate`] it stopped at.
 //!
 //! The gates, in order (tunables are [`EstimationConfig`] fields, the parameter table's):
@@ -14,12 +14,12 @@
 //!    (with [`VelocitySource::KalmanFits`]: the frame's own fit, present only when valid, and
 //!    its quality). An invalid one ends the run of valid ones.
 //! 2. Run: only the `min_valid_run`-th valid estimate in a row and later ones count, for the
-//!    velocity and for the failsafe. A gap of more than `median_reset_gap_us` since the last
+//!    velocity and for the failsafe. A gap of more than `median_reset_gap` since the last
 //!    valid one empties the median.
 //! 3. Height: below `min_vision_height_m`, or climbing or descending faster than
 //!    `max_vision_climb_mps` over a view with less than `vision_climb_min_depth` of it in
 //!    stereo depth, an estimate counts for the failsafe only.
-//! 4. Yaw: within `yaw_settle_us` of a yaw rate above `max_yaw_rate_radps`, likewise (counted
+//! 4. Yaw: within `yaw_settle` of a yaw rate above `max_yaw_rate_radps`, likewise (counted
 //!    in [`VelocityEstimation::yaw_gated`]). An estimate invalid only for its flow (a poor fit
 //!    or no flow match) whose flow window reaches back into a fast yaw counts for the failsafe
 //!    too: the camera sees texture and depth, the turn spoiled the fit (the camera board
@@ -39,6 +39,7 @@ use crate::median::VelocityMedian;
 use crate::velocity_kf::VelocityKfConfig;
 use crate::velocity_kf::{Fusion, VelocityKf};
 use protocol::{Estimate, EstimateFlags};
+use timebase::{Duration, Instant};
 
 /// The horizontal velocity estimation: the gates an Edge-FS estimate passes, the velocity
 /// filters and the timing of an estimate.
@@ -46,8 +47,8 @@ use protocol::{Estimate, EstimateFlags};
 pub struct EstimationConfig {
     /// Estimates with a lower quality are treated as invalid (0..=255).
     pub min_quality: u8,
-    /// A gap between valid estimates longer than this empties the median filter, µs.
-    pub median_reset_gap_us: u64,
+    /// A gap between valid estimates longer than this empties the median filter.
+    pub median_reset_gap: Duration,
     /// Largest accepted velocity estimate magnitude per axis, m/s (bigger is treated as invalid).
     pub max_estimate_mps: f32,
     /// Plausibility gate: an estimate further than this from the median output on either axis
@@ -59,10 +60,10 @@ pub struct EstimationConfig {
     /// not the estimates, lost track).
     pub max_consecutive_outliers: u8,
     /// Guidance flies on the observer's velocity only while the last fused estimate is
-    /// younger than this, µs (in between the observer dead-reckons from the attitude, which
+    /// younger than this (in between the observer dead-reckons from the attitude, which
     /// keeps braking through fast yaw and short link outages); older, it holds the trim
     /// attitude.
-    pub velocity_max_age_us: u64,
+    pub velocity_max_age: Duration,
     /// Velocity observer (prediction from the attitude, correction by the filtered Edge-FS
     /// velocity).
     pub observer: ObserverConfig,
@@ -70,21 +71,21 @@ pub struct EstimationConfig {
     pub velocity_source: VelocitySource,
     /// Horizontal velocity Kalman filter.
     pub velocity_kf: VelocityKfConfig,
-    /// Time span an Edge-FS velocity averages over, µs: its flow horizon (`horizon_s`, 0.25 s
+    /// Time span an Edge-FS velocity averages over: its flow horizon (`horizon_s`, 0.25 s
     /// by default) widened by the camera board's output filter, which smooths over several
     /// frames. The velocity filter takes each estimate as the mean velocity over this long.
-    pub estimate_horizon_us: u32,
-    /// [`VelocitySource::KalmanFits`]: the time span a frame's own fit averages over, µs (the
+    pub estimate_horizon: Duration,
+    /// [`VelocitySource::KalmanFits`]: the time span a frame's own fit averages over (the
     /// flow horizon `horizon_s`; no filter lag).
-    pub fit_horizon_us: u32,
-    /// Time an estimate spends on the link after the camera board sent it, µs (an `Estimate`
+    pub fit_horizon: Duration,
+    /// Time an estimate spends on the link after the camera board sent it (an `Estimate`
     /// frame of ~40 bytes at 115,200 Bd; its `processing_us` covers capture to sending).
-    pub estimate_link_us: u32,
-    /// Delay of the camera board's output filter, µs: the averaging window ends this long
+    pub estimate_link: Duration,
+    /// Delay of the camera board's output filter: the averaging window ends this long
     /// before the frame's capture. The filter (a velocity random walk on the board) passes a
     /// step in a few frames, so the estimate describes an older, wider window than the flow
     /// horizon alone; fitted in the simulator on tuning seeds (see `docs/parameters.md`).
-    pub estimate_filter_lag_us: u32,
+    pub estimate_filter_lag: Duration,
     /// Estimates are not used for the velocity while the gyro's yaw rate is above this, rad/s
     /// (Edge-FS flow is unreliable under fast yaw; the observer dead-reckons instead). They
     /// still count as valid for the failsafe (the camera board is alive).
@@ -109,33 +110,33 @@ pub struct EstimationConfig {
     /// texture (the floor's perspective lines at the bottom of a view of a plain wall, which
     /// pitch and heave move sideways as forward flight would) and was seen 1 m/s wrong.
     pub min_valid_run: u8,
-    /// ... nor until this long after the yaw rate was last above the limit, µs (covers the
+    /// ... nor until this long after the yaw rate was last above the limit (covers the
     /// exposure-to-arrival latency and the estimator's history).
-    pub yaw_settle_us: u64,
+    pub yaw_settle: Duration,
 }
 
 impl Default for EstimationConfig {
     fn default() -> Self {
         Self {
             min_quality: 0,
-            median_reset_gap_us: 500_000,
+            median_reset_gap: Duration::from_millis(500),
             max_estimate_mps: 5.0,
             max_velocity_jump_mps: 0.6,
             max_consecutive_outliers: 3,
-            velocity_max_age_us: 2_500_000,
+            velocity_max_age: Duration::from_millis(2_500),
             observer: ObserverConfig::default(),
             velocity_source: VelocitySource::Kalman,
             velocity_kf: VelocityKfConfig::default(),
-            estimate_horizon_us: 350_000,
-            fit_horizon_us: 250_000,
-            estimate_link_us: 3_500,
-            estimate_filter_lag_us: 97_000,
+            estimate_horizon: Duration::from_millis(350),
+            fit_horizon: Duration::from_millis(250),
+            estimate_link: Duration::from_micros(3_500),
+            estimate_filter_lag: Duration::from_millis(97),
             max_yaw_rate_radps: 0.6,
             min_vision_height_m: 0.6,
             max_vision_climb_mps: 0.25,
             vision_climb_min_depth: 0.9,
             min_valid_run: 3,
-            yaw_settle_us: 150_000,
+            yaw_settle: Duration::from_millis(150),
         }
     }
 }
@@ -149,7 +150,7 @@ pub enum VelocitySource {
     /// The paper's path: median-5 of the gated estimates into the [`VelocityObserver`].
     MedianObserver,
     /// [`VelocityKf`] on each frame's own fit ([`protocol::Estimate::fit`]) instead of the
-    /// board's filtered output, over the flow window [`EstimationConfig::fit_horizon_us`]: 2x
+    /// board's filtered output, over the flow window [`EstimationConfig::fit_horizon`]: 2x
     /// less velocity error in most simulated flights (0.02 against 0.045 m/s RMS), but a
     /// frame's fit can alias to the wrong sign when the flow outruns the search (seen above
     /// 0.5 m/s), and runs of such fits have thrown the filter off; not the default.
@@ -173,8 +174,8 @@ fn spoiled_by_rotation(est: &Estimate) -> bool {
 /// What the autopilot knew when an estimate arrived.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VisionContext {
-    /// Arrival time, µs.
-    pub now_us: u64,
+    /// Arrival time.
+    pub now: Instant,
     /// Height above the floor, m.
     pub height_m: f32,
     /// Climb rate, m/s (up positive).
@@ -206,19 +207,19 @@ pub enum Gate {
 pub struct VelocityState {
     /// `[forward, sideways]` body velocity, m/s (`None` before the first estimate taken).
     pub velocity_mps: Option<[f32; 2]>,
-    /// When the velocity source last took an estimate, µs.
-    pub last_fix_us: Option<u64>,
+    /// When the velocity source last took an estimate.
+    pub last_fix: Option<Instant>,
 }
 
 impl VelocityState {
-    /// True if the source took an estimate at most `max_age_us` before `now_us`.
-    pub fn fixed_within(&self, now_us: u64, max_age_us: u64) -> bool {
-        matches!(self.last_fix_us, Some(t) if now_us.saturating_sub(t) <= max_age_us)
+    /// True if the source took an estimate at most `max_age` before `now`.
+    pub fn fixed_within(&self, now: Instant, max_age: Duration) -> bool {
+        matches!(self.last_fix, Some(t) if now.since(t) <= max_age)
     }
 
-    /// The velocity, if the source took an estimate at most `max_age_us` before `now_us`.
-    pub fn fresh(&self, now_us: u64, max_age_us: u64) -> Option<[f32; 2]> {
-        if self.fixed_within(now_us, max_age_us) {
+    /// The velocity, if the source took an estimate at most `max_age` before `now`.
+    pub fn fresh(&self, now: Instant, max_age: Duration) -> Option<[f32; 2]> {
+        if self.fixed_within(now, max_age) {
             self.velocity_mps
         } else {
             None
@@ -231,15 +232,15 @@ impl VelocityState {
 pub struct VelocityEstimation {
     median: VelocityMedian,
     observer: VelocityObserver,
-    /// When the observer last took a median output, µs.
-    last_fused_us: Option<u64>,
+    /// When the observer last took a median output.
+    last_fused: Option<Instant>,
     kf: VelocityKf,
-    /// When the Kalman filter last took an estimate (or was held still on the ground), µs.
-    last_kf_fused_us: Option<u64>,
-    last_fast_yaw_us: Option<u64>,
+    /// When the Kalman filter last took an estimate (or was held still on the ground).
+    last_kf_fused: Option<Instant>,
+    last_fast_yaw: Option<Instant>,
     yaw_gated_total: u32,
-    /// When the last estimate valid for the failsafe arrived, µs.
-    last_valid_estimate_us: Option<u64>,
+    /// When the last estimate valid for the failsafe arrived.
+    last_valid_estimate: Option<Instant>,
     /// The median's output.
     velocity: Option<[f32; 2]>,
     estimates_received: u32,
@@ -256,12 +257,12 @@ impl VelocityEstimation {
         Self {
             median: VelocityMedian::default(),
             observer: VelocityObserver::new(cfg.observer),
-            last_fused_us: None,
+            last_fused: None,
             kf: VelocityKf::new(cfg.velocity_kf),
-            last_kf_fused_us: None,
-            last_fast_yaw_us: None,
+            last_kf_fused: None,
+            last_fast_yaw: None,
             yaw_gated_total: 0,
-            last_valid_estimate_us: None,
+            last_valid_estimate: None,
             velocity: None,
             estimates_received: 0,
             outliers_in_a_row: 0,
@@ -288,19 +289,17 @@ impl VelocityEstimation {
         pitch: f32,
         yaw_rate: f32,
         dt: f32,
-        now_us: u64,
+        now: Instant,
         cfg: &EstimationConfig,
     ) {
         match cfg.velocity_source {
             VelocitySource::Kalman | VelocitySource::KalmanFits => {
-                self.kf.predict(roll, pitch, yaw_rate, dt, now_us)
+                self.kf.predict(roll, pitch, yaw_rate, dt, now)
             }
-            VelocitySource::MedianObserver => {
-                self.observer.predict(roll, pitch, yaw_rate, dt, now_us)
-            }
+            VelocitySource::MedianObserver => self.observer.predict(roll, pitch, yaw_rate, dt, now),
         }
         if yaw_rate.abs() > cfg.max_yaw_rate_radps {
-            self.last_fast_yaw_us = Some(now_us);
+            self.last_fast_yaw = Some(now);
         }
     }
 
@@ -311,7 +310,7 @@ impl VelocityEstimation {
         ctx: &VisionContext,
         cfg: &EstimationConfig,
     ) -> Gate {
-        let now_us = ctx.now_us;
+        let now = ctx.now;
         self.estimates_received = self.estimates_received.wrapping_add(1);
         // What the frame says of the velocity: the board's output, or with
         // `VelocitySource::KalmanFits` the frame's own fit.
@@ -331,15 +330,15 @@ impl VelocityEstimation {
             self.valid_run = 0;
             // The flow window of the estimate (and the settle time) reaches back into a turn.
             let horizon = if fits {
-                cfg.fit_horizon_us
+                cfg.fit_horizon
             } else {
-                cfg.estimate_horizon_us
+                cfg.estimate_horizon
             };
-            let turned = self.fast_yaw_within(now_us, cfg.yaw_settle_us + u64::from(horizon));
+            let turned = self.fast_yaw_within(now, cfg.yaw_settle + horizon);
             if turned && spoiled_by_rotation(est) {
                 // Not blindness: it keeps the failsafe quiet, as a valid estimate under yaw.
                 self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
-                self.last_valid_estimate_us = Some(now_us);
+                self.last_valid_estimate = Some(now);
                 return Gate::Yaw;
             }
             return Gate::Invalid;
@@ -348,8 +347,8 @@ impl VelocityEstimation {
         if self.valid_run < cfg.min_valid_run {
             return Gate::ShortRun;
         }
-        let gap = match self.last_valid_estimate_us {
-            Some(t) => now_us.saturating_sub(t) > cfg.median_reset_gap_us,
+        let gap = match self.last_valid_estimate {
+            Some(t) => now.since(t) > cfg.median_reset_gap,
             None => true,
         };
         if gap {
@@ -364,39 +363,37 @@ impl VelocityEstimation {
             // `max_vision_climb_mps`).
             self.median.reset();
             self.outliers_in_a_row = 0;
-            self.last_valid_estimate_us = Some(now_us);
+            self.last_valid_estimate = Some(now);
             return Gate::Height;
         }
-        if self.fast_yaw_within(now_us, cfg.yaw_settle_us) {
+        if self.fast_yaw_within(now, cfg.yaw_settle) {
             // Valid for the failsafe, not for the velocity; the median restarts after the
             // turn (its samples are in the old heading).
             self.yaw_gated_total = self.yaw_gated_total.wrapping_add(1);
             self.median.reset();
             self.outliers_in_a_row = 0;
-            self.last_valid_estimate_us = Some(now_us);
+            self.last_valid_estimate = Some(now);
             return Gate::Yaw;
         }
         // The Kalman filter has its own innovation gate; it takes the estimate as the mean
         // velocity over the window it describes: for the board's output the flow window
         // widened by the board's filter and ending its lag before the frame's capture, for a
         // frame's own fit the flow window ending at the capture.
-        let (lag_us, horizon_us) = if fits {
-            (0, cfg.fit_horizon_us)
+        let (lag, horizon) = if fits {
+            (Duration::ZERO, cfg.fit_horizon)
         } else {
-            (cfg.estimate_filter_lag_us, cfg.estimate_horizon_us)
+            (cfg.estimate_filter_lag, cfg.estimate_horizon)
         };
-        let end = now_us
-            .saturating_sub(u64::from(est.processing_us))
-            .saturating_sub(u64::from(cfg.estimate_link_us))
-            .saturating_sub(u64::from(lag_us));
-        let start = end.saturating_sub(u64::from(horizon_us));
+        let end =
+            now - Duration::from_micros(u64::from(est.processing_us)) - cfg.estimate_link - lag;
+        let start = end - horizon;
         if cfg.velocity_source.is_kalman()
             && matches!(
                 self.kf.correct(v, quality, start, end),
                 Fusion::Fused | Fusion::Initialised
             )
         {
-            self.last_kf_fused_us = Some(now_us);
+            self.last_kf_fused = Some(now);
         }
         let jump = cfg.max_velocity_jump_mps;
         let outlier = match self.median.output() {
@@ -421,28 +418,28 @@ impl VelocityEstimation {
         self.outliers_in_a_row = 0;
         self.velocity = self.median.push(v[0], v[1]);
         if let (Some(v), VelocitySource::MedianObserver) = (self.velocity, cfg.velocity_source) {
-            self.observer.correct(v, now_us);
-            self.last_fused_us = Some(now_us);
+            self.observer.correct(v, now);
+            self.last_fused = Some(now);
         }
-        self.last_valid_estimate_us = Some(now_us);
+        self.last_valid_estimate = Some(now);
         Gate::Passed
     }
 
-    /// True when the yaw rate was above the limit within `window_us` before `now_us`.
-    fn fast_yaw_within(&self, now_us: u64, window_us: u64) -> bool {
-        matches!(self.last_fast_yaw_us, Some(t) if now_us.saturating_sub(t) <= window_us)
+    /// True when the yaw rate was above the limit within `window` before `now`.
+    fn fast_yaw_within(&self, now: Instant, window: Duration) -> bool {
+        matches!(self.last_fast_yaw, Some(t) if now.since(t) <= window)
     }
 
     /// On the ground and still (disarmed): the Kalman filter holds zero velocity, whatever the
-    /// camera makes of the view, and counts as fixed at `now_us`.
-    pub fn hold_still(&mut self, now_us: u64) {
-        self.kf.hold_still(now_us);
-        self.last_kf_fused_us = Some(now_us);
+    /// camera makes of the view, and counts as fixed at `now`.
+    pub fn hold_still(&mut self, now: Instant) {
+        self.kf.hold_still(now);
+        self.last_kf_fused = Some(now);
     }
 
     /// The camera board reports its camera stopped: no valid estimate since (until the next).
     pub fn camera_stopped(&mut self) {
-        self.last_valid_estimate_us = None;
+        self.last_valid_estimate = None;
     }
 
     /// The velocity of `source` and when it last took an estimate.
@@ -450,18 +447,18 @@ impl VelocityEstimation {
         match source {
             VelocitySource::Kalman | VelocitySource::KalmanFits => VelocityState {
                 velocity_mps: self.kf.velocity(),
-                last_fix_us: self.last_kf_fused_us,
+                last_fix: self.last_kf_fused,
             },
             VelocitySource::MedianObserver => VelocityState {
                 velocity_mps: self.observer.velocity(),
-                last_fix_us: self.last_fused_us,
+                last_fix: self.last_fused,
             },
         }
     }
 
-    /// When the last estimate valid for the failsafe arrived, µs.
-    pub fn last_valid_estimate_us(&self) -> Option<u64> {
-        self.last_valid_estimate_us
+    /// When the last estimate valid for the failsafe arrived.
+    pub fn last_valid_estimate(&self) -> Option<Instant> {
+        self.last_valid_estimate
     }
 
     /// The median-5's `[forward, sideways]` output, m/s (`None` before the first estimate
@@ -499,6 +496,7 @@ impl VelocityEstimation {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
     use crate::test_support::forward_estimate;
     use crate::AutopilotConfig;
     use protocol::EstimateFlags;
@@ -506,7 +504,7 @@ mod tests {
     /// Level at 1 m at `now_us`: nothing but the estimate itself gates it.
     fn level(now_us: u64) -> VisionContext {
         VisionContext {
-            now_us,
+            now: at(now_us),
             height_m: 1.0,
             climb_mps: 0.0,
         }
@@ -534,7 +532,7 @@ mod tests {
         fn frame(&mut self, e: &Estimate, ctx: VisionContext) -> Gate {
             self.t += 40_000;
             let ctx = VisionContext {
-                now_us: self.t,
+                now: at(self.t),
                 ..ctx
             };
             self.est.on_estimate(e, &ctx, &self.cfg.estimation)
@@ -562,12 +560,12 @@ mod tests {
             }
         }
         assert_eq!(f.est.median_velocity(), None);
-        assert_eq!(f.est.last_valid_estimate_us(), None);
+        assert_eq!(f.est.last_valid_estimate(), None);
         for _ in 1..run {
             assert_eq!(f.level(0.3), Gate::ShortRun);
         }
         assert_eq!(f.level(0.3), Gate::Passed);
-        assert_eq!(f.est.last_valid_estimate_us(), Some(f.t));
+        assert_eq!(f.est.last_valid_estimate(), Some(at(f.t)));
         assert_eq!(f.est.median_velocity(), Some([0.3, 0.0]));
         assert_eq!(f.est.estimates_received(), 40 + u32::from(run));
     }
@@ -586,7 +584,7 @@ mod tests {
             f.level(f.cfg.estimation.max_estimate_mps + 0.1),
             Gate::Invalid
         );
-        assert_eq!(f.est.last_valid_estimate_us(), None);
+        assert_eq!(f.est.last_valid_estimate(), None);
     }
 
     /// Near the floor, and while the height changes fast over a view mostly without depth,
@@ -617,22 +615,22 @@ mod tests {
                     f.frame(&shallow, ctx);
                 }
                 assert_eq!(f.frame(&shallow, ctx), Gate::Height);
-                assert_eq!(f.est.last_valid_estimate_us(), Some(f.t));
+                assert_eq!(f.est.last_valid_estimate(), Some(at(f.t)));
                 assert_eq!(f.est.median_velocity(), None);
                 assert_eq!(f.est.state(source).velocity_mps, None);
-                assert_eq!(f.est.state(source).last_fix_us, None);
+                assert_eq!(f.est.state(source).last_fix, None);
             }
             // Level at height, the same estimates are taken.
             assert_eq!(f.level(0.4), Gate::Passed);
             assert_eq!(f.est.median_velocity(), Some([0.4, 0.0]));
-            assert_eq!(f.est.state(source).last_fix_us, Some(f.t));
+            assert_eq!(f.est.state(source).last_fix, Some(at(f.t)));
             // Climbing over a view with depth at least `vision_climb_min_depth`: taken too.
             let deep = Estimate {
                 depth_coverage: (f.cfg.estimation.vision_climb_min_depth * 255.0).ceil() as u8,
                 ..forward_estimate(0.4)
             };
             assert_eq!(f.frame(&deep, climbing), Gate::Passed);
-            assert_eq!(f.est.state(source).last_fix_us, Some(f.t));
+            assert_eq!(f.est.state(source).last_fix, Some(at(f.t)));
         }
     }
 
@@ -669,7 +667,7 @@ mod tests {
         for _ in 0..5 {
             f.level(0.3);
         }
-        f.t += f.cfg.estimation.median_reset_gap_us;
+        f.t += f.cfg.estimation.median_reset_gap.as_micros();
         // Far from the old output, but the old output is gone.
         assert_eq!(f.level(1.5), Gate::Passed);
         assert_eq!(f.est.median_velocity(), Some([1.5, 0.0]));
@@ -684,7 +682,14 @@ mod tests {
         // `dt_us` of prediction at `yaw_rate`, then an estimate of `v` forward.
         let mut step = |est: &mut VelocityEstimation, yaw_rate: f32, v: f32, dt_us: u64| {
             t += dt_us;
-            est.predict(0.0, 0.0, yaw_rate, dt_us as f32 * 1e-6, t, &cfg.estimation);
+            est.predict(
+                0.0,
+                0.0,
+                yaw_rate,
+                dt_us as f32 * 1e-6,
+                at(t),
+                &cfg.estimation,
+            );
             (
                 est.on_estimate(&forward_estimate(v), &level(t), &cfg.estimation),
                 t,
@@ -702,7 +707,7 @@ mod tests {
         for _ in 0..20 {
             let (gate, now) = step(&mut est, 1.5, 2.5, 20_000);
             assert_eq!(gate, Gate::Yaw);
-            assert_eq!(est.last_valid_estimate_us(), Some(now));
+            assert_eq!(est.last_valid_estimate(), Some(at(now)));
         }
         assert_eq!(est.yaw_gated(), 20);
         assert_eq!(est.outliers(), 0);
@@ -734,30 +739,30 @@ mod tests {
         let blind = with_flags(EstimateFlags::POOR_FIT.0 | EstimateFlags::NO_TEXTURE.0);
         let mut t = 1_000_000;
         // Not turning: a spoiled fit is invalid and leaves the failsafe's clock alone.
-        est.predict(0.0, 0.0, 0.0, 0.02, t, &cfg.estimation);
+        est.predict(0.0, 0.0, 0.0, 0.02, at(t), &cfg.estimation);
         assert_eq!(
             est.on_estimate(&spoiled, &level(t), &cfg.estimation),
             Gate::Invalid
         );
-        assert_eq!(est.last_valid_estimate_us(), None);
+        assert_eq!(est.last_valid_estimate(), None);
         // Turning: it counts for the failsafe (not for the velocity); a blind frame does not.
         t += 20_000;
-        est.predict(0.0, 0.0, 1.5, 0.02, t, &cfg.estimation);
+        est.predict(0.0, 0.0, 1.5, 0.02, at(t), &cfg.estimation);
         assert_eq!(
             est.on_estimate(&spoiled, &level(t), &cfg.estimation),
             Gate::Yaw
         );
-        assert_eq!(est.last_valid_estimate_us(), Some(t));
+        assert_eq!(est.last_valid_estimate(), Some(at(t)));
         assert_eq!(est.yaw_gated(), 1);
         assert_eq!(
             est.on_estimate(&blind, &level(t + 1), &cfg.estimation),
             Gate::Invalid
         );
-        assert_eq!(est.last_valid_estimate_us(), Some(t));
+        assert_eq!(est.last_valid_estimate(), Some(at(t)));
         // Until the flow window has left the turn behind, and no longer.
-        let window = cfg.estimation.yaw_settle_us + u64::from(cfg.estimation.estimate_horizon_us);
+        let window = (cfg.estimation.yaw_settle + cfg.estimation.estimate_horizon).as_micros();
         let (inside, after) = (t + window, t + window + 1);
-        est.predict(0.0, 0.0, 0.0, 0.02, inside, &cfg.estimation);
+        est.predict(0.0, 0.0, 0.0, 0.02, at(inside), &cfg.estimation);
         assert_eq!(
             est.on_estimate(&spoiled, &level(inside), &cfg.estimation),
             Gate::Yaw
@@ -766,8 +771,8 @@ mod tests {
             est.on_estimate(&spoiled, &level(after), &cfg.estimation),
             Gate::Invalid
         );
-        assert_eq!(est.last_valid_estimate_us(), Some(inside));
-        assert_eq!(est.state(VelocitySource::Kalman).last_fix_us, None);
+        assert_eq!(est.last_valid_estimate(), Some(at(inside)));
+        assert_eq!(est.state(VelocitySource::Kalman).last_fix, None);
     }
 
     #[test]
@@ -777,25 +782,22 @@ mod tests {
             f.level(0.3);
         }
         let kf = f.est.state(VelocitySource::Kalman);
-        assert_eq!(kf.last_fix_us, Some(f.t));
+        assert_eq!(kf.last_fix, Some(at(f.t)));
         assert!(kf.velocity_mps.is_some());
-        assert!(kf.fixed_within(f.t + 100, 100));
-        assert!(!kf.fixed_within(f.t + 101, 100));
-        assert_eq!(kf.fresh(f.t + 101, 100), None);
-        assert_eq!(kf.fresh(f.t, 0), kf.velocity_mps);
+        assert!(kf.fixed_within(at(f.t + 100), Duration::from_micros(100)));
+        assert!(!kf.fixed_within(at(f.t + 101), Duration::from_micros(100)));
+        assert_eq!(kf.fresh(at(f.t + 101), Duration::from_micros(100)), None);
+        assert_eq!(kf.fresh(at(f.t), Duration::from_micros(0)), kf.velocity_mps);
         // The observer runs only in paper mode.
-        assert_eq!(
-            f.est.state(VelocitySource::MedianObserver).last_fix_us,
-            None
-        );
+        assert_eq!(f.est.state(VelocitySource::MedianObserver).last_fix, None);
         // Held still on the ground: zero, fixed now.
-        f.est.hold_still(5_000_000);
+        f.est.hold_still(at(5_000_000));
         let held = f.est.state(VelocitySource::Kalman);
         assert_eq!(held.velocity_mps, Some([0.0, 0.0]));
-        assert_eq!(held.last_fix_us, Some(5_000_000));
+        assert_eq!(held.last_fix, Some(at(5_000_000)));
         // A stopped camera ends the failsafe's valid estimates at once.
-        assert!(f.est.last_valid_estimate_us().is_some());
+        assert!(f.est.last_valid_estimate().is_some());
         f.est.camera_stopped();
-        assert_eq!(f.est.last_valid_estimate_us(), None);
+        assert_eq!(f.est.last_valid_estimate(), None);
     }
 }

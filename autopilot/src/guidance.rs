@@ -31,8 +31,9 @@
 //! loop keeps braking through fast yaw (when Edge-FS is unreliable) and short link outages.
 
 use crate::velocity_model::{
-    heading_frame_step, tilt_acceleration, VelocityHistory, HISTORY_SPACING_US,
+    heading_frame_step, tilt_acceleration, VelocityHistory, HISTORY_SPACING,
 };
+use timebase::{Duration, Instant};
 
 /// Velocity loop tunables.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -275,9 +276,9 @@ pub struct ObserverConfig {
     /// Largest learned acceleration bias per axis, m/s².
     pub max_bias_mps2: f32,
     /// Age of a measurement when it is fused (camera exposure to its filtered value reaching
-    /// the observer: read-out, processing, link and the median-5's two frames), µs. The
+    /// the observer: read-out, processing, link and the median-5's two frames). The
     /// innovation is taken against the prediction of that time.
-    pub measurement_delay_us: u32,
+    pub measurement_delay: Duration,
     /// Tilt used for the predicted acceleration is limited to this, rad.
     pub max_tilt_rad: f32,
 }
@@ -289,16 +290,16 @@ impl Default for ObserverConfig {
             velocity_gain: 0.25,
             bias_gain: 0.03,
             max_bias_mps2: 0.5,
-            measurement_delay_us: 100_000,
+            measurement_delay: Duration::from_millis(100),
             max_tilt_rad: 0.5,
         }
     }
 }
 
-/// Slots of the observer's history (one every [`HISTORY_SPACING_US`]: 32 x 6 ms, 192 ms back).
+/// Slots of the observer's history (one every [`HISTORY_SPACING`]: 32 x 6 ms, 192 ms back).
 const HISTORY_LEN: usize = 32;
-/// Longest [`ObserverConfig::measurement_delay_us`] the history reaches back to, µs.
-pub const MAX_MEASUREMENT_DELAY_US: u32 = ((HISTORY_LEN as u64 - 1) * HISTORY_SPACING_US) as u32;
+/// Longest [`ObserverConfig::measurement_delay`] the history reaches back to.
+pub const MAX_MEASUREMENT_DELAY: Duration = HISTORY_SPACING.saturating_mul(HISTORY_LEN as u64 - 1);
 
 /// Horizontal velocity observer in the heading frame (level body axes: forward, right).
 ///
@@ -308,7 +309,7 @@ pub const MAX_MEASUREMENT_DELAY_US: u32 = ((HISTORY_LEN as u64 - 1) * HISTORY_SP
 /// turns under a velocity that is fixed in the room: `dv_fwd/dt = r v_right`,
 /// `dv_right/dt = -r v_fwd`). Each vision measurement corrects it by
 /// [`ObserverConfig::velocity_gain`] of the innovation, taken against the prediction of
-/// [`ObserverConfig::measurement_delay_us`] ago (a short history is kept), and the same
+/// [`ObserverConfig::measurement_delay`] ago (a short history is kept), and the same
 /// innovation trains the acceleration bias (tilt-estimate offsets, centre-of-gravity trim).
 ///
 /// This is what lets guidance keep braking while vision is unusable (fast yaw, a link outage):
@@ -361,9 +362,9 @@ impl VelocityObserver {
         self.bias
     }
 
-    /// Prediction over `dt` s ending at `now_us` from the estimated roll and pitch (rad) and
+    /// Prediction over `dt` s ending at `now` from the estimated roll and pitch (rad) and
     /// the yaw rate (rad/s, body z down: positive turns right). Non-finite inputs skip it.
-    pub fn predict(&mut self, roll: f32, pitch: f32, yaw_rate: f32, dt: f32, now_us: u64) {
+    pub fn predict(&mut self, roll: f32, pitch: f32, yaw_rate: f32, dt: f32, now: Instant) {
         if !(roll.is_finite() && pitch.is_finite() && yaw_rate.is_finite() && dt.is_finite()) {
             return;
         }
@@ -375,16 +376,16 @@ impl VelocityObserver {
                 self.v = v;
             }
         }
-        self.history.record(now_us, self.v);
+        self.history.record(now, self.v);
     }
 
-    /// The prediction as it was at `t_us` (the newest recorded one not after it; the oldest
+    /// The prediction as it was at `at` (the newest recorded one not after it; the oldest
     /// held when the history does not reach back that far).
-    fn predicted_at(&self, t_us: u64) -> [f32; 2] {
+    fn predicted_at(&self, at: Instant) -> [f32; 2] {
         let mut best = self.v;
         for (t, v) in self.history.newest_first() {
             best = v;
-            if t <= t_us {
+            if t <= at {
                 break;
             }
         }
@@ -392,19 +393,19 @@ impl VelocityObserver {
     }
 
     /// Fuses a `[forward, right]` velocity measurement (m/s) that reached the observer at
-    /// `now_us` (its age is [`ObserverConfig::measurement_delay_us`]). The first one
+    /// `now` (its age is [`ObserverConfig::measurement_delay`]). The first one
     /// initialises the observer. Non-finite measurements are ignored.
-    pub fn correct(&mut self, measured: [f32; 2], now_us: u64) {
+    pub fn correct(&mut self, measured: [f32; 2], now: Instant) {
         if !measured.iter().all(|x| x.is_finite()) {
             return;
         }
         if !self.initialised {
             self.initialised = true;
             self.v = measured;
-            self.history.fill(now_us, measured, now_us);
+            self.history.fill(now, measured, now);
             return;
         }
-        let then = self.predicted_at(now_us.saturating_sub(self.cfg.measurement_delay_us as u64));
+        let then = self.predicted_at(now - self.cfg.measurement_delay);
         let kv = self.cfg.velocity_gain.clamp(0.0, 1.0);
         let blim = self.cfg.max_bias_mps2.abs();
         for i in 0..2 {
@@ -422,6 +423,7 @@ impl VelocityObserver {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
 
     #[test]
     fn forward_error_pitches_nose_down_sideways_error_rolls_right() {
@@ -587,27 +589,27 @@ mod tests {
     fn observer_integrates_tilt_and_turns_the_velocity_with_the_heading() {
         let mut o = observer(0.0);
         assert_eq!(o.velocity(), None);
-        o.predict(0.0, -0.1, 0.0, 0.002, 0);
+        o.predict(0.0, -0.1, 0.0, 0.002, at(0));
         assert_eq!(o.velocity(), None, "nothing before the first measurement");
-        o.correct([0.0, 0.0], 0);
+        o.correct([0.0, 0.0], at(0));
         // 1 s nose down 0.1 rad: forward g tan(0.1) = 0.984 m/s.
         for k in 1..=500 {
-            o.predict(0.0, -0.1, 0.0, 0.002, k * 2_000);
+            o.predict(0.0, -0.1, 0.0, 0.002, at(k * 2_000));
         }
         let v = o.velocity().unwrap();
         assert!((v[0] - 0.984).abs() < 0.01 && v[1].abs() < 1e-6, "{v:?}");
         // Level, a quarter turn to the right in 1 s: the room-fixed velocity is now to the left.
         let w = core::f32::consts::FRAC_PI_2;
         for k in 501..=1000 {
-            o.predict(0.0, 0.0, w, 0.002, k * 2_000);
+            o.predict(0.0, 0.0, w, 0.002, at(k * 2_000));
         }
         let v = o.velocity().unwrap();
         assert!(v[0].abs() < 0.01 && (v[1] + 0.984).abs() < 0.01, "{v:?}");
         // Drag slows it: 1 s at 0.2/s leaves exp(-0.2).
         let mut o = observer(0.2);
-        o.correct([1.0, 0.0], 0);
+        o.correct([1.0, 0.0], at(0));
         for k in 1..=500 {
-            o.predict(0.0, 0.0, 0.0, 0.002, k * 2_000);
+            o.predict(0.0, 0.0, 0.0, 0.002, at(k * 2_000));
         }
         assert!((o.velocity().unwrap()[0] - libm::expf(-0.2)).abs() < 0.01);
     }
@@ -615,21 +617,21 @@ mod tests {
     #[test]
     fn observer_compares_a_delayed_measurement_with_the_past_prediction() {
         let mut o = observer(0.0);
-        o.correct([0.0, 0.0], 0);
+        o.correct([0.0, 0.0], at(0));
         // Accelerate forward at ~1 m/s² for 1 s.
         let pitch = -libm::atanf(1.0 / crate::attitude::GRAVITY);
         let mut t = 0;
         for _ in 0..500 {
             t += 2_000;
-            o.predict(0.0, pitch, 0.0, 0.002, t);
+            o.predict(0.0, pitch, 0.0, 0.002, at(t));
         }
         let now = o.velocity().unwrap()[0];
         assert!((now - 1.0).abs() < 0.01);
         // A measurement that matches the prediction of 100 ms ago changes nothing.
-        o.correct([0.9, 0.0], t);
+        o.correct([0.9, 0.0], at(t));
         assert!((o.velocity().unwrap()[0] - now).abs() < 0.01);
         // One 0.4 m/s higher moves the estimate by the gain's share of it.
-        o.correct([1.3, 0.0], t);
+        o.correct([1.3, 0.0], at(t));
         let g = ObserverConfig::default().velocity_gain;
         assert!((o.velocity().unwrap()[0] - now - 0.4 * g).abs() < 0.02);
     }
@@ -640,22 +642,22 @@ mod tests {
         // estimate offset): measurements of the true velocity every 40 ms.
         let mut o = observer(0.0);
         let (mut t, mut v_true) = (0u64, 0.0f32);
-        o.correct([0.0, 0.0], 0);
+        o.correct([0.0, 0.0], at(0));
         for _ in 0..(25 * 30) {
             for _ in 0..20 {
                 t += 2_000;
                 v_true += 0.3 * 0.002;
-                o.predict(0.0, 0.0, 0.0, 0.002, t);
+                o.predict(0.0, 0.0, 0.0, 0.002, at(t));
             }
             let delayed = v_true - 0.3 * 0.1;
-            o.correct([delayed, 0.0], t);
+            o.correct([delayed, 0.0], at(t));
         }
         assert!((o.bias()[0] - 0.3).abs() < 0.05, "bias {:?}", o.bias());
         // Measurements stop: 1 s of dead reckoning stays within 0.1 m/s of the truth.
         for _ in 0..500 {
             t += 2_000;
             v_true += 0.3 * 0.002;
-            o.predict(0.0, 0.0, 0.0, 0.002, t);
+            o.predict(0.0, 0.0, 0.0, 0.002, at(t));
         }
         let err = o.velocity().unwrap()[0] - v_true;
         assert!(err.abs() < 0.1, "error {err}");
@@ -676,8 +678,8 @@ mod tests {
             for j in -24..=24 {
                 let (r, p) = (0.05 * i as f32, 0.05 * j as f32);
                 let mut o = VelocityObserver::new(cfg);
-                o.correct([0.0, 0.0], 0);
-                o.predict(r, p, 0.0, dt, 50_000);
+                o.correct([0.0, 0.0], at(0));
+                o.predict(r, p, 0.0, dt, at(50_000));
                 let v = o.velocity().unwrap();
                 let want = [
                     -g * libm::tan(f64::from(p)),
@@ -699,20 +701,20 @@ mod tests {
             max_tilt_rad: core::f32::consts::FRAC_PI_2,
             ..cfg
         });
-        o.correct([0.0, 0.0], 0);
-        o.predict(2.0, -2.0, 0.0, dt, 50_000);
+        o.correct([0.0, 0.0], at(0));
+        o.predict(2.0, -2.0, 0.0, dt, at(50_000));
         assert_eq!(o.velocity(), Some([-10.0, 10.0]));
     }
 
     #[test]
     fn observer_ignores_garbage() {
         let mut o = observer(0.2);
-        o.correct([f32::NAN, 0.0], 0);
+        o.correct([f32::NAN, 0.0], at(0));
         assert_eq!(o.velocity(), None);
-        o.correct([0.1, -0.1], 0);
-        o.predict(f32::NAN, 0.0, 0.0, 0.002, 2_000);
-        o.predict(0.0, f32::INFINITY, 1e30, f32::NAN, 4_000);
-        o.predict(1e9, -1e9, 1e9, 1e9, 6_000);
+        o.correct([0.1, -0.1], at(0));
+        o.predict(f32::NAN, 0.0, 0.0, 0.002, at(2_000));
+        o.predict(0.0, f32::INFINITY, 1e30, f32::NAN, at(4_000));
+        o.predict(1e9, -1e9, 1e9, 1e9, at(6_000));
         let v = o.velocity().unwrap();
         assert!(v.iter().all(|x| x.is_finite() && x.abs() <= 10.0), "{v:?}");
     }

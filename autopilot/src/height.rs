@@ -8,6 +8,8 @@
 //!
 //! Height is positive up, m (the external position's `-z`).
 
+use timebase::Instant;
+
 /// Height loop tunables (defaults: the 40 g pocket drone, hover near 65 % throttle).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HeightConfig {
@@ -54,7 +56,7 @@ pub struct HeightController {
     integral: f32,
     height_m: f32,
     climb_mps: f32,
-    last_us: Option<u64>,
+    last: Option<Instant>,
 }
 
 impl HeightController {
@@ -70,7 +72,7 @@ impl HeightController {
             integral: 0.0,
             height_m: 0.0,
             climb_mps: 0.0,
-            last_us: None,
+            last: None,
         }
     }
 
@@ -94,20 +96,20 @@ impl HeightController {
         self.integral
     }
 
-    /// Time of the latest accepted measurement, µs.
-    pub fn last_measurement_us(&self) -> Option<u64> {
-        self.last_us
+    /// Time of the latest accepted measurement.
+    pub fn last_measurement(&self) -> Option<Instant> {
+        self.last
     }
 
-    /// Feeds a height measurement (m, positive up) taken at `now_us`. Non-finite or absurd
+    /// Feeds a height measurement (m, positive up) taken at `now`. Non-finite or absurd
     /// values (outside -1..100 m) are ignored.
-    pub fn on_measurement(&mut self, height_m: f32, now_us: u64) {
+    pub fn on_measurement(&mut self, height_m: f32, now: Instant) {
         if !height_m.is_finite() || !(-1.0..100.0).contains(&height_m) {
             return;
         }
-        match self.last_us {
-            Some(t) if now_us > t => {
-                let dt = (now_us - t) as f32 * 1e-6;
+        match self.last {
+            Some(t) if now > t => {
+                let dt = (now - t).as_secs_f32();
                 if dt < 0.5 {
                     let rate = (height_m - self.height_m) / dt;
                     let a = dt / (self.cfg.rate_tau_s.max(0.0) + dt);
@@ -120,7 +122,7 @@ impl HeightController {
             None => self.climb_mps = 0.0,
         }
         self.height_m = height_m;
-        self.last_us = Some(now_us);
+        self.last = Some(now);
     }
 
     /// Clears the integrator (on the ground, disarmed).
@@ -196,6 +198,7 @@ pub fn tilt_compensate(thrust: f32, roll: f32, pitch: f32, max_factor: f32) -> f
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
 
     /// Point mass: accel = (thrust / hover - 1) g, integrated at 50 Hz, measured at 50 Hz.
     fn simulate(true_hover: f32, steps: usize) -> (f32, HeightController) {
@@ -204,7 +207,7 @@ mod tests {
         let dt = 0.02;
         for k in 0..steps {
             let now = (k as u64) * 20_000;
-            hc.on_measurement(h, now);
+            hc.on_measurement(h, at(now));
             let t = hc.step(1.0, 0.0, dt, true);
             let a = (t / true_hover - 1.0) * 9.81;
             v += a * dt;
@@ -233,7 +236,7 @@ mod tests {
     fn no_windup_on_the_ground() {
         let mut hc = HeightController::new(HeightConfig::default());
         for k in 0..500 {
-            hc.on_measurement(0.0, k * 20_000);
+            hc.on_measurement(0.0, at(k * 20_000));
             hc.step(1.0, 0.0, 0.02, false);
         }
         assert_eq!(hc.integral(), 0.0);
@@ -243,12 +246,12 @@ mod tests {
     fn climb_rate_from_measurements() {
         let mut hc = HeightController::new(HeightConfig::default());
         for k in 0..100u64 {
-            hc.on_measurement(0.5 * k as f32 * 0.02, k * 20_000);
+            hc.on_measurement(0.5 * k as f32 * 0.02, at(k * 20_000));
         }
         assert!((hc.climb_mps() - 0.5).abs() < 0.01);
         // Garbage and time going backwards are ignored.
-        hc.on_measurement(f32::NAN, 3_000_000);
-        hc.on_measurement(5.0, 10);
+        hc.on_measurement(f32::NAN, at(3_000_000));
+        hc.on_measurement(5.0, at(10));
         assert!((hc.height_m() - 0.99).abs() < 1e-4);
     }
 

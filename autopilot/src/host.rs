@@ -18,6 +18,7 @@ use protocol::{
 };
 
 use crate::Autopilot;
+use timebase::Instant;
 
 /// What the caller does after [`Autopilot::on_host_message`].
 #[derive(Debug, Clone, PartialEq)]
@@ -35,7 +36,7 @@ pub enum HostOutcome {
 }
 
 impl Autopilot {
-    /// Handles one message from the host at board time `now_us`: a height / position fix, a
+    /// Handles one message from the host at board time `now`: a height / position fix, a
     /// pilot command, a parameter request (answered by [`Autopilot::on_param_request`] with
     /// `store`, the board's parameter storage or `None`; one for the camera board's table is
     /// passed on to it, except a set or save while the motors may run, which is refused here).
@@ -44,29 +45,29 @@ impl Autopilot {
     pub fn on_host_message(
         &mut self,
         msg: HostToBoard,
-        now_us: u64,
+        now: Instant,
         store: Option<&mut dyn RecordStore>,
     ) -> HostOutcome {
-        self.host_message(msg, now_us, store)
+        self.host_message(msg, now, store)
     }
 
     fn host_message(
         &mut self,
         msg: HostToBoard,
-        now_us: u64,
+        now: Instant,
         store: Option<&mut dyn RecordStore>,
     ) -> HostOutcome {
         let motors_off = !self.mode().motors_enabled();
-        let Some(msg) = self.link_auth.admit(msg, motors_off, now_us) else {
+        let Some(msg) = self.link_auth.admit(msg, motors_off, now) else {
             return HostOutcome::Done;
         };
         match msg {
             HostToBoard::ExternalPosition(pos) => {
-                self.on_external_position(&pos, now_us);
+                self.on_external_position(&pos, now);
                 HostOutcome::Done
             }
             HostToBoard::Command(cmd) => {
-                self.on_command(cmd, now_us);
+                self.on_command(cmd, now);
                 HostOutcome::Done
             }
             HostToBoard::Param(req) if req.board == Node::StereoBoard => {
@@ -86,7 +87,7 @@ impl Autopilot {
             HostToBoard::Imu(sample) => HostOutcome::Imu(sample),
             HostToBoard::Heartbeat(hb) => {
                 if hb.node == Node::Host {
-                    self.on_host_heartbeat(now_us);
+                    self.on_host_heartbeat(now);
                 }
                 HostOutcome::Done
             }
@@ -135,6 +136,7 @@ impl Autopilot {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
     use crate::AutopilotConfig;
     use protocol::{
         ExternalPosition, FrameChunk, Heartbeat, Node, ParamOp, ParamReply, ParamRequest,
@@ -152,10 +154,10 @@ mod tests {
     fn a_stream_of_position_fixes_reaches_the_height() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
         for _ in 0..crate::vertical::FIXES_TO_LEAD {
-            let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000, None);
+            let out = ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), at(1_000), None);
             assert_eq!(out, HostOutcome::Done);
         }
-        assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
+        assert!((ap.telemetry(at(1_000)).height_m - 1.25).abs() < 1e-3);
     }
 
     #[test]
@@ -167,30 +169,30 @@ mod tests {
             key,
             min_timestamp: 0,
         });
-        let before = ap.telemetry(1_000).height_m;
-        ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), 1_000, None);
+        let before = ap.telemetry(at(1_000)).height_m;
+        ap.on_host_message(HostToBoard::ExternalPosition(fix(1.25)), at(1_000), None);
         assert_eq!(
-            ap.telemetry(1_000).height_m,
+            ap.telemetry(at(1_000)).height_m,
             before,
             "an unsigned fix is ignored"
         );
-        ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 1_000, None);
+        ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), at(1_000), None);
         assert_eq!(
             ap.arm_refused(),
             0,
             "an unsigned arm never reaches the arm checks"
         );
-        assert_eq!(ap.telemetry(1_000).link_auth.unsigned, 2);
+        assert_eq!(ap.telemetry(at(1_000)).link_auth.unsigned, 2);
         let mut signer = Signer::new(key, 1);
         let fixes = crate::vertical::FIXES_TO_LEAD;
         for k in 0..u64::from(fixes) {
             let signed = signer
                 .sign(&HostToBoard::ExternalPosition(fix(1.25)), 10 + k)
                 .unwrap();
-            ap.on_host_message(signed, 1_000, None);
+            ap.on_host_message(signed, at(1_000), None);
         }
-        assert!((ap.telemetry(1_000).height_m - 1.25).abs() < 1e-3);
-        assert_eq!(ap.telemetry(1_000).link_auth.accepted, u32::from(fixes));
+        assert!((ap.telemetry(at(1_000)).height_m - 1.25).abs() < 1e-3);
+        assert_eq!(ap.telemetry(at(1_000)).link_auth.accepted, u32::from(fixes));
     }
 
     #[test]
@@ -206,35 +208,39 @@ mod tests {
         };
         let mut flash = MemSlots::<1024>::blank();
         let (mut ap, _) = Autopilot::from_store(&flash);
-        assert!(!ap.telemetry(0).link_auth.keyed);
+        assert!(!ap.telemetry(at(0)).link_auth.keyed);
         // A parameter set but not saved, then the key.
         let gain = ParamOp::Set("guid_kp".try_into().unwrap(), ParamValue::F32(0.3));
-        ap.on_host_message(param(gain), 0, Some(&mut flash));
+        ap.on_host_message(param(gain), at(0), Some(&mut flash));
         assert_eq!(ap.config().guidance.kp, 0.3);
-        ap.on_host_message(HostToBoard::SetKey(key), 0, Some(&mut flash));
+        ap.on_host_message(HostToBoard::SetKey(key), at(0), Some(&mut flash));
         assert!(ap.take_link_key_to_store().is_some());
         assert_eq!(ap.save_link_key(&mut flash), Ok(()));
         // The reboot loads the key, and the parameters as saved (the set was not).
         let (mut ap, _) = Autopilot::from_store(&flash);
-        assert!(ap.telemetry(0).link_auth.keyed);
+        assert!(ap.telemetry(at(0)).link_auth.keyed);
         assert_eq!(ap.config(), &AutopilotConfig::default());
-        ap.on_host_message(HostToBoard::SetKey(LinkKey([9; 32])), 0, Some(&mut flash));
-        assert_eq!(ap.telemetry(0).link_auth.unsigned, 1, "the key is set");
+        ap.on_host_message(
+            HostToBoard::SetKey(LinkKey([9; 32])),
+            at(0),
+            Some(&mut flash),
+        );
+        assert_eq!(ap.telemetry(at(0)).link_auth.unsigned, 1, "the key is set");
         // A signed save keeps the key in the record it writes.
         let mut signer = Signer::new(key, 2);
         let save = signer.sign(&param(ParamOp::Save), 100).unwrap();
         let HostOutcome::Reply(BoardToHost::Param(r)) =
-            ap.on_host_message(save, 0, Some(&mut flash))
+            ap.on_host_message(save, at(0), Some(&mut flash))
         else {
             panic!("a save is answered");
         };
         assert_eq!(r.reply, ParamReply::Saved);
         let (mut ap, _) = Autopilot::from_store(&flash);
         let arm = HostToBoard::Command(PilotCommand::Arm);
-        ap.on_host_message(arm.clone(), 0, None);
-        assert_eq!(ap.telemetry(0).link_auth.unsigned, 1);
-        ap.on_host_message(signer.sign(&arm, 200).unwrap(), 0, None);
-        assert_eq!(ap.telemetry(0).link_auth.accepted, 1);
+        ap.on_host_message(arm.clone(), at(0), None);
+        assert_eq!(ap.telemetry(at(0)).link_auth.unsigned, 1);
+        ap.on_host_message(signer.sign(&arm, 200).unwrap(), at(0), None);
+        assert_eq!(ap.telemetry(at(0)).link_auth.accepted, 1);
     }
 
     #[test]
@@ -247,13 +253,13 @@ mod tests {
             })
         };
         let HostOutcome::Reply(BoardToHost::Param(r)) =
-            ap.on_host_message(ask(Node::Autopilot), 0, None)
+            ap.on_host_message(ask(Node::Autopilot), at(0), None)
         else {
             panic!("a parameter request must be answered");
         };
         assert!(matches!(r.reply, ParamReply::Entry(_)));
         let HostOutcome::Reply(BoardToHost::Param(r)) =
-            ap.on_host_message(ask(Node::Host), 0, None)
+            ap.on_host_message(ask(Node::Host), at(0), None)
         else {
             panic!("a request for another board must be answered too");
         };
@@ -268,7 +274,7 @@ mod tests {
             op: ParamOp::List(3),
         };
         assert_eq!(
-            ap.on_host_message(HostToBoard::Param(req.clone()), 0, None),
+            ap.on_host_message(HostToBoard::Param(req.clone()), at(0), None),
             HostOutcome::ToCamera(AutopilotToStereo::Param(req))
         );
         assert_eq!(ap.take_camera_param_reply(), None);
@@ -276,7 +282,7 @@ mod tests {
             board: Node::StereoBoard,
             reply: ParamReply::Error(ParamError::UnknownIndex),
         };
-        ap.on_stereo_message(protocol::StereoToAutopilot::Param(answer.clone()), 0);
+        ap.on_stereo_message(protocol::StereoToAutopilot::Param(answer.clone()), at(0));
         assert_eq!(ap.take_camera_param_reply(), Some(answer));
         assert_eq!(ap.take_camera_param_reply(), None, "taken once");
     }
@@ -284,7 +290,7 @@ mod tests {
     #[test]
     fn an_arm_without_sensors_is_refused_and_counted() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
-        let out = ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), 0, None);
+        let out = ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), at(0), None);
         assert_eq!(out, HostOutcome::Done);
         assert_eq!(ap.arm_refused(), 1);
     }
@@ -298,7 +304,7 @@ mod tests {
             accel_mps2: [0.0, 0.0, -9.81],
         };
         assert_eq!(
-            ap.on_host_message(HostToBoard::Imu(sample), 0, None),
+            ap.on_host_message(HostToBoard::Imu(sample), at(0), None),
             HostOutcome::Imu(sample)
         );
     }
@@ -306,16 +312,16 @@ mod tests {
     #[test]
     fn heartbeats_and_frame_chunks_change_nothing() {
         let mut ap = Autopilot::new(AutopilotConfig::default());
-        let before = ap.telemetry(0);
+        let before = ap.telemetry(at(0));
         let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, 0));
-        assert_eq!(ap.on_host_message(hb, 0, None), HostOutcome::Done);
+        assert_eq!(ap.on_host_message(hb, at(0), None), HostOutcome::Done);
         let chunk = HostToBoard::FrameChunk(FrameChunk {
             frame_id: 0,
             capture_us: WireTime(0),
             offset: 0,
             data: heapless::Vec::new(),
         });
-        assert_eq!(ap.on_host_message(chunk, 0, None), HostOutcome::Done);
-        assert_eq!(ap.telemetry(0), before);
+        assert_eq!(ap.on_host_message(chunk, at(0), None), HostOutcome::Done);
+        assert_eq!(ap.telemetry(at(0)), before);
     }
 }

@@ -15,6 +15,7 @@
 
 use protocol::signing::{KeyRecord, LinkKey, ReplayGuard, SignError};
 use protocol::{HostToBoard, LinkAuthTelemetry, ParamOp, PilotCommand};
+use timebase::Instant;
 
 /// What a host message needs to be taken.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -113,21 +114,21 @@ impl LinkAuth {
         self.to_store.take()
     }
 
-    /// Judges `msg` at board time `now_us`; `motors_off` is true while the motors cannot run.
+    /// Judges `msg` at board time `now`; `motors_off` is true while the motors cannot run.
     /// Returns the message to act on (an envelope's inner message), or `None` when it was
     /// refused (counted) or consumed (a key provisioned).
     pub fn admit(
         &mut self,
         msg: HostToBoard,
         motors_off: bool,
-        now_us: u64,
+        now: Instant,
     ) -> Option<HostToBoard> {
         let (msg, signed_at) = match msg {
             HostToBoard::Signed(envelope) => {
                 let opened = match self.key {
                     Some(key) => envelope.open(&key).and_then(|inner| {
                         self.guard
-                            .accept(envelope.link_id, envelope.timestamp, now_us)
+                            .accept(envelope.link_id, envelope.timestamp, now)
                             .map(|()| inner)
                     }),
                     // An unsigned link takes a signed message's content as it takes unsigned
@@ -192,6 +193,7 @@ impl LinkAuth {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
     use protocol::signing::{SignedMessage, Signer};
     use protocol::{Heartbeat, Node, ParamRequest};
 
@@ -211,9 +213,9 @@ mod tests {
     #[test]
     fn an_unkeyed_link_takes_everything_and_says_so() {
         let mut a = LinkAuth::new();
-        assert_eq!(a.admit(ARM, true, 0), Some(ARM));
+        assert_eq!(a.admit(ARM, true, at(0)), Some(ARM));
         let signed = Signer::new(KEY, 1).sign(&ARM, 10).unwrap();
-        assert_eq!(a.admit(signed, true, 0), Some(ARM));
+        assert_eq!(a.admit(signed, true, at(0)), Some(ARM));
         assert!(!a.telemetry().keyed);
         assert_eq!(a.telemetry().unsigned, 0);
     }
@@ -221,15 +223,15 @@ mod tests {
     #[test]
     fn a_keyed_link_refuses_unsigned_commands_but_not_kill() {
         let mut a = keyed();
-        assert_eq!(a.admit(ARM, true, 0), None);
+        assert_eq!(a.admit(ARM, true, at(0)), None);
         let hb = HostToBoard::Heartbeat(Heartbeat::new(Node::Host, 0));
-        assert_eq!(a.admit(hb, true, 0), None);
-        assert_eq!(a.admit(KILL, false, 0), Some(KILL));
+        assert_eq!(a.admit(hb, true, at(0)), None);
+        assert_eq!(a.admit(KILL, false, at(0)), Some(KILL));
         let list = HostToBoard::Param(ParamRequest {
             board: Node::Autopilot,
             op: ParamOp::List(0),
         });
-        assert_eq!(a.admit(list.clone(), true, 0), Some(list));
+        assert_eq!(a.admit(list.clone(), true, at(0)), Some(list));
         assert_eq!(a.telemetry().unsigned, 2);
     }
 
@@ -237,10 +239,10 @@ mod tests {
     fn signed_forged_and_replayed_are_told_apart() {
         let mut a = keyed();
         let signed = Signer::new(KEY, 1).sign(&ARM, 1_000).unwrap();
-        assert_eq!(a.admit(signed.clone(), true, 0), Some(ARM));
-        assert_eq!(a.admit(signed, true, 10), None, "replay");
+        assert_eq!(a.admit(signed.clone(), true, at(0)), Some(ARM));
+        assert_eq!(a.admit(signed, true, at(10)), None, "replay");
         let forged = Signer::new(LinkKey([1; 32]), 1).sign(&ARM, 2_000).unwrap();
-        assert_eq!(a.admit(forged, true, 20), None, "another key");
+        assert_eq!(a.admit(forged, true, at(20)), None, "another key");
         let t = a.telemetry();
         assert_eq!((t.accepted, t.replayed, t.bad_signature), (1, 1, 1));
     }
@@ -248,28 +250,28 @@ mod tests {
     #[test]
     fn a_key_is_provisioned_once_unsigned_then_only_signed() {
         let mut a = LinkAuth::new();
-        assert_eq!(a.admit(HostToBoard::SetKey(KEY), false, 0), None);
+        assert_eq!(a.admit(HostToBoard::SetKey(KEY), false, at(0)), None);
         assert!(!a.telemetry().keyed, "not while the motors may run");
-        assert_eq!(a.admit(HostToBoard::SetKey(KEY), true, 0), None);
+        assert_eq!(a.admit(HostToBoard::SetKey(KEY), true, at(0)), None);
         assert!(a.telemetry().keyed);
         assert_eq!(a.take_key_to_store().map(|r| r.key), Some(KEY));
         assert_eq!(a.take_key_to_store(), None);
         // A second unsigned SetKey cannot take the link over.
         let other = LinkKey([9; 32]);
-        assert_eq!(a.admit(HostToBoard::SetKey(other), true, 0), None);
+        assert_eq!(a.admit(HostToBoard::SetKey(other), true, at(0)), None);
         assert_eq!(a.take_key_to_store(), None);
         assert_eq!(a.telemetry().unsigned, 2);
         // Signed with the current key it changes the key, and the old key is then refused.
         let change = Signer::new(KEY, 1)
             .sign(&HostToBoard::SetKey(other), 5_000)
             .unwrap();
-        assert_eq!(a.admit(change, true, 0), None);
+        assert_eq!(a.admit(change, true, at(0)), None);
         let r = a.take_key_to_store().unwrap();
         assert_eq!((r.key, r.min_timestamp), (other, 5_000));
         let old = Signer::new(KEY, 1).sign(&ARM, 6_000).unwrap();
-        assert_eq!(a.admit(old, true, 0), None);
+        assert_eq!(a.admit(old, true, at(0)), None);
         let new = Signer::new(other, 1).sign(&ARM, 6_000).unwrap();
-        assert_eq!(a.admit(new, true, 0), Some(ARM));
+        assert_eq!(a.admit(new, true, at(0)), Some(ARM));
     }
 
     #[test]
@@ -282,13 +284,13 @@ mod tests {
         });
         assert_eq!(a.stored_key().map(|r| r.min_timestamp), Some(100));
         let signed = Signer::new(KEY, 1).sign(&ARM, 5_000).unwrap();
-        assert_eq!(a.admit(signed.clone(), true, 0), Some(ARM));
+        assert_eq!(a.admit(signed.clone(), true, at(0)), Some(ARM));
         let stored = a.stored_key().unwrap();
         assert_eq!((stored.key, stored.min_timestamp), (KEY, 5_000));
         let mut rebooted = LinkAuth::new();
         rebooted.load(stored);
         assert_eq!(
-            rebooted.admit(signed, true, 0),
+            rebooted.admit(signed, true, at(0)),
             None,
             "replayed after a reboot"
         );
@@ -300,7 +302,7 @@ mod tests {
         let change = Signer::new(KEY, 1)
             .sign(&HostToBoard::SetKey(LinkKey([3; 32])), 5_000)
             .unwrap();
-        assert_eq!(a.admit(change, false, 0), None);
+        assert_eq!(a.admit(change, false, at(0)), None);
         assert_eq!(a.take_key_to_store(), None);
     }
 
@@ -312,7 +314,7 @@ mod tests {
             min_timestamp: 10_000,
         });
         let old = HostToBoard::Signed(SignedMessage::sign(&KEY, 0, 9_999, &ARM).unwrap());
-        assert_eq!(a.admit(old, true, 0), None);
+        assert_eq!(a.admit(old, true, at(0)), None);
         assert_eq!(a.telemetry().replayed, 1);
     }
 }

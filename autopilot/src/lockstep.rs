@@ -12,8 +12,8 @@
 //! Only the time source changes: the task bodies call the same [`crate::Autopilot`] methods as
 //! the real flavour, at the periods of [`crate::TASKS`].
 
-use crate::tasks::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
-use timebase::{WireTime, WorldTime, WrapExtender};
+use crate::tasks::{GUIDANCE_PERIOD, GYRO_TX_PERIOD, TELEMETRY_PERIOD};
+use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
 /// The world clock: the host's wrapping `u32` microsecond sample timestamps extended onto a
 /// monotonic `u64` timeline (by [`timebase::WrapExtender`]: a decrease of more than half the
@@ -28,15 +28,15 @@ impl WorldClock {
         Self(WrapExtender::new())
     }
 
-    /// Takes a host timestamp and returns the world time it stands for
-    /// (µs, `u64`). The clock itself never goes back: [`WorldClock::now_us`] is the latest.
-    pub fn observe(&mut self, wire: WireTime) -> u64 {
-        self.0.extend(wire).as_micros()
+    /// Takes a host timestamp and returns the world time it stands for. The clock itself
+    /// never goes back: [`WorldClock::now`] is the latest.
+    pub fn observe(&mut self, wire: WireTime) -> WorldTime {
+        self.0.extend(wire)
     }
 
-    /// The latest world time seen, µs (0 before the first sample).
-    pub fn now_us(&self) -> u64 {
-        self.0.latest().as_micros()
+    /// The latest world time seen (the epoch before the first sample).
+    pub fn now(&self) -> WorldTime {
+        self.0.latest()
     }
 
     /// True once a sample has set the clock.
@@ -48,51 +48,48 @@ impl WorldClock {
 /// Which periodic tasks are due at one world instant.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Due {
-    /// `guidance` (every [`GUIDANCE_PERIOD_US`]).
+    /// `guidance` (every [`GUIDANCE_PERIOD`]).
     pub guidance: bool,
-    /// `gyro_tx` (every [`GYRO_TX_PERIOD_US`]).
+    /// `gyro_tx` (every [`GYRO_TX_PERIOD`]).
     pub gyro_tx: bool,
-    /// `telemetry` (every [`TELEMETRY_PERIOD_US`]).
+    /// `telemetry` (every [`TELEMETRY_PERIOD`]).
     pub telemetry: bool,
 }
 
-/// Release times of the periodic tasks on the world clock.
+/// Release times of the periodic tasks on the library clock the world drives (the world
+/// time of the samples, [`WorldTime::as_flight_clock`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct WorldTimers {
-    next_us: [Option<u64>; 3],
+    next: [Option<Instant>; 3],
 }
 
-/// Periods of the tasks in [`Due`] order, µs.
-const PERIODS_US: [u32; 3] = [GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US];
+/// Periods of the tasks in [`Due`] order.
+const PERIODS: [Duration; 3] = [GUIDANCE_PERIOD, GYRO_TX_PERIOD, TELEMETRY_PERIOD];
 
 impl WorldTimers {
     /// No task released yet: each is due at the first instant it is asked about.
     pub const fn new() -> Self {
-        Self { next_us: [None; 3] }
+        Self { next: [None; 3] }
     }
 
-    /// The tasks due at world time `now_us` (call once per IMU sample, after the control
+    /// The tasks due at library time `now` (call once per IMU sample, after the control
     /// step). Releases keep their phase (`next += period`); after a gap longer than a period
     /// (the host paused the world, a lost sample) a task runs once and is rescheduled from
-    /// `now_us`, never in a burst.
-    pub fn due(&mut self, now_us: u64) -> Due {
+    /// `now`, never in a burst.
+    pub fn due(&mut self, now: Instant) -> Due {
         let mut out = [false; 3];
-        for ((next, period), due) in self.next_us.iter_mut().zip(PERIODS_US).zip(out.iter_mut()) {
-            let period = u64::from(period.max(1));
+        for ((next, period), due) in self.next.iter_mut().zip(PERIODS).zip(out.iter_mut()) {
+            let period = period.max(Duration::from_micros(1));
             match *next {
-                Some(t) if now_us < t => {}
+                Some(t) if now < t => {}
                 Some(t) => {
                     *due = true;
-                    let after = t.saturating_add(period);
-                    *next = Some(if after <= now_us {
-                        now_us.saturating_add(period)
-                    } else {
-                        after
-                    });
+                    let after = t + period;
+                    *next = Some(if after <= now { now + period } else { after });
                 }
                 None => {
                     *due = true;
-                    *next = Some(now_us.saturating_add(period));
+                    *next = Some(now + period);
                 }
             }
         }
@@ -108,20 +105,23 @@ impl WorldTimers {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tasks::IMU_PERIOD_US;
+    use crate::tasks::IMU_PERIOD;
 
     #[test]
     fn clock_extends_wraps_and_never_goes_back() {
         let mut c = WorldClock::new();
         assert!(!c.started());
-        assert_eq!(c.observe(WireTime(10)), 10);
-        assert_eq!(c.observe(WireTime(u32::MAX - 5)), u64::from(u32::MAX - 5));
+        assert_eq!(c.observe(WireTime(10)).as_micros(), 10);
+        assert_eq!(
+            c.observe(WireTime(u32::MAX - 5)).as_micros(),
+            u64::from(u32::MAX - 5)
+        );
         // Wrap.
-        assert_eq!(c.observe(WireTime(3)), (1u64 << 32) | 3);
-        assert_eq!(c.now_us(), (1u64 << 32) | 3);
+        assert_eq!(c.observe(WireTime(3)).as_micros(), (1u64 << 32) | 3);
+        assert_eq!(c.now().as_micros(), (1u64 << 32) | 3);
         // A late sample: reported at its own time, the clock stays.
-        assert_eq!(c.observe(WireTime(1)), (1u64 << 32) | 1);
-        assert_eq!(c.now_us(), (1u64 << 32) | 3);
+        assert_eq!(c.observe(WireTime(1)).as_micros(), (1u64 << 32) | 1);
+        assert_eq!(c.now().as_micros(), (1u64 << 32) | 3);
     }
 
     #[test]
@@ -131,11 +131,11 @@ mod tests {
         // 10 s of samples at 512 Hz.
         let mut t = 0u64;
         while t < 10_000_000 {
-            let d = timers.due(t);
+            let d = timers.due(Instant::from_micros(t));
             counts[0] += u32::from(d.guidance);
             counts[1] += u32::from(d.gyro_tx);
             counts[2] += u32::from(d.telemetry);
-            t += u64::from(IMU_PERIOD_US);
+            t += IMU_PERIOD.as_micros();
         }
         // 50 Hz, 128 Hz, 10 Hz within one release (sample-period quantisation).
         assert!((500..=501).contains(&counts[0]), "{counts:?}");
@@ -146,11 +146,11 @@ mod tests {
     #[test]
     fn a_pause_gives_one_release_not_a_burst() {
         let mut timers = WorldTimers::new();
-        assert!(timers.due(0).guidance);
-        assert!(!timers.due(1_000).guidance);
+        assert!(timers.due(Instant::from_micros(0)).guidance);
+        assert!(!timers.due(Instant::from_micros(1_000)).guidance);
         // The world jumps 1 s ahead: one release, then the period again.
-        assert!(timers.due(1_000_000).guidance);
-        assert!(!timers.due(1_001_953).guidance);
-        assert!(timers.due(1_020_000).guidance);
+        assert!(timers.due(Instant::from_micros(1_000_000)).guidance);
+        assert!(!timers.due(Instant::from_micros(1_001_953)).guidance);
+        assert!(timers.due(Instant::from_micros(1_020_000)).guidance);
     }
 }

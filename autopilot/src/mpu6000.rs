@@ -45,7 +45,7 @@
 //! (`PWR_MGMT_1` = 0x40), with every configuration register at its default (register map
 //! section 3: +-250 deg/s, +-2 g, no low-pass filter, I2C on). [`Reconfigure`] tells the
 //! firmware when to write [`CONFIG_SEQUENCE`] again: on a sample that identifies the chip but
-//! shows it not awake on the configured clock, at most once per [`RECONFIGURE_INTERVAL_US`]. The
+//! shows it not awake on the configured clock, at most once per [`RECONFIGURE_INTERVAL`]. The
 //! firmware then reads the configuration back ([`config_matches`]) before it trusts a sample
 //! again. No `DEVICE_RESET` is sent in flight: the chip has just come out of its own reset, and
 //! that reset's 100 ms wait cannot be spent in the 512 Hz loop. The samples stay invalid through
@@ -55,6 +55,7 @@
 
 use crate::board::{AxisMap, Mounting};
 use protocol::{ImuSample, WireTime};
+use timebase::{Duration, Instant};
 
 /// Read flag of an SPI register address (bit 7 set).
 pub const READ: u8 = 0x80;
@@ -127,15 +128,15 @@ pub fn config_matches(values: [u8; 3]) -> bool {
     })
 }
 
-/// The shortest time between two re-configurations of a sensor that keeps showing asleep, µs
+/// The shortest time between two re-configurations of a sensor that keeps showing asleep
 /// (the gyro's start-up time: a chip that does not take the configuration is not written to
 /// at every 512 Hz step).
-pub const RECONFIGURE_INTERVAL_US: u64 = 30_000;
+pub const RECONFIGURE_INTERVAL: Duration = Duration::from_millis(30);
 
 /// When to configure the sensor again after it reset (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Reconfigure {
-    last_us: Option<u64>,
+    last: Option<Instant>,
     count: u32,
 }
 
@@ -143,25 +144,25 @@ impl Reconfigure {
     /// No re-configuration yet.
     pub const fn new() -> Self {
         Self {
-            last_us: None,
+            last: None,
             count: 0,
         }
     }
 
-    /// After a rejected sample at `now_us`: whether to write [`CONFIG_SEQUENCE`] now. Only a
+    /// After a rejected sample at `now`: whether to write [`CONFIG_SEQUENCE`] now. Only a
     /// chip that identifies itself but is not awake on the configured clock is reset; anything
     /// else (a dead bus, a frozen or saturated sensor) is not cured by writing registers.
-    pub fn due(&mut self, fault: SampleFault, now_us: u64) -> bool {
+    pub fn due(&mut self, fault: SampleFault, now: Instant) -> bool {
         let SampleFault::NotAwake(pwr_mgmt_1) = fault else {
             return false;
         };
         if pwr_mgmt_1 & PWR_MGMT_1_RESET != 0 {
             return false; // still resetting
         }
-        if matches!(self.last_us, Some(t) if now_us.saturating_sub(t) < RECONFIGURE_INTERVAL_US) {
+        if matches!(self.last, Some(t) if now.since(t) < RECONFIGURE_INTERVAL) {
             return false;
         }
-        self.last_us = Some(now_us);
+        self.last = Some(now);
         self.count = self.count.wrapping_add(1);
         true
     }
@@ -413,18 +414,21 @@ impl SampleCheck {
 }
 
 /// The longest time from the IMU failing (frozen, unplugged, asleep, gone) to every motor at 0,
-/// µs, with the failsafe timings `failsafe`: a frozen sensor's samples still pass for
+/// with the failsafe timings `failsafe`: a frozen sensor's samples still pass for
 /// [`STUCK_SAMPLES`] - 1 loop periods, then no valid sample for the failsafe's
-/// `imu_timeout_us`, then the loop period whose check turns the motors off.
-pub fn fault_motors_off_us(failsafe: &crate::failsafe::FailsafeConfig) -> u64 {
-    let period_us = 1_000_000u64.div_ceil(u64::from(crate::board::LOOP_RATE_HZ));
-    failsafe.imu_timeout_us + u64::from(STUCK_SAMPLES) * period_us
+/// `imu_timeout`, then the loop period whose check turns the motors off.
+pub fn fault_motors_off(failsafe: &crate::failsafe::FailsafeConfig) -> Duration {
+    // The loop period rounded up.
+    let period =
+        Duration::from_micros(1_000_000u64.div_ceil(u64::from(crate::board::LOOP_RATE_HZ)));
+    failsafe.imu_timeout + period.saturating_mul(u64::from(STUCK_SAMPLES))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::board::IMU_AXES;
+    use crate::test_support::at;
 
     /// The 14 data bytes for the given chip-axis words (temperature fixed).
     fn bytes(accel: [i16; 3], gyro: [i16; 3]) -> [u8; 14] {
@@ -515,11 +519,11 @@ mod tests {
         let good = bytes([10, 20, -4000], [1, 2, 3]);
         // Power-on defaults after a brown-out: asleep, internal oscillator, data registers 0.
         let fault = c.check(0x68, 0x40, &[0; 14], WireTime(0)).unwrap_err();
-        assert!(r.due(fault, 1_000));
+        assert!(r.due(fault, at(1_000)));
         // Still asleep at the next steps: not written again before the interval.
-        assert!(!r.due(fault, 1_000 + 1_953));
-        assert!(!r.due(fault, 1_000 + RECONFIGURE_INTERVAL_US - 1));
-        assert!(r.due(fault, 1_000 + RECONFIGURE_INTERVAL_US));
+        assert!(!r.due(fault, at(1_000 + 1_953)));
+        assert!(!r.due(fault, at(1_000 + RECONFIGURE_INTERVAL.as_micros() - 1)));
+        assert!(r.due(fault, at(1_000 + RECONFIGURE_INTERVAL.as_micros())));
         assert_eq!(r.count(), 2);
         // Mid-reset (DEVICE_RESET still set), another chip, a dead bus, a frozen sensor: no
         // register write cures those.
@@ -530,11 +534,11 @@ mod tests {
             SampleFault::Stuck,
             SampleFault::Bus,
         ] {
-            assert!(!r.due(fault, 10_000_000), "{fault:?}");
+            assert!(!r.due(fault, at(10_000_000)), "{fault:?}");
         }
         assert_eq!(r.count(), 2);
         // Awake on the internal oscillator (CLKSEL 0) is not the configured state either.
-        assert!(r.due(SampleFault::NotAwake(0x00), 20_000_000));
+        assert!(r.due(SampleFault::NotAwake(0x00), at(20_000_000)));
         // Configured again: valid.
         assert!(c.check(0x68, PWR_MGMT_1_RUN, &good, WireTime(0)).is_ok());
     }

@@ -3,17 +3,19 @@
 //! compensation. Hardware-free: the firmware does the SPI transfers and the waits, and hands
 //! the words here.
 //!
-//! The sequence: [`CMD_RESET`], wait [`RESET_TIME_US`]; read the eight PROM words
+//! The sequence: [`CMD_RESET`], wait [`RESET_TIME`]; read the eight PROM words
 //! ([`prom_read_command`]) and check them ([`Calibration::from_prom`]); then repeatedly
-//! [`convert_d1_command`], wait [`Osr::conversion_time_us`], [`CMD_ADC_READ`] (24 bits),
+//! [`convert_d1_command`], wait [`Osr::conversion_time`], [`CMD_ADC_READ`] (24 bits),
 //! [`convert_d2_command`], wait, read, and [`Calibration::compensate`].
+
+use timebase::Duration;
 
 /// Reset command.
 pub const CMD_RESET: u8 = 0x1E;
 /// ADC read command (24-bit result follows).
 pub const CMD_ADC_READ: u8 = 0x00;
-/// Time the reset takes (datasheet: 2.8 ms reload of the PROM), us.
-pub const RESET_TIME_US: u32 = 2_800;
+/// Time the reset takes (datasheet: 2.8 ms reload of the PROM).
+pub const RESET_TIME: Duration = Duration::from_micros(2_800);
 
 /// Oversampling ratio of a conversion.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,15 +44,15 @@ impl Osr {
         }
     }
 
-    /// Longest conversion time (datasheet, "ADC conversion time", max column), us.
-    pub fn conversion_time_us(self) -> u32 {
-        match self {
+    /// Longest conversion time (datasheet, "ADC conversion time", max column).
+    pub const fn conversion_time(self) -> Duration {
+        Duration::from_micros(match self {
             Osr::X256 => 600,
             Osr::X512 => 1_170,
             Osr::X1024 => 2_280,
             Osr::X2048 => 4_540,
             Osr::X4096 => 9_040,
-        }
+        })
     }
 }
 

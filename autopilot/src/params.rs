@@ -23,10 +23,11 @@ use crate::config::AutopilotConfig;
 use crate::estimation::VelocitySource;
 use crate::failsafe::HostLossAction;
 use crate::fsm::FsmVariant;
-use crate::guidance::MAX_MEASUREMENT_DELAY_US;
+use crate::guidance::MAX_MEASUREMENT_DELAY;
 use crate::indi::SecondOrderFilter;
 use protocol::params::{Conflict, ParamField, ParamTable};
 use protocol::{ParamEntry, ParamValue};
+use timebase::Duration;
 
 pub use protocol::params::Rejected;
 
@@ -153,30 +154,30 @@ protocol::param_table! {
     "fsm_variant": U32 ["enum"] 0, 1, true => |c| c.fsm.variant;
     "fsm_obstacle_dist": F32 ["m"] 0.1, 5.0, true => |c| c.fsm.obstacle_distance_m;
     "fsm_forward_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.fsm.forward_speed_mps;
-    "fsm_hover_time_us": U32 ["us"] 0, 10_000_000, true => |c| c.fsm.hover_time_us;
+    "fsm_hover_time_us": U32 ["us"] 0, 10_000_000, true => |c| c.fsm.hover_time;
     "fsm_turn_angle": F32 ["rad"] 0.0, PI, true => |c| c.fsm.turn_angle_rad;
     "fsm_turn_rate": F32 ["rad/s"] 0.05, 5.0, true => |c| c.fsm.turn_rate_radps;
     "fsm_turn_tolerance": F32 ["rad"] 0.01, 1.0, true => |c| c.fsm.turn_tolerance_rad;
-    "fsm_turn_timeout_us": U32 ["us"] 100_000, 20_000_000, true => |c| c.fsm.turn_timeout_us;
+    "fsm_turn_timeout_us": U32 ["us"] 100_000, 20_000_000, true => |c| c.fsm.turn_timeout;
     "fsm_clear_dist": F32 ["m"] 0.1, 10.0, true => |c| c.fsm.clear_distance_m;
     "fsm_clear_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.clear_confirm;
-    "fsm_reading_timeout_us": U32 ["us"] 10_000, 5_000_000, true => |c| c.fsm.reading_timeout_us;
+    "fsm_reading_timeout_us": U32 ["us"] 10_000, 5_000_000, true => |c| c.fsm.reading_timeout;
     "fsm_min_clear_depth": F32 ["-"] 0.0, 1.0, true => |c| c.fsm.min_clear_depth;
     "fsm_block_confirm": U32 ["-"] 1, 50, true => |c| c.fsm.block_confirm;
     "fsm_approach_dist": F32 ["m"] 0.0, 10.0, true => |c| c.fsm.approach_distance_m;
     "fsm_approach_speed": F32 ["m/s"] 0.0, 2.0, true => |c| c.fsm.approach_speed_mps;
     "fsm_brake_speed": F32 ["m/s"] 0.0, 1.0, true => |c| c.fsm.brake_speed_mps;
-    "fsm_brake_timeout_us": U32 ["us"] 0, 10_000_000, true => |c| c.fsm.brake_timeout_us;
-    "fsm_check_timeout_us": U32 ["us"] 100_000, 30_000_000, true => |c| c.fsm.check_timeout_us;
+    "fsm_brake_timeout_us": U32 ["us"] 0, 10_000_000, true => |c| c.fsm.brake_timeout;
+    "fsm_check_timeout_us": U32 ["us"] 100_000, 30_000_000, true => |c| c.fsm.check_timeout;
     "fsm_max_searches": U32 ["-"] 1, 60, true => |c| c.fsm.max_searches;
-    "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout_us;
-    "fsm_search_timeout_us": U32 ["us"] 500_000, 60_000_000, true => |c| c.fsm.search_timeout_us;
+    "fsm_forward_timeout_us": U32 ["us"] 1_000_000, 600_000_000, true => |c| c.fsm.forward_timeout;
+    "fsm_search_timeout_us": U32 ["us"] 500_000, 60_000_000, true => |c| c.fsm.search_timeout;
     "fsm_contact_time": F32 ["s"] 0.0, 10.0, true => |c| c.fsm.contact_time_s;
-    "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout_us;
-    "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land_us;
-    "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout_us;
-    "fs_height_timeout_us": U32 ["us"] 20_000, 5_000_000, true => |c| c.failsafe.height_timeout_us;
-    "fs_host_timeout_us": U32 ["us"] 200_000, 60_000_000, true => |c| c.failsafe.host_timeout_us;
+    "fs_estimate_timeout_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.failsafe.estimate_timeout;
+    "fs_hover_land_us": U32 ["us"] 0, 30_000_000, true => |c| c.failsafe.hover_before_land;
+    "fs_imu_timeout_us": U32 ["us"] 2_000, 100_000, true => |c| c.failsafe.imu_timeout;
+    "fs_height_timeout_us": U32 ["us"] 20_000, 5_000_000, true => |c| c.failsafe.height_timeout;
+    "fs_host_timeout_us": U32 ["us"] 200_000, 60_000_000, true => |c| c.failsafe.host_timeout;
     "fs_host_action": U32 ["enum"] 0, 2, true => |c| c.failsafe.host_action;
     "fs_autonomous_arm": Bool ["-"] false, true, true => |c| c.failsafe.autonomous_arm;
     "target_height": F32 ["m"] 0.2, 3.0, true => |c| c.setpoints.target_height_m;
@@ -184,17 +185,17 @@ protocol::param_table! {
     "land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.setpoints.land_rate_mps;
     "blind_land_rate": F32 ["m/s"] 0.05, 2.0, true => |c| c.setpoints.blind_land_rate_mps;
     "landed_height": F32 ["m"] 0.01, 0.5, true => |c| c.setpoints.landed_height_m;
-    "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.setpoints.landed_time_us;
-    "land_timeout_us": U32 ["us"] 1_000_000, 120_000_000, true => |c| c.setpoints.land_timeout_us;
+    "landed_time_us": U32 ["us"] 0, 5_000_000, true => |c| c.setpoints.landed_time;
+    "land_timeout_us": U32 ["us"] 1_000_000, 120_000_000, true => |c| c.setpoints.land_timeout;
     "land_cut_height": F32 ["m"] 0.0, 1.0, true => |c| c.setpoints.land_cut_height_m;
     "ground_thrust_ratio": F32 ["-"] 0.0, 1.0, true => |c| c.setpoints.ground_thrust_ratio;
     "ground_min_accel": F32 ["g"] 0.5, 1.0, true => |c| c.setpoints.ground_min_specific_force;
-    "baro_stuck_us": U32 ["us"] 40_000, 10_000_000, true => |c| c.vertical.baro_stuck_us;
+    "baro_stuck_us": U32 ["us"] 40_000, 10_000_000, true => |c| c.vertical.baro_stuck;
     "fsm_start_height_tol": F32 ["m"] 0.01, 1.0, true => |c| c.setpoints.fsm_start_height_tolerance_m;
     "blind_land_thrust": F32 ["-"] 0.0, 1.0, true => |c| c.setpoints.blind_land_thrust;
-    "blind_land_time_us": U32 ["us"] 0, 20_000_000, true => |c| c.setpoints.blind_land_time_us;
+    "blind_land_time_us": U32 ["us"] 0, 20_000_000, true => |c| c.setpoints.blind_land_time;
     "min_quality": U32 ["-"] 0, 255, true => |c| c.estimation.min_quality;
-    "median_reset_gap_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.estimation.median_reset_gap_us;
+    "median_reset_gap_us": U32 ["us"] 40_000, 5_000_000, true => |c| c.estimation.median_reset_gap;
     "max_estimate": F32 ["m/s"] 0.1, 20.0, true => |c| c.estimation.max_estimate_mps;
     "max_velocity_jump": F32 ["m/s"] 0.05, 5.0, true => |c| c.estimation.max_velocity_jump_mps;
     "max_outliers": U32 ["-"] 0, 20, true => |c| c.estimation.max_consecutive_outliers;
@@ -202,12 +203,12 @@ protocol::param_table! {
     "max_vision_climb": F32 ["m/s"] 0.05, 5.0, true => |c| c.estimation.max_vision_climb_mps;
     "vision_climb_depth": F32 ["-"] 0.0, 1.0, true => |c| c.estimation.vision_climb_min_depth;
     "min_valid_run": U32 ["-"] 1, 20, true => |c| c.estimation.min_valid_run;
-    "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.estimation.velocity_max_age_us;
+    "velocity_max_age_us": U32 ["us"] 0, 10_000_000, true => |c| c.estimation.velocity_max_age;
     "obs_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.estimation.observer.drag_per_s;
     "obs_velocity_gain": F32 ["-"] 0.0, 1.0, true => |c| c.estimation.observer.velocity_gain;
     "obs_bias_gain": F32 ["-"] 0.0, 1.0, true => |c| c.estimation.observer.bias_gain;
     "obs_max_bias": F32 ["m/s2"] 0.0, 5.0, true => |c| c.estimation.observer.max_bias_mps2;
-    "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY_US, true => |c| c.estimation.observer.measurement_delay_us;
+    "obs_delay_us": U32 ["us"] 0, MAX_MEASUREMENT_DELAY.as_micros() as u32, true => |c| c.estimation.observer.measurement_delay;
     "obs_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.estimation.observer.max_tilt_rad;
     "velocity_source": U32 ["enum"] 0, 2, true => |c| c.estimation.velocity_source;
     "vkf_drag": F32 ["1/s"] 0.0, 5.0, true => |c| c.estimation.velocity_kf.drag_per_s;
@@ -221,12 +222,12 @@ protocol::param_table! {
     "vkf_reinit_after": U32 ["-"] 1, 50, true => |c| c.estimation.velocity_kf.reinit_after;
     "vkf_max_tilt": F32 ["rad"] 0.0, 1.0, true => |c| c.estimation.velocity_kf.max_tilt_rad;
     "vkf_room_bias": Bool ["-"] false, true, true => |c| c.estimation.velocity_kf.bias_in_room_frame;
-    "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimation.estimate_horizon_us;
-    "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimation.estimate_link_us;
-    "est_filter_lag_us": U32 ["us"] 0, 500_000, true => |c| c.estimation.estimate_filter_lag_us;
-    "fit_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimation.fit_horizon_us;
+    "est_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimation.estimate_horizon;
+    "est_link_us": U32 ["us"] 0, 100_000, true => |c| c.estimation.estimate_link;
+    "est_filter_lag_us": U32 ["us"] 0, 500_000, true => |c| c.estimation.estimate_filter_lag;
+    "fit_horizon_us": U32 ["us"] 0, 1_000_000, true => |c| c.estimation.fit_horizon;
     "max_yaw_rate": F32 ["rad/s"] 0.05, 10.0, true => |c| c.estimation.max_yaw_rate_radps;
-    "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.estimation.yaw_settle_us;
+    "yaw_settle_us": U32 ["us"] 0, 2_000_000, true => |c| c.estimation.yaw_settle;
     "gyro_cal_samples": U32 ["-"] 1, 4_096, true => |c| c.gyro_calibration.samples;
     "gyro_cal_still": F32 ["rad/s"] 0.001, 1.0, true => |c| c.gyro_calibration.still_radps;
     "bat_arm_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.arm_v;
@@ -234,7 +235,7 @@ protocol::param_table! {
     "bat_critical_v": F32 ["V"] 0.0, 5.0, true => |c| c.battery.critical_v;
     "bat_resistance": F32 ["ohm"] 0.0, 2.0, true => |c| c.battery.resistance_ohm;
     "bat_full_current": F32 ["A"] 0.0, 100.0, true => |c| c.battery.full_throttle_current_a;
-    "bat_filter_tau_us": U32 ["us"] 0, 30_000_000, true => |c| c.battery.filter_tau_us;
+    "bat_filter_tau_us": U32 ["us"] 0, 30_000_000, true => |c| c.battery.filter_tau;
     }
 }
 
@@ -377,21 +378,21 @@ fn consistent(cfg: &AutopilotConfig) -> Result<(), Conflict> {
     // The oldest estimate window (the longest processing time an estimate can report, then the
     // link, the output filter's lag and the window itself) must lie inside the velocity
     // filter's history, or every estimate would be ignored.
-    let oldest_window_us = u64::from(u16::MAX)
-        + u64::from(cfg.estimation.estimate_link_us)
-        + u64::from(cfg.estimation.estimate_filter_lag_us)
-        + u64::from(cfg.estimation.estimate_horizon_us);
-    if oldest_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
+    let longest_processing = Duration::from_micros(u64::from(u16::MAX));
+    let oldest_window = longest_processing
+        + cfg.estimation.estimate_link
+        + cfg.estimation.estimate_filter_lag
+        + cfg.estimation.estimate_horizon;
+    if oldest_window > crate::velocity_kf::MAX_WINDOW_AGE {
         return fail(
             "est_horizon_us",
             "est_filter_lag_us",
             "reaches past the velocity filter's history with this",
         );
     }
-    let oldest_fit_window_us = u64::from(u16::MAX)
-        + u64::from(cfg.estimation.estimate_link_us)
-        + u64::from(cfg.estimation.fit_horizon_us);
-    if oldest_fit_window_us > crate::velocity_kf::MAX_WINDOW_AGE_US {
+    let oldest_fit_window =
+        longest_processing + cfg.estimation.estimate_link + cfg.estimation.fit_horizon;
+    if oldest_fit_window > crate::velocity_kf::MAX_WINDOW_AGE {
         return fail(
             "fit_horizon_us",
             "est_link_us",
@@ -570,7 +571,7 @@ mod tests {
         set_by_name(&mut c, "fsm_variant", ParamValue::U32(1)).unwrap();
         assert_eq!(c.fsm.variant, FsmVariant::TurnUntilClear);
         set_by_name(&mut c, "fs_hover_land_us", ParamValue::U32(1_500_000)).unwrap();
-        assert_eq!(c.failsafe.hover_before_land_us, 1_500_000);
+        assert_eq!(c.failsafe.hover_before_land, Duration::from_millis(1_500));
     }
 
     #[test]
@@ -587,7 +588,7 @@ mod tests {
         );
         let r = set_by_name(&mut c, "est_filter_lag_us", ParamValue::U32(300_000)).unwrap_err();
         assert_eq!(r.error, ParamError::Inconsistent);
-        assert_eq!(c.estimation.estimate_filter_lag_us, 150_000);
+        assert_eq!(c.estimation.estimate_filter_lag, Duration::from_millis(150));
         assert!(validate(&AutopilotConfig::default()).is_ok());
     }
 

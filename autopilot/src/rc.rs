@@ -21,13 +21,14 @@
 //! [`PilotCommand`]s for [`crate::Autopilot::on_command`]:
 //!
 //! * kill switch (channel 6 by default) high, the receiver's failsafe flag, or no valid frame
-//!   for [`RcConfig::timeout_us`] once RC has been seen => `Kill` (sent once per entry);
+//!   for [`RcConfig::timeout`] once RC has been seen => `Kill` (sent once per entry);
 //! * arm switch (channel 5) low -> high while not killed => `Arm`; high -> low => `Land`.
 //!
 //! Before the first valid frame RC is "not in use" and produces nothing, so a drone armed
 //! from the host link (HIL, ground tool) is not killed by a missing receiver.
 
 use protocol::PilotCommand;
+use timebase::{Duration, Instant};
 
 /// Bytes in one SBUS frame.
 pub const SBUS_FRAME_BYTES: usize = 25;
@@ -125,13 +126,13 @@ fn valid_footer(b: u8) -> bool {
 /// Finds SBUS frames in a byte stream of any chunking.
 ///
 /// Keeps the last 25 bytes; whenever they form a valid frame (header, footer), it is returned
-/// and the window starts over. A byte gap longer than [`SbusDecoder::GAP_US`] (the inter-frame
+/// and the window starts over. A byte gap longer than [`SbusDecoder::GAP`] (the inter-frame
 /// pause) also starts over, which resynchronises at once on a clean line.
 #[derive(Debug, Clone)]
 pub struct SbusDecoder {
     buf: [u8; SBUS_FRAME_BYTES],
     len: usize,
-    last_byte_us: Option<u64>,
+    last_byte: Option<Instant>,
     frames: u32,
     rejected: u32,
 }
@@ -143,30 +144,30 @@ impl Default for SbusDecoder {
 }
 
 impl SbusDecoder {
-    /// Pause between bytes that marks a frame boundary, µs (a byte takes 120 µs; frames are
+    /// Pause between bytes that marks a frame boundary (a byte takes 120 µs; frames are
     /// 3-11 ms apart).
-    pub const GAP_US: u64 = 2_000;
+    pub const GAP: Duration = Duration::from_millis(2);
 
     /// An empty decoder.
     pub const fn new() -> Self {
         Self {
             buf: [0; SBUS_FRAME_BYTES],
             len: 0,
-            last_byte_us: None,
+            last_byte: None,
             frames: 0,
             rejected: 0,
         }
     }
 
-    /// One received byte at `now_us`. Returns a frame when this byte completes one.
-    pub fn push(&mut self, byte: u8, now_us: u64) -> Option<SbusFrame> {
-        if let Some(t) = self.last_byte_us {
-            if now_us.saturating_sub(t) > Self::GAP_US && self.len > 0 {
+    /// One received byte at `now`. Returns a frame when this byte completes one.
+    pub fn push(&mut self, byte: u8, now: Instant) -> Option<SbusFrame> {
+        if let Some(t) = self.last_byte {
+            if now.since(t) > Self::GAP && self.len > 0 {
                 self.rejected = self.rejected.saturating_add(1);
                 self.len = 0;
             }
         }
-        self.last_byte_us = Some(now_us);
+        self.last_byte = Some(now);
         if self.len < SBUS_FRAME_BYTES {
             if let Some(slot) = self.buf.get_mut(self.len) {
                 *slot = byte;
@@ -194,10 +195,10 @@ impl SbusDecoder {
         None
     }
 
-    /// Feeds a chunk of bytes received at `now_us`; calls `on_frame` for every frame.
-    pub fn feed(&mut self, bytes: &[u8], now_us: u64, mut on_frame: impl FnMut(SbusFrame)) {
+    /// Feeds a chunk of bytes received at `now`; calls `on_frame` for every frame.
+    pub fn feed(&mut self, bytes: &[u8], now: Instant, mut on_frame: impl FnMut(SbusFrame)) {
         for &b in bytes {
-            if let Some(f) = self.push(b, now_us) {
+            if let Some(f) = self.push(b, now) {
                 on_frame(f);
             }
         }
@@ -223,8 +224,8 @@ pub struct RcConfig {
     pub kill_channel: usize,
     /// A switch is high above this raw value (992 is the centre; switches sit at ~172 / ~1811).
     pub switch_threshold: u16,
-    /// No valid frame for this long (once RC was seen) => kill, µs.
-    pub timeout_us: u64,
+    /// No valid frame for this long (once RC was seen) => kill.
+    pub timeout: Duration,
 }
 
 impl RcConfig {
@@ -233,7 +234,7 @@ impl RcConfig {
         arm_channel: 5,
         kill_channel: 6,
         switch_threshold: 1_400,
-        timeout_us: 200_000,
+        timeout: Duration::from_millis(200),
     };
 }
 
@@ -258,7 +259,7 @@ pub enum RcKill {
 #[derive(Debug, Clone)]
 pub struct RcCommands {
     cfg: RcConfig,
-    last_frame_us: Option<u64>,
+    last_frame: Option<Instant>,
     arm_high: Option<bool>,
     killed: Option<RcKill>,
 }
@@ -268,7 +269,7 @@ impl RcCommands {
     pub const fn new(cfg: RcConfig) -> Self {
         Self {
             cfg,
-            last_frame_us: None,
+            last_frame: None,
             arm_high: None,
             killed: None,
         }
@@ -276,7 +277,7 @@ impl RcCommands {
 
     /// True once a valid frame has been seen.
     pub fn in_use(&self) -> bool {
-        self.last_frame_us.is_some()
+        self.last_frame.is_some()
     }
 
     /// The current kill reason, if RC demands a kill.
@@ -284,9 +285,9 @@ impl RcCommands {
         self.killed
     }
 
-    /// A frame received at `now_us`. Returns the command to hand to the autopilot, if any.
-    pub fn on_frame(&mut self, frame: &SbusFrame, now_us: u64) -> Option<PilotCommand> {
-        self.last_frame_us = Some(now_us);
+    /// A frame received at `now`. Returns the command to hand to the autopilot, if any.
+    pub fn on_frame(&mut self, frame: &SbusFrame, now: Instant) -> Option<PilotCommand> {
+        self.last_frame = Some(now);
         let high = |ch: usize| {
             frame
                 .channel(ch)
@@ -320,11 +321,11 @@ impl RcCommands {
         }
     }
 
-    /// Periodic check at `now_us` (e.g. from the guidance task): RC that was in use and went
+    /// Periodic check at `now` (e.g. from the guidance task): RC that was in use and went
     /// silent for the timeout demands a kill (returned once).
-    pub fn poll(&mut self, now_us: u64) -> Option<PilotCommand> {
-        let last = self.last_frame_us?;
-        if now_us.saturating_sub(last) > self.cfg.timeout_us && self.killed.is_none() {
+    pub fn poll(&mut self, now: Instant) -> Option<PilotCommand> {
+        let last = self.last_frame?;
+        if now.since(last) > self.cfg.timeout && self.killed.is_none() {
             self.killed = Some(RcKill::Timeout);
             self.arm_high = None;
             return Some(PilotCommand::Kill);
@@ -336,6 +337,7 @@ impl RcCommands {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::at;
     use proptest::prelude::*;
 
     const LOW: u16 = 172;
@@ -394,14 +396,14 @@ mod tests {
             .extend_from_slice(&[0x0F, 0x33, 0x0F, 0x00, 0x12])
             .unwrap();
         stream.extend_from_slice(&f.encode()).unwrap();
-        d.feed(&stream, 0, |g| {
+        d.feed(&stream, at(0), |g| {
             assert_eq!(g, f);
             got += 1;
         });
         assert_eq!(got, 1);
         // A truncated frame, then the gap, then a whole frame.
-        d.feed(&f.encode()[..10], 10_000, |_| panic!("partial frame"));
-        d.feed(&f.encode(), 17_000, |_| got += 1);
+        d.feed(&f.encode()[..10], at(10_000), |_| panic!("partial frame"));
+        d.feed(&f.encode(), at(17_000), |_| got += 1);
         assert_eq!(got, 2);
         assert_eq!(d.frames(), 2);
         assert!(d.rejected() >= 1);
@@ -410,58 +412,58 @@ mod tests {
     #[test]
     fn arm_land_kill_and_failsafe_map_to_commands() {
         let mut rc = RcCommands::new(RcConfig::default());
-        assert_eq!(rc.poll(1_000_000), None, "no RC yet: no kill");
-        assert_eq!(rc.on_frame(&frame(LOW, LOW), 0), None);
+        assert_eq!(rc.poll(at(1_000_000)), None, "no RC yet: no kill");
+        assert_eq!(rc.on_frame(&frame(LOW, LOW), at(0)), None);
         assert_eq!(
-            rc.on_frame(&frame(HIGH, LOW), 7_000),
+            rc.on_frame(&frame(HIGH, LOW), at(7_000)),
             Some(PilotCommand::Arm)
         );
-        assert_eq!(rc.on_frame(&frame(HIGH, LOW), 14_000), None);
+        assert_eq!(rc.on_frame(&frame(HIGH, LOW), at(14_000)), None);
         assert_eq!(
-            rc.on_frame(&frame(LOW, LOW), 21_000),
+            rc.on_frame(&frame(LOW, LOW), at(21_000)),
             Some(PilotCommand::Land)
         );
         assert_eq!(
-            rc.on_frame(&frame(HIGH, LOW), 28_000),
+            rc.on_frame(&frame(HIGH, LOW), at(28_000)),
             Some(PilotCommand::Arm)
         );
         // Kill switch: one Kill; releasing it with the arm switch still high does not arm.
         assert_eq!(
-            rc.on_frame(&frame(HIGH, HIGH), 35_000),
+            rc.on_frame(&frame(HIGH, HIGH), at(35_000)),
             Some(PilotCommand::Kill)
         );
         assert_eq!(rc.kill_reason(), Some(RcKill::Switch));
-        assert_eq!(rc.on_frame(&frame(HIGH, HIGH), 42_000), None);
-        assert_eq!(rc.on_frame(&frame(HIGH, LOW), 49_000), None);
+        assert_eq!(rc.on_frame(&frame(HIGH, HIGH), at(42_000)), None);
+        assert_eq!(rc.on_frame(&frame(HIGH, LOW), at(49_000)), None);
         assert_eq!(
-            rc.on_frame(&frame(LOW, LOW), 56_000),
+            rc.on_frame(&frame(LOW, LOW), at(56_000)),
             Some(PilotCommand::Land)
         );
         assert_eq!(
-            rc.on_frame(&frame(HIGH, LOW), 63_000),
+            rc.on_frame(&frame(HIGH, LOW), at(63_000)),
             Some(PilotCommand::Arm)
         );
         // Receiver failsafe.
         let mut fs = frame(HIGH, LOW);
         fs.failsafe = true;
-        assert_eq!(rc.on_frame(&fs, 70_000), Some(PilotCommand::Kill));
+        assert_eq!(rc.on_frame(&fs, at(70_000)), Some(PilotCommand::Kill));
         assert_eq!(rc.kill_reason(), Some(RcKill::Failsafe));
         // The failsafe clears with the arm switch still high: no re-arm without an edge.
-        assert_eq!(rc.on_frame(&frame(HIGH, LOW), 77_000), None);
+        assert_eq!(rc.on_frame(&frame(HIGH, LOW), at(77_000)), None);
         // Silence after RC was in use.
-        assert_eq!(rc.poll(77_000 + 200_000), None);
-        assert_eq!(rc.poll(77_000 + 200_001), Some(PilotCommand::Kill));
-        assert_eq!(rc.poll(77_000 + 300_000), None, "once");
+        assert_eq!(rc.poll(at(77_000 + 200_000)), None);
+        assert_eq!(rc.poll(at(77_000 + 200_001)), Some(PilotCommand::Kill));
+        assert_eq!(rc.poll(at(77_000 + 300_000)), None, "once");
         assert_eq!(rc.kill_reason(), Some(RcKill::Timeout));
     }
 
     #[test]
     fn lost_frames_make_no_edges() {
         let mut rc = RcCommands::new(RcConfig::default());
-        rc.on_frame(&frame(LOW, LOW), 0);
+        rc.on_frame(&frame(LOW, LOW), at(0));
         let mut lost = frame(HIGH, LOW);
         lost.frame_lost = true;
-        assert_eq!(rc.on_frame(&lost, 7_000), None);
+        assert_eq!(rc.on_frame(&lost, at(7_000)), None);
     }
 
     proptest! {
@@ -478,14 +480,14 @@ mod tests {
             for (bytes, dt) in chunks {
                 t += dt;
                 let mut frames = heapless::Vec::<SbusFrame, 4>::new();
-                d.feed(&bytes, t, |f| {
+                d.feed(&bytes, at(t), |f| {
                     let _ = frames.push(f);
                 });
                 for f in &frames {
                     prop_assert!(f.channels.iter().all(|&c| c <= 0x7FF));
-                    let _ = rc.on_frame(f, t);
+                    let _ = rc.on_frame(f, at(t));
                 }
-                let _ = rc.poll(t);
+                let _ = rc.poll(at(t));
             }
         }
 

@@ -17,10 +17,10 @@
 //!    the velocity loop ([`VelocityGuidance`]; its trim without one) to roll and pitch, and
 //!    avoidance's heading.
 //! 4. With a fresh height: the height loop's thrust ([`Guidance::hold_height`]), and
-//!    touchdown while landing after [`SetpointConfig::landed_time_us`] below
+//!    touchdown while landing after [`SetpointConfig::landed_time`] below
 //!    [`SetpointConfig::landed_height_m`] or on the ground signature
 //!    ([`Guidance::touched_down`]). Without: the blind landing's reduced thrust, and touchdown
-//!    [`SetpointConfig::blind_land_time_us`] after the mode changed ([`Guidance::blind_landing`]).
+//!    [`SetpointConfig::blind_land_time`] after the mode changed ([`Guidance::blind_landing`]).
 //!
 //! [`Autopilot::guidance_step`]: crate::Autopilot::guidance_step
 
@@ -30,7 +30,8 @@ use crate::estimation::VelocityState;
 use crate::failsafe::FlightMode;
 use crate::guidance::{GuidanceConfig, TiltSetpoint, VelocityGuidance};
 use crate::height::HeightController;
-use crate::tasks::GUIDANCE_PERIOD_US;
+use crate::tasks::GUIDANCE_PERIOD;
+use timebase::{Duration, Instant};
 
 /// While landing, the height setpoint ramps down to this height below the floor, m, and stays
 /// there: the drone, lagging the ramp, is pushed onto the floor rather than hovering just above
@@ -79,15 +80,15 @@ pub struct SetpointConfig {
     pub blind_land_rate_mps: f32,
     /// Below this height the drone counts as on the floor, m (height integrator off, touchdown).
     pub landed_height_m: f32,
-    /// Touchdown confirmed after this long below `landed_height_m` while landing, µs.
-    pub landed_time_us: u64,
+    /// Touchdown confirmed after this long below `landed_height_m` while landing.
+    pub landed_time: Duration,
     /// The avoidance FSM starts once the height is within this of the target, m.
     pub fsm_start_height_tolerance_m: f32,
     /// A landing that has not touched down after this long (a biased barometer that reads the
     /// floor as higher than it is) cuts the motors once the height estimate is below
-    /// `land_cut_height_m` or the drone shows the ground signature, µs.
-    pub land_timeout_us: u64,
-    /// After `land_timeout_us`, the motors are cut below this height estimate, m.
+    /// `land_cut_height_m` or the drone shows the ground signature.
+    pub land_timeout: Duration,
+    /// After `land_timeout`, the motors are cut below this height estimate, m.
     pub land_cut_height_m: f32,
     /// Ground signature (touchdown whatever the height says): the level-flight thrust below
     /// this fraction of the hover thrust while the specific force stays above
@@ -99,8 +100,8 @@ pub struct SetpointConfig {
     pub ground_min_specific_force: f32,
     /// Level-flight thrust when landing without a height measurement (0..=1, below hover).
     pub blind_land_thrust: f32,
-    /// Landing without a height measurement: motors off after this long, µs.
-    pub blind_land_time_us: u64,
+    /// Landing without a height measurement: motors off after this long.
+    pub blind_land_time: Duration,
 }
 
 impl Default for SetpointConfig {
@@ -111,14 +112,14 @@ impl Default for SetpointConfig {
             land_rate_mps: 0.3,
             blind_land_rate_mps: 0.6,
             landed_height_m: 0.06,
-            landed_time_us: 500_000,
+            landed_time: Duration::from_millis(500),
             fsm_start_height_tolerance_m: 0.15,
-            land_timeout_us: 10_000_000,
+            land_timeout: Duration::from_secs(10),
             land_cut_height_m: 0.3,
             ground_thrust_ratio: 0.6,
             ground_min_specific_force: 0.9,
             blind_land_thrust: 0.5,
-            blind_land_time_us: 3_000_000,
+            blind_land_time: Duration::from_secs(3),
         }
     }
 }
@@ -176,9 +177,9 @@ pub fn ramp(from_m: f32, target: HeightTarget, dt: f32, cfg: &SetpointConfig) ->
 pub struct Guidance {
     sp: Setpoints,
     velocity: VelocityGuidance,
-    last_step_us: Option<u64>,
-    /// Since when the drone has been below the landed height while landing, µs.
-    below_landed_since_us: Option<u64>,
+    last_step: Option<Instant>,
+    /// Since when the drone has been below the landed height while landing.
+    below_landed_since: Option<Instant>,
     /// Land at the blind descent rate whatever the velocity ([`Guidance::hurry_landing`]).
     hurry: bool,
 }
@@ -194,8 +195,8 @@ impl Guidance {
                 velocity_mps: [0.0; 2],
             },
             velocity: VelocityGuidance::new(cfg),
-            last_step_us: None,
-            below_landed_since_us: None,
+            last_step: None,
+            below_landed_since: None,
             hurry: false,
         }
     }
@@ -216,15 +217,15 @@ impl Guidance {
         &self.velocity
     }
 
-    /// A guidance step at `now_us`: the time since the last one, s (one period for the first,
+    /// A guidance step at `now`: the time since the last one, s (one period for the first,
     /// 0 if time did not advance, at most 0.1 s).
-    pub fn tick(&mut self, now_us: u64) -> f32 {
-        let dt = match self.last_step_us {
-            Some(t) if now_us > t => ((now_us - t) as f32 * 1e-6).min(0.1),
+    pub fn tick(&mut self, now: Instant) -> f32 {
+        let dt = match self.last_step {
+            Some(t) if now > t => (now - t).as_secs_f32().min(0.1),
             Some(_) => 0.0,
-            None => GUIDANCE_PERIOD_US as f32 * 1e-6,
+            None => GUIDANCE_PERIOD.as_secs_f32(),
         };
-        self.last_step_us = Some(now_us);
+        self.last_step = Some(now);
         dt
     }
 
@@ -235,7 +236,7 @@ impl Guidance {
         self.sp.height_m = height_m;
         self.sp.attitude_rad = [0.0, 0.0, yaw_rad];
         self.sp.velocity_mps = [0.0; 2];
-        self.below_landed_since_us = None;
+        self.below_landed_since = None;
         self.hurry = false;
     }
 
@@ -263,23 +264,23 @@ impl Guidance {
     pub fn landed(&mut self) {
         self.sp.thrust = 0.0;
         self.velocity.reset();
-        self.below_landed_since_us = None;
+        self.below_landed_since = None;
     }
 
     /// Step 2: the height setpoint for `mode` (landing, blind if `velocity` has no fix within
-    /// the failsafe's estimate timeout at `now_us`; otherwise to the flight height).
+    /// the failsafe's estimate timeout at `now`; otherwise to the flight height).
     pub fn height_setpoint(
         &mut self,
         mode: FlightMode,
         velocity: &VelocityState,
-        now_us: u64,
+        now: Instant,
         dt: f32,
-        estimate_timeout_us: u64,
+        estimate_timeout: Duration,
         cfg: &SetpointConfig,
     ) -> HeightSetpoint {
         let target = match mode {
             FlightMode::Landing => HeightTarget::Land {
-                blind: self.hurry || !velocity.fixed_within(now_us, estimate_timeout_us),
+                blind: self.hurry || !velocity.fixed_within(now, estimate_timeout),
             },
             _ => HeightTarget::FlightHeight,
         };
@@ -330,23 +331,23 @@ impl Guidance {
         landing: bool,
         height_m: f32,
         on_ground: bool,
-        now_us: u64,
+        now: Instant,
         cfg: &SetpointConfig,
     ) -> bool {
         if landing && (height_m <= cfg.landed_height_m || on_ground) {
-            let since = *self.below_landed_since_us.get_or_insert(now_us);
-            now_us.saturating_sub(since) >= cfg.landed_time_us
+            let since = *self.below_landed_since.get_or_insert(now);
+            now.since(since) >= cfg.landed_time
         } else {
-            self.below_landed_since_us = None;
+            self.below_landed_since = None;
             false
         }
     }
 
-    /// Step 4 without a height (the failsafe switched to landing at `since_us`): reduced
+    /// Step 4 without a height (the failsafe switched to landing at `since`): reduced
     /// thrust; true once it has run for the blind landing time.
-    pub fn blind_landing(&mut self, since_us: u64, now_us: u64, cfg: &SetpointConfig) -> bool {
+    pub fn blind_landing(&mut self, since: Instant, now: Instant, cfg: &SetpointConfig) -> bool {
         self.sp.thrust = cfg.blind_land_thrust.clamp(0.0, 1.0);
-        now_us.saturating_sub(since_us) >= cfg.blind_land_time_us
+        now.since(since) >= cfg.blind_land_time
     }
 }
 
@@ -354,6 +355,7 @@ impl Guidance {
 mod tests {
     use super::*;
     use crate::height::HeightConfig;
+    use crate::test_support::at;
     use crate::AutopilotConfig;
 
     fn close(a: f32, b: f32) -> bool {
@@ -417,11 +419,11 @@ mod tests {
     #[test]
     fn the_step_time_starts_at_one_period_and_is_bounded() {
         let mut g = Guidance::new(GuidanceConfig::default());
-        assert!(close(g.tick(5_000_000), GUIDANCE_PERIOD_US as f32 * 1e-6));
-        assert!(close(g.tick(5_020_000), 0.02));
-        assert_eq!(g.tick(5_020_000), 0.0);
-        assert_eq!(g.tick(5_000_000), 0.0);
-        assert!(close(g.tick(9_000_000), 0.1));
+        assert!(close(g.tick(at(5_000_000)), GUIDANCE_PERIOD.as_secs_f32()));
+        assert!(close(g.tick(at(5_020_000)), 0.02));
+        assert_eq!(g.tick(at(5_020_000)), 0.0);
+        assert_eq!(g.tick(at(5_000_000)), 0.0);
+        assert!(close(g.tick(at(9_000_000)), 0.1));
     }
 
     #[test]
@@ -464,16 +466,16 @@ mod tests {
         let mut g = Guidance::new(cfg.guidance);
         let hover = VelocityState {
             velocity_mps: None,
-            last_fix_us: None,
+            last_fix: None,
         };
         g.take_off(cfg.setpoints.target_height_m - 0.005, 0.0);
         assert!(!g.at_flight_height(cfg.setpoints.target_height_m, &cfg.setpoints));
         g.height_setpoint(
             FlightMode::Flying,
             &hover,
-            0,
+            at(0),
             0.02,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
             &cfg.setpoints,
         );
         assert!(g.at_flight_height(cfg.setpoints.target_height_m, &cfg.setpoints));
@@ -483,23 +485,23 @@ mod tests {
         // Landing: blind without a recent fix.
         let seen = VelocityState {
             velocity_mps: Some([0.0; 2]),
-            last_fix_us: Some(1_000_000),
+            last_fix: Some(at(1_000_000)),
         };
         let sp = g.height_setpoint(
             FlightMode::Landing,
             &seen,
-            1_000_000,
+            at(1_000_000),
             0.02,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
             &cfg.setpoints,
         );
         assert_eq!(sp.rate_mps, -cfg.setpoints.land_rate_mps);
         let sp = g.height_setpoint(
             FlightMode::Landing,
             &hover,
-            1_000_000,
+            at(1_000_000),
             0.02,
-            cfg.failsafe.estimate_timeout_us,
+            cfg.failsafe.estimate_timeout,
             &cfg.setpoints,
         );
         assert_eq!(sp.rate_mps, -cfg.setpoints.blind_land_rate_mps);
@@ -518,7 +520,7 @@ mod tests {
         let low = cfg.setpoints.landed_height_m;
         let mut hold = |g: &mut Guidance, h: f32, landing: bool, t: u64| {
             g.hold_height(&mut height, sp, h, 0.02, &cfg.setpoints);
-            g.touched_down(landing, h, false, t, &cfg.setpoints)
+            g.touched_down(landing, h, false, at(t), &cfg.setpoints)
         };
         // Below it, but not landing: nothing.
         assert!(!hold(&mut g, low, false, 0));
@@ -530,13 +532,13 @@ mod tests {
             &mut g,
             low,
             true,
-            1_500_000 + cfg.setpoints.landed_time_us - 1
+            1_500_000 + cfg.setpoints.landed_time.as_micros() - 1
         ));
         assert!(hold(
             &mut g,
             low,
             true,
-            1_500_000 + cfg.setpoints.landed_time_us
+            1_500_000 + cfg.setpoints.landed_time.as_micros()
         ));
         assert!(g.setpoints().thrust >= 0.0);
         g.landed();
@@ -544,19 +546,19 @@ mod tests {
         // High above the landed height (a biased barometer), the ground signature alone
         // touches down after the same landed time.
         let high = low + 0.3;
-        assert!(!g.touched_down(true, high, true, 3_000_000, &cfg.setpoints));
+        assert!(!g.touched_down(true, high, true, at(3_000_000), &cfg.setpoints));
         assert!(!g.touched_down(
             true,
             high,
             true,
-            3_000_000 + cfg.setpoints.landed_time_us - 1,
+            at(3_000_000 + cfg.setpoints.landed_time.as_micros() - 1),
             &cfg.setpoints
         ));
         assert!(g.touched_down(
             true,
             high,
             true,
-            3_000_000 + cfg.setpoints.landed_time_us,
+            at(3_000_000 + cfg.setpoints.landed_time.as_micros()),
             &cfg.setpoints
         ));
     }
@@ -566,14 +568,14 @@ mod tests {
         let cfg = AutopilotConfig::default();
         let mut g = Guidance::new(cfg.guidance);
         assert!(!g.blind_landing(
-            1_000,
-            1_000 + cfg.setpoints.blind_land_time_us - 1,
+            at(1_000),
+            at(1_000 + cfg.setpoints.blind_land_time.as_micros() - 1),
             &cfg.setpoints
         ));
         assert_eq!(g.setpoints().thrust, cfg.setpoints.blind_land_thrust);
         assert!(g.blind_landing(
-            1_000,
-            1_000 + cfg.setpoints.blind_land_time_us,
+            at(1_000),
+            at(1_000 + cfg.setpoints.blind_land_time.as_micros()),
             &cfg.setpoints
         ));
     }

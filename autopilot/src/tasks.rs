@@ -2,17 +2,18 @@
 //! and the simulator schedules from.
 
 pub use task_table::{TaskId, TaskSpec, Trigger};
+use timebase::Duration;
 
-/// IMU / INDI period: 512 Hz, µs (rounded down).
-pub const IMU_PERIOD_US: u32 = 1_953;
-/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz, µs.
-pub const GUIDANCE_PERIOD_US: u32 = 20_000;
-/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample), µs.
-pub const GYRO_TX_PERIOD_US: u32 = 7_812;
-/// Telemetry period: 10 Hz, µs.
-pub const TELEMETRY_PERIOD_US: u32 = 100_000;
-/// Heartbeat period: 1 Hz, µs.
-pub const HEARTBEAT_PERIOD_US: u32 = 1_000_000;
+/// IMU / INDI period: 512 Hz (rounded down to a microsecond).
+pub const IMU_PERIOD: Duration = Duration::from_hz(512);
+/// Guidance (FSM, force field, velocity and height loops) period: 50 Hz.
+pub const GUIDANCE_PERIOD: Duration = Duration::from_hz(50);
+/// Gyro/attitude message to the camera board: 128 Hz (every 4th IMU sample).
+pub const GYRO_TX_PERIOD: Duration = Duration::from_hz(128);
+/// Telemetry period: 10 Hz.
+pub const TELEMETRY_PERIOD: Duration = Duration::from_hz(10);
+/// Heartbeat period: 1 Hz.
+pub const HEARTBEAT_PERIOD: Duration = Duration::from_hz(1);
 
 /// The autopilot's tasks, in [`TASKS`]'s order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -66,59 +67,57 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         id: Task::ImuIndi,
         name: "imu_indi",
         priority: 5,
-        trigger: Trigger::Periodic {
-            period_us: IMU_PERIOD_US,
-        },
-        deadline_us: 500,
+        trigger: Trigger::Periodic { period: IMU_PERIOD },
+        deadline: Duration::from_micros(500),
     },
     TaskSpec {
         id: Task::StereoRx,
         name: "stereo_rx",
         priority: 4,
         trigger: Trigger::Event("bytes from the camera-board link (USART2), RXNE"),
-        deadline_us: 1_000,
+        deadline: Duration::from_millis(1),
     },
     TaskSpec {
         id: Task::HostRx,
         name: "host_rx",
         priority: 4,
         trigger: Trigger::Event("bytes from the telemetry / host link (USART1), RXNE"),
-        deadline_us: 1_000,
+        deadline: Duration::from_millis(1),
     },
     TaskSpec {
         id: Task::Guidance,
         name: "guidance",
         priority: 3,
         trigger: Trigger::Periodic {
-            period_us: GUIDANCE_PERIOD_US,
+            period: GUIDANCE_PERIOD,
         },
-        deadline_us: 5_000,
+        deadline: Duration::from_millis(5),
     },
     TaskSpec {
         id: Task::GyroTx,
         name: "gyro_tx",
         priority: 2,
         trigger: Trigger::Periodic {
-            period_us: GYRO_TX_PERIOD_US,
+            period: GYRO_TX_PERIOD,
         },
-        deadline_us: GYRO_TX_PERIOD_US,
+        deadline: GYRO_TX_PERIOD,
     },
     TaskSpec {
         id: Task::Telemetry,
         name: "telemetry",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: TELEMETRY_PERIOD_US,
+            period: TELEMETRY_PERIOD,
         },
-        deadline_us: TELEMETRY_PERIOD_US,
+        deadline: TELEMETRY_PERIOD,
     },
     TaskSpec {
         id: Task::Heartbeat,
         name: "heartbeat",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: HEARTBEAT_PERIOD_US,
+            period: HEARTBEAT_PERIOD,
         },
-        deadline_us: HEARTBEAT_PERIOD_US,
+        deadline: HEARTBEAT_PERIOD,
     },
 ];

@@ -49,3 +49,8 @@ pub fn camera_status(camera_stopped: bool) -> StereoStatus {
         camera_stopped,
     }
 }
+
+/// The board-clock instant `us` microseconds after boot.
+pub fn at(us: u64) -> timebase::Instant {
+    timebase::Instant::from_micros(us)
+}

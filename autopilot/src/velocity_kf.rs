@@ -29,8 +29,9 @@
 //! from the measurement.
 
 use crate::velocity_model::{
-    heading_frame_step, tilt_acceleration, VelocityHistory, HISTORY_SPACING_US, MAX_SPEED_MPS,
+    heading_frame_step, tilt_acceleration, VelocityHistory, HISTORY_SPACING, MAX_SPEED_MPS,
 };
+use timebase::{Duration, Instant};
 
 /// Tunables of [`VelocityKf`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -97,9 +98,9 @@ pub enum Fusion {
 /// History slots (one at least every 6 ms).
 const HISTORY_LEN: usize = 200;
 
-/// The oldest window start the filter can always place, µs before the newest prediction
+/// The oldest window start the filter can always place, before the newest prediction
 /// (199 spacings: 1.194 s). [`crate::params::validate`] keeps the estimate's window within it.
-pub const MAX_WINDOW_AGE_US: u64 = (HISTORY_LEN as u64 - 1) * HISTORY_SPACING_US;
+pub const MAX_WINDOW_AGE: Duration = HISTORY_SPACING.saturating_mul(HISTORY_LEN as u64 - 1);
 
 /// The filter. Fixed size, no heap.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -174,19 +175,19 @@ impl VelocityKf {
 
     /// Standing on the floor (motors off): the velocity is known to be zero, whatever the
     /// camera says about a blank wall.
-    pub fn hold_still(&mut self, now_us: u64) {
+    pub fn hold_still(&mut self, now: Instant) {
         self.v = [0.0; 2];
         self.p[0] = 1e-4;
         self.p[1] = 0.0;
         self.initialised = true;
         // Held since forever, as far as any later window is concerned.
-        self.history.fill(0, [0.0; 2], now_us);
+        self.history.fill(Instant::ZERO, [0.0; 2], now);
         self.rejected_in_a_row = 0;
     }
 
-    /// Prediction over `dt` s ending at `now_us` from the estimated roll and pitch (rad) and
+    /// Prediction over `dt` s ending at `now` from the estimated roll and pitch (rad) and
     /// the yaw rate (rad/s, body z down: positive turns right). Non-finite inputs skip it.
-    pub fn predict(&mut self, roll: f32, pitch: f32, yaw_rate: f32, dt: f32, now_us: u64) {
+    pub fn predict(&mut self, roll: f32, pitch: f32, yaw_rate: f32, dt: f32, now: Instant) {
         if !(roll.is_finite() && pitch.is_finite() && yaw_rate.is_finite() && dt.is_finite()) {
             return;
         }
@@ -215,22 +216,22 @@ impl VelocityKf {
             let n_vv = f00 * (f00 * pvv + dt * pvb) + dt * n_vb + qa;
             self.p = [n_vv.min(100.0), n_vb, (pbb + qb).min(100.0)];
         }
-        self.history.record(now_us, self.v);
+        self.history.record(now, self.v);
     }
 
-    /// Mean of the recorded prediction over `[start_us, end_us]` (the entries inside it, or the
+    /// Mean of the recorded prediction over `[start, end]` (the entries inside it, or the
     /// nearest one when the window falls between entries); `None` when the history does not
     /// reach back to the window.
-    fn predicted_mean(&self, start_us: u64, end_us: u64) -> Option<[f32; 2]> {
+    fn predicted_mean(&self, start: Instant, end: Instant) -> Option<[f32; 2]> {
         let mut sum = [0.0f32; 2];
         let mut n = 0u32;
         let mut newest_before: Option<[f32; 2]> = None;
         let mut reaches_back = false;
         for (t, v) in self.history.newest_first() {
-            if t > end_us {
+            if t > end {
                 continue;
             }
-            if t < start_us {
+            if t < start {
                 newest_before = Some(v);
                 reaches_back = true;
                 break;
@@ -238,7 +239,7 @@ impl VelocityKf {
             sum[0] += v[0];
             sum[1] += v[1];
             n += 1;
-            if t == start_us {
+            if t == start {
                 reaches_back = true;
             }
         }
@@ -253,23 +254,23 @@ impl VelocityKf {
     }
 
     /// Fuses a `[forward, right]` velocity measurement of Edge-FS quality `quality` that is the
-    /// mean velocity over `[start_us, end_us]` (autopilot time; the window the flow spans,
+    /// mean velocity over `[start, end]` (autopilot time; the window the flow spans,
     /// ending at the frame's capture).
     pub fn correct(
         &mut self,
         measured: [f32; 2],
         quality: u8,
-        start_us: u64,
-        end_us: u64,
+        start: Instant,
+        end: Instant,
     ) -> Fusion {
-        if !measured.iter().all(|x| x.is_finite()) || start_us > end_us {
+        if !measured.iter().all(|x| x.is_finite()) || start > end {
             return Fusion::Ignored;
         }
         if !self.initialised {
-            self.start_from(measured, end_us);
+            self.start_from(measured, end);
             return Fusion::Initialised;
         }
-        let Some(then) = self.predicted_mean(start_us, end_us) else {
+        let Some(then) = self.predicted_mean(start, end) else {
             // Older than the history: the filter cannot place it. A restarted filter (no
             // history yet) starts from it.
             return Fusion::Ignored;
@@ -295,7 +296,7 @@ impl VelocityKf {
             self.last_rejected = measured;
             self.rejected_total = self.rejected_total.wrapping_add(1);
             if self.rejected_in_a_row >= self.cfg.reinit_after.max(1) {
-                self.start_from(measured, end_us);
+                self.start_from(measured, end);
                 return Fusion::Initialised;
             }
             return Fusion::Rejected;
@@ -314,14 +315,14 @@ impl VelocityKf {
         Fusion::Fused
     }
 
-    fn start_from(&mut self, measured: [f32; 2], at_us: u64) {
+    fn start_from(&mut self, measured: [f32; 2], at: Instant) {
         let r = self.cfg.sigma_best_mps * 255.0 / self.cfg.min_quality.max(1) as f32;
         self.v = measured.map(|x| x.clamp(-MAX_SPEED_MPS, MAX_SPEED_MPS));
         self.p[0] = r * r;
         self.p[1] = 0.0;
         self.initialised = true;
         // The best knowledge of any earlier window is the measurement itself.
-        self.history.fill(0, self.v, at_us);
+        self.history.fill(Instant::ZERO, self.v, at);
         self.rejected_in_a_row = 0;
     }
 }
@@ -331,6 +332,7 @@ mod tests {
     extern crate std;
     use super::*;
     use crate::attitude::GRAVITY;
+    use crate::test_support::at;
 
     const DT_US: u64 = 1_953; // 512 Hz
 
@@ -347,7 +349,7 @@ mod tests {
     impl Run {
         fn new(cfg: VelocityKfConfig) -> Self {
             let mut kf = VelocityKf::new(cfg);
-            kf.hold_still(0);
+            kf.hold_still(at(0));
             Self {
                 kf,
                 t_us: 0,
@@ -362,7 +364,8 @@ mod tests {
             self.v_true += (-GRAVITY * libm::tanf(pitch) - drag * self.v_true) * dt;
             self.t_us += DT_US;
             self.truth.push((self.t_us, self.v_true));
-            self.kf.predict(0.0, pitch + tilt_err, 0.0, dt, self.t_us);
+            self.kf
+                .predict(0.0, pitch + tilt_err, 0.0, dt, at(self.t_us));
         }
 
         /// The true mean over the window ending `delay_us` ago, `horizon_us` long.
@@ -391,7 +394,7 @@ mod tests {
             run.step(pitch, 0.0, 0.2);
             if k % 20 == 19 {
                 let (z, s, e) = run.window_mean(30_000, 250_000);
-                run.kf.correct([z, 0.0], 200, s, e);
+                run.kf.correct([z, 0.0], 200, at(s), at(e));
                 if k > 300 {
                     worst_window = worst_window.max((z - run.v_true).abs());
                 }
@@ -415,7 +418,7 @@ mod tests {
             run.step(-0.02, 0.035, 0.2);
             if k % 20 == 19 {
                 let (z, s, e) = run.window_mean(30_000, 250_000);
-                run.kf.correct([z, 0.0], 200, s, e);
+                run.kf.correct([z, 0.0], 200, at(s), at(e));
             }
         }
         let want = -GRAVITY * libm::tanf(-0.02) - (-GRAVITY * libm::tanf(0.015));
@@ -441,7 +444,7 @@ mod tests {
         let err_room = [0.2f32, 0.0];
         let drift_after_turn = |cfg: VelocityKfConfig| {
             let mut kf = VelocityKf::new(cfg);
-            kf.hold_still(0);
+            kf.hold_still(at(0));
             let (mut t, mut yaw) = (0u64, 0.0f32);
             let mut step = |kf: &mut VelocityKf, rate: f32| {
                 yaw += rate * dt;
@@ -453,7 +456,7 @@ mod tests {
                 ];
                 let pitch = libm::atanf(-a[0] / GRAVITY);
                 let roll = libm::atanf(a[1] * libm::cosf(pitch) / GRAVITY);
-                kf.predict(roll, pitch, rate, dt, t);
+                kf.predict(roll, pitch, rate, dt, at(t));
                 t
             };
             // 20 s facing north with a still drone's zero velocity measured at 25 Hz.
@@ -463,8 +466,8 @@ mod tests {
                     kf.correct(
                         [0.0; 2],
                         200,
-                        now.saturating_sub(280_000),
-                        now.saturating_sub(30_000),
+                        at(now.saturating_sub(280_000)),
+                        at(now.saturating_sub(30_000)),
                     );
                 }
             }
@@ -492,9 +495,9 @@ mod tests {
     fn low_quality_moves_the_estimate_less_than_high_quality() {
         let fuse = |quality: u8| {
             let mut kf = VelocityKf::new(VelocityKfConfig::default());
-            kf.hold_still(0);
-            kf.predict(0.0, 0.0, 0.0, 0.002, 100_000);
-            kf.correct([0.1, 0.0], quality, 0, 100_000);
+            kf.hold_still(at(0));
+            kf.predict(0.0, 0.0, 0.0, 0.002, at(100_000));
+            kf.correct([0.1, 0.0], quality, at(0), at(100_000));
             kf.velocity().unwrap()[0]
         };
         let (lo, hi) = (fuse(40), fuse(255));
@@ -505,17 +508,17 @@ mod tests {
     fn an_outlier_is_gated_and_a_persistent_disagreement_restarts() {
         let mut kf = VelocityKf::new(VelocityKfConfig::default());
         let mut t = 400_000;
-        kf.hold_still(t);
+        kf.hold_still(at(t));
         let mut step = |kf: &mut VelocityKf, z: f32| {
             for _ in 0..20 {
                 t += DT_US;
-                kf.predict(0.0, 0.0, 0.0, DT_US as f32 * 1e-6, t);
+                kf.predict(0.0, 0.0, 0.0, DT_US as f32 * 1e-6, at(t));
             }
             kf.correct(
                 [z, 0.0],
                 255,
-                t.saturating_sub(250_000),
-                t.saturating_sub(30_000),
+                at(t.saturating_sub(250_000)),
+                at(t.saturating_sub(30_000)),
             )
         };
         for _ in 0..50 {
@@ -539,20 +542,29 @@ mod tests {
             ..VelocityKfConfig::default()
         });
         assert_eq!(kf.velocity(), None);
-        assert_eq!(kf.correct([1.0, 0.0], 255, 0, 0), Fusion::Initialised);
+        assert_eq!(
+            kf.correct([1.0, 0.0], 255, at(0), at(0)),
+            Fusion::Initialised
+        );
         let w = core::f32::consts::FRAC_PI_2;
         for k in 1..=512 {
-            kf.predict(0.0, 0.0, w, 1.0 / 512.0, k * DT_US);
+            kf.predict(0.0, 0.0, w, 1.0 / 512.0, at(k * DT_US));
         }
         let v = kf.velocity().unwrap();
         assert!(v[0].abs() < 0.02 && (v[1] + 1.0).abs() < 0.02, "{v:?}");
-        assert_eq!(kf.correct([f32::NAN, 0.0], 255, 0, 10), Fusion::Ignored);
+        assert_eq!(
+            kf.correct([f32::NAN, 0.0], 255, at(0), at(10)),
+            Fusion::Ignored
+        );
         for k in 513..=1024 {
-            kf.predict(0.0, 0.0, 0.0, 1.0 / 512.0, k * DT_US);
+            kf.predict(0.0, 0.0, 0.0, 1.0 / 512.0, at(k * DT_US));
         }
-        kf.predict(f32::NAN, 0.0, 0.0, 0.002, 2_002_000);
+        kf.predict(f32::NAN, 0.0, 0.0, 0.002, at(2_002_000));
         assert!(kf.velocity().unwrap().iter().all(|x| x.is_finite()));
         // A window older than the history cannot be placed.
-        assert_eq!(kf.correct([0.0, 0.0], 255, 0, 1_000), Fusion::Ignored);
+        assert_eq!(
+            kf.correct([0.0, 0.0], 255, at(0), at(1_000)),
+            Fusion::Ignored
+        );
     }
 }

@@ -4,12 +4,13 @@
 //! with the prediction of the time it describes.
 
 use crate::attitude::{sin_cos, GRAVITY};
+use timebase::{Duration, Instant};
 
 /// Largest velocity magnitude per axis an estimator holds, m/s.
 pub const MAX_SPEED_MPS: f32 = 10.0;
 
-/// Spacing of [`VelocityHistory`] entries, µs.
-pub const HISTORY_SPACING_US: u64 = 6_000;
+/// Spacing of [`VelocityHistory`] entries.
+pub const HISTORY_SPACING: Duration = Duration::from_micros(6_000);
 
 /// Horizontal acceleration `[forward, right]` (m/s²) of thrust that holds the height at roll and
 /// pitch (rad), each limited to `max_tilt` (rad): `a_fwd = -g tan(pitch)`,
@@ -57,44 +58,44 @@ pub(crate) fn away_from_zero(c: f32) -> f32 {
     }
 }
 
-/// The predicted `[forward, right]` velocity every [`HISTORY_SPACING_US`], the last `N`.
+/// The predicted `[forward, right]` velocity every [`HISTORY_SPACING`], the last `N`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VelocityHistory<const N: usize> {
-    slots: [(u64, [f32; 2]); N],
+    slots: [(Instant, [f32; 2]); N],
     head: usize,
-    last_record_us: Option<u64>,
+    last_record: Option<Instant>,
 }
 
 impl<const N: usize> VelocityHistory<N> {
     /// An empty history (every slot at time 0, velocity 0).
     pub const fn new() -> Self {
         Self {
-            slots: [(0, [0.0; 2]); N],
+            slots: [(Instant::ZERO, [0.0; 2]); N],
             head: 0,
-            last_record_us: None,
+            last_record: None,
         }
     }
 
-    /// Records `v` at `now_us` if the spacing has passed since the last entry (or the clock
+    /// Records `v` at `now` if the spacing has passed since the last entry (or the clock
     /// went back).
-    pub fn record(&mut self, now_us: u64, v: [f32; 2]) {
-        let due = match self.last_record_us {
-            Some(t) => now_us.saturating_sub(t) >= HISTORY_SPACING_US || now_us < t,
+    pub fn record(&mut self, now: Instant, v: [f32; 2]) {
+        let due = match self.last_record {
+            Some(t) => now.since(t) >= HISTORY_SPACING || now < t,
             None => true,
         };
         if due && N > 0 {
-            self.last_record_us = Some(now_us);
+            self.last_record = Some(now);
             self.head = (self.head + 1) % N;
             if let Some(slot) = self.slots.get_mut(self.head) {
-                *slot = (now_us, v);
+                *slot = (now, v);
             }
         }
     }
 
-    /// Every slot becomes `(t_us, v)`; the next record is due a spacing after `recorded_us`.
-    pub fn fill(&mut self, t_us: u64, v: [f32; 2], recorded_us: u64) {
-        self.slots = [(t_us, v); N];
-        self.last_record_us = Some(recorded_us);
+    /// Every slot becomes `(t, v)`; the next record is due a spacing after `recorded`.
+    pub fn fill(&mut self, t: Instant, v: [f32; 2], recorded: Instant) {
+        self.slots = [(t, v); N];
+        self.last_record = Some(recorded);
     }
 
     /// Adds `dv` to axis `axis` of every entry (a correction moves the past with the present,
@@ -108,7 +109,7 @@ impl<const N: usize> VelocityHistory<N> {
     }
 
     /// The entries, newest first.
-    pub fn newest_first(&self) -> impl Iterator<Item = (u64, [f32; 2])> + '_ {
+    pub fn newest_first(&self) -> impl Iterator<Item = (Instant, [f32; 2])> + '_ {
         (0..N).filter_map(move |i| self.slots.get((self.head + N - i) % N).copied())
     }
 }
@@ -127,15 +128,15 @@ mod tests {
     fn history_keeps_the_spacing_and_lists_newest_first() {
         let mut h = VelocityHistory::<4>::new();
         for k in 0..10u64 {
-            h.record(k * 2_000, [k as f32, 0.0]);
+            h.record(Instant::from_micros(k * 2_000), [k as f32, 0.0]);
         }
         // Recorded at 0, 6, 12, 18 ms: the four newest.
-        let t: [u64; 4] = core::array::from_fn(|i| h.newest_first().nth(i).unwrap().0);
+        let t: [u64; 4] = core::array::from_fn(|i| h.newest_first().nth(i).unwrap().0.as_micros());
         assert_eq!(t, [18_000, 12_000, 6_000, 0]);
         h.shift(0, 1.0);
         assert_eq!(h.newest_first().next().unwrap().1, [10.0, 0.0]);
-        h.fill(0, [0.5, 0.5], 20_000);
-        assert!(h.newest_first().all(|e| e == (0, [0.5, 0.5])));
+        h.fill(Instant::ZERO, [0.5, 0.5], Instant::from_micros(20_000));
+        assert!(h.newest_first().all(|e| e == (Instant::ZERO, [0.5, 0.5])));
     }
 
     #[test]

@@ -20,6 +20,8 @@
 //! innovation is beyond [`VerticalConfig::gate_sigma`] standard deviations is rejected and
 //! counted. Nothing here allocates or panics; non-finite inputs are ignored.
 
+use timebase::Duration;
+
 /// Tuning of the vertical estimator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VerticalConfig {
@@ -44,10 +46,10 @@ pub struct VerticalConfig {
     pub external_fixes: bool,
     /// A barometer whose readings (pressure and temperature, as compensated from the raw
     /// conversions) stay bit-for-bit identical for longer than this is frozen: its readings
-    /// are not used (as a stuck IMU's), so the height failsafe acts without fixes, µs. A live
+    /// are not used (as a stuck IMU's), so the height failsafe acts without fixes. A live
     /// MS5611's noise (about 1.5 Pa rms on a 1 Pa resolution) repeats a reading with about
     /// 0.3 probability: 25 repeats in a row (0.5 s at 50 Hz) happen with about 1e-13.
-    pub baro_stuck_us: u64,
+    pub baro_stuck: Duration,
 }
 
 impl Default for VerticalConfig {
@@ -61,7 +63,7 @@ impl Default for VerticalConfig {
             ground_effect_noise_factor: 5.0,
             gate_sigma: 5.0,
             external_fixes: true,
-            baro_stuck_us: 500_000,
+            baro_stuck: Duration::from_millis(500),
         }
     }
 }

@@ -26,6 +26,7 @@
 //! Nothing here reads a clock: the signer's and the receiver's times are passed in.
 
 use sha2::{Digest, Sha256};
+use timebase::Instant;
 
 use crate::messages::{HostToBoard, PROTOCOL_VERSION};
 
@@ -178,12 +179,12 @@ pub struct ReplayGuard {
     /// Timestamps at or below this are refused on every link (the key record's floor).
     floor: u64,
     /// Per link id: the last accepted timestamp and the receiver time it was accepted at.
-    streams: [Option<(u8, u64, u64)>; REPLAY_STREAMS],
+    streams: [Option<(u8, u64, Instant)>; REPLAY_STREAMS],
     /// The newest timestamp of a link id dropped from `streams`: a link id not in the table
     /// must be above it, so that dropping a link cannot reopen its old timestamps.
     evicted: u64,
-    /// The newest accepted timestamp and the receiver time (µs) it was accepted at.
-    newest: Option<(u64, u64)>,
+    /// The newest accepted timestamp and the receiver time it was accepted at.
+    newest: Option<(u64, Instant)>,
 }
 
 impl ReplayGuard {
@@ -204,16 +205,17 @@ impl ReplayGuard {
         self.newest.map_or(self.floor, |(ts, _)| ts)
     }
 
-    /// Judges `timestamp` from `link_id` at receiver time `now_us` and, if accepted, records it.
-    pub fn accept(&mut self, link_id: u8, timestamp: u64, now_us: u64) -> Result<(), SignError> {
+    /// Judges `timestamp` from `link_id` at receiver time `now` and, if accepted, records it.
+    pub fn accept(&mut self, link_id: u8, timestamp: u64, now: Instant) -> Result<(), SignError> {
         if timestamp > TIMESTAMP_MAX {
             return Err(SignError::Future);
         }
         if timestamp <= self.floor {
             return Err(SignError::Replay);
         }
-        if let Some((ts, at_us)) = self.newest {
-            let elapsed_ticks = now_us.saturating_sub(at_us) / 10;
+        if let Some((ts, at)) = self.newest {
+            // Timestamps count 10 µs ticks.
+            let elapsed_ticks = now.since(at).as_micros() / 10;
             let horizon = ts
                 .saturating_add(elapsed_ticks)
                 .saturating_add(FUTURE_WINDOW);
@@ -237,7 +239,7 @@ impl ReplayGuard {
             self.streams
                 .iter()
                 .enumerate()
-                .min_by_key(|(_, s)| s.map_or(0, |(_, _, at)| at.saturating_add(1)))
+                .min_by_key(|(_, s)| s.map_or(0, |(_, _, at)| at.as_micros().saturating_add(1)))
                 .map_or(0, |(i, _)| i)
         });
         if let Some(s) = self.streams.get_mut(index) {
@@ -246,10 +248,10 @@ impl ReplayGuard {
                     self.evicted = self.evicted.max(dropped);
                 }
             }
-            *s = Some((link_id, timestamp, now_us));
+            *s = Some((link_id, timestamp, now));
         }
         if self.newest.is_none_or(|(ts, _)| timestamp > ts) {
-            self.newest = Some((timestamp, now_us));
+            self.newest = Some((timestamp, now));
         }
         Ok(())
     }
@@ -386,49 +388,68 @@ mod tests {
     #[test]
     fn a_replay_is_refused_per_link() {
         let mut g = ReplayGuard::new(0);
-        assert_eq!(g.accept(1, 100, 0), Ok(()));
+        assert_eq!(g.accept(1, 100, Instant::from_micros(0)), Ok(()));
         assert_eq!(
-            g.accept(1, 100, 10),
+            g.accept(1, 100, Instant::from_micros(10)),
             Err(SignError::Replay),
             "same timestamp"
         );
-        assert_eq!(g.accept(1, 99, 20), Err(SignError::Replay), "older");
         assert_eq!(
-            g.accept(2, 50, 30),
+            g.accept(1, 99, Instant::from_micros(20)),
+            Err(SignError::Replay),
+            "older"
+        );
+        assert_eq!(
+            g.accept(2, 50, Instant::from_micros(30)),
             Ok(()),
             "another link has its own sequence"
         );
-        assert_eq!(g.accept(2, 50, 40), Err(SignError::Replay));
-        assert_eq!(g.accept(1, 101, 50), Ok(()));
+        assert_eq!(
+            g.accept(2, 50, Instant::from_micros(40)),
+            Err(SignError::Replay)
+        );
+        assert_eq!(g.accept(1, 101, Instant::from_micros(50)), Ok(()));
     }
 
     #[test]
     fn the_floor_refuses_timestamps_from_before_provisioning() {
         let mut g = ReplayGuard::new(1_000);
-        assert_eq!(g.accept(0, 1_000, 0), Err(SignError::Replay));
-        assert_eq!(g.accept(0, 1_001, 0), Ok(()));
+        assert_eq!(
+            g.accept(0, 1_000, Instant::from_micros(0)),
+            Err(SignError::Replay)
+        );
+        assert_eq!(g.accept(0, 1_001, Instant::from_micros(0)), Ok(()));
     }
 
     #[test]
     fn a_timestamp_far_ahead_is_refused_and_the_window_follows_receiver_time() {
         let mut g = ReplayGuard::new(0);
-        assert_eq!(g.accept(0, 1_000, 0), Ok(()));
+        assert_eq!(g.accept(0, 1_000, Instant::from_micros(0)), Ok(()));
         let limit = 1_000 + FUTURE_WINDOW;
-        assert_eq!(g.accept(0, limit + 1, 0), Err(SignError::Future));
-        assert_eq!(g.accept(0, limit, 0), Ok(()));
+        assert_eq!(
+            g.accept(0, limit + 1, Instant::from_micros(0)),
+            Err(SignError::Future)
+        );
+        assert_eq!(g.accept(0, limit, Instant::from_micros(0)), Ok(()));
         // Ten seconds of receiver time later the window has moved by 10 s.
         let later = limit + 10 * TIMESTAMP_TICKS_PER_S;
-        assert_eq!(g.accept(1, later, 10_000_000), Ok(()));
+        assert_eq!(g.accept(1, later, Instant::from_micros(10_000_000)), Ok(()));
     }
 
     #[test]
     fn timestamps_stop_at_48_bits() {
         let mut g = ReplayGuard::new(0);
-        assert_eq!(g.accept(0, TIMESTAMP_MAX, 0), Ok(()));
-        assert_eq!(g.accept(0, TIMESTAMP_MAX + 1, 0), Err(SignError::Future));
+        assert_eq!(g.accept(0, TIMESTAMP_MAX, Instant::from_micros(0)), Ok(()));
+        assert_eq!(
+            g.accept(0, TIMESTAMP_MAX + 1, Instant::from_micros(0)),
+            Err(SignError::Future)
+        );
         // After the largest timestamp nothing newer exists on that link: no wrap to small
         // values is accepted.
-        assert_eq!(g.accept(0, 1, 0), Err(SignError::Replay));
+        assert_eq!(
+            g.accept(0, 1, Instant::from_micros(0)),
+            Err(SignError::Replay)
+        );
         assert_eq!(
             SignedMessage::sign(&KEY, 0, TIMESTAMP_MAX + 1, &ARM),
             Err(SignError::Future)
@@ -439,14 +460,23 @@ mod tests {
     fn a_new_link_beyond_the_table_replaces_the_least_recent() {
         let mut g = ReplayGuard::new(0);
         for id in 0..REPLAY_STREAMS as u8 {
-            assert_eq!(g.accept(id, 10 + u64::from(id), u64::from(id)), Ok(()));
+            assert_eq!(
+                g.accept(id, 10 + u64::from(id), Instant::from_micros(u64::from(id))),
+                Ok(())
+            );
         }
-        assert_eq!(g.accept(200, 100, 100), Ok(()));
+        assert_eq!(g.accept(200, 100, Instant::from_micros(100)), Ok(()));
         // Link 1 still remembers its timestamp; link 0 was dropped, and its old timestamp stays
         // refused.
-        assert_eq!(g.accept(1, 11, 101), Err(SignError::Replay));
-        assert_eq!(g.accept(0, 10, 102), Err(SignError::Replay));
-        assert_eq!(g.accept(0, 11, 103), Ok(()));
+        assert_eq!(
+            g.accept(1, 11, Instant::from_micros(101)),
+            Err(SignError::Replay)
+        );
+        assert_eq!(
+            g.accept(0, 10, Instant::from_micros(102)),
+            Err(SignError::Replay)
+        );
+        assert_eq!(g.accept(0, 11, Instant::from_micros(103)), Ok(()));
     }
 
     #[test]
@@ -458,7 +488,10 @@ mod tests {
                 panic!("a signer makes envelopes");
             };
             assert_eq!(m.open(&KEY), Ok(ARM));
-            assert_eq!(g.accept(m.link_id, m.timestamp, 0), Ok(()));
+            assert_eq!(
+                g.accept(m.link_id, m.timestamp, Instant::from_micros(0)),
+                Ok(())
+            );
         }
     }
 

@@ -232,7 +232,7 @@ impl FlyArgs {
             baud: self.baud,
             faults_s2a: faults.clone(),
             faults_a2s: faults,
-            processing_us: (self.processing_ms * 1e3) as u64,
+            processing: timebase::Duration::from_micros((self.processing_ms * 1e3) as u64),
             mocap: self.mocap,
             ..FlightConfig::default()
         };

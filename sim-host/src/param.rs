@@ -222,7 +222,7 @@ pub struct ParamClient<'a> {
 /// How often a host tool sends its heartbeat: the autopilot's heartbeat rate (its host
 /// timeout, `fs_host_timeout_us`, is several of these).
 pub const HOST_HEARTBEAT_PERIOD: Duration =
-    Duration::from_micros(autopilot::tasks::HEARTBEAT_PERIOD_US as u64);
+    Duration::from_micros(autopilot::tasks::HEARTBEAT_PERIOD.as_micros());
 
 impl ParamClient<'static> {
     /// Talks to `board` over `link`, waiting `timeout` for each answer.

@@ -38,8 +38,8 @@ fn board(listener: TcpListener, seconds: f64) -> Sent {
         pressure_pa: 101_200.0,
         temperature_c: 24.5,
     };
-    ap.on_baro(&baro, 0);
-    ap.on_battery(3.95, 0);
+    ap.on_baro(&baro, timebase::Instant::from_micros(0));
+    ap.on_battery(3.95, timebase::Instant::from_micros(0));
     let start = Instant::now();
     let mut sent = Sent::default();
     let mut tick = 0u64;
@@ -58,7 +58,9 @@ fn board(listener: TcpListener, seconds: f64) -> Sent {
                 }
                 sent.heartbeats += 1;
             }
-            let mut bytes = frame(&BoardToHost::Telemetry(ap.telemetry(now_us)));
+            let mut bytes = frame(&BoardToHost::Telemetry(
+                ap.telemetry(timebase::Instant::from_micros(now_us)),
+            ));
             frames += 1;
             sent.telemetry += 1;
             if frames == 5 {

@@ -77,7 +77,13 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
                 }
                 // The telemetry the firmware streams from boot (the tool waits for it); a
                 // serial port with no tool open may refuse it.
-                let telemetry = BoardToHost::Telemetry(boards.ap.lock().unwrap().telemetry(0));
+                let telemetry = BoardToHost::Telemetry(
+                    boards
+                        .ap
+                        .lock()
+                        .unwrap()
+                        .telemetry(timebase::Instant::from_micros(0)),
+                );
                 let _ = s.write_all(&protocol::encode_to_vec::<_, 128>(&telemetry).unwrap());
                 continue;
             }
@@ -87,9 +93,13 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
         dec.feed(&buf[..n], |m| msgs.push(m));
         for m in msgs {
             let mut ap = boards.ap.lock().unwrap();
-            let telemetry = BoardToHost::Telemetry(ap.telemetry(0));
+            let telemetry = BoardToHost::Telemetry(ap.telemetry(timebase::Instant::from_micros(0)));
             let mut ap_flash = boards.ap_flash.lock().unwrap();
-            let answer = match ap.on_host_message(m, 0, Some(&mut *ap_flash)) {
+            let answer = match ap.on_host_message(
+                m,
+                timebase::Instant::from_micros(0),
+                Some(&mut *ap_flash),
+            ) {
                 HostOutcome::Reply(answer) => Some(answer),
                 // The camera board's request goes over the link as encoded bytes, and its
                 // answer comes back the same way, as on the boards.
@@ -104,7 +114,7 @@ fn board(s: &mut impl ReadWrite, boards: &Boards, stop: &dyn Fn() -> bool) {
                         &mut |b| back.extend_from_slice(b),
                         Some(&mut *camera_flash),
                     );
-                    ap.on_stereo_bytes(&back, 0);
+                    ap.on_stereo_bytes(&back, timebase::Instant::from_micros(0));
                     ap.take_camera_param_reply().map(BoardToHost::Param)
                 }
                 _ => None,

@@ -45,7 +45,11 @@ fn bench_config(c: &mut Criterion, name: &str, mut params: EdgeFsParams) {
             rates_radps: [0.0; 3],
             attitude_rad: [0.0, 0.0, 0.001 * k as f32],
         };
-        fs.process(&frames[k % frames.len()], t_us, Some(&g))
+        fs.process(
+            &frames[k % frames.len()],
+            timebase::Instant::from_micros(t_us),
+            Some(&g),
+        )
     };
     for k in 0..16 {
         step(&mut fs, k);

@@ -63,30 +63,30 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         name: "uart_rx",
         priority: 3,
         trigger: Trigger::Event("bytes from the autopilot link (UART4; USART1 in QEMU), RXNE"),
-        deadline_us: 2_000,
+        deadline: Duration::from_millis(2),
     },
     TaskSpec {
         id: Task::HostRx,
         name: "host_rx",
         priority: 3,
         trigger: Trigger::Event("bytes from the host link (USART2), RXNE; HIL/QEMU flavours"),
-        deadline_us: 2_000,
+        deadline: Duration::from_millis(2),
     },
     TaskSpec {
         id: Task::Frame,
         name: "frame",
         priority: 2,
         trigger: Trigger::Event("frame complete: DCMI + DMA2 stream 1, or HIL frame assembled"),
-        deadline_us: FRAME_PERIOD_US,
+        deadline: Duration::from_micros(FRAME_PERIOD_US as u64),
     },
     TaskSpec {
         id: Task::Status,
         name: "status",
         priority: 1,
         trigger: Trigger::Periodic {
-            period_us: STATUS_PERIOD_US,
+            period: Duration::from_micros(STATUS_PERIOD_US as u64),
         },
-        deadline_us: 100_000,
+        deadline: Duration::from_millis(100),
     },
 ];
 
@@ -389,8 +389,7 @@ impl StereoBoardApp {
         now: Instant,
     ) -> EdgeFsOutput {
         let gyro = self.current_gyro(now).copied();
-        self.edge_fs
-            .process(frame, capture.as_micros(), gyro.as_ref())
+        self.edge_fs.process(frame, capture, gyro.as_ref())
     }
 
     /// Frame task, second half: wraps `out` into the next [`Estimate`] (processing time =

@@ -13,6 +13,7 @@
 
 use crate::board;
 use protocol::CaptureCounts;
+use timebase::{Duration, Instant};
 
 pub mod tcm8230;
 
@@ -44,8 +45,8 @@ pub struct CaptureMonitor {
     counts: CaptureCounts,
     /// An error was reported since the last frame end: the frame in flight is bad.
     frame_bad: bool,
-    /// Time of the last VSYNC, or of the start of capture, µs.
-    last_vsync_us: u64,
+    /// Time of the last VSYNC, or of the start of capture.
+    last_vsync: Instant,
     /// Number of VSYNC events since boot.
     vsyncs: u32,
 }
@@ -70,21 +71,21 @@ impl CaptureMonitor {
                 frames_overwritten: 0,
             },
             frame_bad: false,
-            last_vsync_us: 0,
+            last_vsync: Instant::ZERO,
             vsyncs: 0,
         }
     }
 
-    /// Capture (re)starts at `now_us`: the camera has [`board::CAMERA_STOPPED_FRAMES`] frame
+    /// Capture (re)starts at `now`: the camera has [`board::CAMERA_STOPPED_FRAMES`] frame
     /// periods from now to show a VSYNC. Frames already in flight are not trusted.
-    pub fn on_capture_started(&mut self, now_us: u64) {
-        self.last_vsync_us = now_us;
+    pub fn on_capture_started(&mut self, now: Instant) {
+        self.last_vsync = now;
         self.frame_bad = false;
     }
 
-    /// The camera's VSYNC (start of vertical blanking) was seen at `now_us`.
-    pub fn on_vsync(&mut self, now_us: u64) {
-        self.last_vsync_us = self.last_vsync_us.max(now_us);
+    /// The camera's VSYNC (start of vertical blanking) was seen at `now`.
+    pub fn on_vsync(&mut self, now: Instant) {
+        self.last_vsync = self.last_vsync.max(now);
         self.vsyncs = self.vsyncs.wrapping_add(1);
     }
 
@@ -139,10 +140,11 @@ impl CaptureMonitor {
     }
 
     /// True when no VSYNC came for [`board::CAMERA_STOPPED_FRAMES`] frame periods up to
-    /// `now_us`.
-    pub fn camera_stopped(&self, now_us: u64) -> bool {
-        let limit = u64::from(board::CAMERA_STOPPED_FRAMES) * u64::from(board::FRAME_PERIOD_US);
-        now_us.saturating_sub(self.last_vsync_us) > limit
+    /// `now`.
+    pub fn camera_stopped(&self, now: Instant) -> bool {
+        let limit = Duration::from_micros(u64::from(board::FRAME_PERIOD_US))
+            .saturating_mul(u64::from(board::CAMERA_STOPPED_FRAMES));
+        now.since(self.last_vsync) > limit
     }
 
     /// VSYNC events since boot (wrapping).
@@ -223,21 +225,21 @@ mod tests {
     fn the_camera_is_stopped_after_five_frame_periods_without_vsync() {
         let period = u64::from(board::FRAME_PERIOD_US);
         let mut m = CaptureMonitor::new();
-        m.on_capture_started(1_000);
-        assert!(!m.camera_stopped(1_000 + 5 * period));
+        m.on_capture_started(Instant::from_micros(1_000));
+        assert!(!m.camera_stopped(Instant::from_micros(1_000 + 5 * period)));
         assert!(
-            m.camera_stopped(1_001 + 5 * period),
+            m.camera_stopped(Instant::from_micros(1_001 + 5 * period)),
             "never a VSYNC since start"
         );
-        m.on_vsync(10 * period);
-        assert!(!m.camera_stopped(14 * period));
-        assert!(m.camera_stopped(15 * period + 1));
+        m.on_vsync(Instant::from_micros(10 * period));
+        assert!(!m.camera_stopped(Instant::from_micros(14 * period)));
+        assert!(m.camera_stopped(Instant::from_micros(15 * period + 1)));
         // A late-handled older VSYNC does not move the clock back.
-        m.on_vsync(9 * period);
-        assert!(m.camera_stopped(15 * period + 1));
+        m.on_vsync(Instant::from_micros(9 * period));
+        assert!(m.camera_stopped(Instant::from_micros(15 * period + 1)));
         assert_eq!(m.vsyncs(), 2);
         // Re-arming a dead camera does not make it look alive.
         m.on_rearm();
-        assert!(m.camera_stopped(15 * period + 2));
+        assert!(m.camera_stopped(Instant::from_micros(15 * period + 2)));
     }
 }

@@ -9,23 +9,25 @@
 #![no_std]
 #![warn(missing_docs)]
 
+pub use timebase::Duration;
+
 /// What starts a task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Trigger {
-    /// Runs every `period_us` µs.
+    /// Runs every `period`.
     Periodic {
-        /// Period, µs.
-        period_us: u32,
+        /// Period.
+        period: Duration,
     },
     /// Runs on the named hardware event.
     Event(&'static str),
 }
 
 impl Trigger {
-    /// The period of a periodic task, µs (`None` for an event-driven one).
-    pub const fn period_us(&self) -> Option<u32> {
+    /// The period of a periodic task (`None` for an event-driven one).
+    pub const fn period(&self) -> Option<Duration> {
         match *self {
-            Trigger::Periodic { period_us } => Some(period_us),
+            Trigger::Periodic { period } => Some(period),
             Trigger::Event(_) => None,
         }
     }
@@ -42,8 +44,8 @@ pub struct TaskSpec<Id: 'static> {
     pub priority: u8,
     /// What starts it.
     pub trigger: Trigger,
-    /// Deadline from release to completion, µs.
-    pub deadline_us: u32,
+    /// Deadline from release to completion.
+    pub deadline: Duration,
 }
 
 /// A board's task enum: every variant has its entry in the board's table, at its own index.
@@ -94,14 +96,16 @@ mod tests {
             name: "rx",
             priority: 3,
             trigger: Trigger::Event("UART"),
-            deadline_us: 2_000,
+            deadline: Duration::from_millis(2),
         },
         TaskSpec {
             id: Task::Status,
             name: "status",
             priority: 1,
-            trigger: Trigger::Periodic { period_us: 1_000 },
-            deadline_us: 100,
+            trigger: Trigger::Periodic {
+                period: Duration::from_millis(1),
+            },
+            deadline: Duration::from_micros(100),
         },
     ];
 
@@ -109,8 +113,8 @@ mod tests {
     fn finds_tasks_by_name_and_reads_periods() {
         assert_eq!(find(TABLE, "status").map(|t| t.priority), Some(1));
         assert!(find(TABLE, "missing").is_none());
-        assert_eq!(TABLE[0].trigger.period_us(), None);
-        assert_eq!(TABLE[1].trigger.period_us(), Some(1_000));
+        assert_eq!(TABLE[0].trigger.period(), None);
+        assert_eq!(TABLE[1].trigger.period(), Some(Duration::from_millis(1)));
         assert!(is_indexed_by(TABLE, &[Task::Rx, Task::Status]));
         assert!(!is_indexed_by(TABLE, &[Task::Status, Task::Rx]));
         assert!(!is_indexed_by(TABLE, &[Task::Rx]));

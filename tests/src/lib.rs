@@ -66,7 +66,11 @@ impl StraightFlight {
             rates_radps: [0.0; 3],
             attitude_rad: [0.0, 0.0, self.yaw_rad as f32],
         };
-        self.edge_fs.process(&self.frame, t_us, Some(&gyro))
+        self.edge_fs.process(
+            &self.frame,
+            timebase::Instant::from_micros(t_us),
+            Some(&gyro),
+        )
     }
 }
 

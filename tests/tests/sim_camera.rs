@@ -38,7 +38,7 @@ fn facing_a_wall_edge_fs_disparity_matches_geometry() {
                 &mut rng,
                 &mut frame,
             );
-            out = Some(ef.process(&frame, k * 40_000, None));
+            out = Some(ef.process(&frame, timebase::Instant::from_micros(k * 40_000), None));
         }
         let d = ef.diagnostics();
         let disp: Vec<f32> = d
@@ -74,7 +74,7 @@ fn moving_towards_a_wall_gives_forward_velocity() {
         let t = k as f64 * 0.04;
         let pos = V3::new(1.0 + v * t, 2.0, -1.0);
         cam.render(&scene, pos, Quat::IDENTITY, &mut rng, &mut frame);
-        let o = ef.process(&frame, k * 40_000, None);
+        let o = ef.process(&frame, timebase::Instant::from_micros(k * 40_000), None);
         if k >= 15 && o.flags.0 & !protocol::EstimateFlags::NO_GYRO.0 == 0 {
             est.push(o.forward_mps);
         }
@@ -281,7 +281,11 @@ fn a_brightness_step_does_not_lock_the_guided_flow_search() {
             rates_radps: [0.0; 3],
             attitude_rad: [0.0, 0.0, yaw as f32],
         };
-        let out = ef.process(&frame, k * 40_000, Some(&gyro));
+        let out = ef.process(
+            &frame,
+            timebase::Instant::from_micros(k * 40_000),
+            Some(&gyro),
+        );
         if k >= 12 {
             worst_late = worst_late.max(out.forward_mps.abs().max(out.sideways_mps.abs()));
         }

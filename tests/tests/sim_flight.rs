@@ -268,7 +268,7 @@ fn height_holds_without_motion_capture() {
 
 /// The telemetry link (host -> autopilot, the pocket drone's only kill path) cut in flight:
 /// the autopilot, without the host's heartbeat for `fs_host_timeout_us`, lands where it is
-/// and the motors stop within `AutopilotConfig::host_loss_motors_off_us` of the last heartbeat
+/// and the motors stop within `AutopilotConfig::host_loss_motors_off` of the last heartbeat
 /// (at most 1 s before the cut), without touching a wall; the flight reports why it ended.
 /// Until the cut the host hears the autopilot's 10 Hz telemetry task, every message whole.
 /// Without motion capture (whose fixes travel on the same link: losing them is a height
@@ -284,8 +284,8 @@ fn a_flight_whose_telemetry_is_cut_lands() {
         ..FlightConfig::default()
     };
     let r = fly(&cfg);
-    let timeout_s = cfg.autopilot.failsafe.host_timeout_us as f64 * 1e-6;
-    let promise_s = cfg.autopilot.host_loss_motors_off_us() as f64 * 1e-6;
+    let timeout_s = cfg.autopilot.failsafe.host_timeout.as_secs_f64();
+    let promise_s = cfg.autopilot.host_loss_motors_off().as_secs_f64();
     let before_cut = r.log.iter().filter(|l| l.t_s < cut_s);
     assert!(
         before_cut.clone().any(|l| l.fsm_state.is_some()),
@@ -321,7 +321,7 @@ fn a_flight_whose_telemetry_is_cut_lands() {
         r.failsafe_reason,
         Some(protocol::FailsafeReason::TelemetryLost)
     );
-    let period_s = f64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1e-6;
+    let period_s = autopilot::tasks::TELEMETRY_PERIOD.as_secs_f64();
     assert_eq!(
         r.telemetry_received,
         (cut_s / period_s).round() as u32,

@@ -5,7 +5,7 @@
 //! * [`Plant`] is the world as the autopilot board feels it. At every bench stop of the
 //!   autopilot it integrates the world from the previous stop to this one with the four motor
 //!   duties the PWM outputs showed at the previous stop (zero-order hold over one quantum,
-//!   RK4 in steps of at most [`FlightConfig::physics_dt_us`]), then puts the new state on the
+//!   RK4 in steps of at most [`FlightConfig::physics_dt`]), then puts the new state on the
 //!   chips: the true body rates and specific force on the MPU-6000
 //!   ([`Autopilot::set_body_rate`], [`Autopilot::set_body_specific_force`]: the board's axis
 //!   map and mounting, the chip's own scaling, noise and offset), the pressure of sim-host's
@@ -34,6 +34,7 @@ use sim_host::sim::imu::gauss;
 use sim_host::sim::math::V3;
 use sim_host::sim::scene::Scene;
 use sim_host::sim::world::World;
+use timebase::WorldTime;
 
 pub use sim_host::sim::flight::FlightConfig;
 
@@ -167,12 +168,15 @@ impl Plant {
     /// quantum. Call at every stop, before the probe reads or sends anything.
     pub fn step(&mut self, now_ns: u64, board: &mut Autopilot) {
         if let Some(last) = self.last_ns {
-            let physics_ns = self.cfg.physics_dt_us.max(1) * 1_000;
+            let physics_ns = self.cfg.physics_dt.as_micros().max(1) * 1_000;
             let mut t = last;
             while t < now_ns {
                 let next = (t + physics_ns).min(now_ns);
-                self.world
-                    .step(&self.duties, (next - t) as f64 * 1e-9, next / 1_000);
+                self.world.step(
+                    &self.duties,
+                    (next - t) as f64 * 1e-9,
+                    WorldTime::from_micros(next / 1_000),
+                );
                 t = next;
             }
         }
@@ -182,7 +186,9 @@ impl Plant {
         let force = drone.specific_force_body;
         board.set_body_rate([rates.x, rates.y, rates.z]);
         board.set_body_specific_force([force.x, force.y, force.z]);
-        let reading = self.world.baro_reading(now_ns / 1_000, &self.duties);
+        let reading = self
+            .world
+            .baro_reading(WorldTime::from_micros(now_ns / 1_000), &self.duties);
         let baro = board.baro();
         baro.set_pressure(f64::from(reading.pressure_pa).round().max(0.0) as u32);
         baro.set_temperature((f64::from(reading.temperature_c) * 100.0).round() as i32);
@@ -336,7 +342,7 @@ pub struct TruthCamera {
 impl TruthCamera {
     /// Estimates at `fps` with `noise_mps` of white noise (1 sigma, each axis), each leaving
     /// `processing_ms` after its capture, averaged over `horizon_us` (the autopilot's
-    /// `estimate_horizon_us`), noise drawn from `seed`.
+    /// `estimate_horizon`), noise drawn from `seed`.
     #[must_use]
     pub fn new(fps: f64, noise_mps: f64, processing_ms: u64, horizon_us: u64, seed: u64) -> Self {
         Self {

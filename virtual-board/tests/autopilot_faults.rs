@@ -6,11 +6,11 @@
 //!
 //! | fault | injection | promise |
 //! |---|---|---|
-//! | IMU frozen | the MPU-6000's registers stop updating | [`autopilot::mpu6000::fault_motors_off_us`] |
+//! | IMU frozen | the MPU-6000's registers stop updating | [`autopilot::mpu6000::fault_motors_off`] |
 //! | IMU unplugged | MISO pulled high: every byte 0xFF | the same |
 //! | IMU at full scale | a body rate beyond the gyro's +-2000 deg/s range: one axis reads +32767 (the model saturates, RM 4.19), the others stay live | the same |
 //! | IMU reset | the MPU-6000 resets (a brown-out): registers at their defaults, asleep, silent for its reset time; the firmware must configure it again | the same; the chip configured and sampling again within [`IMU_BACK_NS`], the motors off until a new `Arm` |
-//! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF_US`] |
+//! | bus fault | the next access to SPI2 is a bus error: HardFault | [`autopilot::board::FAULT_MOTORS_OFF`] |
 //! | stack overflow | a runaway recursion: one function of the 512 Hz loop returns into two instructions that push without end ([`virtual_board::inject::Payload::RunawayRecursion`]) until the stack leaves SRAM (flip-link: the stack is the bottom of SRAM) | the same: the HardFault path stops the motors although the stack is used up |
 //! | unbound interrupt | one function of the 512 Hz loop returns into instructions that enable and pend IRQ 0 (`WWDG`), which the image has no handler for ([`virtual_board::inject::Payload::UnboundInterrupt`]) | the same, from the `DefaultHandler`'s arrival; it names the vector |
 //! | panic | the logger's "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the same |
@@ -21,11 +21,11 @@
 //! each. The hard fault runs at both core rates ([`CoreRate`]), the hung loop at the typical,
 //! slowest and fastest LSI (the watchdog's timeout scales with it).
 //!
-//! | link cut | the camera board's estimates stop | [`autopilot::AutopilotConfig::link_loss_motors_off_us`] (hover, land, touch down) |
-//! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::AutopilotConfig::camera_stopped_motors_off_us`] from the report (hover at once, land, touch down) |
-//! | telemetry link cut | flying on the barometer (no height fixes, as without motion capture), the host's heartbeats stop | [`autopilot::AutopilotConfig::host_loss_motors_off_us`] (`fs_host_timeout_us`, land, touch down), the landing reported as `telemetry-lost` |
+//! | link cut | the camera board's estimates stop | [`autopilot::AutopilotConfig::link_loss_motors_off`] (hover, land, touch down) |
+//! | camera stopped | the camera board's estimates stop and its 1 Hz `Status` reports `camera_stopped` (heartbeats go on) | [`autopilot::AutopilotConfig::camera_stopped_motors_off`] from the report (hover at once, land, touch down) |
+//! | telemetry link cut | flying on the barometer (no height fixes, as without motion capture), the host's heartbeats stop | [`autopilot::AutopilotConfig::host_loss_motors_off`] (`fs_host_timeout_us`, land, touch down), the landing reported as `telemetry-lost` |
 //! | host kill | a `PilotCommand::Kill` on the telemetry port | [`KILL_AFTER_LAST_BYTE_NS`]: the next 512 Hz step after the command's last byte reached the board |
-//! | frozen barometer | flying on the barometer (no height fixes), the MS5611 answers every conversion with its last word ([`virtual_board::ms5611::Barometer::set_frozen`]) | [`baro_frozen_promise_ns`]: `baro_stuck_us`, the height timeout, the blind landing; the landing reported as `baro-frozen` |
+//! | frozen barometer | flying on the barometer (no height fixes), the MS5611 answers every conversion with its last word ([`virtual_board::ms5611::Barometer::set_frozen`]) | [`baro_frozen_promise_ns`]: `baro_stuck`, the height timeout, the blind landing; the landing reported as `baro-frozen` |
 
 use protocol::{
     BoardToHost, Decoder, FailsafeReason, FlightMode, HostToBoard, Message, PilotCommand,
@@ -486,11 +486,11 @@ fn fault_stops_the_motors_at(
                 first.handler,
                 first.at_ns as f64 / 1e6,
                 latency_ns as f64 / 1e3,
-                autopilot::board::FAULT_MOTORS_OFF_US
+                autopilot::board::FAULT_MOTORS_OFF.as_micros()
             );
             assert!(
                 off_exact >= first.at_ns
-                    && latency_ns <= autopilot::board::FAULT_MOTORS_OFF_US * 1_000,
+                    && latency_ns <= autopilot::board::FAULT_MOTORS_OFF.as_micros() * 1_000,
                 "{fault:?}: handler at {:.6} ms, motors off at {:.6} ms\n{report}",
                 first.at_ns as f64 / 1e6,
                 off_exact as f64 / 1e6
@@ -622,7 +622,9 @@ fn fault_stops_the_motors_at(
 /// No valid IMU sample for this long while armed -> motors off.
 /// Measured at the bench's 1 ms stops: one stop of slack.
 fn imu_promise_ns() -> u64 {
-    autopilot::mpu6000::fault_motors_off_us(&autopilot::failsafe::FailsafeConfig::default()) * 1_000
+    autopilot::mpu6000::fault_motors_off(&autopilot::failsafe::FailsafeConfig::default())
+        .as_micros()
+        * 1_000
         + MS
 }
 
@@ -656,7 +658,7 @@ fn a_reset_imu_stops_the_motors_and_is_configured_again() {
 fn a_hard_fault_stops_the_motors_at_once() {
     fault_stops_the_motors(
         Fault::BusError,
-        autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        autopilot::board::FAULT_MOTORS_OFF.as_micros() * 1_000 + MS,
         3.0,
     );
 }
@@ -670,7 +672,7 @@ fn a_hard_fault_stops_the_motors_at_once_on_a_slow_core() {
     let loop_period_ns = 1_000_000_000u64.div_ceil(u64::from(autopilot::board::LOOP_RATE_HZ));
     fault_stops_the_motors_at(
         Fault::BusError,
-        loop_period_ns + autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        loop_period_ns + autopilot::board::FAULT_MOTORS_OFF.as_micros() * 1_000 + MS,
         3.0,
         CoreRate::Pessimistic,
         LSI_HZ_TYPICAL,
@@ -684,7 +686,7 @@ fn a_hard_fault_stops_the_motors_at_once_on_a_slow_core() {
 fn a_stack_overflow_faults_and_stops_the_motors_at_once() {
     fault_stops_the_motors(
         Fault::StackOverflow,
-        autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        autopilot::board::FAULT_MOTORS_OFF.as_micros() * 1_000 + MS,
         3.0,
     );
 }
@@ -696,7 +698,7 @@ fn a_stack_overflow_faults_and_stops_the_motors_at_once() {
 fn an_unbound_interrupt_stops_the_motors_at_once() {
     fault_stops_the_motors(
         Fault::UnboundInterrupt,
-        autopilot::board::FAULT_MOTORS_OFF_US * 1_000 + MS,
+        autopilot::board::FAULT_MOTORS_OFF.as_micros() * 1_000 + MS,
         3.0,
     );
 }
@@ -752,7 +754,10 @@ fn hung_loop_at(lsi_hz: u64) {
 /// on touchdown.
 #[test]
 fn a_cut_camera_link_lands_and_stops_the_motors() {
-    let promise = autopilot::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
+    let promise = autopilot::AutopilotConfig::default()
+        .link_loss_motors_off()
+        .as_micros()
+        * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     fault_stops_the_motors(Fault::LinkCut, promise, run_s);
 }
@@ -764,15 +769,15 @@ fn a_cut_camera_link_lands_and_stops_the_motors() {
 #[test]
 fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
     let cfg = autopilot::AutopilotConfig::default();
-    let promise = cfg.camera_stopped_motors_off_us() * 1_000;
+    let promise = cfg.camera_stopped_motors_off().as_micros() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     let (report, _, hover_seen_at, _) =
         fault_stops_the_motors(Fault::CameraStopped, promise, run_s);
     // Telemetry goes out at 10 Hz: the hover is seen within two of its periods (the mode
     // changes at the next 50 Hz guidance step), well inside the estimate timeout.
-    let hover_by = FAULT_AT + 2 * u64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1_000;
+    let hover_by = FAULT_AT + 2 * autopilot::tasks::TELEMETRY_PERIOD.as_micros() * 1_000;
     assert!(
-        hover_by < FAULT_AT + cfg.failsafe.estimate_timeout_us * 1_000,
+        hover_by < FAULT_AT + cfg.failsafe.estimate_timeout.as_micros() * 1_000,
         "the bound tells the report from the timeout"
     );
     assert!(
@@ -789,7 +794,7 @@ fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
 #[test]
 fn a_cut_telemetry_link_lands_and_stops_the_motors() {
     let cfg = autopilot::AutopilotConfig::default();
-    let promise = cfg.host_loss_motors_off_us() * 1_000;
+    let promise = cfg.host_loss_motors_off().as_micros() * 1_000;
     let run_s = (FAULT_AT + promise) as f64 / 1e9 + 0.5;
     let (report, took, _, landing) = fault_stops_the_motors(Fault::TelemetryCut, promise, run_s);
     let (landing_at, reason) =
@@ -803,7 +808,7 @@ fn a_cut_telemetry_link_lands_and_stops_the_motors() {
     // not another failsafe, landed it.
     let period = virtual_board::pilot::HEARTBEAT_PERIOD_NS;
     let last_heartbeat = (FAULT_AT - 1) / period * period;
-    let timeout = cfg.failsafe.host_timeout_us * 1_000;
+    let timeout = cfg.failsafe.host_timeout.as_micros() * 1_000;
     assert!(
         landing_at >= last_heartbeat + timeout,
         "landing reported {:.2} s after the last heartbeat, before the {:.1} s timeout\n{report}",
@@ -848,17 +853,20 @@ fn a_host_kill_stops_the_motors_within_a_loop_period() {
     );
 }
 
-/// A frozen barometer is caught after `baro_stuck_us`, its readings are no longer fused, the
+/// A frozen barometer is caught after `baro_stuck`, its readings are no longer fused, the
 /// height goes stale after the height timeout and the drone lands blind; one guidance period,
 /// and a barometer cycle (two OSR 4096 conversions) and a bench stop of slack.
 fn baro_frozen_promise_ns() -> u64 {
     let cfg = autopilot::AutopilotConfig::default();
-    let cycle_us = 2 * u64::from(autopilot::ms5611::Osr::X4096.conversion_time_us());
-    (cfg.vertical.baro_stuck_us
-        + cfg.failsafe.height_timeout_us
-        + cfg.setpoints.blind_land_time_us
-        + u64::from(autopilot::tasks::GUIDANCE_PERIOD_US)
-        + cycle_us)
+    let cycle = autopilot::ms5611::Osr::X4096
+        .conversion_time()
+        .saturating_mul(2);
+    (cfg.vertical.baro_stuck
+        + cfg.failsafe.height_timeout
+        + cfg.setpoints.blind_land_time
+        + autopilot::tasks::GUIDANCE_PERIOD
+        + cycle)
+        .as_micros()
         * 1_000
         + MS
 }

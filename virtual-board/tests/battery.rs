@@ -208,7 +208,7 @@ fn a_battery_ramped_down_in_flight_lands_then_hurries_and_stops_the_motors() {
     // guidance period and the telemetry's period of slack.
     let ap = AutopilotConfig::default();
     let bound_ns = (HOVER_M / f64::from(ap.setpoints.land_rate_mps) * 1e9) as u64
-        + ap.setpoints.landed_time_us * 1_000
+        + ap.setpoints.landed_time.as_micros() * 1_000
         + 400 * MS;
     println!(
         "every motor at 0 {:.0} ms after the landing began (bound {:.0} ms)",

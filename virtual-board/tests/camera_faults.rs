@@ -3,7 +3,7 @@
 //!
 //! | fault | injection | what must follow |
 //! |---|---|---|
-//! | HardFault, for good | the camera board's next access to its DCMI is a bus error, and again after every reset (a board that faults at every boot) | the camera board's handler runs and its link goes silent (no estimate after the message in flight); the autopilot hovers blind, lands and stops its motors within [`autopilot::AutopilotConfig::link_loss_motors_off_us`] of the fault |
+//! | HardFault, for good | the camera board's next access to its DCMI is a bus error, and again after every reset (a board that faults at every boot) | the camera board's handler runs and its link goes silent (no estimate after the message in flight); the autopilot hovers blind, lands and stops its motors within [`autopilot::AutopilotConfig::link_loss_motors_off`] of the fault |
 //! | panic | the camera board's logger "taken" flag set under the firmware: its next log line panics (defmt-rtt's re-entrancy check) | the link silent from the handler until the camera board's watchdog resets it (within [`WATCHDOG_MS`]); the autopilot hovers blind within its estimate timeout, and does not stop its motors before the camera board is back; the camera board boots again and its estimates resume |
 
 use std::path::PathBuf;
@@ -237,7 +237,10 @@ fn first_fault(cam: &Outcome<CameraBoard, CameraSide>, report: &str) -> (u64, St
 /// estimate, hovers, lands and stops its motors within its link-loss promise.
 #[test]
 fn a_camera_board_that_hard_faults_goes_silent_and_the_autopilot_lands() {
-    let promise = autopilot::AutopilotConfig::default().link_loss_motors_off_us() * 1_000;
+    let promise = autopilot::AutopilotConfig::default()
+        .link_loss_motors_off()
+        .as_micros()
+        * 1_000;
     let seconds = (FAULT_AT + promise) as f64 / 1e9 + 0.8;
     let (cam, ap, camera_tx) = run_fault(Injection::HardFault, seconds);
     let report = format!("{}\n{}", cam.report(), ap.report());
@@ -311,10 +314,12 @@ fn a_camera_board_that_hard_faults_goes_silent_and_the_autopilot_lands() {
         .map(|(_, m)| *m)
         .collect();
     // Blind hover once the estimates stop (their timeout, then the next telemetry frame).
-    let estimate_timeout = autopilot::failsafe::FailsafeConfig::default().estimate_timeout_us;
+    let estimate_timeout = autopilot::failsafe::FailsafeConfig::default()
+        .estimate_timeout
+        .as_micros();
     let hover_by = handler_at
         + estimate_timeout * 1_000
-        + 2 * u64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1_000;
+        + 2 * autopilot::tasks::TELEMETRY_PERIOD.as_micros() * 1_000;
     assert_eq!(
         pilot.mode_at(hover_by),
         Some(FlightMode::HoverNoEstimate),
@@ -390,10 +395,12 @@ fn a_camera_board_that_panics_goes_silent_until_its_watchdog_resets_it() {
         "the autopilot stopped its motors at {:?} ns, before the camera board was back at {back}\n{report}",
         pilot.off_at
     );
-    let estimate_timeout = autopilot::failsafe::FailsafeConfig::default().estimate_timeout_us;
+    let estimate_timeout = autopilot::failsafe::FailsafeConfig::default()
+        .estimate_timeout
+        .as_micros();
     let hover_by = handler_at
         + estimate_timeout * 1_000
-        + 2 * u64::from(autopilot::tasks::TELEMETRY_PERIOD_US) * 1_000;
+        + 2 * autopilot::tasks::TELEMETRY_PERIOD.as_micros() * 1_000;
     println!(
         "camera panic at {:.1} ms: silent, watchdog reset {:.1} ms later, estimates back at \
          {:.1} ms; the autopilot's modes {:?}",

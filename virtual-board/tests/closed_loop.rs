@@ -75,7 +75,7 @@ impl Flight {
     /// accelerometer and the user only arms.
     fn new(cfg: &FlightConfig, truth_camera: bool) -> Self {
         let plant = Plant::new(cfg, QUANTUM_NS).expect("the world");
-        let horizon_us = u64::from(cfg.autopilot.estimation.estimate_horizon_us);
+        let horizon_us = cfg.autopilot.estimation.estimate_horizon.as_micros();
         Self {
             plant,
             ground: GroundStation::arming_at(ARM_AT, 0.0),
@@ -106,7 +106,10 @@ impl Probe<Autopilot> for Flight {
             }
         } else {
             // The lab's motion capture, through the ground tool.
-            let fix = self.plant.world_mut().height_fix(now / 1_000);
+            let fix = self
+                .plant
+                .world_mut()
+                .height_fix(timebase::WorldTime::from_micros(now / 1_000));
             self.ground.set_height(-f64::from(fix.position_m[2]));
             self.ground.step(now, &board.telemetry.rx);
         }

@@ -4,8 +4,12 @@
 
 use super::Mono;
 use rtic_monotonics::Timebase as _;
+use timebase::Instant;
 
-/// Microseconds since boot (see [`board_support::clock::now_us`]).
-pub fn now_us() -> u64 {
-    board_support::clock::now_us(|| Mono::now().as_ticks(), board_support::clocks::SYSTICK_HZ)
+/// The board clock (see [`board_support::clock::now_us`]).
+pub fn now() -> Instant {
+    Instant::from_micros(board_support::clock::now_us(
+        || Mono::now().as_ticks(),
+        board_support::clocks::SYSTICK_HZ,
+    ))
 }

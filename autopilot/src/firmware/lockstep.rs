@@ -10,14 +10,15 @@
 //!   feeds the watchdog ([`board_support::watchdog::HEARTBEAT_FED`], 2 s).
 //! * The PWM outputs stay at 0 unless the host enabled them
 //!   ([`protocol::PilotCommand::HilOutputs`], see [`autopilot::app::Autopilot::hil_outputs`]),
-//!   and go to 0 when no host sample arrived for [`SAMPLES_TIMEOUT_US`] of board time
-//!   ([`outputs_live`], checked every [`OUTPUTS_CHECK_US`]): world time stops with the samples, so
+//!   and go to 0 when no host sample arrived for [`SAMPLES_TIMEOUT`] of board time
+//!   ([`outputs_live`], checked every [`OUTPUTS_CHECK`]): world time stops with the samples, so
 //!   no failsafe of the library fires then.
 
 use core::cell::Cell;
 use core::sync::atomic::AtomicU32;
 use cortex_m::interrupt::Mutex;
 use protocol::ImuSample;
+use timebase::{Duration, Instant};
 
 /// The flavour's side of the contract both boards' flavour modules fulfil.
 pub struct Current;
@@ -30,7 +31,7 @@ impl board_support::flavour::Flavour for Current {
 
     /// The host's world time, as its IMU samples carry it.
     fn lib_now_us() -> u64 {
-        cortex_m::interrupt::free(|cs| WORLD_US.borrow(cs).get())
+        cortex_m::interrupt::free(|cs| WORLD.borrow(cs).get()).as_micros()
     }
 }
 
@@ -42,46 +43,49 @@ pub const MOTORS_TO_HOST: bool = true;
 /// IMU samples from the host link refused (none are in these flavours).
 pub static HOST_SENSOR_REJECTED: AtomicU32 = AtomicU32::new(0);
 
-/// World time, µs (set by the host link's IMU samples).
-static WORLD_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
-/// Board time of the last host IMU sample, µs (`None` before the first).
-static LAST_SAMPLE_BOARD_US: Mutex<Cell<Option<u64>>> = Mutex::new(Cell::new(None));
+/// The library clock: the world time of the host link's IMU samples.
+static WORLD: Mutex<Cell<Instant>> = Mutex::new(Cell::new(Instant::ZERO));
+/// Board time of the last host IMU sample (`None` before the first).
+static LAST_SAMPLE_BOARD: Mutex<Cell<Option<Instant>>> = Mutex::new(Cell::new(None));
 
-/// Board time without a host sample after which the PWM outputs go to 0, µs. The host sends
-/// 512 samples per world second; a world that runs near real time leaves gaps of a few ms.
-pub const SAMPLES_TIMEOUT_US: u64 = 50_000;
-/// Period of the board-clock check of [`SAMPLES_TIMEOUT_US`], µs: with it, the outputs are at
-/// 0 at most 60 ms of board time after the last sample (the 100 ms promise of
-/// `docs/hardware.md`, "HIL outputs").
-pub const OUTPUTS_CHECK_US: u32 = 10_000;
+/// Board time without a host sample after which the PWM outputs go to 0. The host sends 512
+/// samples per world second; a world that runs near real time leaves gaps of a few ms.
+pub const SAMPLES_TIMEOUT: Duration = Duration::from_millis(50);
+/// Period of the board-clock check of [`SAMPLES_TIMEOUT`]: with it, the outputs are at 0 at
+/// most 60 ms of board time after the last sample (the 100 ms promise of `docs/hardware.md`,
+/// "HIL outputs").
+pub const OUTPUTS_CHECK: Duration = Duration::from_millis(10);
 
-/// A host IMU sample: its timestamp moves the world clock; returns the world time to run the
-/// control loop at.
-pub fn host_imu(world: &mut autopilot::lockstep::WorldClock, sample: &ImuSample) -> Option<u64> {
-    let at = world.observe(sample.timestamp_us);
-    let now = world.now_us();
-    let board_now = super::clock::now_us();
+/// A host IMU sample: its timestamp moves the world clock; returns the library time (the
+/// world's, as the flight clock) to run the control loop at.
+pub fn host_imu(
+    world: &mut autopilot::lockstep::WorldClock,
+    sample: &ImuSample,
+) -> Option<Instant> {
+    let at = world.observe(sample.timestamp_us).as_flight_clock();
+    let now = world.now().as_flight_clock();
+    let board_now = super::clock::now();
     cortex_m::interrupt::free(|cs| {
-        WORLD_US.borrow(cs).set(now);
-        LAST_SAMPLE_BOARD_US.borrow(cs).set(Some(board_now));
+        WORLD.borrow(cs).set(now);
+        LAST_SAMPLE_BOARD.borrow(cs).set(Some(board_now));
     });
     Some(at)
 }
 
-/// Whether the PWM outputs follow the motor command at board time `board_now_us`: the host
-/// `enabled` them and its last sample is at most [`SAMPLES_TIMEOUT_US`] old. Otherwise every
+/// Whether the PWM outputs follow the motor command at board time `board_now`: the host
+/// `enabled` them and its last sample is at most [`SAMPLES_TIMEOUT`] old. Otherwise every
 /// output is held at 0.
-pub fn outputs_live(enabled: bool, board_now_us: u64) -> bool {
-    let last = cortex_m::interrupt::free(|cs| LAST_SAMPLE_BOARD_US.borrow(cs).get());
-    enabled && last.is_some_and(|t| board_now_us.saturating_sub(t) <= SAMPLES_TIMEOUT_US)
+pub fn outputs_live(enabled: bool, board_now: Instant) -> bool {
+    let last = cortex_m::interrupt::free(|cs| LAST_SAMPLE_BOARD.borrow(cs).get());
+    enabled && last.is_some_and(|t| board_now.since(t) <= SAMPLES_TIMEOUT)
 }
 
-/// Release of one periodic task: world times sent by the control loop.
-pub struct Tick(rtic_sync::channel::Receiver<'static, u64, 1>);
+/// Release of one periodic task: library times sent by the control loop.
+pub struct Tick(rtic_sync::channel::Receiver<'static, Instant, 1>);
 
 impl Tick {
-    /// Waits for the next release; returns its world time, µs.
-    pub async fn wait(&mut self) -> u64 {
+    /// Waits for the next release; returns its library time.
+    pub async fn wait(&mut self) -> Instant {
         match self.0.recv().await {
             Ok(t) => t,
             // The sender lives as long as the program; without one, never release again.
@@ -93,18 +97,18 @@ impl Tick {
 /// The senders the control loop releases the periodic tasks with. A release that finds its
 /// task still busy with the previous one is skipped (an overrun, as on hardware).
 pub struct Releases {
-    guidance: rtic_sync::channel::Sender<'static, u64, 1>,
-    gyro_tx: rtic_sync::channel::Sender<'static, u64, 1>,
-    telemetry: rtic_sync::channel::Sender<'static, u64, 1>,
+    guidance: rtic_sync::channel::Sender<'static, Instant, 1>,
+    gyro_tx: rtic_sync::channel::Sender<'static, Instant, 1>,
+    telemetry: rtic_sync::channel::Sender<'static, Instant, 1>,
     timers: autopilot::lockstep::WorldTimers,
 }
 
 impl Releases {
     /// The periodic tasks' ticks (guidance, gyro_tx, telemetry) and the loop's releases.
     pub fn new() -> (Tick, Tick, Tick, Self) {
-        let (g_tx, g_rx) = rtic_sync::make_channel!(u64, 1);
-        let (y_tx, y_rx) = rtic_sync::make_channel!(u64, 1);
-        let (t_tx, t_rx) = rtic_sync::make_channel!(u64, 1);
+        let (g_tx, g_rx) = rtic_sync::make_channel!(Instant, 1);
+        let (y_tx, y_rx) = rtic_sync::make_channel!(Instant, 1);
+        let (t_tx, t_rx) = rtic_sync::make_channel!(Instant, 1);
         (
             Tick(g_rx),
             Tick(y_rx),
@@ -118,17 +122,17 @@ impl Releases {
         )
     }
 
-    /// Releases what is due at world time `now_us`.
-    pub fn release(&mut self, now_us: u64) {
-        let due = self.timers.due(now_us);
+    /// Releases what is due at library time `now` (the world's, see [`host_imu`]).
+    pub fn release(&mut self, now: Instant) {
+        let due = self.timers.due(now);
         if due.guidance {
-            let _ = self.guidance.try_send(now_us);
+            let _ = self.guidance.try_send(now);
         }
         if due.gyro_tx {
-            let _ = self.gyro_tx.try_send(now_us);
+            let _ = self.gyro_tx.try_send(now);
         }
         if due.telemetry {
-            let _ = self.telemetry.try_send(now_us);
+            let _ = self.telemetry.try_send(now);
         }
     }
 }

@@ -106,9 +106,9 @@ fn send<M: protocol::Message, const N: usize>(
     }
 }
 
-/// Period in SysTick ticks (1 ms), at least 1.
-const fn ticks(period_us: u32) -> u32 {
-    let t = period_us / 1_000;
+/// Period in SysTick ticks (1 ms, rounded down), at least 1.
+const fn ticks(period: timebase::Duration) -> u32 {
+    let t = period.as_millis() as u32;
     if t == 0 {
         1
     } else {
@@ -131,7 +131,7 @@ mod app {
     use autopilot::board::{self, hw};
     use autopilot::mpu6000::{Reconfigure, SampleCheck};
     use autopilot::ms5611::{self, Calibration, Osr};
-    use autopilot::tasks::HEARTBEAT_PERIOD_US;
+    use autopilot::tasks::HEARTBEAT_PERIOD;
     use autopilot::AutopilotConfig;
     use autopilot::HostOutcome;
     use board_support::flavour::{host_receiver, Flavour as _, HostRx, PARAM_STORAGE};
@@ -257,7 +257,7 @@ mod app {
 
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
         board_support::watchdog::set(&mut iwdg, Flavour::WATCHDOG);
-        let started = clock::now_us();
+        let started = clock::now().as_micros();
         GUIDANCE_ALIVE.ran(started);
         HEARTBEAT_ALIVE.ran(started);
 
@@ -384,7 +384,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = clock::now_us();
+                let now = clock::now();
                 let mut cmds = heapless::Vec::<protocol::PilotCommand, 4>::new();
                 let rc = &mut *cx.local.rc;
                 cx.local
@@ -403,7 +403,7 @@ mod app {
                     cx.shared.ap.lock(|ap| ap.on_command(c, now));
                 }
             }
-            let now = clock::now_us();
+            let now = clock::now();
             let poll = cx.local.rc.poll(now);
             let engaged = cx.local.rc.kill_reason().is_some();
             cx.shared.ap.lock(|ap| {
@@ -423,16 +423,16 @@ mod app {
         loop_timer,
         imu_check,
         reconfigure: Reconfigure = Reconfigure::new(),
-        last_start_us: Option<u64> = None,
+        last_start: Option<timebase::Instant> = None,
     ])]
     fn control_loop(mut cx: control_loop::Context) {
         cx.local
             .loop_timer
             .clear_flags(stm32f4xx_hal::timer::Flag::Update);
-        let now = clock::now_us();
-        if let Some(last) = cx.local.last_start_us.replace(now) {
+        let now = clock::now();
+        if let Some(last) = cx.local.last_start.replace(now) {
             let period = 1_000_000 / u64::from(board::LOOP_RATE_HZ);
-            let jitter = now.saturating_sub(last).abs_diff(period) as u32;
+            let jitter = now.since(last).as_micros().abs_diff(period) as u32;
             LOOP_JITTER_MAX_US.fetch_max(jitter, Ordering::Relaxed);
         }
         let reads = cx
@@ -442,7 +442,7 @@ mod app {
         let check = &mut *cx.local.imu_check;
         let sample = match reads {
             Some(Ok((who, pwr, data))) => {
-                match check.check(who, pwr, &data, protocol::WireTime(now as u32)) {
+                match check.check(who, pwr, &data, now.to_wire()) {
                     Ok(sample) => Some(sample),
                     Err(fault) => {
                         if cx.local.reconfigure.due(fault, now) {
@@ -480,8 +480,8 @@ mod app {
             }
         }
         if flavour::FEED_WATCHDOG_IN_LOOP
-            && GUIDANCE_ALIVE.within(now, board::GUIDANCE_ALIVE_US)
-            && HEARTBEAT_ALIVE.within(now, board::HEARTBEAT_ALIVE_US)
+            && GUIDANCE_ALIVE.within(now.as_micros(), board::GUIDANCE_ALIVE.as_micros() as u32)
+            && HEARTBEAT_ALIVE.within(now.as_micros(), board::HEARTBEAT_ALIVE.as_micros() as u32)
         {
             cx.shared.iwdg.lock(|w| w.feed());
         }
@@ -494,36 +494,36 @@ mod app {
         ap: &mut impl rtic::Mutex<T = &'static mut Autopilot>,
         motors: &mut impl rtic::Mutex<T = hw::Motors>,
         imu: &ImuSample,
-        now: u64,
+        now: timebase::Instant,
     ) -> [f32; 4] {
         let (throttle, enabled) = ap.lock(|ap| (ap.on_imu(imu, now), ap.hil_outputs()));
-        let live = flavour::outputs_live(enabled, clock::now_us());
+        let live = flavour::outputs_live(enabled, clock::now());
         motors.lock(|m| m.set(if live { throttle } else { [0.0; 4] }));
         throttle
     }
 
-    /// Lockstep flavours: every `flavour::OUTPUTS_CHECK_US` of board time, the PWM outputs to
+    /// Lockstep flavours: every `flavour::OUTPUTS_CHECK` of board time, the PWM outputs to
     /// 0 unless they are live (enabled by the host, and its samples still coming: world time,
     /// and with it every failsafe of the library, stops with them). Ends at once in the real
     /// flavour.
     #[task(priority = 5, shared = [ap, motors])]
     async fn outputs_watch(mut cx: outputs_watch::Context) {
-        if flavour::OUTPUTS_CHECK_US == 0 {
+        if flavour::OUTPUTS_CHECK == timebase::Duration::ZERO {
             return;
         }
         loop {
-            Mono::delay(Duration::from_ticks(ticks(flavour::OUTPUTS_CHECK_US))).await;
+            Mono::delay(Duration::from_ticks(ticks(flavour::OUTPUTS_CHECK))).await;
             let enabled = cx.shared.ap.lock(|ap| ap.hil_outputs());
-            if !flavour::outputs_live(enabled, clock::now_us()) {
+            if !flavour::outputs_live(enabled, clock::now()) {
                 cx.shared.motors.lock(|m| m.set([0.0; 4]));
             }
         }
     }
 
-    /// The lockstep flavours' control step: a host IMU sample (and its world time, µs) ->
+    /// The lockstep flavours' control step: a host IMU sample (and its world time) ->
     /// attitude -> INDI -> motors, the command back to the host, then the periodic tasks due.
     #[task(priority = 5, shared = [ap, motors, host_tx], local = [releases])]
-    async fn imu_indi(mut cx: imu_indi::Context, sample: (ImuSample, u64)) {
+    async fn imu_indi(mut cx: imu_indi::Context, sample: (ImuSample, timebase::Instant)) {
         let (imu, now) = sample;
         let throttle = fly(&mut cx.shared.ap, &mut cx.shared.motors, &imu, now);
         motors_to_host(&mut cx.shared.host_tx, now, throttle);
@@ -531,10 +531,14 @@ mod app {
     }
 
     /// The motor command to the host as well, in the flavours whose host flies on it.
-    fn motors_to_host(host_tx: &mut impl rtic::Mutex<T = TxWriter>, now: u64, throttle: [f32; 4]) {
+    fn motors_to_host(
+        host_tx: &mut impl rtic::Mutex<T = TxWriter>,
+        now: timebase::Instant,
+        throttle: [f32; 4],
+    ) {
         if flavour::MOTORS_TO_HOST {
             let msg = BoardToHost::Motors(protocol::MotorCommand {
-                timestamp_us: protocol::WireTime(now as u32),
+                timestamp_us: now.to_wire(),
                 throttle,
             });
             send::<_, B2H>(host_tx, &msg);
@@ -552,7 +556,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = Flavour::lib_now_us();
+                let now = timebase::Instant::from_micros(Flavour::lib_now_us());
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 let (decoded, answer) = cx
                     .shared
@@ -584,12 +588,12 @@ mod app {
                     let Some(msg) = cx.local.host_decoder.push(byte) else {
                         continue;
                     };
-                    let now = Flavour::lib_now_us();
+                    let now = timebase::Instant::from_micros(Flavour::lib_now_us());
                     // A save of this board's table (the camera board's is passed on): logged.
                     let saving = cx.local.param_sector.is_some()
                         && matches!(&msg, HostToBoard::Param(r)
                             if r.op == ParamOp::Save && r.board == Node::Autopilot);
-                    let started_us = clock::now_us();
+                    let started = clock::now();
                     let iwdg = &mut cx.shared.iwdg;
                     let (outcome, new_key) = cx.shared.ap.lock(|ap| {
                         let outcome = match cx.local.param_sector.as_mut() {
@@ -607,14 +611,14 @@ mod app {
                     if new_key {
                         // Into the parameter sector at once, beside the saved parameters
                         // (the motors are off: a key is only taken then).
-                        let started_us = clock::now_us();
+                        let started = clock::now();
                         let saved = cx.local.param_sector.as_mut().map(|sector| {
                             let mut store = WatchedSector::new(sector, Flavour::WATCHDOG, |t| {
                                 program_watchdog(&mut cx.shared.iwdg, t)
                             });
                             cx.shared.ap.lock(|ap| ap.save_link_key(&mut store))
                         });
-                        let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
+                        let ms = clock::now().since(started).as_millis() as u32;
                         match saved {
                             Some(Ok(())) => {
                                 defmt::info!("link key provisioned: saved in {=u32} ms", ms)
@@ -627,7 +631,7 @@ mod app {
                         }
                     }
                     if saving {
-                        let ms = (clock::now_us().saturating_sub(started_us) / 1_000) as u32;
+                        let ms = clock::now().since(started).as_millis() as u32;
                         let error = cx.local.param_sector.as_ref().and_then(|s| s.last_error());
                         log_save(&outcome, error, ms);
                     }
@@ -654,7 +658,7 @@ mod app {
     fn program_watchdog(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>, timeout: Timeout) {
         iwdg.lock(|w| board_support::watchdog::set(w, timeout));
         if timeout != board_support::watchdog::SAVE {
-            let now = clock::now_us();
+            let now = clock::now().as_micros();
             GUIDANCE_ALIVE.ran(now);
             HEARTBEAT_ALIVE.ran(now);
         }
@@ -694,7 +698,7 @@ mod app {
                 cx.shared.motors.lock(|m| m.set(throttle));
                 motors_to_host(&mut cx.shared.host_tx, now, throttle);
             }
-            GUIDANCE_ALIVE.ran(clock::now_us());
+            GUIDANCE_ALIVE.ran(clock::now().as_micros());
         }
     }
 
@@ -715,7 +719,7 @@ mod app {
     #[task(priority = 2, shared = [ap, sensors])]
     async fn baro(mut cx: baro::Context) {
         const OSR: Osr = Osr::X4096;
-        let wait = Duration::from_ticks(OSR.conversion_time_us().div_ceil(1_000));
+        let wait = Duration::from_ticks(OSR.conversion_time().as_micros().div_ceil(1_000) as u32);
         let cal = loop {
             let prom = cx.shared.sensors.lock(|bus| {
                 let bus = bus.as_mut()?;
@@ -725,7 +729,10 @@ mod app {
             if prom.is_none() {
                 return; // lockstep flavours: no bus
             }
-            Mono::delay(Duration::from_ticks(ms5611::RESET_TIME_US.div_ceil(1_000))).await;
+            Mono::delay(Duration::from_ticks(
+                ms5611::RESET_TIME.as_micros().div_ceil(1_000) as u32,
+            ))
+            .await;
             // One word per lock: the eight words in one go hold the bus (and so the 512 Hz
             // loop's start) for about 300 us.
             let mut words = [0u16; 8];
@@ -775,7 +782,7 @@ mod app {
             // A result of 0 is a conversion the chip did not finish (or a read too early).
             if d[0] != 0 && d[1] != 0 {
                 let reading = cal.compensate(d[0], d[1]);
-                let now = Flavour::lib_now_us();
+                let now = timebase::Instant::from_micros(Flavour::lib_now_us());
                 cx.shared.ap.lock(|ap| ap.on_baro(&reading, now));
             }
         }
@@ -802,12 +809,12 @@ mod app {
     #[task(priority = 1, shared = [ap, link_tx, host_tx, stereo_msgs, iwdg], local = [led])]
     async fn heartbeat(mut cx: heartbeat::Context) {
         loop {
-            let now = clock::now_us();
+            let now = clock::now();
             let hb = Autopilot::heartbeat(now);
             send::<_, A2S>(&mut cx.shared.link_tx, &AutopilotToStereo::Heartbeat(hb));
             send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Heartbeat(hb));
             cx.local.led.toggle();
-            HEARTBEAT_ALIVE.ran(now);
+            HEARTBEAT_ALIVE.ran(now.as_micros());
             if !flavour::FEED_WATCHDOG_IN_LOOP {
                 cx.shared.iwdg.lock(|w| w.feed());
             }
@@ -844,7 +851,7 @@ mod app {
                 LOOP_JITTER_MAX_US.load(Ordering::Relaxed),
                 board_support::stack::free_bytes()
             );
-            Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD_US))).await;
+            Mono::delay(Duration::from_ticks(ticks(HEARTBEAT_PERIOD))).await;
         }
     }
 }

@@ -13,6 +13,7 @@ use super::{clock, Mono};
 use core::sync::atomic::{AtomicU32, Ordering};
 use protocol::ImuSample;
 use rtic_monotonics::Timebase as _;
+use timebase::{Duration, Instant};
 
 /// The flavour's side of the contract both boards' flavour modules fulfil.
 pub struct Current;
@@ -25,7 +26,7 @@ impl board_support::flavour::Flavour for Current {
 
     /// The board clock.
     fn lib_now_us() -> u64 {
-        clock::now_us()
+        clock::now().as_micros()
     }
 }
 
@@ -38,18 +39,21 @@ pub const MOTORS_TO_HOST: bool = false;
 pub static HOST_SENSOR_REJECTED: AtomicU32 = AtomicU32::new(0);
 
 /// A host IMU sample: refused and counted (returns no time to run the loop at).
-pub fn host_imu(_world: &mut autopilot::lockstep::WorldClock, _sample: &ImuSample) -> Option<u64> {
+pub fn host_imu(
+    _world: &mut autopilot::lockstep::WorldClock,
+    _sample: &ImuSample,
+) -> Option<Instant> {
     HOST_SENSOR_REJECTED.fetch_add(1, Ordering::Relaxed);
     None
 }
 
 /// No board-clock check of the outputs (0): the library's IMU failsafe watches the board's
 /// own samples.
-pub const OUTPUTS_CHECK_US: u32 = 0;
+pub const OUTPUTS_CHECK: Duration = Duration::ZERO;
 
 /// Whether the PWM outputs follow the motor command: always (the host's
 /// [`protocol::PilotCommand::HilOutputs`] gates only the lockstep flavours).
-pub fn outputs_live(_enabled: bool, _board_now_us: u64) -> bool {
+pub fn outputs_live(_enabled: bool, _board_now: Instant) -> bool {
     true
 }
 
@@ -60,19 +64,19 @@ pub struct Tick {
 }
 
 impl Tick {
-    /// Every `period_us` µs (rounded to the 1 ms SysTick tick, at least one tick); the first
+    /// Every `period` (rounded down to the 1 ms SysTick tick, at least one tick); the first
     /// release is immediate.
-    pub fn every(period_us: u32) -> Self {
+    pub fn every(period: Duration) -> Self {
         Self {
             period: <Mono as rtic_monotonics::Timebase>::Duration::from_ticks(
-                (period_us / 1_000).max(1),
+                (period.as_millis() as u32).max(1),
             ),
             next: None,
         }
     }
 
-    /// Waits for the next release; returns the library time (board µs).
-    pub async fn wait(&mut self) -> u64 {
+    /// Waits for the next release; returns the library time (the board clock).
+    pub async fn wait(&mut self) -> Instant {
         let at = match self.next {
             Some(t) => {
                 Mono::delay_until(t).await;
@@ -81,7 +85,7 @@ impl Tick {
             None => Mono::now(),
         };
         self.next = Some(at + self.period);
-        clock::now_us()
+        clock::now()
     }
 }
 
@@ -91,15 +95,15 @@ pub struct Releases;
 impl Releases {
     /// The periodic tasks' ticks (guidance, gyro_tx, telemetry) and the loop's releases.
     pub fn new() -> (Tick, Tick, Tick, Self) {
-        use autopilot::tasks::{GUIDANCE_PERIOD_US, GYRO_TX_PERIOD_US, TELEMETRY_PERIOD_US};
+        use autopilot::tasks::{GUIDANCE_PERIOD, GYRO_TX_PERIOD, TELEMETRY_PERIOD};
         (
-            Tick::every(GUIDANCE_PERIOD_US),
-            Tick::every(GYRO_TX_PERIOD_US),
-            Tick::every(TELEMETRY_PERIOD_US),
+            Tick::every(GUIDANCE_PERIOD),
+            Tick::every(GYRO_TX_PERIOD),
+            Tick::every(TELEMETRY_PERIOD),
             Self,
         )
     }
 
     /// Nothing to release: SysTick releases the periodic tasks.
-    pub fn release(&mut self, _now_us: u64) {}
+    pub fn release(&mut self, _now: Instant) {}
 }

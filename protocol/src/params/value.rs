@@ -225,6 +225,16 @@ macro_rules! integer_field {
 integer_field!(U32, u32, u32::MAX; u8, u16, u32, u64);
 integer_field!(I32, i32, i32::MAX; i8, i16, i32);
 
+/// A duration is a [`ParamKind::U32`] of whole microseconds (above `u32::MAX` µs it saturates).
+impl ParamField for timebase::Duration {
+    fn to_param(self) -> ParamValue {
+        self.as_micros().to_param()
+    }
+    fn from_param(v: ParamValue) -> Option<Self> {
+        u64::from_param(v).map(Self::from_micros)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;

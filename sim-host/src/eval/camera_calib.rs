@@ -341,7 +341,7 @@ fn depth_structure(frames: &[Frame], shift: i32) -> (Vec<f64>, Vec<f64>) {
     let mut fs = EdgeFs::new(p);
     let (mut med, mut spread) = (Vec::new(), Vec::new());
     for (i, f) in frames.iter().enumerate() {
-        fs.process(f, 143_000 * i as u64, None);
+        fs.process(f, timebase::Instant::from_micros(143_000 * i as u64), None);
         let d = fs.diagnostics();
         let mut v: Vec<f64> = d
             .depth_m

@@ -239,7 +239,11 @@ pub fn estimate_series(
             attitude_rad: [0.0, 0.0, yaw_body as f32],
         };
         let capture_us = (t * 1e6).round().max(0.0) as u64;
-        let out = fs.process(&frame, capture_us, Some(&motion));
+        let out = fs.process(
+            &frame,
+            timebase::Instant::from_micros(capture_us),
+            Some(&motion),
+        );
         s.flags.push(out.flags.0);
         let (mut ex, mut ey) = (f64::from(out.forward_mps), -f64::from(out.sideways_mps));
         let mut ez = f64::from(out.up_mps);

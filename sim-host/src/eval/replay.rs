@@ -278,7 +278,7 @@ fn frame_depths_m(frames: &[Frame], stereo_shift_px: i32) -> Vec<f64> {
     let mut fs = EdgeFs::new(p);
     let mut per_frame = Vec::new();
     for (i, f) in frames.iter().enumerate() {
-        fs.process(f, 143_000 * i as u64, None);
+        fs.process(f, timebase::Instant::from_micros(143_000 * i as u64), None);
         let d = fs.diagnostics();
         let mut v: Vec<f64> = d
             .depth_m

@@ -27,13 +27,13 @@ pub(super) fn push_msg(msg: &HostToBoard, out: &mut Vec<u8>) -> anyhow::Result<(
 pub fn encode_frame(
     frame: &[u8; STEREO_FRAME_BYTES],
     frame_id: u16,
-    capture_us: u32,
+    capture: WireTime,
 ) -> anyhow::Result<Vec<u8>> {
     let mut out = Vec::with_capacity(STEREO_FRAME_BYTES + STEREO_FRAME_BYTES / 16);
     for (i, data) in frame.chunks(FRAME_CHUNK_BYTES).enumerate() {
         let msg = HostToBoard::FrameChunk(FrameChunk {
             frame_id,
-            capture_us: WireTime(capture_us),
+            capture_us: capture,
             offset: (i * FRAME_CHUNK_BYTES) as u16,
             data: data
                 .try_into()
@@ -56,7 +56,7 @@ mod tests {
         for (i, b) in frame.iter_mut().enumerate() {
             *b = (i * 7 % 251) as u8;
         }
-        let bytes = encode_frame(&frame, 3, 123_456).unwrap();
+        let bytes = encode_frame(&frame, 3, WireTime(123_456)).unwrap();
         let mut cb = Box::new(StereoBoardApp::new(EdgeFsParams::default_config()));
         let mut asm = Box::new(FrameAssembler::new());
         let mut got = None;

@@ -11,7 +11,7 @@ use super::result::{HilResult, HilRow};
 use super::HilConfig;
 use crate::log::FlightLog;
 use crate::param::{FileSection, LinkClosed, MessageSource, ParamClient};
-use crate::sim::sched::SensorSchedule;
+use crate::sim::sched::{imu_sample_time, SensorSchedule};
 use crate::sim::world::World;
 use crate::transport::Link;
 use anyhow::{anyhow, bail, Context as _};
@@ -24,6 +24,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use timebase::WorldTime;
 
 /// Waits for a first heartbeat on a board's host link (the board is up and its USART
 /// receives: bytes sent earlier are lost).
@@ -146,32 +147,31 @@ fn lockstep(
     progress: &mut dyn FnMut(f64),
     mut rec: HilRecorder<'_>,
 ) -> anyhow::Result<HilResult> {
-    const IMU_HZ: u64 = 512;
     let wall0 = Instant::now();
-    let end_us = (cfg.duration_s * 1e6) as u64;
-    let arm_us = (cfg.arm_at_s * 1e6) as u64;
-    let physics_dt_us = cfg.world.physics_dt_us.max(1);
+    let end = WorldTime::from_micros((cfg.duration_s * 1e6) as u64);
+    let arm_at = WorldTime::from_micros((cfg.arm_at_s * 1e6) as u64);
+    let physics_dt = cfg.world.physics_dt.max(timebase::Duration::from_micros(1));
     let mut r = HilResult {
         max_height_m: 0.0,
         ..Default::default()
     };
     let mut k = 0u64;
-    let mut t = 0u64;
+    let mut t = WorldTime::ZERO;
     // The autopilot reads its own barometer (or, in the lockstep images, none).
     let mut sensors = SensorSchedule::new(cfg.fps, Some(cfg.height_rate_hz), None);
-    let mut next_log = 0u64;
-    let mut next_progress = 1_000_000u64;
+    let mut next_log = WorldTime::ZERO;
+    let mut next_progress = WorldTime::ZERO + timebase::Duration::from_secs(1);
     let mut armed = false;
     let mut outputs_pending = cfg.outputs;
     let mut motors = [0.0f32; 4];
     let mut frame_id = 0u16;
     let mut signer = host_signer(cfg);
     // Exposure time (wire) of the frame whose estimate is awaited, and when it was sent.
-    let mut in_flight: Option<(u32, Instant)> = None;
+    let mut in_flight: Option<(WireTime, Instant)> = None;
     let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
     let mut out = Vec::new();
 
-    'flight: while t < end_us {
+    'flight: while t < end {
         if cfg
             .interrupt
             .as_ref()
@@ -207,7 +207,7 @@ fn lockstep(
                 r.frame_wait_s += held.elapsed().as_secs_f64();
             }
             world.render(&mut frame);
-            let capture = t as u32;
+            let capture = t.to_wire();
             if frame_tx
                 .send(encode_frame(&frame, frame_id, capture)?)
                 .is_err()
@@ -231,7 +231,7 @@ fn lockstep(
         // then the IMU sample of this instant.
         out.clear();
         if sensors.host_heartbeat.due(t) {
-            let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
+            let hb = Heartbeat::new(Node::Host, t.since(WorldTime::ZERO).as_millis() as u32);
             push_msg(&signer.wrap(HostToBoard::Heartbeat(hb))?, &mut out)?;
         }
         if sensors.height_fix.due(t) {
@@ -247,7 +247,7 @@ fn lockstep(
                 &mut out,
             )?;
         }
-        if !armed && t >= arm_us {
+        if !armed && t >= arm_at {
             armed = true;
             push_msg(
                 &signer.wrap(HostToBoard::Command(PilotCommand::Arm))?,
@@ -255,7 +255,7 @@ fn lockstep(
             )?;
         }
         let s = world.imu_sample();
-        let stamp = WireTime(t as u32);
+        let stamp = t.to_wire();
         push_msg(
             &HostToBoard::Imu(ImuSample {
                 timestamp_us: stamp,
@@ -306,11 +306,11 @@ fn lockstep(
 
         // World: one IMU period with these motor commands.
         k += 1;
-        let t_next = k * 1_000_000 / IMU_HZ;
+        let t_next = imu_sample_time(k);
         let cmd = motors.map(f64::from);
         while t < t_next {
-            let step = physics_dt_us.min(t_next - t);
-            let dt = step as f64 * 1e-6;
+            let step = physics_dt.min(t_next - t);
+            let dt = step.as_secs_f64();
             t += step;
             world.step(&cmd, dt, t);
         }
@@ -323,10 +323,10 @@ fn lockstep(
         let drift = ((p.x - start_xy[0]).powi(2) + (p.y - start_xy[1]).powi(2)).sqrt();
         r.max_drift_m = r.max_drift_m.max(drift);
         if t >= next_log {
-            next_log += 20_000;
+            next_log += timebase::Duration::from_millis(20);
             rec.truth(t, &world.drone, r.collisions);
             r.log.push(HilRow {
-                t_s: t as f64 * 1e-6,
+                t_s: t.as_secs_f64(),
                 pos: [p.x as f32, p.y as f32, h as f32],
                 vel: [
                     world.drone.state.vel.x as f32,
@@ -337,8 +337,8 @@ fn lockstep(
             });
         }
         if t >= next_progress {
-            progress(t as f64 * 1e-6);
-            next_progress += 1_000_000;
+            progress(t.as_secs_f64());
+            next_progress += timebase::Duration::from_secs(1);
         }
     }
     // Late telemetry and estimates.
@@ -352,7 +352,7 @@ fn lockstep(
             on_estimate(&e, &mut r, &mut in_flight);
         }
     }
-    r.sim_s = t as f64 * 1e-6;
+    r.sim_s = t.as_secs_f64();
     r.wall_s = wall0.elapsed().as_secs_f64();
     r.log_error = rec.error.map(|e| format!("{e:#}"));
     r.autopilot_link_errors = ap_rx.errors();
@@ -366,13 +366,13 @@ fn lockstep(
 }
 
 /// Counts an estimate mirrored by the camera board; clears the awaited frame if it is its.
-fn on_estimate(e: &Estimate, r: &mut HilResult, in_flight: &mut Option<(u32, Instant)>) {
+fn on_estimate(e: &Estimate, r: &mut HilResult, in_flight: &mut Option<(WireTime, Instant)>) {
     r.estimates += 1;
     r.valid_estimates += u64::from(e.is_valid());
     for (bit, n) in r.flag_counts.iter_mut().enumerate() {
         *n += u64::from(e.flags.0 >> bit & 1);
     }
-    if in_flight.is_some_and(|(c, _)| c == e.capture_us.as_micros()) {
+    if in_flight.is_some_and(|(c, _)| c == e.capture_us) {
         *in_flight = None;
     }
 }

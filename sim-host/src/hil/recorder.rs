@@ -14,6 +14,7 @@ use crate::sim::dynamics::Drone;
 use crate::sim::world::World;
 use anyhow::Context as _;
 use protocol::{Estimate, FlightMode, Telemetry, STEREO_FRAME_BYTES};
+use timebase::WorldTime;
 
 /// What `sim-host hil` records into its MCAP flight log, on world time: every estimate the
 /// camera board mirrors, the autopilot's telemetry (state and mode by name, attitude with the
@@ -67,23 +68,27 @@ impl<'a> HilRecorder<'a> {
         }
     }
 
-    pub(super) fn estimate(&mut self, t_us: u64, e: &Estimate) {
+    pub(super) fn estimate(&mut self, t: WorldTime, e: &Estimate) {
+        let t_us = t.as_micros();
         self.with(|log| log.write(log_ns(t_us), &EstimateRecord::from(e)));
     }
 
-    pub(super) fn frame(&mut self, t_us: u64, frame: &[u8; STEREO_FRAME_BYTES]) {
+    pub(super) fn frame(&mut self, t: WorldTime, frame: &[u8; STEREO_FRAME_BYTES]) {
+        let t_us = t.as_micros();
         if self.images.take(t_us) {
             self.with(|log| log.stereo_frame(log_ns(t_us), frame));
         }
     }
 
-    pub(super) fn motors(&mut self, t_us: u64, motors: [f32; 4]) {
+    pub(super) fn motors(&mut self, t: WorldTime, motors: [f32; 4]) {
+        let t_us = t.as_micros();
         if self.motors.take(t_us) {
             self.with(|log| log.write(log_ns(t_us), &MotorsRecord::from(motors)));
         }
     }
 
-    pub(super) fn truth(&mut self, t_us: u64, drone: &Drone, collisions: u32) {
+    pub(super) fn truth(&mut self, t: WorldTime, drone: &Drone, collisions: u32) {
+        let t_us = t.as_micros();
         let s = &drone.state;
         let (roll, pitch, yaw) = s.att.to_euler();
         if let Some(tel) = self.last_telemetry {
@@ -119,7 +124,7 @@ impl<'a> HilRecorder<'a> {
 
     pub(super) fn telemetry(
         &mut self,
-        t_us: u64,
+        t: WorldTime,
         tel: &Telemetry,
         gyro_radps: [f32; 3],
         drone: &Drone,
@@ -134,7 +139,7 @@ impl<'a> HilRecorder<'a> {
             (-s.vel.x * sy + s.vel.y * cy) as f32,
         ];
         let host_errors = add_errors(host[0].errors(), host[1].errors());
-        let t = log_ns(t_us);
+        let t = log_ns(t.as_micros());
         self.last_telemetry = Some(*tel);
         self.with(|log| {
             write_telemetry(

@@ -7,9 +7,7 @@ use autopilot::app::Autopilot;
 use autopilot::lockstep::{WorldClock, WorldTimers};
 use autopilot::AutopilotConfig;
 use autopilot::HostOutcome;
-use protocol::{
-    AutopilotToStereo, BoardToHost, Heartbeat, HostToBoardDecoder, MotorCommand, Node, WireTime,
-};
+use protocol::{AutopilotToStereo, BoardToHost, Heartbeat, HostToBoardDecoder, MotorCommand, Node};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::{Arc, Mutex};
@@ -46,14 +44,16 @@ fn autopilot_board(mut s: TcpStream, to_camera: Wire, from_camera: Wire) {
         let mut msgs = Vec::new();
         dec.feed(&buf[..n], |m| msgs.push(m));
         for m in msgs {
-            let now = clock.now_us();
+            // Lockstep: the world's time is the autopilot's clock.
+            let now = clock.now().as_flight_clock();
             match ap.on_host_message(m, now, None) {
                 HostOutcome::Imu(imu) => {
-                    let now = clock.observe(imu.timestamp_us);
+                    let world = clock.observe(imu.timestamp_us);
+                    let now = world.as_flight_clock();
                     ap.on_stereo_bytes(&take(&from_camera), now);
                     let throttle = ap.on_imu(&imu, now);
                     let reply = MotorCommand {
-                        timestamp_us: WireTime(now as u32),
+                        timestamp_us: now.to_wire(),
                         throttle,
                     };
                     send_host(&mut s, &BoardToHost::Motors(reply));
@@ -83,7 +83,7 @@ fn autopilot_board(mut s: TcpStream, to_camera: Wire, from_camera: Wire) {
                     // (the camera board answers on its own thread).
                     let deadline = Instant::now() + Duration::from_secs(2);
                     while Instant::now() < deadline {
-                        ap.on_stereo_bytes(&take(&from_camera), clock.now_us());
+                        ap.on_stereo_bytes(&take(&from_camera), clock.now().as_flight_clock());
                         if let Some(answer) = ap.take_camera_param_reply() {
                             send_host(&mut s, &BoardToHost::Param(answer));
                             break;

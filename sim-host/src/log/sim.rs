@@ -15,6 +15,7 @@ use std::io::{Seek, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use stereo_board::edge_fs::Diagnostics;
+use timebase::WorldTime;
 
 /// Rates of the channels that are thinned out.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -146,15 +147,21 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
         self.with_view(|view, log| view.start(log, 0, Some(scene)));
     }
 
-    fn on_edge_fs(&mut self, t_us: u64, diagnostics: &Diagnostics) {
+    fn on_edge_fs(&mut self, t: WorldTime, diagnostics: &Diagnostics) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         self.with_view(|view, log| view.depths(log, t_us, &diagnostics.depth_m));
     }
 
-    fn on_estimate(&mut self, t_us: u64, estimate: &Estimate) {
+    fn on_estimate(&mut self, t: WorldTime, estimate: &Estimate) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         self.with_log(|log| log.write(ns(t_us), &EstimateRecord::from(estimate)));
     }
 
-    fn on_baro(&mut self, t_us: u64, reading: &BaroReading) {
+    fn on_baro(&mut self, t: WorldTime, reading: &BaroReading) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         let record = BaroRecord {
             pressure_pa: reading.pressure_pa,
             temperature_c: reading.temperature_c,
@@ -162,7 +169,9 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
         self.with_log(|log| log.write(ns(t_us), &record));
     }
 
-    fn on_battery(&mut self, t_us: u64, ap: &Autopilot, battery: &Battery) {
+    fn on_battery(&mut self, t: WorldTime, ap: &Autopilot, battery: &Battery) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         let Some(report) = ap.battery().telemetry() else {
             return;
         };
@@ -175,14 +184,18 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
         self.with_log(|log| log.write(ns(t_us), &record));
     }
 
-    fn on_frame(&mut self, t_us: u64, frame: &[u8; STEREO_FRAME_BYTES]) {
+    fn on_frame(&mut self, t: WorldTime, frame: &[u8; STEREO_FRAME_BYTES]) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         if !self.images.take(t_us) {
             return;
         }
         self.with_log(|log| log.stereo_frame(ns(t_us), frame));
     }
 
-    fn on_control(&mut self, t_us: u64, ap: &Autopilot, gyro_radps: [f32; 3], motors: [f32; 4]) {
+    fn on_control(&mut self, t: WorldTime, ap: &Autopilot, gyro_radps: [f32; 3], motors: [f32; 4]) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         if !self.control.take(t_us) {
             return;
         }
@@ -203,15 +216,17 @@ impl<W: Write + Seek> FlightObserver for SimRecorder<W> {
         });
     }
 
-    fn on_guidance(&mut self, t_us: u64, ap: &Autopilot, row: &LogRow, c: &FlightCounters) {
+    fn on_guidance(&mut self, t: WorldTime, ap: &Autopilot, row: &LogRow, c: &FlightCounters) {
+        // The log stamps records in µs of world time.
+        let t_us = t.as_micros();
         if let Some(start) = self.pace {
             let due = start + std::time::Duration::from_micros(t_us);
             if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
                 std::thread::sleep(wait);
             }
         }
+        let tel = ap.telemetry(t.as_flight_clock());
         let t = ns(t_us);
-        let tel = ap.telemetry(t_us);
         let sp = ap.setpoints();
         let status = ap.stereo_status();
         let new_status = status.filter(|s| self.last_status_uptime != Some(s.uptime_ms));

@@ -19,7 +19,7 @@ fn sim_tasks<Id: Copy>(
         .map(|t| SimTask {
             task: id(t.id),
             priority: t.priority,
-            period_us: t.trigger.period_us(),
+            period: t.trigger.period(),
         })
         .collect()
 }
@@ -63,17 +63,19 @@ mod tests {
         assert_eq!(tasks.iter().map(|t| t.task).collect::<Vec<_>>(), want);
         for t in &tasks {
             let period = match t.task {
-                BoardTask::Autopilot(a) => a.spec().trigger.period_us(),
-                BoardTask::Stereo(c) => c.spec().trigger.period_us(),
+                BoardTask::Autopilot(a) => a.spec().trigger.period(),
+                BoardTask::Stereo(c) => c.spec().trigger.period(),
             };
-            assert_eq!(t.period_us, period, "{}", t.task.name());
+            assert_eq!(t.period, period, "{}", t.task.name());
         }
         let status = tasks
             .iter()
             .find(|t| t.task == BoardTask::Stereo(Cam::Status));
         assert_eq!(
-            status.and_then(|t| t.period_us),
-            Some(stereo_board::app::STATUS_PERIOD_US)
+            status.and_then(|t| t.period),
+            Some(timebase::Duration::from_micros(u64::from(
+                stereo_board::app::STATUS_PERIOD_US
+            )))
         );
     }
 }

@@ -19,13 +19,13 @@ use autopilot::tasks::Task as ApTask;
 use protocol::{
     AutopilotToStereo, BoardToHost, BoardToHostDecoder, Decoder, Estimate, FailsafeReason,
     FlightMode, Heartbeat, HostToBoard, ImuSample, Message, Node, PilotCommand, StereoToAutopilot,
-    STEREO_FRAME_BYTES,
+    WireTime, STEREO_FRAME_BYTES,
 };
 use std::collections::VecDeque;
 use stereo_board::app::StereoBoardApp;
 use stereo_board::app::Task as CamTask;
 use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput};
-use timebase::{Instant, WorldTime};
+use timebase::{Duration, Instant, WorldTime};
 
 /// Why a flight ended: the last column of every summary.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -147,26 +147,26 @@ pub struct FlightCounters {
     pub uart: [UartStats; 2],
 }
 
-/// What a flight shows as it happens (a flight log records it). Times are simulated, µs.
+/// What a flight shows as it happens (a flight log records it), at simulated world times.
 pub trait FlightObserver {
     /// Once before the flight: the room it flies in and the stereo camera's mounting.
     fn on_scene(&mut self, _scene: &Scene, _camera: &CameraParams) {}
     /// An estimate as the autopilot received it (decoded from the wire).
-    fn on_estimate(&mut self, _t_us: u64, _estimate: &Estimate) {}
-    /// A stereo frame exposed at `t_us` (interleaved `[L0 R0 L1 R1 ...]`).
-    fn on_frame(&mut self, _t_us: u64, _frame: &[u8; STEREO_FRAME_BYTES]) {}
+    fn on_estimate(&mut self, _t: WorldTime, _estimate: &Estimate) {}
+    /// A stereo frame exposed at `t` (interleaved `[L0 R0 L1 R1 ...]`).
+    fn on_frame(&mut self, _t: WorldTime, _frame: &[u8; STEREO_FRAME_BYTES]) {}
     /// After Edge-FS processed a frame: its per-column diagnostics (stereo depths, flow).
-    fn on_edge_fs(&mut self, _t_us: u64, _diagnostics: &Diagnostics) {}
+    fn on_edge_fs(&mut self, _t: WorldTime, _diagnostics: &Diagnostics) {}
     /// A barometer reading as the autopilot received it.
-    fn on_baro(&mut self, _t_us: u64, _reading: &BaroReading) {}
+    fn on_baro(&mut self, _t: WorldTime, _reading: &BaroReading) {}
     /// A battery voltage reading the autopilot received (and judged), and the simulated
     /// battery it came from.
-    fn on_battery(&mut self, _t_us: u64, _ap: &Autopilot, _battery: &Battery) {}
+    fn on_battery(&mut self, _t: WorldTime, _ap: &Autopilot, _battery: &Battery) {}
     /// After each 512 Hz control step: the gyro sample the autopilot got (rad/s) and the motor
     /// duties applied (0..=1).
     fn on_control(
         &mut self,
-        _t_us: u64,
+        _t: WorldTime,
         _ap: &Autopilot,
         _gyro_radps: [f32; 3],
         _motors: [f32; 4],
@@ -175,7 +175,7 @@ pub trait FlightObserver {
     /// After each 50 Hz guidance step, with the log row of that instant.
     fn on_guidance(
         &mut self,
-        _t_us: u64,
+        _t: WorldTime,
         _ap: &Autopilot,
         _row: &LogRow,
         _counters: &FlightCounters,
@@ -195,7 +195,7 @@ impl FlightObserver for NoObserver {}
 
 /// A frame waiting for the camera board.
 struct PendingFrame {
-    ready_us: u64,
+    ready: WorldTime,
     capture: Instant,
     frame: Box<[u8; STEREO_FRAME_BYTES]>,
 }
@@ -217,29 +217,29 @@ pub fn run_flight_observed(
 ) -> anyhow::Result<FlightResult> {
     let mut flight = Flight::new(cfg)?;
     observer.on_scene(&flight.world.scene, &flight.world.camera.params);
-    let end_us = (cfg.duration_s * 1e6) as u64;
-    let mut next_progress = 1_000_000u64;
-    let mut t = 0u64;
-    let mut flown_us = end_us;
-    while t < end_us {
+    let end = WorldTime::from_micros((cfg.duration_s * 1e6) as u64);
+    let mut next_progress = WorldTime::ZERO + Duration::from_secs(1);
+    let mut t = WorldTime::ZERO;
+    let mut flown = end;
+    while t < end {
         if observer.interrupted() {
-            flown_us = t;
+            flown = t;
             break;
         }
-        let next = flight.next_event(t, end_us);
+        let next = flight.next_event(t, end);
         // Physics up to the event.
         if next > t {
             flight
                 .world
-                .step(&flight.motors, (next - t) as f64 * 1e-6, next);
+                .step(&flight.motors, (next - t).as_secs_f64(), next);
         }
         t = next;
         if cfg.stop_on_collision && flight.world.first_contact_s.is_some() {
             break;
         }
         if t >= next_progress {
-            progress(t as f64 * 1e-6);
-            next_progress += 1_000_000;
+            progress(t.as_secs_f64());
+            next_progress += Duration::from_secs(1);
         }
         flight.link_arrivals(t, observer);
         flight.camera_board(t, observer);
@@ -247,7 +247,7 @@ pub fn run_flight_observed(
         flight.host_and_sensors(t, observer);
         flight.periodic_tasks(t, observer);
     }
-    Ok(flight.result(flown_us, end_us))
+    Ok(flight.result(flown, end))
 }
 
 /// What a flight records for its figures, which are computed from it afterwards.
@@ -265,7 +265,7 @@ struct FlightRecord {
 }
 
 /// One flight in progress: the world, both boards' task logic, the links between them and
-/// the host, and the event clocks. Each method handles one kind of event at time `t` (µs).
+/// the host, and the event clocks. Each method handles one kind of event at world time `t`.
 struct Flight<'a> {
     cfg: &'a FlightConfig,
     world: World,
@@ -281,17 +281,17 @@ struct Flight<'a> {
     sched: Scheduler,
     releases: Vec<Release>,
     sensors: SensorSchedule,
-    arm_us: u64,
-    host_cut_us: u64,
+    arm_at: WorldTime,
+    host_cut_at: WorldTime,
     armed: bool,
     motors: [f64; 4],
     /// A read-out frame on its way to the camera board, and when the board is free again.
     pending: Option<PendingFrame>,
-    busy_until: u64,
+    busy_until: WorldTime,
     /// Camera board results waiting for their processing time to pass.
-    outbox: VecDeque<(u64, Instant, EdgeFsOutput)>,
-    /// The true body velocity at each recent capture time.
-    truth_at_capture: VecDeque<(u32, [f32; 2])>,
+    outbox: VecDeque<(WorldTime, Instant, EdgeFsOutput)>,
+    /// The true body velocity at each recent capture time (as the estimates carry it).
+    truth_at_capture: VecDeque<(WireTime, [f32; 2])>,
     rxbuf: Vec<u8>,
     /// The last estimate as received, for the log.
     latest: LatestEstimate,
@@ -321,14 +321,15 @@ impl<'a> Flight<'a> {
                 cfg.mocap.then_some(cfg.height_rate_hz),
                 Some(cfg.baro.rate_hz),
             ),
-            arm_us: (cfg.arm_at_s * 1e6) as u64,
-            host_cut_us: cfg
-                .host_link_cut_at_s
-                .map_or(u64::MAX, |s| (s * 1e6) as u64),
+            arm_at: WorldTime::from_micros((cfg.arm_at_s * 1e6) as u64),
+            host_cut_at: WorldTime::from_micros(
+                cfg.host_link_cut_at_s
+                    .map_or(u64::MAX, |s| (s * 1e6) as u64),
+            ),
             armed: false,
             motors: [0.0; 4],
             pending: None,
-            busy_until: 0,
+            busy_until: WorldTime::ZERO,
             outbox: VecDeque::new(),
             truth_at_capture: VecDeque::new(),
             rxbuf: Vec::new(),
@@ -337,33 +338,33 @@ impl<'a> Flight<'a> {
         })
     }
 
-    /// The time of the next event after `t`: a physics step at the latest, never past `end_us`.
-    fn next_event(&self, t: u64, end_us: u64) -> u64 {
-        let mut next = end_us.min(t + self.cfg.physics_dt_us);
-        next = next.min(self.sensors.next_us());
-        if let Some(r) = self.sched.next_release_us() {
+    /// The time of the next event after `t`: a physics step at the latest, never past `end`.
+    fn next_event(&self, t: WorldTime, end: WorldTime) -> WorldTime {
+        let mut next = end.min(t + self.cfg.physics_dt);
+        next = next.min(self.sensors.next());
+        if let Some(r) = self.sched.next_release() {
             next = next.min(r);
         }
         if let Some(p) = &self.pending {
-            next = next.min(p.ready_us);
+            next = next.min(p.ready);
         }
         if let Some((r, _, _)) = self.outbox.front() {
             next = next.min(*r);
         }
         if !self.armed {
-            next = next.min(self.arm_us);
+            next = next.min(self.arm_at);
         }
         next.max(t)
     }
 
     /// UART arrivals in both directions (the RX idle-line tasks).
-    fn link_arrivals(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+    fn link_arrivals(&mut self, t: WorldTime, observer: &mut dyn FlightObserver) {
         self.rxbuf.clear();
         self.s2a.receive(t, &mut self.rxbuf);
         if !self.rxbuf.is_empty() {
             // The autopilot's stereo_rx task decodes the bytes itself; the simulator taps the
             // same bytes with its own decoder for the figures.
-            self.ap.on_stereo_bytes(&self.rxbuf, t);
+            self.ap.on_stereo_bytes(&self.rxbuf, t.as_flight_clock());
             let (record, latest) = (&mut self.record, &mut self.latest);
             let (truth, height_m) = (&self.truth_at_capture, -self.world.drone.state.pos.z);
             self.tap.feed(&self.rxbuf, |m| {
@@ -377,9 +378,7 @@ impl<'a> Flight<'a> {
                     if e.is_valid() {
                         record.estimates[1] += 1;
                         latest.velocity_mps = [e.forward_mps, e.sideways_mps];
-                        if let Some(&(_, v)) =
-                            truth.iter().find(|(c, _)| *c == e.capture_us.as_micros())
-                        {
+                        if let Some(&(_, v)) = truth.iter().find(|(c, _)| *c == e.capture_us) {
                             record.estimate_checks.push(EstimateCheck {
                                 estimate_mps: [e.forward_mps, e.sideways_mps],
                                 truth_mps: v,
@@ -393,7 +392,7 @@ impl<'a> Flight<'a> {
         self.rxbuf.clear();
         self.a2s.receive(t, &mut self.rxbuf);
         // The simulated camera board's clock is the world's.
-        let cb_now = WorldTime::from_micros(t).as_flight_clock();
+        let cb_now = t.as_flight_clock();
         if !self.rxbuf.is_empty() {
             let s2a = &mut self.s2a;
             self.cb
@@ -403,8 +402,8 @@ impl<'a> Flight<'a> {
 
     /// The camera board: results leave after their processing time; a read-out frame starts
     /// Edge-FS.
-    fn camera_board(&mut self, t: u64, observer: &mut dyn FlightObserver) {
-        let cb_now = WorldTime::from_micros(t).as_flight_clock();
+    fn camera_board(&mut self, t: WorldTime, observer: &mut dyn FlightObserver) {
+        let cb_now = t.as_flight_clock();
         while self.outbox.front().is_some_and(|(r, _, _)| *r <= t) {
             if let Some((_, capture, out)) = self.outbox.pop_front() {
                 let s2a = &mut self.s2a;
@@ -412,13 +411,13 @@ impl<'a> Flight<'a> {
                     .send_estimate(&out, capture, cb_now, &mut |b: &[u8]| s2a.write(t, b));
             }
         }
-        if self.pending.as_ref().is_some_and(|p| p.ready_us <= t) {
+        if self.pending.as_ref().is_some_and(|p| p.ready <= t) {
             if let Some(p) = self.pending.take() {
                 // Edge-FS starts now (gyro sample as of now); the estimate leaves when the
                 // modelled processing time is over.
                 let out = self.cb.process_frame(&p.frame, p.capture, cb_now);
                 observer.on_edge_fs(t, self.cb.edge_fs().diagnostics());
-                let done = t + self.cfg.processing_us;
+                let done = t + self.cfg.processing;
                 self.busy_until = done;
                 self.outbox.push_back((done, p.capture, out));
             }
@@ -427,7 +426,7 @@ impl<'a> Flight<'a> {
 
     /// The camera's exposure: a frame rendered, read out to the camera board (or dropped while
     /// the board is busy).
-    fn exposure(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+    fn exposure(&mut self, t: WorldTime, observer: &mut dyn FlightObserver) {
         if !self.sensors.frame.due(t) {
             return;
         }
@@ -437,7 +436,7 @@ impl<'a> Flight<'a> {
         let state = &self.world.drone.state;
         let vb = state.att.rotate_inv(state.vel);
         self.truth_at_capture
-            .push_back((t as u32, [vb.x as f32, vb.y as f32]));
+            .push_back((t.to_wire(), [vb.x as f32, vb.y as f32]));
         if self.truth_at_capture.len() > 32 {
             self.truth_at_capture.pop_front();
         }
@@ -445,15 +444,15 @@ impl<'a> Flight<'a> {
         let keep = self.cfg.keep_image_every;
         if keep > 0 && self.record.frames.is_multiple_of(keep) {
             let left = frame.iter().step_by(2).copied().collect();
-            self.record.images.push((t as f64 * 1e-6, left));
+            self.record.images.push((t.as_secs_f64(), left));
         }
-        let ready = t + self.cfg.readout_us;
+        let ready = t + self.cfg.readout;
         if self.pending.is_some() || self.busy_until > ready {
             self.cb.frame_dropped();
         } else {
             self.pending = Some(PendingFrame {
-                ready_us: ready,
-                capture: WorldTime::from_micros(t).as_flight_clock(),
+                ready,
+                capture: t.as_flight_clock(),
                 frame,
             });
         }
@@ -461,33 +460,35 @@ impl<'a> Flight<'a> {
 
     /// The host's heartbeat and height fixes (motion capture) on the autopilot's host link
     /// until it is cut, the barometer on the autopilot's SPI bus, and the host's arm command.
-    fn host_and_sensors(&mut self, t: u64, observer: &mut dyn FlightObserver) {
-        let host_link = t < self.host_cut_us;
+    fn host_and_sensors(&mut self, t: WorldTime, observer: &mut dyn FlightObserver) {
+        let host_link = t < self.host_cut_at;
+        // The autopilot's clock is the world's.
+        let now = t.as_flight_clock();
         let ap = &mut self.ap;
         // Due first: the clock runs on while the link is cut.
         if self.sensors.host_heartbeat.due(t) && host_link {
-            let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
-            ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);
+            let hb = Heartbeat::new(Node::Host, t.since(WorldTime::ZERO).as_millis() as u32);
+            ap.on_host_message(HostToBoard::Heartbeat(hb), now, None);
         }
         if self.sensors.height_fix.due(t) {
             let fix = self.world.height_fix(t);
             if host_link {
-                ap.on_host_message(HostToBoard::ExternalPosition(fix), t, None);
+                ap.on_host_message(HostToBoard::ExternalPosition(fix), now, None);
             }
         }
         if self.sensors.baro.due(t) {
             let reading = self.world.baro_reading(t, &self.motors);
-            ap.on_baro(&reading, t);
+            ap.on_baro(&reading, now);
             observer.on_baro(t, &reading);
         }
-        if !self.armed && t >= self.arm_us {
+        if !self.armed && t >= self.arm_at {
             self.armed = true;
-            ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), t, None);
+            ap.on_host_message(HostToBoard::Command(PilotCommand::Arm), now, None);
         }
     }
 
     /// The periodic tasks of both boards due at `t`, highest priority first.
-    fn periodic_tasks(&mut self, t: u64, observer: &mut dyn FlightObserver) {
+    fn periodic_tasks(&mut self, t: WorldTime, observer: &mut dyn FlightObserver) {
         self.releases.clear();
         self.sched.due(t, &mut self.releases);
         for i in 0..self.releases.len() {
@@ -497,25 +498,27 @@ impl<'a> Flight<'a> {
     }
 
     /// One task body, as the board's firmware runs it.
-    fn run_task(&mut self, task: BoardTask, t: u64, observer: &mut dyn FlightObserver) {
+    fn run_task(&mut self, task: BoardTask, t: WorldTime, observer: &mut dyn FlightObserver) {
+        // Both boards' clocks are the world's.
+        let now = t.as_flight_clock();
         let ap = &mut self.ap;
         match task {
             BoardTask::Autopilot(ApTask::ImuIndi) => {
                 let s = self.world.imu_sample();
                 let out = ap.on_imu(
                     &ImuSample {
-                        timestamp_us: protocol::WireTime(t as u32),
+                        timestamp_us: t.to_wire(),
                         gyro_radps: s.gyro.to_f32(),
                         accel_mps2: s.accel.to_f32(),
                     },
-                    t,
+                    now,
                 );
                 self.motors = out.map(|m| m as f64);
                 observer.on_control(t, ap, s.gyro.to_f32(), out);
             }
             BoardTask::Autopilot(ApTask::Guidance) => {
-                ap.guidance_step(t);
-                if let Some(off) = ap.motor_safety(t) {
+                ap.guidance_step(now);
+                if let Some(off) = ap.motor_safety(now) {
                     self.motors = off.map(|m| m as f64);
                 }
                 let world = &self.world;
@@ -530,11 +533,11 @@ impl<'a> Flight<'a> {
                 self.record.log.push(row);
             }
             BoardTask::Autopilot(ApTask::GyroTx) => {
-                let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(t));
+                let msg = AutopilotToStereo::GyroAttitude(ap.gyro_attitude(now));
                 send(&msg, &mut |b: &[u8]| self.a2s.write(t, b));
             }
             BoardTask::Autopilot(ApTask::Heartbeat) => {
-                let msg = AutopilotToStereo::Heartbeat(Autopilot::heartbeat(t));
+                let msg = AutopilotToStereo::Heartbeat(Autopilot::heartbeat(now));
                 send(&msg, &mut |b: &[u8]| self.a2s.write(t, b));
             }
             BoardTask::Autopilot(ApTask::Telemetry) => {
@@ -543,11 +546,11 @@ impl<'a> Flight<'a> {
                     let lsb = f64::from(autopilot::board::BATTERY_ADC.volts_per_count);
                     ((battery.terminal_v() / lsb).round() * lsb) as f32
                 });
-                let telemetry = ap.telemetry_task(volts, t);
+                let telemetry = ap.telemetry_task(volts, now);
                 if let Some(battery) = &self.world.battery {
                     observer.on_battery(t, ap, battery);
                 }
-                if t < self.host_cut_us {
+                if t < self.host_cut_at {
                     let (host_rx, record) = (&mut self.host_rx, &mut self.record);
                     send(&BoardToHost::Telemetry(telemetry), &mut |b: &[u8]| {
                         for &byte in b {
@@ -560,10 +563,7 @@ impl<'a> Flight<'a> {
             }
             BoardTask::Stereo(CamTask::Status) => {
                 let s2a = &mut self.s2a;
-                self.cb.status_tick(
-                    WorldTime::from_micros(t).as_flight_clock(),
-                    &mut |b: &[u8]| s2a.write(t, b),
-                );
+                self.cb.status_tick(now, &mut |b: &[u8]| s2a.write(t, b));
             }
             // Event-driven: run where their event happens (a frame, link bytes).
             BoardTask::Autopilot(ApTask::StereoRx | ApTask::HostRx)
@@ -571,22 +571,22 @@ impl<'a> Flight<'a> {
         }
     }
 
-    /// The flight's result after `flown_us` of the planned `end_us`, its figures computed from
+    /// The flight's result after `flown` of the planned `end`, its figures computed from
     /// what it recorded.
-    fn result(self, flown_us: u64, end_us: u64) -> FlightResult {
+    fn result(self, flown: WorldTime, end: WorldTime) -> FlightResult {
         let cfg = self.cfg;
         let world = self.world;
         let record = self.record;
         FlightResult {
             seed: cfg.seed,
-            duration_s: if flown_us < end_us {
-                flown_us as f64 * 1e-6
+            duration_s: if flown < end {
+                flown.as_secs_f64()
             } else {
                 cfg.duration_s
             },
             flight_time_s: world
                 .first_contact_s
-                .unwrap_or(cfg.duration_s.min(flown_us as f64 * 1e-6)),
+                .unwrap_or(cfg.duration_s.min(flown.as_secs_f64())),
             end_reason: EndReason::of(&self.ap, self.armed, world.first_contact_s.is_some()),
             collisions: world.collisions,
             vel_rmse_mps: velocity_rmse_mps(&record.log),
@@ -636,7 +636,7 @@ fn log_row(
     ap: &Autopilot,
     drone: &Drone,
     scene: &Scene,
-    t: u64,
+    t: WorldTime,
     latest: LatestEstimate,
     motors: [f64; 4],
 ) -> LogRow {
@@ -646,11 +646,12 @@ fn log_row(
     // Velocity in the heading frame (level body axes).
     let vf = s.vel.x * cy + s.vel.y * sy;
     let vs = -s.vel.x * sy + s.vel.y * cy;
-    let tel = ap.telemetry(t);
+    let now = t.as_flight_clock();
+    let tel = ap.telemetry(now);
     let v = ap.velocity_estimate();
     let h = -s.pos.z as f32;
     LogRow {
-        t_s: t as f64 * 1e-6,
+        t_s: t.as_secs_f64(),
         pos: [s.pos.x as f32, s.pos.y as f32, h],
         yaw: yaw as f32,
         vel_true: [vf as f32, vs as f32],
@@ -659,7 +660,7 @@ fn log_row(
         height_sp_m: ap.setpoints().height_m,
         vel_raw: latest.velocity_mps,
         obstacle_m: nan_opt(tel.obstacle_m),
-        closing_mps: nan_opt(ap.closing(t).map(|c| c.mps)),
+        closing_mps: nan_opt(ap.closing(now).map(|c| c.mps)),
         overrule_mps: nan_opt(ap.velocity_overrule()),
         contact_s: latest.contact_s,
         clearance_m: scene.clearance(s.pos.x as f32, s.pos.y as f32, h)

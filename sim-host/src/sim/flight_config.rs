@@ -10,6 +10,7 @@ use super::scene_spec::SceneSpec;
 use super::uart::LinkFaults;
 use autopilot::AutopilotConfig;
 use stereo_board::edge_fs::EdgeFsParams;
+use timebase::Duration;
 
 /// Everything that defines a flight.
 #[derive(Debug, Clone)]
@@ -43,13 +44,13 @@ pub struct FlightConfig {
     /// the autopilot's telemetry task's rate (`None`: an ideal supply, no
     /// reading; the drone flies on its nominal thrust for ever).
     pub battery: Option<BatteryParams>,
-    /// Camera readout time after exposure, µs.
-    pub readout_us: u64,
-    /// Camera-board processing time per frame (Edge-FS on the Cortex-M4), µs: the estimate
+    /// Camera readout time after exposure.
+    pub readout: Duration,
+    /// Camera-board processing time per frame (Edge-FS on the Cortex-M4): the estimate
     /// leaves this long after the frame is read out; frames arriving while busy are dropped.
-    pub processing_us: u64,
-    /// Physics step, µs (RK4).
-    pub physics_dt_us: u64,
+    pub processing: Duration,
+    /// Physics step (RK4).
+    pub physics_dt: Duration,
     /// Motion capture: height fixes to the autopilot (the paper's lab). Without it the
     /// autopilot flies on its barometer and accelerometer.
     pub mocap: bool,
@@ -90,9 +91,9 @@ impl Default for FlightConfig {
             imu: ImuParams::default(),
             baro: BaroParams::default(),
             battery: None,
-            readout_us: 8_000,
-            processing_us: 15_000,
-            physics_dt_us: 500,
+            readout: Duration::from_millis(8),
+            processing: Duration::from_millis(15),
+            physics_dt: Duration::from_micros(500),
             mocap: true,
             height_rate_hz: 100.0,
             height_noise_m: 0.003,

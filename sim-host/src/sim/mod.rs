@@ -43,14 +43,14 @@
 //! exposures (render), height fixes, the arm command, then the periodic tasks due (`imu_indi`,
 //! `guidance`, `gyro_tx`, `heartbeat`, camera `status`). Motor commands are held between
 //! `imu_indi` runs. The camera board's processing delay is modelled: an estimate leaves
-//! `processing_us` after its frame was read out, and a frame arriving while the board is busy
-//! is dropped and counted.
+//! `FlightConfig::processing` after its frame was read out, and a frame arriving while the
+//! board is busy is dropped and counted.
 //!
-//! Board code runs in zero virtual time (its cost on the Cortex-M4 is what `processing_us` and
-//! the tasks' deadlines stand for). The barometer ([`baro`]) is read at 50 Hz into
-//! `Autopilot::on_baro`, as the MS5611 task would; with motion capture (`FlightConfig::mocap`,
-//! `fly --mocap`) the height fix is handed to `Autopilot::on_host_message` directly, as the
-//! firmware's host link does.
+//! Board code runs in zero virtual time (its cost on the Cortex-M4 is what
+//! `FlightConfig::processing` and the tasks' deadlines stand for). The barometer ([`baro`]) is
+//! read at 50 Hz into `Autopilot::on_baro`, as the MS5611 task would; with motion capture
+//! (`FlightConfig::mocap`, `fly --mocap`) the height fix is handed to
+//! `Autopilot::on_host_message` directly, as the firmware's host link does.
 //!
 //! Determinism: every random process draws from a ChaCha8 generator seeded from the flight's
 //! seed, and nothing reads the wall clock, so the same configuration gives the same log bit

@@ -5,6 +5,7 @@
 //! (its output is held back by the processing delay, see `flight`).
 
 use task_table::TaskId as _;
+use timebase::{Duration, WorldTime};
 
 /// A task of either board, by the board's task identifier.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -32,9 +33,9 @@ pub struct SimTask {
     pub task: BoardTask,
     /// Priority (higher first).
     pub priority: u8,
-    /// Period, µs; `None` for event-triggered tasks (run by the simulator when the event
+    /// Period; `None` for event-triggered tasks (run by the simulator when the event
     /// happens: a frame, UART bytes).
-    pub period_us: Option<u32>,
+    pub period: Option<Duration>,
 }
 
 /// A released task.
@@ -42,23 +43,23 @@ pub struct SimTask {
 pub struct Release {
     /// The task.
     pub task: BoardTask,
-    /// Release time, µs.
-    pub at_us: u64,
+    /// Release time.
+    pub at: WorldTime,
 }
 
 /// Periodic release generator over a set of tasks.
 #[derive(Debug, Clone)]
 pub struct Scheduler {
     tasks: Vec<SimTask>,
-    next_us: Vec<u64>,
+    next: Vec<WorldTime>,
 }
 
 impl Scheduler {
     /// A scheduler over `tasks`; every periodic task is first released at t = 0 (simultaneous
     /// releases run highest priority first).
     pub fn new(tasks: Vec<SimTask>) -> Self {
-        let next_us = tasks.iter().map(|_| 0).collect();
-        Self { tasks, next_us }
+        let next = tasks.iter().map(|_| WorldTime::ZERO).collect();
+        Self { tasks, next }
     }
 
     /// The tasks.
@@ -66,34 +67,34 @@ impl Scheduler {
         &self.tasks
     }
 
-    /// Earliest next release of any periodic task, µs.
-    pub fn next_release_us(&self) -> Option<u64> {
+    /// Earliest next release of any periodic task.
+    pub fn next_release(&self) -> Option<WorldTime> {
         self.tasks
             .iter()
-            .zip(&self.next_us)
-            .filter(|(t, _)| t.period_us.is_some())
+            .zip(&self.next)
+            .filter(|(t, _)| t.period.is_some())
             .map(|(_, &n)| n)
             .min()
     }
 
-    /// Pops every release due at or before `now_us` into `out`, ordered by time, then priority
+    /// Pops every release due at or before `now` into `out`, ordered by time, then priority
     /// (highest first), then table order.
-    pub fn due(&mut self, now_us: u64, out: &mut Vec<Release>) {
+    pub fn due(&mut self, now: WorldTime, out: &mut Vec<Release>) {
         let start = out.len();
-        let mut keyed: Vec<(u64, u8, usize, Release)> = Vec::new();
+        let mut keyed: Vec<(WorldTime, u8, usize, Release)> = Vec::new();
         for (i, t) in self.tasks.iter().enumerate() {
-            let Some(p) = t.period_us else { continue };
-            while self.next_us[i] <= now_us {
+            let Some(p) = t.period else { continue };
+            while self.next[i] <= now {
                 keyed.push((
-                    self.next_us[i],
+                    self.next[i],
                     t.priority,
                     i,
                     Release {
                         task: t.task,
-                        at_us: self.next_us[i],
+                        at: self.next[i],
                     },
                 ));
-                self.next_us[i] += p.max(1) as u64;
+                self.next[i] += p.max(Duration::from_micros(1));
             }
         }
         keyed.sort_by(|a, b| a.0.cmp(&b.0).then(b.1.cmp(&a.1)).then(a.2.cmp(&b.2)));
@@ -102,47 +103,59 @@ impl Scheduler {
     }
 }
 
-/// A world event that repeats: due first at its first time, then every period, µs.
+/// A world event that repeats: due first at its first time, then every period.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Periodic {
-    next_us: u64,
-    period_us: u64,
+    next: WorldTime,
+    period: Duration,
 }
 
 impl Periodic {
-    /// Due at `first_us`, then every `period_us`.
-    pub fn every(period_us: u64, first_us: u64) -> Self {
+    /// The end of the world's clock: [`Periodic::never`] is next due then.
+    pub const NEVER: WorldTime = WorldTime::from_micros(u64::MAX);
+
+    /// Due at `first`, then every `period`.
+    pub fn every(period: Duration, first: WorldTime) -> Self {
         Self {
-            next_us: first_us,
-            period_us,
+            next: first,
+            period,
         }
     }
 
     /// Never due.
     pub fn never() -> Self {
         Self {
-            next_us: u64::MAX,
-            period_us: 0,
+            next: Self::NEVER,
+            period: Duration::ZERO,
         }
     }
 
-    /// When it is next due, µs (`u64::MAX`: never).
-    pub fn next_us(&self) -> u64 {
-        self.next_us
+    /// When it is next due ([`Periodic::NEVER`]: never).
+    pub fn next(&self) -> WorldTime {
+        self.next
     }
 
-    /// Whether it is due at `t_us`; if so, the next one is a period later.
-    pub fn due(&mut self, t_us: u64) -> bool {
-        let due = t_us >= self.next_us;
+    /// Whether it is due at `t`; if so, the next one is a period later.
+    pub fn due(&mut self, t: WorldTime) -> bool {
+        let due = t >= self.next;
         if due {
-            self.next_us += self.period_us;
+            self.next += self.period;
         }
         due
     }
 }
 
-/// The first camera exposure, µs after the start of a flight (the boards are up by then).
-pub const FIRST_FRAME_US: u64 = 100_000;
+/// The time of the `k`-th IMU sample of the world, at the IMU's rate
+/// ([`autopilot::board::LOOP_RATE_HZ`], not rounded to a microsecond period): what `hil` steps
+/// the world to, one sample per `Motors` reply. (`fly` releases the autopilot's `imu_indi`
+/// task from its task table instead, every `autopilot::tasks::IMU_PERIOD`, as the firmware's
+/// timer does.)
+pub fn imu_sample_time(k: u64) -> WorldTime {
+    WorldTime::from_micros(k * 1_000_000 / u64::from(autopilot::board::LOOP_RATE_HZ))
+}
+
+/// The first camera exposure after the start of a flight (the boards are up by then).
+pub const FIRST_FRAME: WorldTime = WorldTime::from_micros(100_000);
 
 /// The world's own events that `fly` and `hil` both run on: camera exposures, the motion
 /// capture's height fixes and the host's heartbeat on the host link, barometer readings.
@@ -150,7 +163,7 @@ pub const FIRST_FRAME_US: u64 = 100_000;
 /// table, `hil` steps the world one IMU period per reply.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SensorSchedule {
-    /// Camera exposures, from [`FIRST_FRAME_US`].
+    /// Camera exposures, from [`FIRST_FRAME`].
     pub frame: Periodic,
     /// Height fixes (never without motion capture).
     pub height_fix: Periodic,
@@ -164,24 +177,28 @@ impl SensorSchedule {
     /// Frames at `fps`, height fixes at `height_rate_hz` and barometer readings at
     /// `baro_rate_hz` (each `None`: never), all but the frames from time 0.
     pub fn new(fps: f64, height_rate_hz: Option<f64>, baro_rate_hz: Option<f64>) -> Self {
-        let period_us = |hz: f64| (1e6 / hz) as u64;
-        let from_zero =
-            |hz: Option<f64>| hz.map_or(Periodic::never(), |hz| Periodic::every(period_us(hz), 0));
+        // Rounded down to a microsecond.
+        let period = |hz: f64| Duration::from_micros((1e6 / hz) as u64);
+        let from_zero = |hz: Option<f64>| {
+            hz.map_or(Periodic::never(), |hz| {
+                Periodic::every(period(hz), WorldTime::ZERO)
+            })
+        };
         Self {
-            frame: Periodic::every(period_us(fps), FIRST_FRAME_US),
+            frame: Periodic::every(period(fps), FIRST_FRAME),
             height_fix: from_zero(height_rate_hz),
             baro: from_zero(baro_rate_hz),
-            host_heartbeat: Periodic::every(u64::from(autopilot::tasks::HEARTBEAT_PERIOD_US), 0),
+            host_heartbeat: Periodic::every(autopilot::tasks::HEARTBEAT_PERIOD, WorldTime::ZERO),
         }
     }
 
-    /// The earliest next event, µs.
-    pub fn next_us(&self) -> u64 {
+    /// The earliest next event.
+    pub fn next(&self) -> WorldTime {
         self.frame
-            .next_us()
-            .min(self.height_fix.next_us())
-            .min(self.baro.next_us())
-            .min(self.host_heartbeat.next_us())
+            .next()
+            .min(self.height_fix.next())
+            .min(self.baro.next())
+            .min(self.host_heartbeat.next())
     }
 }
 
@@ -198,23 +215,26 @@ mod tests {
             SimTask {
                 task: BoardTask::Autopilot(slow),
                 priority: 1,
-                period_us: Some(1000),
+                period: Some(Duration::from_micros(1000)),
             },
             SimTask {
                 task: BoardTask::Autopilot(fast),
                 priority: 5,
-                period_us: Some(250),
+                period: Some(Duration::from_micros(250)),
             },
             SimTask {
                 task: BoardTask::Stereo(stereo_board::app::Task::Frame),
                 priority: 9,
-                period_us: None,
+                period: None,
             },
         ]);
         let mut out = Vec::new();
-        s.due(1000, &mut out);
+        s.due(WorldTime::from_micros(1000), &mut out);
         let (slow, fast) = (slow.name(), fast.name());
-        let names: Vec<_> = out.iter().map(|r| (r.task.name(), r.at_us)).collect();
+        let names: Vec<_> = out
+            .iter()
+            .map(|r| (r.task.name(), r.at.as_micros()))
+            .collect();
         assert_eq!(
             names,
             [
@@ -227,19 +247,21 @@ mod tests {
                 (slow, 1000)
             ]
         );
-        assert_eq!(s.next_release_us(), Some(1250));
+        assert_eq!(s.next_release(), Some(WorldTime::from_micros(1250)));
     }
 
     #[test]
     fn periodic_events_fall_due_once_per_period_and_never_ones_never() {
-        let mut p = Periodic::every(100, 50);
-        let due: Vec<u64> = (0..=400).filter(|&t| p.due(t)).collect();
+        let mut p = Periodic::every(Duration::from_micros(100), WorldTime::from_micros(50));
+        let due: Vec<u64> = (0..=400)
+            .filter(|&t| p.due(WorldTime::from_micros(t)))
+            .collect();
         assert_eq!(due, [50, 150, 250, 350]);
         let mut never = Periodic::never();
-        assert!(!never.due(u64::MAX - 1));
+        assert!(!never.due(WorldTime::from_micros(u64::MAX - 1)));
         let s = SensorSchedule::new(25.0, None, Some(50.0));
-        assert_eq!(s.frame.next_us(), FIRST_FRAME_US);
-        assert_eq!(s.height_fix.next_us(), u64::MAX);
-        assert_eq!(s.next_us(), 0);
+        assert_eq!(s.frame.next(), FIRST_FRAME);
+        assert_eq!(s.height_fix.next(), Periodic::NEVER);
+        assert_eq!(s.next(), WorldTime::ZERO);
     }
 }

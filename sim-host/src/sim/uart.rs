@@ -4,6 +4,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
+use timebase::WorldTime;
 
 /// Faults injected on a link.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -70,10 +71,11 @@ impl SimUart {
         10.0e6 / self.baud as f64
     }
 
-    /// The sender writes `bytes` at `now_us`; they go out back to back after anything queued.
-    pub fn write(&mut self, now_us: u64, bytes: &[u8]) {
+    /// The sender writes `bytes` at `now`; they go out back to back after anything queued.
+    pub fn write(&mut self, now: WorldTime, bytes: &[u8]) {
         let bt = self.byte_time_us();
-        let mut t = self.line_free_us.max(now_us as f64);
+        // The line's own clock runs in fractional microseconds.
+        let mut t = self.line_free_us.max(now.as_micros() as f64);
         for &b in bytes {
             self.stats.bytes_sent += 1;
             if self.queue.len() >= self.tx_capacity {
@@ -102,10 +104,10 @@ impl SimUart {
         self.line_free_us = t;
     }
 
-    /// Moves every byte that has fully arrived by `now_us` into `out`.
-    pub fn receive(&mut self, now_us: u64, out: &mut Vec<u8>) {
+    /// Moves every byte that has fully arrived by `now` into `out`.
+    pub fn receive(&mut self, now: WorldTime, out: &mut Vec<u8>) {
         while let Some(&(t, b)) = self.queue.front() {
-            if t > now_us {
+            if t > now.as_micros() {
                 break;
             }
             self.queue.pop_front();
@@ -114,9 +116,9 @@ impl SimUart {
         }
     }
 
-    /// Arrival time of the next byte in flight, µs.
-    pub fn next_arrival_us(&self) -> Option<u64> {
-        self.queue.front().map(|&(t, _)| t)
+    /// Arrival time of the next byte in flight.
+    pub fn next_arrival(&self) -> Option<WorldTime> {
+        self.queue.front().map(|&(t, _)| WorldTime::from_micros(t))
     }
 
     /// Statistics so far.
@@ -132,13 +134,13 @@ mod tests {
     #[test]
     fn bytes_take_ten_bit_times_and_keep_order() {
         let mut u = SimUart::new(115_200, LinkFaults::default(), 1);
-        u.write(1000, &[1, 2, 3]);
+        u.write(WorldTime::from_micros(1000), &[1, 2, 3]);
         let mut out = Vec::new();
-        u.receive(1000 + 86, &mut out);
+        u.receive(WorldTime::from_micros(1000 + 86), &mut out);
         assert!(out.is_empty());
-        u.receive(1000 + 87, &mut out);
+        u.receive(WorldTime::from_micros(1000 + 87), &mut out);
         assert_eq!(out, [1]);
-        u.receive(1000 + 261, &mut out);
+        u.receive(WorldTime::from_micros(1000 + 261), &mut out);
         assert_eq!(out, [1, 2, 3]);
     }
 
@@ -151,16 +153,16 @@ mod tests {
         };
         let mut u = SimUart::new(1_000_000, faults, 2);
         let data = vec![0x55u8; 4_000];
-        u.write(0, &data);
+        u.write(WorldTime::from_micros(0), &data);
         let mut out = Vec::new();
-        u.receive(u64::MAX, &mut out);
+        u.receive(WorldTime::from_micros(u64::MAX), &mut out);
         let s = u.stats();
         assert_eq!(out.len(), 4_000);
         // 8 bits at 1e-2: ~7.7 % of the bytes corrupted.
         assert!(s.bytes_corrupted > 200 && s.bytes_corrupted < 420, "{s:?}");
-        u.write(1_500_000, &data[..100]);
+        u.write(WorldTime::from_micros(1_500_000), &data[..100]);
         out.clear();
-        u.receive(u64::MAX, &mut out);
+        u.receive(WorldTime::from_micros(u64::MAX), &mut out);
         assert!(out.is_empty());
         assert_eq!(u.stats().bytes_lost, 100);
     }

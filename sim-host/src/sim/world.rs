@@ -17,6 +17,7 @@ use autopilot::ms5611::BaroReading;
 use protocol::{ExternalPosition, STEREO_FRAME_BYTES};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use timebase::WorldTime;
 
 /// Height above which the drone counts as airborne for clearance and distance, m.
 pub const AIRBORNE_M: f64 = 0.02;
@@ -101,9 +102,9 @@ impl World {
     }
 
     /// Integrates `dt` s with the motor commands `motors` (0..=1) ending at world time
-    /// `t_end_us`, then resolves wall and obstacle contact: the drone is pushed out to the
+    /// `t_end`, then resolves wall and obstacle contact: the drone is pushed out to the
     /// surface and loses its velocity into it. Returns whether it is in contact.
-    pub fn step(&mut self, motors: &[f64; 4], dt: f64, t_end_us: u64) -> bool {
+    pub fn step(&mut self, motors: &[f64; 4], dt: f64, t_end: WorldTime) -> bool {
         let before = self.drone.state.pos;
         match &mut self.battery {
             Some(battery) => {
@@ -126,7 +127,7 @@ impl World {
         if c < 0.0 {
             if !self.in_contact {
                 self.collisions += 1;
-                self.first_contact_s.get_or_insert(t_end_us as f64 * 1e-6);
+                self.first_contact_s.get_or_insert(t_end.as_secs_f64());
             }
             self.in_contact = true;
             let n = self
@@ -170,22 +171,22 @@ impl World {
             .render_moving(&self.scene, s.pos, s.att, motion, &mut self.cam_rng, out);
     }
 
-    /// A barometer reading at `t_us` with the rotors at `motors` (0..=1).
-    pub fn baro_reading(&mut self, t_us: u64, motors: &[f64; 4]) -> BaroReading {
+    /// A barometer reading at `t` with the rotors at `motors` (0..=1).
+    pub fn baro_reading(&mut self, t: WorldTime, motors: &[f64; 4]) -> BaroReading {
         let thrust_ratio = motors.iter().sum::<f64>() / 4.0 / self.hover_command;
         let height = -self.drone.state.pos.z;
         BaroReading {
-            pressure_pa: self.baro.read(t_us as f64 * 1e-6, height, thrust_ratio) as f32,
+            pressure_pa: self.baro.read(t.as_secs_f64(), height, thrust_ratio) as f32,
             temperature_c: 24.0,
         }
     }
 
-    /// A height fix (the motion capture's position, with its noise on z) at `t_us`.
-    pub fn height_fix(&mut self, t_us: u64) -> ExternalPosition {
+    /// A height fix (the motion capture's position, with its noise on z) at `t`.
+    pub fn height_fix(&mut self, t: WorldTime) -> ExternalPosition {
         let p = self.drone.state.pos;
         let z = p.z + gauss(&mut self.rng) * self.height_noise_m;
         ExternalPosition {
-            timestamp_us: protocol::WireTime(t_us as u32),
+            timestamp_us: t.to_wire(),
             position_m: [p.x as f32, p.y as f32, z as f32],
         }
     }
@@ -234,13 +235,13 @@ mod tests {
         w.drone.state.pos.x = 4.0 - r + 0.05; // 5 cm into the north wall, on the floor
         w.drone.state.vel.x = 1.0;
         let hover = [w.drone.params.hover_throttle(); 4];
-        assert!(w.step(&hover, 1e-3, 1_000));
+        assert!(w.step(&hover, 1e-3, WorldTime::from_micros(1_000)));
         assert!(w.clearance_m() >= -1e-6);
         assert!(
             w.drone.state.vel.x <= 1e-9,
             "velocity into the wall removed"
         );
-        assert!(w.step(&hover, 1e-3, 2_000));
+        assert!(w.step(&hover, 1e-3, WorldTime::from_micros(2_000)));
         assert_eq!(w.collisions, 1);
         assert_eq!(w.first_contact_s, Some(1e-3));
     }

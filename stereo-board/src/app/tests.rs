@@ -73,10 +73,12 @@ fn task_table_is_consistent() {
     assert_eq!(
         Task::Status.spec().trigger,
         Trigger::Periodic {
-            period_us: STATUS_PERIOD_US
+            period: Duration::from_micros(u64::from(STATUS_PERIOD_US))
         }
     );
-    assert!(TASKS.iter().all(|t| t.deadline_us > 0 && t.priority >= 1));
+    assert!(TASKS
+        .iter()
+        .all(|t| t.deadline > Duration::ZERO && t.priority >= 1));
 }
 
 #[test]
@@ -88,7 +90,7 @@ fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
     for i in 0..8u64 {
         let f = frame(i as usize, 3);
         let capture = (1u64 << 32) + 40_000 * i;
-        let expected = reference.process(&f, capture, None);
+        let expected = reference.process(&f, at(capture), None);
         let est = board.on_frame(&f, at(capture), at(capture + 12_345), &mut |b| {
             wire.extend_from_slice(b)
         });
@@ -163,7 +165,7 @@ fn gyro_from_the_link_is_used_for_derotation_until_stale() {
     for i in 0..6u64 {
         let f = frame(2 * i as usize, 4);
         let now = 1_000 + 10_000 * i;
-        let expected = reference.process(&f, now, Some(&g));
+        let expected = reference.process(&f, at(now), Some(&g));
         let est = board.on_frame(&f, at(now), at(now), &mut |_| {});
         assert_eq!(est.forward_mps.to_bits(), expected.forward_mps.to_bits());
         assert_eq!(est.flags, expected.flags);
@@ -441,7 +443,7 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
     use crate::camera::{CaptureMonitor, DmaAtFrameEnd, FRAME_WORDS};
     let mut board = app();
     let mut camera = CaptureMonitor::new();
-    camera.on_capture_started(0);
+    camera.on_capture_started(at(0));
     camera.on_dcmi_overrun();
     let whole = DmaAtFrameEnd {
         transfer_complete: true,
@@ -451,7 +453,7 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
     camera.on_rearm();
     camera.on_frame_end(whole);
     let now = 1_000_000;
-    board.report_capture(camera.counts(), camera.camera_stopped(now));
+    board.report_capture(camera.counts(), camera.camera_stopped(at(now)));
     let mut wire = Vec::new();
     let status = board.status_tick(at(now), &mut |b| wire.extend_from_slice(b));
     assert!(status.camera_stopped, "no VSYNC for a second");
@@ -464,8 +466,8 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
     let (msgs, _) = decode_out(&wire);
     assert_eq!(msgs.first(), Some(&StereoToAutopilot::Status(status)));
 
-    camera.on_vsync(now);
-    board.report_capture(camera.counts(), camera.camera_stopped(now + 1));
+    camera.on_vsync(at(now));
+    board.report_capture(camera.counts(), camera.camera_stopped(at(now + 1)));
     assert!(!board.status_tick(at(now + 1), &mut |_| {}).camera_stopped);
 }
 

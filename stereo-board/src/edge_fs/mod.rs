@@ -81,6 +81,7 @@ use protocol::{
     ConfigError, Divergence, EdgeFsConfig, EstimateFlags, FrameFit, GyroAttitude,
     STEREO_FRAME_BYTES,
 };
+use timebase::Instant;
 
 /// Image width, px.
 pub const IMG_W: usize = 128;
@@ -570,6 +571,7 @@ struct Slot {
     rows: EdgeHistogram,
     /// Pitch, rad (body: positive nose up; 0 when unknown).
     pitch_rad: f32,
+    /// Exposure time, µs of the board clock (the flow's time steps are taken in µs).
     capture_us: u64,
     yaw_rad: f32,
     /// Body yaw rate, rad/s (0 when unknown).
@@ -652,20 +654,20 @@ impl EdgeFs {
     /// Processes one frame.
     ///
     /// `frame`: interleaved `[L0 R0 L1 R1 ...]`, 128x96, row-major, top row first.
-    /// `capture_us`: exposure time (monotonic, µs). `motion`: latest gyro/attitude from the
+    /// `capture`: exposure time (monotonic). `motion`: latest gyro/attitude from the
     /// autopilot (`None`: no derotation; the default mode then sets
     /// [`EstimateFlags::NO_GYRO`]).
     pub fn process(
         &mut self,
         frame: &[u8; STEREO_FRAME_BYTES],
-        capture_us: u64,
+        capture: Instant,
         motion: Option<&GyroAttitude>,
     ) -> EdgeFsOutput {
         self.frames = self.frames.saturating_add(1);
         self.head = (self.head + 1) % RING;
         let yaw = motion.map(|m| m.attitude_rad[2]).filter(|y| y.is_finite());
         if let Some(slot) = self.ring.get_mut(self.head) {
-            slot.capture_us = capture_us;
+            slot.capture_us = capture.as_micros();
             slot.yaw_rad = yaw.unwrap_or(0.0);
             slot.yaw_rate = motion
                 .map(|m| m.rates_radps[2])

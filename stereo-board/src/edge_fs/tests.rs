@@ -65,7 +65,11 @@ fn fly(
         let yaw = yaw_rate * t;
         // Body yaw to the right moves the scene left: the camera looks at +yaw·f px.
         let frame = render(z0 - vf * t, vs * t, yaw * f, &params);
-        out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(yaw)));
+        out = fs.process(
+            &frame,
+            Instant::from_micros((t * 1e6) as u64),
+            Some(&gyro(yaw)),
+        );
     }
     (out, fs)
 }
@@ -126,7 +130,7 @@ fn a_valid_frame_carries_its_own_fit() {
     let mut fs = EdgeFs::new(EdgeFsParams::default_config());
     let blank = [0u8; STEREO_FRAME_BYTES];
     for i in 0..3u64 {
-        let out = fs.process(&blank, i * 40_000, Some(&gyro(0.0)));
+        let out = fs.process(&blank, Instant::from_micros(i * 40_000), Some(&gyro(0.0)));
         assert!(!out.flags.is_valid());
         assert_eq!(out.fit, None);
     }
@@ -158,7 +162,7 @@ fn yaw_rotation_is_removed_with_the_gyro_and_flagged_without() {
 
     let mut fs = EdgeFs::new(EdgeFsParams::default_config());
     let frame = render(1.5, 0.0, 0.0, fs.params());
-    let out = fs.process(&frame, 0, None);
+    let out = fs.process(&frame, Instant::from_micros(0), None);
     assert!(out.flags.contains(EstimateFlags::NO_GYRO));
     assert!(out.flags.contains(EstimateFlags::HISTORY_FILLING));
 }
@@ -178,7 +182,11 @@ fn a_heading_crossing_pi_is_a_small_turn() {
             let frame = render(1.5, 0.3 * t, turned * f, &params);
             let yaw = heading0 + turned;
             let wrapped = yaw - core::f32::consts::TAU * libm::roundf(yaw / core::f32::consts::TAU);
-            let out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(wrapped)));
+            let out = fs.process(
+                &frame,
+                Instant::from_micros((t * 1e6) as u64),
+                Some(&gyro(wrapped)),
+            );
             outs.push(out).unwrap();
         }
         outs
@@ -228,7 +236,7 @@ fn spin(rate: impl Fn(f32) -> f32, latency_s: f32, frames: u32) -> heapless::Vec
             rates_radps: [0.0, 0.0, rate(t - latency_s)],
             attitude_rad: [0.0, 0.0, old],
         };
-        let out = fs.process(&frame, (t * 1e6) as u64, Some(&g));
+        let out = fs.process(&frame, Instant::from_micros((t * 1e6) as u64), Some(&g));
         if i >= 10 {
             let _ = outs.push(out);
         }
@@ -287,7 +295,7 @@ fn blank_and_dark_frames_are_flagged_not_panicking() {
     for (i, v) in [0u8, 0, 255, 255].into_iter().enumerate() {
         let out = fs.process(
             &[v; STEREO_FRAME_BYTES],
-            i as u64 * 40_000,
+            Instant::from_micros(i as u64 * 40_000),
             Some(&gyro(f32::NAN)),
         );
         assert!(out.flags.contains(EstimateFlags::NO_TEXTURE));
@@ -303,7 +311,7 @@ fn paper_mode_fills_history_for_h_plus_one_frames() {
     let mut fs = EdgeFs::new(params);
     for i in 0..7u64 {
         let frame = render(1.5 - 0.02 * i as f32, 0.0, 0.0, &params);
-        let out = fs.process(&frame, i * 140_000, Some(&gyro(0.0)));
+        let out = fs.process(&frame, Instant::from_micros(i * 140_000), Some(&gyro(0.0)));
         if i < 6 {
             assert!(out.flags.contains(EstimateFlags::HISTORY_FILLING));
             assert_eq!(out.forward_mps, 0.0);
@@ -362,7 +370,7 @@ mod no_panic {
                     x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
                     *b = (x >> 56) as u8;
                 }
-                let out = fs.process(&frame, *t, Some(&gyro(*yaw)));
+                let out = fs.process(&frame, Instant::from_micros(*t), Some(&gyro(*yaw)));
                 prop_assert!(out.forward_mps.is_finite() && out.sideways_mps.is_finite());
                 prop_assert!(out.obstacle_m.is_none_or(|z| z.is_finite() && z > 0.0));
             }
@@ -469,7 +477,11 @@ fn fly_banded(
                 frame[2 * (row * IMG_W + c) + 1] = 128;
             }
         }
-        out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(0.0)));
+        out = fs.process(
+            &frame,
+            Instant::from_micros((t * 1e6) as u64),
+            Some(&gyro(0.0)),
+        );
     }
     out
 }
@@ -587,7 +599,11 @@ fn fly_2d(z0: f32, vf: f32, vu: f32, pitch_rate: f32, pitch_known: bool) -> Edge
             rates_radps: [0.0; 3],
             attitude_rad: [0.0, if pitch_known { pitch } else { 0.0 }, 0.0],
         };
-        out = fs.process(&frame, (t * 1e6) as u64, Some(&motion));
+        out = fs.process(
+            &frame,
+            Instant::from_micros((t * 1e6) as u64),
+            Some(&motion),
+        );
     }
     out
 }
@@ -647,7 +663,11 @@ fn fly_2d_paper() -> EdgeFsOutput {
     for i in 0..12 {
         let t = i as f32 / 25.0;
         let frame = render_2d(1.5, 0.0, 0.3 * t, 0.0, &params);
-        out = fs.process(&frame, (t * 1e6) as u64, Some(&gyro(0.0)));
+        out = fs.process(
+            &frame,
+            Instant::from_micros((t * 1e6) as u64),
+            Some(&gyro(0.0)),
+        );
     }
     out
 }

@@ -221,7 +221,7 @@ fn start_capture() {
 /// Starts capture for the first time.
 pub fn start(monitor: &mut CaptureMonitor, now_us: u64) {
     start_capture();
-    monitor.on_capture_started(now_us);
+    monitor.on_capture_started(timebase::Instant::from_micros(now_us));
 }
 
 /// Stops and restarts capture (after a torn frame, an error, or a stopped camera).
@@ -245,7 +245,7 @@ pub fn on_dcmi_interrupt(monitor: &mut CaptureMonitor, now_us: u64) -> Option<De
         w.vsync_isc().bit(mis.vsync_mis().bit_is_set())
     });
     if mis.vsync_mis().bit_is_set() {
-        monitor.on_vsync(now_us);
+        monitor.on_vsync(timebase::Instant::from_micros(now_us));
     }
     let mut lost = false;
     if mis.ovr_mis().bit_is_set() {

@@ -112,7 +112,7 @@ pub fn start_frames(i2c: pac::I2C2) -> (Frames, CaptureMonitor) {
 /// The status task's look at the capture path at board time `now_us`: its counts, and whether
 /// the camera stopped (then capture is re-armed).
 pub fn check_camera(m: &mut CaptureMonitor, now_us: u64) -> Option<(CaptureCounts, bool)> {
-    let stopped = m.camera_stopped(now_us);
+    let stopped = m.camera_stopped(timebase::Instant::from_micros(now_us));
     if stopped {
         dcmi::rearm(m);
     }

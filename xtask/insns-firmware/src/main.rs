@@ -144,7 +144,9 @@ mod bench {
             };
             let t = 40_000 * k as u64;
             let g = gyro(k);
-            measure("edge_fs_frame_worst", || edge_fs.process(f, t, Some(&g)));
+            measure("edge_fs_frame_worst", || {
+                edge_fs.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
             k += 1;
         }
         // SAFETY: semihosting CLOSE of the handle OPEN gave.
@@ -174,13 +176,17 @@ mod bench {
             let Some(f) = frame(k) else { break };
             let t = 40_000 * k as u64;
             let g = gyro(k);
-            measure("edge_fs_frame_default", || default.process(f, t, Some(&g)));
+            measure("edge_fs_frame_default", || {
+                default.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
         }
         for k in 0..frames {
             let Some(f) = frame(k) else { break };
             let t = 40_000 * k as u64;
             let g = gyro(k);
-            measure("edge_fs_frame_paper", || paper.process(f, t, Some(&g)));
+            measure("edge_fs_frame_paper", || {
+                paper.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
         }
 
         worst_frames(default);
@@ -277,11 +283,14 @@ mod bench {
             t = u64::from(k) * 1_953;
             // The host's heartbeat (the autopilot neither arms nor stays in flight without).
             if k % 256 == 0 {
-                ap.on_host_heartbeat(t);
+                ap.on_host_heartbeat(timebase::Instant::from_micros(t));
             }
             // Arm once the attitude estimate has settled (the autopilot refuses earlier).
             if k == 512 {
-                ap.on_command(protocol::PilotCommand::Arm, t);
+                ap.on_command(
+                    protocol::PilotCommand::Arm,
+                    timebase::Instant::from_micros(t),
+                );
             }
             // Tilted as in forward flight (roll 0.08 rad, pitch -0.06 rad: the specific force
             // of that attitude), so that the trigonometry runs its general path, not the
@@ -292,25 +301,29 @@ mod bench {
                 accel_mps2: [-0.5883, -0.7818, -9.7610],
             };
             if k % 10 == 0 {
-                ap.on_estimate(&estimate(k as u16, t), t);
+                ap.on_estimate(&estimate(k as u16, t), timebase::Instant::from_micros(t));
                 ap.on_external_position(
                     &protocol::ExternalPosition {
                         timestamp_us: protocol::WireTime(t as u32),
                         position_m: [0.0, 0.0, -1.0],
                     },
-                    t,
+                    timebase::Instant::from_micros(t),
                 );
-                ap.guidance_step(t);
+                ap.guidance_step(timebase::Instant::from_micros(t));
             }
             if k >= 3064 {
-                measure("indi_step", || ap.on_imu(&imu, t));
+                measure("indi_step", || {
+                    ap.on_imu(&imu, timebase::Instant::from_micros(t))
+                });
             } else {
-                ap.on_imu(&imu, t);
+                ap.on_imu(&imu, timebase::Instant::from_micros(t));
             }
         }
         t += 20_000;
-        ap.on_estimate(&estimate(999, t), t);
-        measure("guidance_fsm_step", || ap.guidance_step(t));
+        ap.on_estimate(&estimate(999, t), timebase::Instant::from_micros(t));
+        measure("guidance_fsm_step", || {
+            ap.guidance_step(timebase::Instant::from_micros(t))
+        });
         // The measurement is only meaningful in flight: say which mode it ran in.
         hprintln!("autopilot mode {:?}", ap.mode());
 
