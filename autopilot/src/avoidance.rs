@@ -13,8 +13,10 @@
 //!   (a frame without texture or stereo matches says nothing of free space, but an obstacle it
 //!   reports stands). A reading older than the failsafe's estimate timeout is not used. The
 //!   time to contact of the flow's divergence ([`protocol::Divergence`]) rides with it, taken
-//!   at two standard errors towards "not approaching"; a frame without a stereo reading still
-//!   gives a reading when that time is short enough to block the way.
+//!   at two standard errors towards "not approaching", together with the stereo distance's own
+//!   time to contact (the distance over the closing speed of its range-rate track, also at two
+//!   standard errors): the sooner of the two is the reading's. A frame without a stereo reading
+//!   still gives a reading when that time is short enough to block the way.
 //! * The FSM runs only in normal flight ([`FlightMode::Flying`](crate::FlightMode)): it starts
 //!   in `Check` on the held heading once the drone is at its flight height and stops in any
 //!   other mode; while it is stopped the request is zero velocity on the held heading.
@@ -58,6 +60,12 @@ pub const CLOSING_MARGIN_MPS: f32 = 0.15;
 /// few tenths of a second without any motion (in flight up to 0.36 s), while a wrong velocity
 /// estimate persists (the suite's room 7 flew seconds at 0.3 m/s on a reading of 0.03).
 pub const DISPUTE: Duration = Duration::from_millis(500);
+
+/// The closing speed the track is sure of: [`CLOSING_SIGMAS`] standard errors (at least
+/// [`MIN_CLOSING_SIGMA_MPS`] each) below its estimate, m/s.
+fn sure_closing_mps(closing: Closing) -> f32 {
+    closing.mps - CLOSING_SIGMAS * closing.sigma_mps.max(MIN_CLOSING_SIGMA_MPS)
+}
 
 /// What avoidance needs to know at a guidance step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,9 +155,20 @@ impl Avoidance {
         if let Some(distance_m) = d {
             self.range_rate.on_distance(distance_m, yaw_rad, now);
         }
-        let contact_s = est
+        let flow_contact_s = est
             .divergence
             .and_then(|d| d.time_to_contact_within_s(-CONTACT_SIGMAS));
+        let range_contact_s = d.flatten().and_then(|distance_m| {
+            let closing = self.range_rate.closing(now)?;
+            let sure = sure_closing_mps(closing);
+            (sure > 0.0).then(|| distance_m / sure)
+        });
+        // The sooner of the two: the flow's divergence (which needs no range) and the stereo
+        // distance over its closing speed (which needs no flow).
+        let contact_s = match (flow_contact_s, range_contact_s) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
         // Without a stereo reading a time to contact short enough to block still stands (it
         // needs no range); a longer one does not replace the last distance.
         let blocking = contact_s.filter(|t| *t < self.fsm.config().contact_time_s);
@@ -220,7 +239,7 @@ impl Avoidance {
             self.disputed_since = None;
             return velocity;
         };
-        let sure = closing.mps - CLOSING_SIGMAS * closing.sigma_mps.max(MIN_CLOSING_SIGMA_MPS);
+        let sure = sure_closing_mps(closing);
         let speed = libm::sqrtf(forward * forward + sideways * sideways);
         if sure <= speed + CLOSING_MARGIN_MPS {
             self.disputed_since = None;
@@ -368,6 +387,35 @@ mod tests {
         // No estimate: nothing to check.
         let mut a = Avoidance::new(FsmConfig::default());
         assert_eq!(a.cross_check(None, at(0)), None);
+    }
+
+    /// The stereo distance closing fast on an obstacle blocks the way before the distance
+    /// does: at 0.9 m/s from 2.5 m, with no divergence, the reading's time to contact drops
+    /// below `contact_time_s` (1.5 s) while the obstacle is still beyond
+    /// `obstacle_distance_m` (1 m); a distance that holds gives no time to contact.
+    #[test]
+    fn a_fast_closing_distance_is_a_time_to_contact() {
+        let cfg = FsmConfig::default();
+        let contact = |closing_mps: f32| {
+            let mut a = Avoidance::new(cfg);
+            let mut first_blocking = None;
+            for k in 0..40u64 {
+                let t = k * 40_000;
+                let d = 2.5 - closing_mps * t as f32 * 1e-6;
+                a.on_estimate(&sees(Some(d)), 0.0, at(t));
+                let reading = a.obstacle().unwrap();
+                if first_blocking.is_none()
+                    && reading.contact_s.is_some_and(|c| c < cfg.contact_time_s)
+                {
+                    first_blocking = reading.distance_m;
+                }
+            }
+            first_blocking
+        };
+        let d = contact(0.9).expect("a fast closing blocks");
+        assert!(d > cfg.obstacle_distance_m, "blocked only at {d} m");
+        assert_eq!(contact(0.0), None);
+        assert_eq!(contact(0.3), None, "the forward speed closes without alarm");
     }
 
     #[test]
