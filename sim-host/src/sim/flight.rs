@@ -560,9 +560,13 @@ impl<'a> Flight<'a> {
             }
             BoardTask::Stereo(CamTask::Status) => {
                 let s2a = &mut self.s2a;
+                // No capture path to report and no host link: the simulated camera board's
+                // frames come from the world, straight into its frame task.
                 self.cb.status_tick(
                     WorldTime::from_micros(t).as_flight_clock(),
+                    None,
                     &mut |b: &[u8]| s2a.write(t, b),
+                    &mut |_: &[u8]| {},
                 );
             }
             // Event-driven: run where their event happens (a frame, link bytes).

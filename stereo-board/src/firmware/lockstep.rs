@@ -122,7 +122,7 @@ impl super::FrameSource for &'static mut FrameSlot {
         Some((&self.buf, capture))
     }
     // The slot is written only by `host_rx`, under the same lock as the frame task's.
-    fn intact(&self, _: &()) -> bool {
+    fn intact(_: &()) -> bool {
         true
     }
     fn release(_: &()) {}
@@ -144,20 +144,15 @@ impl HostFrames {
         bytes: &[u8],
     ) -> Option<FrameReady> {
         let mut ready = false;
-        let mut overwritten = 0u32;
         board.on_host_bytes(bytes, self.assembler, |frame, capture| {
             let capture_us = capture.as_micros();
-            if slot.capture_us.is_some() {
-                overwritten += 1;
-            }
+            let replaced = slot.capture_us.is_some();
             slot.buf.copy_from_slice(frame);
             slot.capture_us = Some(capture_us);
             observe_world_us(capture_us);
             ready = true;
+            replaced
         });
-        for _ in 0..overwritten {
-            board.frame_dropped();
-        }
         ready.then_some(())
     }
 }

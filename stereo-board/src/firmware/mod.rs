@@ -17,8 +17,8 @@
 //! | `host_dma` | 4 | DMA1 stream 5 (hil) | half/full buffer: pends `host_irq` |
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
 //! | `dma_irq` | 4 | DMA2 stream 1 transfer / direct-mode error (real) | counts, re-arms |
-//! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` (or `discard_processed_frame` when the buffer was refilled meanwhile) |
-//! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state in, [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
+//! | `frame` | 2 | spawned per frame | [`StereoBoardApp::on_frame`] (the frame's buffer checked for a refill when processing ends) |
+//! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state into [`StereoBoardApp::status_tick`], LED, watchdog |
 //! | `idle` | 0 | nothing else to run | `WFI` (sleep until an interrupt) |
 //!
 //! Edge-FS runs inside a lock of the board state, whose ceiling is the receive tasks'
@@ -100,6 +100,13 @@ fn queue_frame(tx: &mut TxWriter, frame: &[u8]) {
     let _ = tx.send(frame);
 }
 
+/// Queues whole frames on the host link's transmit queue, if the flavour has a host link.
+fn queue_host(tx: &mut Option<TxWriter>, frame: &[u8]) {
+    if let Some(tx) = tx {
+        queue_frame(tx, frame);
+    }
+}
+
 /// The host link's storage: its queues' sizes are the flavour's.
 pub type HostStore = UartLink<{ flavour::HOST_QUEUE.0 }, { flavour::HOST_QUEUE.1 }>;
 
@@ -121,7 +128,7 @@ trait FrameSource {
         ready: &flavour::FrameReady,
     ) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)>;
     /// True if the frame was not touched while it was being processed.
-    fn intact(&self, ready: &flavour::FrameReady) -> bool;
+    fn intact(ready: &flavour::FrameReady) -> bool;
     /// Done with the frame (also one the frame task never took).
     fn release(ready: &flavour::FrameReady);
 }
@@ -130,7 +137,7 @@ trait FrameSource {
 mod app {
     use super::board::{self, LinkUart};
     use super::flavour::{self, Current as Flavour, FrameReady, Frames, HOST_QUEUE};
-    use super::{clock, log, queue_frame, FrameSource, HostInterrupt, Mono, APP};
+    use super::{clock, log, queue_frame, queue_host, FrameSource, HostInterrupt, Mono, APP};
     use super::{RX_LOST, RX_QUEUE, TX_QUEUE};
     use board_support::flavour::{Flavour as _, PARAM_STORAGE};
     use board_support::uart_link::{LinkInterrupt, LinkReader, UartLink};
@@ -142,9 +149,7 @@ mod app {
     use stm32f4xx_hal::{prelude::*, serial::Rx, watchdog::IndependentWatchdog};
 
     use board_support::param_flash::{ParamSector, WatchedSector};
-    use protocol::BoardToHost;
-    use rtic::mutex::prelude::*;
-    use stereo_board::app::send_to_host;
+    use stereo_board::app::{FrameOutcome, StereoFrame};
     use stereo_board::camera::CaptureMonitor;
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
@@ -397,51 +402,32 @@ mod app {
     /// processed sends nothing and clears the flow history.
     #[task(priority = 2, shared = [board, frames, link_tx, host_tx, capture])]
     async fn frame(mut cx: frame::Context, ready: FrameReady) {
-        match run_frame(
+        let start = timebase::Instant::from_micros(Flavour::lib_now_us());
+        let mut shared = (
             &mut cx.shared.board,
             &mut cx.shared.frames,
             &mut cx.shared.link_tx,
-            ready,
-        ) {
-            None => cx.shared.capture.lock(|m| m.on_frame_overwritten()),
-            Some(Some(est)) => cx.shared.host_tx.lock(|tx| {
-                if let Some(tx) = tx {
-                    send_to_host(&BoardToHost::Estimate(est), &mut |f| queue_frame(tx, f));
-                }
-            }),
-            Some(None) => {}
-        }
-    }
-
-    /// The frame task's body: `None` when the frame's buffer was refilled during processing,
-    /// `Some(None)` when there was no frame, `Some(Some(estimate))` when one was sent.
-    fn run_frame(
-        board: &mut impl Mutex<T = &'static mut StereoBoardApp>,
-        frames: &mut impl Mutex<T = Frames>,
-        link_tx: &mut impl Mutex<T = TxWriter>,
-        ready: FrameReady,
-    ) -> Option<Option<protocol::Estimate>> {
-        let start = timebase::Instant::from_micros(Flavour::lib_now_us());
-        (board, frames, link_tx).lock(|board, frames, tx| {
-            for _ in 0..super::FRAMES_LOST.swap(0, Ordering::Relaxed) {
-                board.frame_dropped();
-            }
-            let Some((buf, capture_us)) = frames.take(&ready) else {
-                return Some(None);
+            &mut cx.shared.host_tx,
+        );
+        let outcome = shared.lock(|board, frames, tx, host_tx| {
+            let lost = super::FRAMES_LOST.swap(0, Ordering::Relaxed);
+            let frame = frames.take(&ready).map(|(pixels, capture_us)| StereoFrame {
+                pixels,
+                capture: timebase::Instant::from_micros(capture_us),
+                start,
+            });
+            let finish = || {
+                let intact = Frames::intact(&ready);
+                Frames::release(&ready);
+                intact.then(|| timebase::Instant::from_micros(Flavour::lib_now_us()))
             };
-            let capture = timebase::Instant::from_micros(capture_us);
-            let out = board.process_frame(buf, capture, start);
-            let intact = frames.intact(&ready);
-            Frames::release(&ready);
-            if !intact {
-                board.discard_processed_frame();
-                return None;
-            }
-            let done = timebase::Instant::from_micros(Flavour::lib_now_us());
-            Some(Some(board.send_estimate(&out, capture, done, &mut |f| {
-                queue_frame(tx, f)
-            })))
-        })
+            board.on_frame(lost, frame, finish, &mut |f| queue_frame(tx, f), &mut |f| {
+                queue_host(host_tx, f)
+            })
+        });
+        if outcome == FrameOutcome::Discarded {
+            cx.shared.capture.lock(|m| m.on_frame_overwritten());
+        }
     }
 
     /// 1 Hz: capture state, status and heartbeat to the autopilot, LED, watchdog. A stopped
@@ -454,18 +440,15 @@ mod app {
                 .shared
                 .capture
                 .lock(|m| flavour::check_camera(m, now.as_micros()));
-            if let Some((counts, stopped)) = camera {
-                cx.shared.board.lock(|b| b.report_capture(counts, stopped));
-            }
-            let status = (&mut cx.shared.board, &mut cx.shared.link_tx)
-                .lock(|board, tx| board.status_tick(now, &mut |f| queue_frame(tx, f)));
-            // The host link gets a heartbeat too: a HIL host starts streaming once it sees one
-            // (bytes sent before the USART is enabled are lost).
-            let hb = protocol::Heartbeat::new(protocol::Node::StereoBoard, status.uptime_ms);
-            cx.shared.host_tx.lock(|tx| {
-                if let Some(tx) = tx {
-                    send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| queue_frame(tx, f));
-                }
+            let mut shared = (
+                &mut cx.shared.board,
+                &mut cx.shared.link_tx,
+                &mut cx.shared.host_tx,
+            );
+            let status = shared.lock(|board, tx, host_tx| {
+                board.status_tick(now, camera, &mut |f| queue_frame(tx, f), &mut |f| {
+                    queue_host(host_tx, f)
+                })
             });
             super::pins::toggle(&stereo_board::board::LED);
             cx.shared.iwdg.lock(|w| w.feed());

@@ -85,7 +85,7 @@ impl super::FrameSource for Camera {
     fn take(&mut self, ready: &FrameReady) -> Option<(&[u8; STEREO_FRAME_BYTES], u64)> {
         dcmi::frame(ready).map(|f| (f, ready.capture_us))
     }
-    fn intact(&self, ready: &FrameReady) -> bool {
+    fn intact(ready: &FrameReady) -> bool {
         dcmi::intact(ready)
     }
     fn release(ready: &FrameReady) {
