@@ -13,11 +13,11 @@
 //!   interrupts never fire ([`on_dcmi_interrupt`], [`on_dma_interrupt`]) and the capture path
 //!   has nothing to report ([`check_camera`]).
 //! * Pins: `hil` configures the board's link and host UART pins, the camera reset and the LED
-//!   ([`stereo_board::board::HIL_PINS`]); `qemu` the LED only.
+//!   ([`stereo_board::board::HIL_PINS`]); `qemu` the LED only. The link UART ([`LinkUart`]) is
+//!   the board's UART4 in `hil`, USART1 on QEMU's machine.
 
 use super::{log, pins, HostLink, HostStore};
 use board_support::flavour::host_receiver;
-use board_support::uart_dma::{Controller, RxStream};
 use core::sync::atomic::AtomicU32;
 use protocol::{CaptureCounts, STEREO_FRAME_BYTES};
 use stereo_board::app::{FrameAssembler, StereoBoardApp};
@@ -73,20 +73,24 @@ pub fn on_link_bytes(board: &StereoBoardApp) {
 /// Bytes of the host link's receive and transmit queues.
 pub const HOST_QUEUE: (usize, usize) = (super::RX_QUEUE, super::TX_QUEUE);
 
-/// The DMA stream that takes the host link's received bytes in the `hil` flavour (921,600 Bd;
-/// see `board_support::uart_dma`): USART2_RX is DMA1 stream 5, channel 4 (RM0090 table 42).
-pub const HOST_RX_DMA: RxStream = RxStream {
-    controller: Controller::Dma1,
-    stream: 5,
-    channel: 4,
-};
-
-/// The pins this flavour configures.
+/// The link UART: the board's UART4 (`hil`); USART1 on QEMU's machine (`qemu`), its first
+/// `-serial` port.
 #[cfg(not(feature = "qemu"))]
-const PINS: &[PinAssignment] = &stereo_board::board::HIL_PINS;
-/// The pins this flavour configures: QEMU's machine has the LED only.
+pub type LinkUart = pac::UART4;
+/// The link UART (see the `hil` flavour's).
 #[cfg(feature = "qemu")]
-const PINS: &[PinAssignment] = &[stereo_board::board::LED];
+pub type LinkUart = pac::USART1;
+
+/// Whether this is the `qemu` flavour (QEMU's netduinoplus2 rather than the board).
+const QEMU: bool = cfg!(feature = "qemu");
+
+/// The pins this flavour configures: the board's link and host UART pins, the camera reset and
+/// the LED (`hil`); QEMU's machine has the LED only.
+const PINS: &[PinAssignment] = if QEMU {
+    &[stereo_board::board::LED]
+} else {
+    &stereo_board::board::HIL_PINS
+};
 
 /// A frame handed from the host-link task to the frame task: the buffer and its exposure time
 /// (`None`: empty).
@@ -175,7 +179,7 @@ pub fn host_link(
         )
         .unwrap_or_else(|_| log::fatal("USART2 configuration"))
         .split();
-    let rx = host_receiver(rx, HOST_RX_DMA);
+    let rx = host_receiver(rx, super::board::HOST_RX_DMA);
     let (writer, interrupt, reader) = store.split(pac::Interrupt::USART2, tx, rx, lost);
     // SAFETY: `init` calls this once; this is the only reference ever made to ASSEMBLER.
     #[allow(static_mut_refs)]

@@ -7,11 +7,12 @@
 //! frames from the host, world time), selected as `flavour`; each fulfils the contract both
 //! boards share ([`board_support::flavour::Flavour`]). Every task exists in every flavour;
 //! one whose source a flavour lacks is never woken there (the DCMI's interrupts without a
-//! camera, the host link's tasks without a host link).
+//! camera, the host link's tasks without a host link, the link UART the flavour does not use).
+//! So the app has no `cfg` but the flavour's selection.
 //!
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
-//! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]); one [`board_support::uart_link`] |
+//! | `link_irq` / `link_irq_usart1` | 4 | link UART (UART4; USART1 in QEMU, `flavour::LinkUart`): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]); one [`board_support::uart_link`] |
 //! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] (with the parameter sector on the real board) |
 //! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu) or IDLE (hil: received by DMA, [`board_support::uart_dma`]), TXE | [`StereoBoardApp::on_host_bytes`] (lockstep flavours; the real board has no host link); queued frames out |
 //! | `host_dma` | 4 | DMA1 stream 5 (hil) | half/full buffer: pends `host_irq` |
@@ -47,7 +48,7 @@
 //!
 //! Flavours: `real` (the original board: camera on the DCMI, link on UART4), `hil` (the same
 //! board, frames from a host on USART2) and `qemu` (`-M netduinoplus2`: no camera, link on
-//! USART1 and host on USART2, the first two `-serial` ports; [`board`] has the link UART).
+//! USART1 and host on USART2, the first two `-serial` ports; the flavour picks the link UART).
 
 mod board;
 mod clock;
@@ -135,8 +136,8 @@ trait FrameSource {
 
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART5])]
 mod app {
-    use super::board::{self, LinkUart};
-    use super::flavour::{self, Current as Flavour, FrameReady, Frames, HOST_QUEUE};
+    use super::board::{self, LinkPort as _};
+    use super::flavour::{self, Current as Flavour, FrameReady, Frames, LinkUart, HOST_QUEUE};
     use super::{clock, log, queue_frame, queue_host, FrameSource, HostInterrupt, Mono, APP};
     use super::{RX_LOST, RX_QUEUE, TX_QUEUE};
     use board_support::flavour::{Flavour as _, PARAM_STORAGE};
@@ -165,8 +166,8 @@ mod app {
         frames: Frames,
         /// The capture path's state (real flavour; idle in the others).
         capture: CaptureMonitor,
-        /// The link's interrupt end (shared only because the flavours bind different
-        /// interrupts; one task uses it).
+        /// The link's interrupt end (shared by the two link UART tasks, of which the
+        /// flavour's link wakes one).
         link: LinkInterrupt<LinkUart, Rx<LinkUart>>,
         /// The watchdog: fed by `status`, given the save's timeout by `uart_rx` for a save.
         iwdg: IndependentWatchdog,
@@ -210,17 +211,16 @@ mod app {
 
         // The HAL's port split resets the port: split before the pin table is applied.
         let gpioa = cx.device.GPIOA.split(&mut rcc);
-        let link = board::link_serial(
+        let candidates = (
             (cx.device.UART4, (gpioa.pa0, gpioa.pa1)),
             (cx.device.USART1, (gpioa.pa9, gpioa.pa10)),
-            &mut rcc,
         );
-        let (link_tx, mut link_rx) = link.split();
+        let (link_tx, mut link_rx) = LinkUart::open(candidates, &mut rcc).split();
         link_rx.listen();
         let (link_tx, link, link_reader) =
             cx.local
                 .link_store
-                .split(board::LINK_IRQ, link_tx, link_rx, &RX_LOST);
+                .split(LinkUart::IRQ, link_tx, link_rx, &RX_LOST);
 
         // The host link: HIL frames in, estimates mirrored out (lockstep flavours).
         let host = flavour::host_link(
@@ -276,18 +276,17 @@ mod app {
         }
     }
 
-    /// The link UART's interrupt (UART4; USART1 in QEMU): queued frames out, received bytes
-    /// into the queue.
-    #[cfg(not(feature = "qemu"))]
+    /// The link UART's interrupt, UART4 on the board: queued frames out, received bytes into
+    /// the queue. A binding names its interrupt literally, so both of the flavours' link UARTs
+    /// are bound (`link_irq_usart1`); the one the flavour's link does not use is never enabled.
     #[task(binds = UART4, priority = 4, shared = [link])]
     fn link_irq(mut cx: link_irq::Context) {
         cx.shared.link.lock(|link| link.serve());
     }
 
-    /// The link UART's interrupt (see the hardware flavours').
-    #[cfg(feature = "qemu")]
+    /// The link UART's interrupt, USART1 on QEMU's machine (see `link_irq`).
     #[task(binds = USART1, priority = 4, shared = [link])]
-    fn link_irq_qemu(mut cx: link_irq_qemu::Context) {
+    fn link_irq_usart1(mut cx: link_irq_usart1::Context) {
         cx.shared.link.lock(|link| link.serve());
     }
 
@@ -339,12 +338,11 @@ mod app {
         }
     }
 
-    /// DMA1 stream 5 (hil): the host link's receive buffer is half or wholly full; `host_irq`
-    /// hands the bytes on.
-    #[cfg(all(feature = "hil", not(feature = "qemu")))]
+    /// DMA1 stream 5 (hil; never enabled in the other flavours): the host link's receive
+    /// buffer is half or wholly full; `host_irq` hands the bytes on.
     #[task(binds = DMA1_STREAM5, priority = 4)]
     fn host_dma(_: host_dma::Context) {
-        flavour::HOST_RX_DMA.acknowledge();
+        board::HOST_RX_DMA.acknowledge();
         rtic::pend(stm32f4xx_hal::pac::Interrupt::USART2);
     }
 

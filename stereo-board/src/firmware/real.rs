@@ -40,6 +40,9 @@ impl board_support::flavour::Flavour for Current {
     }
 }
 
+/// The link UART: the board's UART4 ([`stereo_board::board::LINK_UART`]).
+pub type LinkUart = pac::UART4;
+
 /// Nothing to take from the autopilot's messages: the library runs on the board clock.
 pub fn on_link_bytes(_board: &StereoBoardApp) {}
 
