@@ -38,6 +38,8 @@ pub const STATUS_PERIOD_US: u32 = 1_000_000;
 /// Frame period of the camera (25 fps, [`crate::board::FRAME_PERIOD_US`]), µs: the frame
 /// task's deadline.
 pub const FRAME_PERIOD_US: u32 = crate::board::FRAME_PERIOD_US;
+/// Microseconds per second: the status task's frame rate from its interval.
+const US_PER_S: f64 = 1e6;
 /// A gyro/attitude sample older than this is not used for derotation.
 pub const GYRO_TIMEOUT: Duration = Duration::from_millis(100);
 
@@ -669,7 +671,7 @@ impl StereoBoardApp {
             .frames_processed
             .wrapping_sub(self.last_status_frames);
         let frame_rate_hz = if interval_us > 0 {
-            (f64::from(frames) * 1e6 / interval_us as f64) as f32
+            (f64::from(frames) * US_PER_S / interval_us as f64) as f32
         } else {
             0.0
         };

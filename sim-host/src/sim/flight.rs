@@ -27,6 +27,21 @@ use stereo_board::app::Task as CamTask;
 use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput};
 use timebase::{Instant, WorldTime};
 
+use super::{S_PER_US, US_PER_S};
+
+/// Progress is reported once per this much simulated time, µs (a second).
+const PROGRESS_PERIOD_US: u64 = 1_000_000;
+/// Microseconds per millisecond: the host's heartbeat carries its uptime in ms.
+const US_PER_MS: u64 = 1000;
+/// Captures whose true velocity is kept to check the estimates against: far more than the
+/// estimates on their way over the link at any time.
+const TRUTH_CAPTURES: usize = 32;
+/// Salt of the flight's seed for the camera board -> autopilot UART's faults (each direction
+/// draws its own random stream).
+const S2A_SEED_SALT: u64 = 0x52a;
+/// Salt of the flight's seed for the autopilot -> camera board UART's faults.
+const A2S_SEED_SALT: u64 = 0xa25;
+
 /// Why a flight ended: the last column of every summary.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EndReason {
@@ -217,8 +232,8 @@ pub fn run_flight_observed(
 ) -> anyhow::Result<FlightResult> {
     let mut flight = Flight::new(cfg)?;
     observer.on_scene(&flight.world.scene, &flight.world.camera.params);
-    let end_us = (cfg.duration_s * 1e6) as u64;
-    let mut next_progress = 1_000_000u64;
+    let end_us = (cfg.duration_s * US_PER_S) as u64;
+    let mut next_progress = PROGRESS_PERIOD_US;
     let mut t = 0u64;
     let mut flown_us = end_us;
     while t < end_us {
@@ -231,15 +246,15 @@ pub fn run_flight_observed(
         if next > t {
             flight
                 .world
-                .step(&flight.motors, (next - t) as f64 * 1e-6, next);
+                .step(&flight.motors, (next - t) as f64 * S_PER_US, next);
         }
         t = next;
         if cfg.stop_on_collision && flight.world.first_contact_s.is_some() {
             break;
         }
         if t >= next_progress {
-            progress(t as f64 * 1e-6);
-            next_progress += 1_000_000;
+            progress(t as f64 * S_PER_US);
+            next_progress += PROGRESS_PERIOD_US;
         }
         flight.link_arrivals(t, observer);
         flight.camera_board(t, observer);
@@ -310,8 +325,8 @@ impl<'a> Flight<'a> {
             world,
             ap,
             cb: Box::new(StereoBoardApp::new(cfg.edge_fs)),
-            s2a: SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a),
-            a2s: SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25),
+            s2a: SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ S2A_SEED_SALT),
+            a2s: SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ A2S_SEED_SALT),
             tap: Decoder::new(),
             host_rx: BoardToHostDecoder::new(),
             sched: Scheduler::new(tasks),
@@ -321,10 +336,10 @@ impl<'a> Flight<'a> {
                 cfg.mocap.then_some(cfg.height_rate_hz),
                 Some(cfg.baro.rate_hz),
             ),
-            arm_us: (cfg.arm_at_s * 1e6) as u64,
+            arm_us: (cfg.arm_at_s * US_PER_S) as u64,
             host_cut_us: cfg
                 .host_link_cut_at_s
-                .map_or(u64::MAX, |s| (s * 1e6) as u64),
+                .map_or(u64::MAX, |s| (s * US_PER_S) as u64),
             armed: false,
             motors: [0.0; 4],
             pending: None,
@@ -438,14 +453,14 @@ impl<'a> Flight<'a> {
         let vb = state.att.rotate_inv(state.vel);
         self.truth_at_capture
             .push_back((t as u32, [vb.x as f32, vb.y as f32]));
-        if self.truth_at_capture.len() > 32 {
+        if self.truth_at_capture.len() > TRUTH_CAPTURES {
             self.truth_at_capture.pop_front();
         }
         self.record.frames += 1;
         let keep = self.cfg.keep_image_every;
         if keep > 0 && self.record.frames.is_multiple_of(keep) {
             let left = frame.iter().step_by(2).copied().collect();
-            self.record.images.push((t as f64 * 1e-6, left));
+            self.record.images.push((t as f64 * S_PER_US, left));
         }
         let ready = t + self.cfg.readout_us;
         if self.pending.is_some() || self.busy_until > ready {
@@ -466,7 +481,7 @@ impl<'a> Flight<'a> {
         let ap = &mut self.ap;
         // Due first: the clock runs on while the link is cut.
         if self.sensors.host_heartbeat.due(t) && host_link {
-            let hb = Heartbeat::new(Node::Host, (t / 1000) as u32);
+            let hb = Heartbeat::new(Node::Host, (t / US_PER_MS) as u32);
             ap.on_host_message(HostToBoard::Heartbeat(hb), t, None);
         }
         if self.sensors.height_fix.due(t) {
@@ -584,13 +599,13 @@ impl<'a> Flight<'a> {
         FlightResult {
             seed: cfg.seed,
             duration_s: if flown_us < end_us {
-                flown_us as f64 * 1e-6
+                flown_us as f64 * S_PER_US
             } else {
                 cfg.duration_s
             },
             flight_time_s: world
                 .first_contact_s
-                .unwrap_or(cfg.duration_s.min(flown_us as f64 * 1e-6)),
+                .unwrap_or(cfg.duration_s.min(flown_us as f64 * S_PER_US)),
             end_reason: EndReason::of(&self.ap, self.armed, world.first_contact_s.is_some()),
             collisions: world.collisions,
             vel_rmse_mps: velocity_rmse_mps(&record.log),
@@ -654,7 +669,7 @@ fn log_row(
     let v = ap.velocity_estimate();
     let h = -s.pos.z as f32;
     LogRow {
-        t_s: t as f64 * 1e-6,
+        t_s: t as f64 * S_PER_US,
         pos: [s.pos.x as f32, s.pos.y as f32, h],
         yaw: yaw as f32,
         vel_true: [vf as f32, vs as f32],

@@ -164,7 +164,7 @@ impl SensorSchedule {
     /// Frames at `fps`, height fixes at `height_rate_hz` and barometer readings at
     /// `baro_rate_hz` (each `None`: never), all but the frames from time 0.
     pub fn new(fps: f64, height_rate_hz: Option<f64>, baro_rate_hz: Option<f64>) -> Self {
-        let period_us = |hz: f64| (1e6 / hz) as u64;
+        let period_us = |hz: f64| (super::US_PER_S / hz) as u64;
         let from_zero =
             |hz: Option<f64>| hz.map_or(Periodic::never(), |hz| Periodic::every(period_us(hz), 0));
         Self {

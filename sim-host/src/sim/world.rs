@@ -13,6 +13,7 @@ use super::dynamics::Drone;
 use super::flight_config::FlightConfig;
 use super::imu::{gauss, Imu, ImuReading};
 use super::scene::Scene;
+use super::S_PER_US;
 use autopilot::ms5611::BaroReading;
 use protocol::{ExternalPosition, STEREO_FRAME_BYTES};
 use rand::SeedableRng;
@@ -20,6 +21,11 @@ use rand_chacha::ChaCha8Rng;
 
 /// Height above which the drone counts as airborne for clearance and distance, m.
 pub const AIRBORNE_M: f64 = 0.02;
+/// The temperature the simulated barometer reports, °C: a room's.
+const ROOM_TEMPERATURE_C: f32 = 24.0;
+/// Floor of the hover command the barometer's thrust ratio is taken against, so that a
+/// configured hover thrust of 0 does not divide by zero.
+const MIN_HOVER_COMMAND: f64 = 0.05;
 /// A contact ends once the clearance is back above this, m (so grazing counts once).
 const CONTACT_RELEASE_M: f64 = 0.01;
 
@@ -94,7 +100,7 @@ impl World {
             airborne_s: 0.0,
             in_contact: false,
             height_noise_m: cfg.height_noise_m,
-            hover_command: f64::from(cfg.autopilot.height.hover_thrust).max(0.05),
+            hover_command: f64::from(cfg.autopilot.height.hover_thrust).max(MIN_HOVER_COMMAND),
             rng,
             cam_rng,
         })
@@ -126,7 +132,8 @@ impl World {
         if c < 0.0 {
             if !self.in_contact {
                 self.collisions += 1;
-                self.first_contact_s.get_or_insert(t_end_us as f64 * 1e-6);
+                self.first_contact_s
+                    .get_or_insert(t_end_us as f64 * S_PER_US);
             }
             self.in_contact = true;
             let n = self
@@ -175,8 +182,8 @@ impl World {
         let thrust_ratio = motors.iter().sum::<f64>() / 4.0 / self.hover_command;
         let height = -self.drone.state.pos.z;
         BaroReading {
-            pressure_pa: self.baro.read(t_us as f64 * 1e-6, height, thrust_ratio) as f32,
-            temperature_c: 24.0,
+            pressure_pa: self.baro.read(t_us as f64 * S_PER_US, height, thrust_ratio) as f32,
+            temperature_c: ROOM_TEMPERATURE_C,
         }
     }
 

@@ -155,6 +155,9 @@ mod app {
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
 
+    /// Microseconds per tick of `Mono` (1 kHz).
+    const US_PER_TICK: u32 = 1_000;
+
     #[shared]
     struct Shared {
         board: &'static mut StereoBoardApp,
@@ -483,7 +486,7 @@ mod app {
                 c.frames_overwritten,
                 board_support::stack::free_bytes()
             );
-            Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / 1_000)).await;
+            Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / US_PER_TICK)).await;
         }
     }
 }

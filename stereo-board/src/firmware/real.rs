@@ -124,7 +124,9 @@ pub fn check_camera(m: &mut CaptureMonitor, now_us: u64) -> Option<(CaptureCount
 
 /// Busy-waits `us` microseconds on the core clock (start-up only).
 fn delay_us(us: u32) {
-    cortex_m::asm::delay(us.saturating_mul(stereo_board::board::SYSCLK_HZ / 1_000_000));
+    cortex_m::asm::delay(
+        us.saturating_mul(stereo_board::board::SYSCLK_HZ / stereo_board::board::HZ_PER_MHZ),
+    );
 }
 
 /// Brings the cameras up as the original board does: CPLD mode and reset are already set by
