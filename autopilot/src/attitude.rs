@@ -15,6 +15,12 @@ use libm::{asinf, atan2f, sqrtf};
 
 /// Standard gravity, m/s².
 pub const GRAVITY: f32 = 9.81;
+/// A quaternion whose norm is below this is degenerate: normalising it gives the identity.
+const MIN_QUATERNION_NORM: f32 = 1e-6;
+/// The largest `|x|` [`sin_cos`] reduces itself: beyond it `k·P1` and `k·P2` stop being exact.
+const SIN_COS_MAX_ARG: f32 = 1.0e4;
+/// Below this specific force, m/s², the accelerometer has no direction to correct with.
+const MIN_ACCEL_MPS2: f32 = 1e-3;
 
 /// Unit quaternion `w + xi + yj + zk` (body-to-world rotation).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -61,7 +67,7 @@ impl Quat {
     /// Normalised copy; the identity when the norm is zero or not finite.
     pub fn normalized(self) -> Self {
         let n = sqrtf(self.w * self.w + self.x * self.x + self.y * self.y + self.z * self.z);
-        if n.is_finite() && n > 1e-6 {
+        if n.is_finite() && n > MIN_QUATERNION_NORM {
             Self {
                 w: self.w / n,
                 x: self.x / n,
@@ -125,7 +131,7 @@ pub fn sin_cos(x: f32) -> (f32, f32) {
     const C1: f32 = 0.041_666_646;
     const C2: f32 = -0.001_388_731_6;
     const C3: f32 = 2.443_315_7e-5;
-    if x.is_nan() || x.abs() > 1.0e4 {
+    if x.is_nan() || x.abs() > SIN_COS_MAX_ARG {
         return (libm::sinf(x), libm::cosf(x));
     }
     let k = libm::roundf(x * core::f32::consts::FRAC_2_PI);
@@ -281,7 +287,7 @@ impl AttitudeEstimator {
                 0.0
             };
         }
-        if accel_ok && an > 1e-3 && (an - GRAVITY).abs() < self.cfg.accel_gate * GRAVITY {
+        if accel_ok && an > MIN_ACCEL_MPS2 && (an - GRAVITY).abs() < self.cfg.accel_gate * GRAVITY {
             // Measured "down" is opposite the specific force; the error is the rotation that
             // brings the estimated down direction onto the measured one.
             let m = [-accel[0] / an, -accel[1] / an, -accel[2] / an];

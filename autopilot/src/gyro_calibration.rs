@@ -14,6 +14,10 @@
 use crate::attitude::GRAVITY;
 use protocol::ImuSample;
 
+/// The board is still while the specific force is within this fraction of gravity (and every
+/// rate below the still threshold).
+const STILL_ACCEL_FRACTION: f32 = 0.05;
+
 /// Ground gyro calibration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GyroCalibrationConfig {
@@ -77,8 +81,8 @@ impl GyroCalibration {
         let g = imu.gyro_radps;
         let a = imu.accel_mps2;
         let an = libm::sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-        let still =
-            g.iter().all(|x| x.abs() < still_radps) && (an - GRAVITY).abs() < 0.05 * GRAVITY;
+        let still = g.iter().all(|x| x.abs() < still_radps)
+            && (an - GRAVITY).abs() < STILL_ACCEL_FRACTION * GRAVITY;
         if !still {
             self.sum = [0.0; 3];
             self.n = 0;

@@ -12,6 +12,13 @@
 //! | `frame` | camera frame complete (DCMI + DMA2) or a HIL frame assembled | 2 | [`StereoBoardApp::on_frame`] |
 //! | `status` | every [`STATUS_PERIOD_US`] | 1 | [`StereoBoardApp::status_tick`] |
 //!
+//! Each task is one method, called alike by the firmware, the simulator and the software HIL
+//! board; it does the task's whole work and hands what the task sends to the caller's `tx`
+//! closures (the autopilot link, and the host link where the task has something for it). The
+//! simulator alone runs the frame task in its two halves, [`StereoBoardApp::process_frame`]
+//! and [`StereoBoardApp::send_estimate`], with the modelled processing time between them
+//! (other tasks run meanwhile, as the board's time passes).
+//!
 //! The receive tasks run above the frame task: they are short, and the autopilot's gyro
 //! samples must keep flowing while Edge-FS runs for tens of milliseconds.
 
@@ -31,6 +38,8 @@ pub const STATUS_PERIOD_US: u32 = 1_000_000;
 /// Frame period of the camera (25 fps, [`crate::board::FRAME_PERIOD_US`]), µs: the frame
 /// task's deadline.
 pub const FRAME_PERIOD_US: u32 = crate::board::FRAME_PERIOD_US;
+/// Microseconds per second: the status task's frame rate from its interval.
+const US_PER_S: f64 = 1e6;
 /// A gyro/attitude sample older than this is not used for derotation.
 pub const GYRO_TIMEOUT: Duration = Duration::from_millis(100);
 
@@ -256,6 +265,39 @@ pub struct Counters {
     pub gyro_rejected: u32,
 }
 
+/// A frame for the frame task ([`StereoBoardApp::on_frame`]).
+#[derive(Clone, Copy)]
+pub struct StereoFrame<'a> {
+    /// The interleaved stereo frame (`[L0 R0 L1 R1 ...]`).
+    pub pixels: &'a [u8; STEREO_FRAME_BYTES],
+    /// Its exposure time.
+    pub capture: Instant,
+    /// When processing starts: picks the gyro sample ([`StereoBoardApp::current_gyro`]).
+    pub start: Instant,
+}
+
+/// What the frame task did ([`StereoBoardApp::on_frame`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FrameOutcome {
+    /// There was no frame to process.
+    NoFrame,
+    /// The estimate sent to the autopilot (and mirrored to the host).
+    Sent(Estimate),
+    /// The frame was refilled while it was processed: nothing was sent, the flow history is
+    /// cleared and the frame counts as dropped.
+    Discarded,
+}
+
+impl FrameOutcome {
+    /// The estimate sent, if one was.
+    pub fn estimate(self) -> Option<Estimate> {
+        match self {
+            FrameOutcome::Sent(est) => Some(est),
+            FrameOutcome::NoFrame | FrameOutcome::Discarded => None,
+        }
+    }
+}
+
 /// The whole camera-board state: Edge-FS, link decoders, latest gyro sample, counters.
 ///
 /// Fixed size, no heap (about 10 kB); `const fn new`, so the firmware keeps it in a `static`
@@ -380,8 +422,9 @@ impl StereoBoardApp {
         self.gyro.as_ref().map(|(g, _)| g)
     }
 
-    /// Frame task, first half: runs Edge-FS on one interleaved frame exposed at `capture`
-    /// (`now`: when processing starts, to pick the gyro sample).
+    /// Frame task, first half (for a caller that models the processing time, the simulator;
+    /// [`StereoBoardApp::on_frame`] is the whole task): runs Edge-FS on one interleaved frame
+    /// exposed at `capture` (`now`: when processing starts, to pick the gyro sample).
     pub fn process_frame(
         &mut self,
         frame: &[u8; STEREO_FRAME_BYTES],
@@ -392,8 +435,9 @@ impl StereoBoardApp {
         self.edge_fs.process(frame, capture, gyro.as_ref())
     }
 
-    /// Frame task, second half: wraps `out` into the next [`Estimate`] (processing time =
-    /// `done - capture`, saturating at the wire's 65,535 µs) and sends it to the autopilot.
+    /// Frame task, second half (see [`StereoBoardApp::process_frame`]): wraps `out` into the
+    /// next [`Estimate`] (processing time = `done - capture`, saturating at the wire's
+    /// 65,535 µs) and sends it to the autopilot.
     pub fn send_estimate(
         &mut self,
         out: &EdgeFsOutput,
@@ -430,17 +474,35 @@ impl StereoBoardApp {
         est
     }
 
-    /// Frame task in one call (the simulator's form): process the frame and send the estimate,
-    /// with `now` taken as both the start and the completion time.
+    /// `frame` task: counts the `lost` frames (ended while the task was busy), then runs
+    /// Edge-FS on `frame`, if there is one, and asks `finish` whether the frame stayed intact
+    /// while it was processed (`Some(now)`: intact, processing done at `now`; `None`: its
+    /// buffer was refilled meanwhile). An intact frame's [`Estimate`] goes to the autopilot
+    /// (`to_autopilot`) and is mirrored to the host (`to_host`); processing time =
+    /// done - capture, saturating at the wire's 65,535 µs. A refilled frame sends nothing,
+    /// clears the flow history and counts as dropped.
     pub fn on_frame(
         &mut self,
-        frame: &[u8; STEREO_FRAME_BYTES],
-        capture: Instant,
-        now: Instant,
-        tx: &mut impl FnMut(&[u8]),
-    ) -> Estimate {
-        let out = self.process_frame(frame, capture, now);
-        self.send_estimate(&out, capture, now, tx)
+        lost: u32,
+        frame: Option<StereoFrame<'_>>,
+        finish: impl FnOnce() -> Option<Instant>,
+        to_autopilot: &mut impl FnMut(&[u8]),
+        to_host: &mut impl FnMut(&[u8]),
+    ) -> FrameOutcome {
+        for _ in 0..lost {
+            self.frame_dropped();
+        }
+        let Some(frame) = frame else {
+            return FrameOutcome::NoFrame;
+        };
+        let out = self.process_frame(frame.pixels, frame.capture, frame.start);
+        let Some(done) = finish() else {
+            self.discard_processed_frame();
+            return FrameOutcome::Discarded;
+        };
+        let est = self.send_estimate(&out, frame.capture, done, to_autopilot);
+        send_to_host(&BoardToHost::Estimate(est), to_host);
+        FrameOutcome::Sent(est)
     }
 
     /// A frame the board could not process (camera overrun, still busy with the previous one).
@@ -448,20 +510,12 @@ impl StereoBoardApp {
         self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(1);
     }
 
-    /// Frame task, instead of [`StereoBoardApp::send_estimate`]: the frame just processed was
-    /// not intact (its buffer was being refilled before processing ended). No estimate is
-    /// sent, the flow history (which now holds that frame) is cleared and the frame counts as
-    /// dropped.
-    pub fn discard_processed_frame(&mut self) {
+    /// The frame just processed was not intact (its buffer was being refilled before
+    /// processing ended): the flow history (which now holds that frame) is cleared and the
+    /// frame counts as dropped.
+    fn discard_processed_frame(&mut self) {
         self.edge_fs.reset();
         self.frame_dropped();
-    }
-
-    /// The capture path's state for the next [`StereoBoardApp::status_tick`] (the firmware
-    /// reads it from its DCMI bookkeeping, [`crate::camera::CaptureMonitor`]).
-    pub fn report_capture(&mut self, counts: CaptureCounts, camera_stopped: bool) {
-        self.capture = counts;
-        self.camera_stopped = camera_stopped;
     }
 
     /// `uart_rx` task: bytes from the autopilot, as they arrive. Gyro/attitude samples are kept
@@ -567,13 +621,14 @@ impl StereoBoardApp {
     /// `host_rx` task (HIL and QEMU flavours): bytes from the host. Frame chunks are assembled
     /// in `frames`; each completed frame is handed to `on_frame_ready` with its exposure time:
     /// the host's world time (its wrapping wire clock, unwrapped) as the flight clock, which is
-    /// what the lockstep flavours run on. Frames abandoned
-    /// incomplete are counted as dropped. Other host messages are ignored by the camera board.
+    /// what the lockstep flavours run on. `on_frame_ready` returns true when the frame replaced
+    /// one not processed yet, which counts as dropped, as do frames abandoned incomplete.
+    /// Other host messages are ignored by the camera board.
     pub fn on_host_bytes(
         &mut self,
         bytes: &[u8],
         frames: &mut FrameAssembler,
-        mut on_frame_ready: impl FnMut(&[u8; STEREO_FRAME_BYTES], Instant),
+        mut on_frame_ready: impl FnMut(&[u8; STEREO_FRAME_BYTES], Instant) -> bool,
     ) {
         for &byte in bytes {
             if let Some(HostToBoard::FrameChunk(chunk)) = self.host_rx.push(byte) {
@@ -583,23 +638,39 @@ impl StereoBoardApp {
                 self.counters.frames_dropped = self.counters.frames_dropped.saturating_add(lost);
                 if let Some(capture) = done {
                     let capture = self.host_clock.extend(capture).as_flight_clock();
-                    on_frame_ready(frames.frame(), capture);
+                    if on_frame_ready(frames.frame(), capture) {
+                        self.frame_dropped();
+                    }
                 }
             }
         }
     }
 
-    /// `status` task: sends [`StereoStatus`] and a [`Heartbeat`] to the autopilot. The frame
-    /// rate is over the time since the previous call (or since boot); the worst processing time
-    /// restarts with each interval.
-    pub fn status_tick(&mut self, now: Instant, tx: &mut impl FnMut(&[u8])) -> StereoStatus {
+    /// `status` task: takes the capture path's state (`capture`: its counts and whether the
+    /// camera stopped, as the firmware's DCMI bookkeeping [`crate::camera::CaptureMonitor`]
+    /// tells them; `None`: no camera, the last state stands), sends [`StereoStatus`] and a
+    /// [`Heartbeat`] to the autopilot (`to_autopilot`) and a heartbeat to the host (`to_host`:
+    /// a HIL host starts streaming once it sees one). The frame rate is over the time since
+    /// the previous call (or since boot); the worst processing time restarts with each
+    /// interval.
+    pub fn status_tick(
+        &mut self,
+        now: Instant,
+        capture: Option<(CaptureCounts, bool)>,
+        to_autopilot: &mut impl FnMut(&[u8]),
+        to_host: &mut impl FnMut(&[u8]),
+    ) -> StereoStatus {
+        if let Some((counts, stopped)) = capture {
+            self.capture = counts;
+            self.camera_stopped = stopped;
+        }
         let interval_us = now.since(self.last_status).as_micros();
         let frames = self
             .counters
             .frames_processed
             .wrapping_sub(self.last_status_frames);
         let frame_rate_hz = if interval_us > 0 {
-            (f64::from(frames) * 1e6 / interval_us as f64) as f32
+            (f64::from(frames) * US_PER_S / interval_us as f64) as f32
         } else {
             0.0
         };
@@ -618,11 +689,10 @@ impl StereoBoardApp {
             camera_stopped: self.camera_stopped,
         };
         self.max_processing_us = 0;
-        send_to_autopilot(&StereoToAutopilot::Status(status), tx);
-        send_to_autopilot(
-            &StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, uptime_ms)),
-            tx,
-        );
+        let heartbeat = Heartbeat::new(Node::StereoBoard, uptime_ms);
+        send_to_autopilot(&StereoToAutopilot::Status(status), to_autopilot);
+        send_to_autopilot(&StereoToAutopilot::Heartbeat(heartbeat), to_autopilot);
+        send_to_host(&BoardToHost::Heartbeat(heartbeat), to_host);
         status
     }
 

@@ -209,6 +209,8 @@ pub const MCU: &str = "STM32F407VGTx";
 pub const HSE_HZ: u32 = 12_000_000;
 // Core clock, Hz: HSE / M=12 x N=336 / P=2, as on the autopilot.
 pub use board_support::chip::SYSCLK_HZ;
+/// Hertz per megahertz: a clock in Hz over this is its cycles per µs.
+pub const HZ_PER_MHZ: u32 = 1_000_000;
 /// APB1 bus clock, Hz (core / 4).
 pub const APB1_HZ: u32 = SYSCLK_HZ / 4;
 /// Clock of the timers on APB1 (TIM3), Hz: twice the bus clock because APB1 is divided.
@@ -232,9 +234,10 @@ const _: () = assert!(CAMERA_CLOCK_HZ == 21_000_000);
 pub const CAMERA_RESET_LOW_US: u32 = 1_000;
 /// Time after releasing reset before the first SCCB access, µs (see the module docs).
 pub const CAMERA_RESET_RECOVERY_US: u32 = 1_000;
-const _: () = assert!(CAMERA_RESET_LOW_US as u64 * CAMERA_CLOCK_HZ as u64 >= 100 * 1_000_000);
 const _: () =
-    assert!(CAMERA_RESET_RECOVERY_US as u64 * CAMERA_CLOCK_HZ as u64 >= 2_000 * 1_000_000);
+    assert!(CAMERA_RESET_LOW_US as u64 * CAMERA_CLOCK_HZ as u64 >= 100 * HZ_PER_MHZ as u64);
+const _: () =
+    assert!(CAMERA_RESET_RECOVERY_US as u64 * CAMERA_CLOCK_HZ as u64 >= 2_000 * HZ_PER_MHZ as u64);
 
 // ---------------------------------------------------------------------------------------------
 // Frame timing, from the camera set-up.

@@ -14,7 +14,7 @@
 use std::path::PathBuf;
 
 use protocol::{Decoder, Estimate, StereoToAutopilot};
-use stereo_board::app::StereoBoardApp;
+use stereo_board::app::{StereoBoardApp, StereoFrame};
 use stereo_board::edge_fs::EdgeFsParams;
 use virtual_board::bench::{Options, Setup, Watching, run};
 use virtual_board::boards::camera::CameraBoard;
@@ -186,7 +186,15 @@ fn estimates_at(rate: CoreRate) {
             .min(FRAMES - 1);
         let frame = images[scene].interleaved();
         let capture = timebase::Instant::from_micros(u64::from(got.capture_us.as_micros()));
-        let want = reference.on_frame(&frame, capture, capture, &mut |_| {});
+        let input = StereoFrame {
+            pixels: &frame,
+            capture,
+            start: capture,
+        };
+        let want = reference
+            .on_frame(0, Some(input), || Some(capture), &mut |_| {}, &mut |_| {})
+            .estimate()
+            .expect("an intact frame sends an estimate");
         assert!(
             same(got, &want),
             "frame {k} (scene {scene}): firmware {got:?}\nhost     {want:?}\n{}",

@@ -10,7 +10,7 @@
 //! | RTIC task | prio | trigger | body |
 //! |---|---|---|---|
 //! | `link_uart`, `telemetry_uart`, `rc_uart` | 6 | USART2, USART1, UART5 interrupts | receive bytes into lock-free queues (back-pressure: [`board_support::uart_rx`]; the telemetry port by DMA in the `hil` flavour, [`board_support::uart_dma`]); transmit queued frames ([`board_support::uart_tx`]); one [`board_support::uart_link`] each |
-//! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour) | half/full buffer: pends `telemetry_uart` |
+//! | `telemetry_dma` | 6 | DMA2 stream 2 (`hil` flavour; never enabled in the others) | half/full buffer: pends `telemetry_uart` |
 //! | `control_loop` | 5 | TIM2 at 512 Hz (real) | reads the MPU-6000 on SPI2, checks the sample ([`autopilot::mpu6000`]; configures a reset sensor again), `Autopilot::on_imu`, motors; feeds the watchdog while `guidance` and `heartbeat` run |
 //! | `imu_indi` | 5 | IMU sample from the host link (lockstep) | `Autopilot::on_imu`, motors (only once the host enabled them), releases the periodic tasks |
 //! | `outputs_watch` | 5 | 100 Hz, board clock (lockstep) | the PWM outputs to 0 when the host's samples stopped or it never enabled them (`flavour::outputs_live`) |
@@ -352,9 +352,8 @@ mod app {
         cx.local.host.serve();
     }
 
-    /// DMA2 stream 2 (`hil` flavour): the telemetry port's receive buffer is half or wholly
-    /// full; `telemetry_uart` hands the bytes on.
-    #[cfg(all(feature = "hil", not(feature = "qemu")))]
+    /// DMA2 stream 2 (`hil` flavour; never enabled in the others): the telemetry port's
+    /// receive buffer is half or wholly full; `telemetry_uart` hands the bytes on.
     #[task(binds = DMA2_STREAM2, priority = 6)]
     fn telemetry_dma(_: telemetry_dma::Context) {
         hw::TELEMETRY_RX_DMA.acknowledge();

@@ -61,7 +61,8 @@ mod tests {
         let mut asm = Box::new(FrameAssembler::new());
         let mut got = None;
         cb.on_host_bytes(&bytes, &mut asm, |f, t| {
-            got = Some((f == &*frame, t.as_micros()))
+            got = Some((f == &*frame, t.as_micros()));
+            false
         });
         assert_eq!(got, Some((true, 123_456)));
     }

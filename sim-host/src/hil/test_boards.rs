@@ -12,7 +12,7 @@ use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stereo_board::app::{send_to_host, FrameAssembler, StereoBoardApp};
+use stereo_board::app::{send_to_host, FrameAssembler, StereoBoardApp, StereoFrame};
 use stereo_board::edge_fs::EdgeFsParams;
 
 type Wire = Arc<Mutex<Vec<u8>>>;
@@ -130,7 +130,10 @@ fn camera_board(mut s: TcpStream, to_autopilot: Wire, from_autopilot: Wire) {
             Err(_) => return,
         };
         let mut ready = None;
-        cb.on_host_bytes(&buf[..n], &mut frames, |_, t| ready = Some(t));
+        cb.on_host_bytes(&buf[..n], &mut frames, |_, t| {
+            ready = Some(t);
+            false
+        });
         if let Some(capture) = ready {
             first_frame_seen = true;
             world = world.max(capture);
@@ -141,10 +144,21 @@ fn camera_board(mut s: TcpStream, to_autopilot: Wire, from_autopilot: Wire) {
                 &mut |b| w.extend_from_slice(b),
                 None,
             );
-            let out = cb.process_frame(frames.frame(), capture, world);
-            let est = cb.send_estimate(&out, capture, world, &mut |b| w.extend_from_slice(b));
+            let frame = StereoFrame {
+                pixels: frames.frame(),
+                capture,
+                start: world,
+            };
+            let mut to_host = Vec::new();
+            cb.on_frame(
+                0,
+                Some(frame),
+                || Some(world),
+                &mut |b| w.extend_from_slice(b),
+                &mut |b| to_host.extend_from_slice(b),
+            );
             drop(w);
-            send_host(&mut s, &BoardToHost::Estimate(est));
+            let _ = s.write_all(&to_host);
         }
     }
 }

@@ -14,6 +14,11 @@ use super::imu::gauss;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+/// The ISA's height scale of the barometric formula, T0 / L, m.
+const ISA_HEIGHT_SCALE_M: f64 = 44_330.8;
+/// The ISA's exponent of the barometric formula, g M / (R L).
+const ISA_PRESSURE_EXPONENT: f64 = 5.255_88;
+
 /// The barometer's error model.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BaroParams {
@@ -46,7 +51,7 @@ impl Default for BaroParams {
 
 /// Static pressure `height_m` above a floor at `floor_pa` (ISA), Pa.
 pub fn pressure_at(floor_pa: f64, height_m: f64) -> f64 {
-    floor_pa * (1.0 - height_m / 44_330.8).powf(5.255_88)
+    floor_pa * (1.0 - height_m / ISA_HEIGHT_SCALE_M).powf(ISA_PRESSURE_EXPONENT)
 }
 
 /// One barometer.

@@ -27,6 +27,19 @@ use stereo_board::app::Task as CamTask;
 use stereo_board::edge_fs::{Diagnostics, EdgeFsOutput};
 use timebase::{Duration, Instant, WorldTime};
 
+use super::US_PER_S;
+
+/// Progress is reported once per this much simulated time.
+const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
+/// Captures whose true velocity is kept to check the estimates against: far more than the
+/// estimates on their way over the link at any time.
+const TRUTH_CAPTURES: usize = 32;
+/// Salt of the flight's seed for the camera board -> autopilot UART's faults (each direction
+/// draws its own random stream).
+const S2A_SEED_SALT: u64 = 0x52a;
+/// Salt of the flight's seed for the autopilot -> camera board UART's faults.
+const A2S_SEED_SALT: u64 = 0xa25;
+
 /// Why a flight ended: the last column of every summary.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EndReason {
@@ -217,8 +230,8 @@ pub fn run_flight_observed(
 ) -> anyhow::Result<FlightResult> {
     let mut flight = Flight::new(cfg)?;
     observer.on_scene(&flight.world.scene, &flight.world.camera.params);
-    let end = WorldTime::from_micros((cfg.duration_s * 1e6) as u64);
-    let mut next_progress = WorldTime::ZERO + Duration::from_secs(1);
+    let end = WorldTime::from_micros((cfg.duration_s * US_PER_S) as u64);
+    let mut next_progress = WorldTime::ZERO + PROGRESS_PERIOD;
     let mut t = WorldTime::ZERO;
     let mut flown = end;
     while t < end {
@@ -239,7 +252,7 @@ pub fn run_flight_observed(
         }
         if t >= next_progress {
             progress(t.as_secs_f64());
-            next_progress += Duration::from_secs(1);
+            next_progress += PROGRESS_PERIOD;
         }
         flight.link_arrivals(t, observer);
         flight.camera_board(t, observer);
@@ -310,8 +323,8 @@ impl<'a> Flight<'a> {
             world,
             ap,
             cb: Box::new(StereoBoardApp::new(cfg.edge_fs)),
-            s2a: SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ 0x52a),
-            a2s: SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ 0xa25),
+            s2a: SimUart::new(cfg.baud, cfg.faults_s2a.clone(), cfg.seed ^ S2A_SEED_SALT),
+            a2s: SimUart::new(cfg.baud, cfg.faults_a2s.clone(), cfg.seed ^ A2S_SEED_SALT),
             tap: Decoder::new(),
             host_rx: BoardToHostDecoder::new(),
             sched: Scheduler::new(tasks),
@@ -321,10 +334,10 @@ impl<'a> Flight<'a> {
                 cfg.mocap.then_some(cfg.height_rate_hz),
                 Some(cfg.baro.rate_hz),
             ),
-            arm_at: WorldTime::from_micros((cfg.arm_at_s * 1e6) as u64),
+            arm_at: WorldTime::from_micros((cfg.arm_at_s * US_PER_S) as u64),
             host_cut_at: WorldTime::from_micros(
                 cfg.host_link_cut_at_s
-                    .map_or(u64::MAX, |s| (s * 1e6) as u64),
+                    .map_or(u64::MAX, |s| (s * US_PER_S) as u64),
             ),
             armed: false,
             motors: [0.0; 4],
@@ -437,7 +450,7 @@ impl<'a> Flight<'a> {
         let vb = state.att.rotate_inv(state.vel);
         self.truth_at_capture
             .push_back((t.to_wire(), [vb.x as f32, vb.y as f32]));
-        if self.truth_at_capture.len() > 32 {
+        if self.truth_at_capture.len() > TRUTH_CAPTURES {
             self.truth_at_capture.pop_front();
         }
         self.record.frames += 1;
@@ -563,7 +576,14 @@ impl<'a> Flight<'a> {
             }
             BoardTask::Stereo(CamTask::Status) => {
                 let s2a = &mut self.s2a;
-                self.cb.status_tick(now, &mut |b: &[u8]| s2a.write(t, b));
+                // No capture path to report and no host link: the simulated camera board's
+                // frames come from the world, straight into its frame task.
+                self.cb.status_tick(
+                    now,
+                    None,
+                    &mut |b: &[u8]| s2a.write(t, b),
+                    &mut |_: &[u8]| {},
+                );
             }
             // Event-driven: run where their event happens (a frame, link bytes).
             BoardTask::Autopilot(ApTask::StereoRx | ApTask::HostRx)

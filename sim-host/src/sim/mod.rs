@@ -74,6 +74,11 @@
 //! * Closed-loop results move with every change of the boards' code (the flights are
 //!   chaotic); the tests in `tests/tests/sim_flight.rs` state their bounds and seeds.
 
+/// Microseconds per second: the virtual clock counts µs; configurations and logs, seconds.
+pub const US_PER_S: f64 = 1e6;
+/// Seconds per microsecond, the factor µs are multiplied by into seconds.
+pub const S_PER_US: f64 = 1e-6;
+
 pub mod baro;
 pub mod battery;
 pub mod boards;

@@ -97,6 +97,17 @@ impl Obstacle {
 
 /// Most rays [`Scene::trace_batch`] takes at once.
 pub const TRACE_BATCH: usize = 256;
+/// A ray direction component smaller than this is parallel to the planes it would cross.
+const PARALLEL_EPS: f32 = 1e-9;
+/// A ray whose horizontal extent (squared) is below this is vertical: it meets no pillar's
+/// side.
+const VERTICAL_RAY_EPS: f32 = 1e-12;
+/// Hits nearer than this along a ray, m, are the ray's own start (a surface it leaves).
+const MIN_HIT_M: f32 = 1e-4;
+/// A point within this of a box's face, m, lies on that face (texture coordinates).
+const ON_FACE_M: f32 = 1e-3;
+/// The step of the clearance's numerical gradient, m.
+const GRADIENT_STEP_M: f32 = 1e-3;
 
 /// The nearest of a room's six planes along `o + t d` (room `sx` x `sy`, ceiling at
 /// `z = top`), as [`Scene::intersect`] finds it without obstacles, in branch-free form (the
@@ -104,7 +115,7 @@ pub const TRACE_BATCH: usize = 256;
 /// (0 to 3 the walls, 4 the floor, 5 the ceiling).
 #[inline(always)]
 fn room_planes(o: [f32; 3], d: [f32; 3], sx: f32, sy: f32, top: f32) -> (f32, u8) {
-    const EPS: f32 = 1e-9;
+    const EPS: f32 = PARALLEL_EPS;
     let (px, py, pz) = (d[0] > EPS, d[1] > EPS, d[2] > EPS);
     let (nx, ny, nz) = (d[0] < -EPS, d[1] < -EPS, d[2] < -EPS);
     let tx = if px { sx - o[0] } else { -o[0] } / d[0];
@@ -309,11 +320,11 @@ impl Scene {
             Obstacle::Box { min, max, .. } => {
                 // Around the perimeter: south side (x = min), east, north, west.
                 let (w, d) = (max[1] - min[1], max[0] - min[0]);
-                let s = if (p[0] - min[0]).abs() < 1e-3 {
+                let s = if (p[0] - min[0]).abs() < ON_FACE_M {
                     p[1] - min[1]
-                } else if (p[1] - max[1]).abs() < 1e-3 {
+                } else if (p[1] - max[1]).abs() < ON_FACE_M {
                     w + p[0] - min[0]
-                } else if (p[0] - max[0]).abs() < 1e-3 {
+                } else if (p[0] - max[0]).abs() < ON_FACE_M {
                     w + d + max[1] - p[1]
                 } else {
                     2.0 * w + d + max[0] - p[0]
@@ -328,33 +339,33 @@ impl Scene {
     pub fn intersect(&self, o: [f32; 3], d: [f32; 3]) -> (f32, Surface) {
         let mut t = f32::INFINITY;
         let mut surf = Surface::Floor;
-        if d[0] > 1e-9 {
+        if d[0] > PARALLEL_EPS {
             t = (self.size_x - o[0]) / d[0];
             surf = Surface::Wall(1);
-        } else if d[0] < -1e-9 {
+        } else if d[0] < -PARALLEL_EPS {
             t = -o[0] / d[0];
             surf = Surface::Wall(0);
         }
-        if d[1] > 1e-9 {
+        if d[1] > PARALLEL_EPS {
             let ty = (self.size_y - o[1]) / d[1];
             if ty < t {
                 t = ty;
                 surf = Surface::Wall(3);
             }
-        } else if d[1] < -1e-9 {
+        } else if d[1] < -PARALLEL_EPS {
             let ty = -o[1] / d[1];
             if ty < t {
                 t = ty;
                 surf = Surface::Wall(2);
             }
         }
-        if d[2] > 1e-9 {
+        if d[2] > PARALLEL_EPS {
             let tz = -o[2] / d[2];
             if tz < t {
                 t = tz;
                 surf = Surface::Floor;
             }
-        } else if d[2] < -1e-9 {
+        } else if d[2] < -PARALLEL_EPS {
             let tz = (-self.height - o[2]) / d[2];
             if tz < t {
                 t = tz;
@@ -385,7 +396,7 @@ impl Scene {
                     let b = ox * d[0] + oy * d[1];
                     let c = ox * ox + oy * oy - radius * radius;
                     let disc = b * b - a * c;
-                    if a < 1e-12 || disc < 0.0 {
+                    if a < VERTICAL_RAY_EPS || disc < 0.0 {
                         continue;
                     }
                     ((-b - disc.sqrt()) / a, *height)
@@ -394,7 +405,7 @@ impl Scene {
                     // Solve o + t d = a + u (b - a) in the horizontal plane.
                     let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
                     let den = d[0] * ey - d[1] * ex;
-                    if den.abs() < 1e-9 {
+                    if den.abs() < PARALLEL_EPS {
                         continue;
                     }
                     let (wx, wy) = (a[0] - o[0], a[1] - o[1]);
@@ -411,7 +422,7 @@ impl Scene {
                     let mut t1 = f32::INFINITY;
                     let mut hit = true;
                     for k in 0..2 {
-                        if d[k].abs() < 1e-9 {
+                        if d[k].abs() < PARALLEL_EPS {
                             if o[k] < min[k] || o[k] > max[k] {
                                 hit = false;
                             }
@@ -427,7 +438,7 @@ impl Scene {
                     (t0, *height)
                 }
             };
-            if to > 1e-4 && to < t {
+            if to > MIN_HIT_M && to < t {
                 let z = o[2] + to * d[2];
                 if z <= 0.0 && -z <= h {
                     t = to;
@@ -452,7 +463,7 @@ impl Scene {
     /// Outward unit normal (x, y) of the nearest surface at `(x, y)`: the direction that pushes
     /// a point away from it (used to resolve collisions).
     pub fn push_out_dir(&self, x: f32, y: f32, h: f32) -> [f32; 2] {
-        let eps = 1e-3;
+        let eps = GRADIENT_STEP_M;
         let gx = self.clearance(x + eps, y, h) - self.clearance(x - eps, y, h);
         let gy = self.clearance(x, y + eps, h) - self.clearance(x, y - eps, h);
         let n = (gx * gx + gy * gy).sqrt();

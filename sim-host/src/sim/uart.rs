@@ -6,6 +6,9 @@ use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
 use timebase::WorldTime;
 
+/// Bits on the wire per byte, 8N1: start bit, 8 data bits, stop bit.
+const BITS_PER_BYTE: f64 = 10.0;
+
 /// Faults injected on a link.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct LinkFaults {
@@ -68,7 +71,7 @@ impl SimUart {
 
     /// Time on the wire of one byte, µs.
     pub fn byte_time_us(&self) -> f64 {
-        10.0e6 / self.baud as f64
+        BITS_PER_BYTE * super::US_PER_S / self.baud as f64
     }
 
     /// The sender writes `bytes` at `now`; they go out back to back after anything queued.

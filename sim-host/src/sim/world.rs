@@ -21,6 +21,11 @@ use timebase::WorldTime;
 
 /// Height above which the drone counts as airborne for clearance and distance, m.
 pub const AIRBORNE_M: f64 = 0.02;
+/// The temperature the simulated barometer reports, °C: a room's.
+const ROOM_TEMPERATURE_C: f32 = 24.0;
+/// Floor of the hover command the barometer's thrust ratio is taken against, so that a
+/// configured hover thrust of 0 does not divide by zero.
+const MIN_HOVER_COMMAND: f64 = 0.05;
 /// A contact ends once the clearance is back above this, m (so grazing counts once).
 const CONTACT_RELEASE_M: f64 = 0.01;
 
@@ -95,7 +100,7 @@ impl World {
             airborne_s: 0.0,
             in_contact: false,
             height_noise_m: cfg.height_noise_m,
-            hover_command: f64::from(cfg.autopilot.height.hover_thrust).max(0.05),
+            hover_command: f64::from(cfg.autopilot.height.hover_thrust).max(MIN_HOVER_COMMAND),
             rng,
             cam_rng,
         })
@@ -177,7 +182,7 @@ impl World {
         let height = -self.drone.state.pos.z;
         BaroReading {
             pressure_pa: self.baro.read(t.as_secs_f64(), height, thrust_ratio) as f32,
-            temperature_c: 24.0,
+            temperature_c: ROOM_TEMPERATURE_C,
         }
     }
 

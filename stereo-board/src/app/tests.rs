@@ -30,6 +30,26 @@ fn frame(phase: usize, disp: usize) -> Box<[u8; STEREO_FRAME_BYTES]> {
     f
 }
 
+/// The frame task on `f` exposed at `capture`, processing started and done at `now`; the
+/// estimate it sent to `tx`.
+fn run_frame(
+    board: &mut StereoBoardApp,
+    f: &[u8; STEREO_FRAME_BYTES],
+    capture: Instant,
+    now: Instant,
+    tx: &mut impl FnMut(&[u8]),
+) -> Estimate {
+    let frame = StereoFrame {
+        pixels: f,
+        capture,
+        start: now,
+    };
+    let outcome = board.on_frame(0, Some(frame), || Some(now), tx, &mut |_| {});
+    outcome
+        .estimate()
+        .expect("an intact frame sends an estimate")
+}
+
 fn app() -> Box<StereoBoardApp> {
     Box::new(StereoBoardApp::new(EdgeFsParams::default_config()))
 }
@@ -91,9 +111,13 @@ fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
         let f = frame(i as usize, 3);
         let capture = (1u64 << 32) + 40_000 * i;
         let expected = reference.process(&f, at(capture), None);
-        let est = board.on_frame(&f, at(capture), at(capture + 12_345), &mut |b| {
-            wire.extend_from_slice(b)
-        });
+        let est = run_frame(
+            &mut board,
+            &f,
+            at(capture),
+            at(capture + 12_345),
+            &mut |b| wire.extend_from_slice(b),
+        );
         assert_eq!(est.seq, i as u16);
         assert_eq!(
             est.capture_us,
@@ -126,10 +150,41 @@ fn frame_task_sends_the_edge_fs_result_as_an_estimate() {
 }
 
 #[test]
+fn frame_task_counts_lost_frames_and_mirrors_the_estimate_to_the_host() {
+    let mut board = app();
+    let f = frame(0, 3);
+    let frame = StereoFrame {
+        pixels: &f,
+        capture: at(1_000),
+        start: at(2_000),
+    };
+    let mut host = Vec::new();
+    let outcome = board.on_frame(2, Some(frame), || Some(at(9_000)), &mut |_| {}, &mut |b| {
+        host.extend_from_slice(b)
+    });
+    let est = outcome.estimate().expect("sent");
+    assert_eq!(est.processing_us, 8_000);
+    assert_eq!(board.counters().frames_dropped, 2);
+    let mut dec = protocol::BoardToHostDecoder::new();
+    let mut got = Vec::new();
+    dec.feed(&host, |m| got.push(m));
+    assert_eq!(got, vec![BoardToHost::Estimate(est)]);
+    let none = board.on_frame(
+        1,
+        None,
+        || panic!("no frame to finish"),
+        &mut |_| {},
+        &mut |_| {},
+    );
+    assert_eq!(none, FrameOutcome::NoFrame);
+    assert_eq!(board.counters().frames_dropped, 3);
+}
+
+#[test]
 fn processing_time_saturates() {
     let mut board = app();
     let f = frame(0, 2);
-    let est = board.on_frame(&f, at(0), at(10_000_000), &mut |_| {});
+    let est = run_frame(&mut board, &f, at(0), at(10_000_000), &mut |_| {});
     assert_eq!(est.processing_us, u16::MAX);
     let out = board.process_frame(&f, at(100), at(50));
     let est = board.send_estimate(&out, at(100), at(50), &mut |_| {});
@@ -166,12 +221,18 @@ fn gyro_from_the_link_is_used_for_derotation_until_stale() {
         let f = frame(2 * i as usize, 4);
         let now = 1_000 + 10_000 * i;
         let expected = reference.process(&f, at(now), Some(&g));
-        let est = board.on_frame(&f, at(now), at(now), &mut |_| {});
+        let est = run_frame(&mut board, &f, at(now), at(now), &mut |_| {});
         assert_eq!(est.forward_mps.to_bits(), expected.forward_mps.to_bits());
         assert_eq!(est.flags, expected.flags);
         assert!(!est.flags.contains(EstimateFlags::NO_GYRO));
     }
-    let est = board.on_frame(&frame(20, 4), at(500_000), at(500_000), &mut |_| {});
+    let est = run_frame(
+        &mut board,
+        &frame(20, 4),
+        at(500_000),
+        at(500_000),
+        &mut |_| {},
+    );
     assert!(
         est.flags.contains(EstimateFlags::NO_GYRO),
         "stale sample not used"
@@ -401,16 +462,27 @@ fn link_errors_are_counted_and_the_next_frame_still_decodes() {
 #[test]
 fn status_tick_reports_rate_counters_and_heartbeat() {
     let mut board = app();
-    board.status_tick(at(0), &mut |_| {});
+    board.status_tick(at(0), None, &mut |_| {}, &mut |_| {});
     for i in 0..25u64 {
         let t = 40_000 * i;
-        board.on_frame(&frame(i as usize, 2), at(t), at(t + 5_000 + i), &mut |_| {});
+        run_frame(
+            &mut board,
+            &frame(i as usize, 2),
+            at(t),
+            at(t + 5_000 + i),
+            &mut |_| {},
+        );
     }
     board.frame_dropped();
     // The leading delimiter aligns the link (joined mid-stream); the garbage after it counts.
     board.on_rx_bytes(&[0, 1, 2, 3, 0], at(0), &mut |_| {}, None);
     let mut wire = Vec::new();
-    let status = board.status_tick(at(1_000_000), &mut |b| wire.extend_from_slice(b));
+    let status = board.status_tick(
+        at(1_000_000),
+        None,
+        &mut |b| wire.extend_from_slice(b),
+        &mut |_| {},
+    );
     assert!(
         (status.frame_rate_hz - 25.0).abs() < 1e-4,
         "{}",
@@ -430,7 +502,7 @@ fn status_tick_reports_rate_counters_and_heartbeat() {
             StereoToAutopilot::Heartbeat(Heartbeat::new(Node::StereoBoard, 1_000)),
         ]
     );
-    let next = board.status_tick(at(2_000_000), &mut |_| {});
+    let next = board.status_tick(at(2_000_000), None, &mut |_| {}, &mut |_| {});
     assert_eq!(next.frame_rate_hz, 0.0);
     assert_eq!(
         next.max_processing_us, 0,
@@ -453,9 +525,14 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
     camera.on_rearm();
     camera.on_frame_end(whole);
     let now = 1_000_000;
-    board.report_capture(camera.counts(), camera.camera_stopped(at(now)));
+    let capture = Some((camera.counts(), camera.camera_stopped(at(now))));
     let mut wire = Vec::new();
-    let status = board.status_tick(at(now), &mut |b| wire.extend_from_slice(b));
+    let status = board.status_tick(
+        at(now),
+        capture,
+        &mut |b| wire.extend_from_slice(b),
+        &mut |_| {},
+    );
     assert!(status.camera_stopped, "no VSYNC for a second");
     assert_eq!(status.capture, camera.counts());
     let c = status.capture;
@@ -467,8 +544,12 @@ fn status_carries_the_capture_counters_and_a_stopped_camera() {
     assert_eq!(msgs.first(), Some(&StereoToAutopilot::Status(status)));
 
     camera.on_vsync(at(now));
-    board.report_capture(camera.counts(), camera.camera_stopped(at(now + 1)));
-    assert!(!board.status_tick(at(now + 1), &mut |_| {}).camera_stopped);
+    let capture = Some((camera.counts(), camera.camera_stopped(at(now + 1))));
+    assert!(
+        !board
+            .status_tick(at(now + 1), capture, &mut |_| {}, &mut |_| {})
+            .camera_stopped
+    );
 }
 
 #[test]
@@ -477,19 +558,30 @@ fn a_frame_overwritten_during_processing_sends_nothing_and_clears_the_history() 
     let mut wire = Vec::new();
     for i in 0..12u64 {
         let t = 40_000 * i;
-        board.on_frame(&frame(i as usize, 4), at(t), at(t), &mut |b| {
+        run_frame(&mut board, &frame(i as usize, 4), at(t), at(t), &mut |b| {
             wire.extend_from_slice(b)
         });
     }
     let sent = decode_out(&wire).0.len();
     let f = frame(12, 4);
-    let _ = board.process_frame(&f, at(480_000), at(480_000));
-    board.discard_processed_frame();
+    let refilled = StereoFrame {
+        pixels: &f,
+        capture: at(480_000),
+        start: at(480_000),
+    };
+    let outcome = board.on_frame(
+        0,
+        Some(refilled),
+        || None,
+        &mut |b| wire.extend_from_slice(b),
+        &mut |_| {},
+    );
+    assert_eq!(outcome, FrameOutcome::Discarded);
     assert_eq!(decode_out(&wire).0.len(), sent, "nothing sent");
     assert_eq!(board.counters().frames_dropped, 1);
     // The history restarts: the next estimate is flagged as still filling.
     let f = frame(13, 4);
-    let est = board.on_frame(&f, at(520_000), at(520_000), &mut |_| {});
+    let est = run_frame(&mut board, &f, at(520_000), at(520_000), &mut |_| {});
     assert!(
         est.flags.contains(EstimateFlags::HISTORY_FILLING),
         "{:?}",
@@ -511,7 +603,7 @@ fn stereo_range_set_over_the_link_bounds_the_default_modes_disparity_search() {
             assert_eq!(e.value, ParamValue::U32(range));
         }
         let f = frame(0, 12);
-        board.on_frame(&f, at(0), at(0), &mut |_| {});
+        run_frame(&mut board, &f, at(0), at(0), &mut |_| {});
         let d = board.edge_fs().diagnostics().disparity_px;
         let max = d.iter().copied().fold(0.0f32, f32::max);
         (board.params().stereo_range, max)
@@ -613,7 +705,8 @@ fn host_link_frames_reach_the_frame_task() {
     // Arbitrary split points, as the receive queue delivers them.
     for piece in wire.chunks(333) {
         board.on_host_bytes(piece, &mut asm, |fr, t| {
-            got.push((Box::new(*fr), t.as_micros()))
+            got.push((Box::new(*fr), t.as_micros()));
+            false
         });
     }
     assert_eq!(got.len(), 2);
@@ -637,7 +730,10 @@ fn incomplete_host_frames_count_as_dropped() {
         wire.extend(enc(&HostToBoard::FrameChunk(c)));
     }
     let mut n = 0;
-    board.on_host_bytes(&wire, &mut asm, |_, _| n += 1);
+    board.on_host_bytes(&wire, &mut asm, |_, _| {
+        n += 1;
+        false
+    });
     assert_eq!(n, 1);
     assert_eq!(board.counters().frames_dropped, 1);
 }
@@ -662,8 +758,8 @@ mod prop {
             let mut asm = Box::new(FrameAssembler::new());
             let mut out = Vec::new();
             board.on_rx_bytes(&bytes, at(now), &mut |b| out.extend_from_slice(b), None);
-            board.on_host_bytes(&bytes, &mut asm, |_, _| {});
-            board.status_tick(at(now), &mut |b| out.extend_from_slice(b));
+            board.on_host_bytes(&bytes, &mut asm, |_, _| false);
+            board.status_tick(at(now), None, &mut |b| out.extend_from_slice(b), &mut |_| {});
             let (_, errors) = decode_out(&out);
             prop_assert_eq!(errors.total(), 0);
         }

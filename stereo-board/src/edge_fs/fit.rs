@@ -3,6 +3,8 @@
 /// The robust residual scale is this many times the median absolute residual: for normal
 /// errors, 1.4826 times their median absolute deviation is their σ.
 pub(super) const MAD_TO_SIGMA: f32 = 1.4826;
+/// Floor of a robust residual scale, so that a perfect fit does not divide by zero.
+pub(super) const MIN_SCALE: f32 = 1e-6;
 
 /// A fitted line `v = slope * x + intercept`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -317,7 +319,7 @@ pub fn robust_line_fit(
         } else {
             *res.select_nth_unstable_by_key(m / 2, magnitude_key).1
         };
-        let scale = (MAD_TO_SIGMA * mad).max(1e-6);
+        let scale = (MAD_TO_SIGMA * mad).max(MIN_SCALE);
         let cut = huber_k * scale;
         let reject = REJECT_SCALES * scale;
         for (p, &w0) in points.iter_mut().zip(prior.iter()) {

@@ -101,6 +101,43 @@ const MEDIAN_MAX: usize = 5;
 const MAX_ROTATION_PX: f32 = 40.0;
 /// Largest vertical flow search range, px.
 const MAX_VERTICAL_SEARCH: u8 = 20;
+/// Largest stereo shift (either way) the parameter check keeps, px.
+const MAX_STEREO_SHIFT_PX: i32 = 20;
+/// The horizontal field of view the parameter check accepts lies strictly between these, rad.
+const FOV_X_RANGE_RAD: (f32, f32) = (0.1, 3.0);
+/// The field of view the parameter check puts in place of one outside that range, rad.
+const FALLBACK_FOV_X_RAD: f32 = 1.0;
+/// The largest baseline the parameter check accepts, m (exclusive).
+const MAX_BASELINE_M: f32 = 10.0;
+/// The camera board's stereo baseline, m: the defaults' and the parameter check's fallback.
+const BOARD_BASELINE_M: f32 = 0.06;
+/// Seconds per microsecond: capture times are in µs.
+const S_PER_US: f32 = 1e-6;
+/// Microseconds per second: the paper mode's frame rate from its capture interval.
+const US_PER_S: f64 = 1e6;
+/// The shortest frame interval the velocity filter and the flow prior trust, s: a shorter one
+/// is a clock glitch, not a frame.
+const MIN_FRAME_GAP_S: f32 = 1e-4;
+/// The longest frame interval they trust, s: after a longer gap the track is lost.
+const MAX_FRAME_GAP_S: f32 = 1.0;
+/// Paper mode: a global translation above this (px per frame) shortens the flow horizon.
+const HORIZON_SHRINK_PX: f64 = 2.0;
+/// Paper mode: a global translation below this (px per frame) lengthens the flow horizon.
+const HORIZON_GROW_PX: f64 = 0.01;
+/// Paper mode: the image's centre column in the fit's 1-based column numbers (`IMG_W / 2`),
+/// where the translation and the sideways velocity are read off the flow line.
+const CENTRE_COLUMN: f64 = 64.0;
+/// Paper mode: the fit's R² in [0, 1] to the estimate's 8-bit quality.
+const QUALITY_FULL_SCALE: f32 = 255.0;
+/// Floor of the coupled fit's weight sum, so that no weight does not divide by zero.
+const MIN_WEIGHT_SUM: f32 = 1e-6;
+/// Floor of the coupled fit's slope variance, so that a perfect fit does not divide by zero.
+const MIN_SLOPE_VARIANCE: f32 = 1e-12;
+/// Nearest obstacle: the fewest adjacent columns of valid depth that make an obstacle.
+const OBSTACLE_RUN_COLUMNS: usize = 5;
+/// Nearest obstacle: neighbouring columns belong to one obstacle while their depths differ by
+/// less than this fraction of the larger.
+const OBSTACLE_DEPTH_STEP: f32 = 0.3;
 
 /// Which Edge-FS variant runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -259,7 +296,7 @@ impl EdgeFsParams {
             max_horizon: 5,
             stereo_shift_px: 0,
             fov_x_rad: core::f32::consts::FRAC_PI_3,
-            baseline_m: 0.06,
+            baseline_m: BOARD_BASELINE_M,
             horizon_s: 0.0,
             stereo_range: 15,
             min_disparity_px: 2.0,
@@ -331,7 +368,7 @@ impl EdgeFsParams {
             max_horizon: 9,
             stereo_shift_px: 0,
             fov_x_rad: CAMERA_HFOV_RAD,
-            baseline_m: 0.06,
+            baseline_m: BOARD_BASELINE_M,
             horizon_s: 0.25,
             stereo_range: 15,
             min_disparity_px: 1.0,
@@ -396,17 +433,17 @@ impl EdgeFsParams {
         self.output_median = clamp_u8(self.output_median, 1, MEDIAN_MAX as u8);
         self.stereo_range = clamp_u8(self.stereo_range, 1, 2 * EdgeFsConfig::MAX_SEARCH_RANGE);
         self.vertical_search_px = clamp_u8(self.vertical_search_px, 0, MAX_VERTICAL_SEARCH);
-        if self.stereo_shift_px > 20 {
-            self.stereo_shift_px = 20;
-        } else if self.stereo_shift_px < -20 {
-            self.stereo_shift_px = -20;
+        if self.stereo_shift_px > MAX_STEREO_SHIFT_PX {
+            self.stereo_shift_px = MAX_STEREO_SHIFT_PX;
+        } else if self.stereo_shift_px < -MAX_STEREO_SHIFT_PX {
+            self.stereo_shift_px = -MAX_STEREO_SHIFT_PX;
         }
         // `!(x > 0)` also catches NaN.
-        if !(self.fov_x_rad > 0.1 && self.fov_x_rad < 3.0) {
-            self.fov_x_rad = 1.0;
+        if !(self.fov_x_rad > FOV_X_RANGE_RAD.0 && self.fov_x_rad < FOV_X_RANGE_RAD.1) {
+            self.fov_x_rad = FALLBACK_FOV_X_RAD;
         }
-        if !(self.baseline_m > 0.0 && self.baseline_m < 10.0) {
-            self.baseline_m = 0.06;
+        if !(self.baseline_m > 0.0 && self.baseline_m < MAX_BASELINE_M) {
+            self.baseline_m = BOARD_BASELINE_M;
         }
         self.filter_accel_mps2 = finite_or_zero(self.filter_accel_mps2);
         self.filter_gate = finite_or_zero(self.filter_gate);
@@ -758,10 +795,10 @@ impl EdgeFs {
         // Horizon update from the previous processed frame's global translation.
         let tau = self.tau_x.abs();
         let mut n = self.horizon as usize;
-        if tau > 2.0 && n > 1 {
+        if tau > HORIZON_SHRINK_PX && n > 1 {
             n -= 1;
         }
-        if tau < 0.01 && n < h {
+        if tau < HORIZON_GROW_PX && n < h {
             n += 1;
         }
         self.horizon = n as u8;
@@ -784,7 +821,7 @@ impl EdgeFs {
                 .filter(|(_, &f)| f != 0.0)
                 .map(|(c, &f)| ((c + 1) as f64, f)),
         );
-        self.tau_x = 64.0 * global.slope + global.intercept;
+        self.tau_x = CENTRE_COLUMN * global.slope + global.intercept;
 
         // Stereo, columns W+1+max(s,0) ..= 128-W-D+min(s,0) (1-based).
         let mut disp = [0u8; IMG_W];
@@ -809,7 +846,7 @@ impl EdgeFs {
             0.0
         };
         let dt_us = cur.capture_us.wrapping_sub(self.slot(1).capture_us);
-        let fr = 1e6 / dt_us as f64;
+        let fr = US_PER_S / dt_us as f64;
         let border = w + d;
         let (vlo, vhi) = (d + w + 2, IMG_W - d - w - 2);
         let mut pts = [(0.0f64, 0.0f64); IMG_W];
@@ -838,9 +875,9 @@ impl EdgeFs {
         self.diag.fit_columns = np as u8;
         out.forward_mps = fit.slope as f32;
         // MATLAB's sideways output (line at the centre in rad) is positive to the left.
-        out.sideways_mps =
-            (-(fit.intercept + 64.0 * fit.slope) * f64::from(p.fov_x_rad) / IMG_W as f64) as f32;
-        out.quality = (fit.r2.clamp(0.0, 1.0) * 255.0) as u8;
+        out.sideways_mps = (-(fit.intercept + CENTRE_COLUMN * fit.slope) * f64::from(p.fov_x_rad)
+            / IMG_W as f64) as f32;
+        out.quality = (fit.r2.clamp(0.0, 1.0) * QUALITY_FULL_SCALE) as u8;
         out.obstacle_m = self.nearest_obstacle();
         out.depth_coverage = coverage_u8(np, IMG_W.saturating_sub(2 * w));
         if np < 2 {
@@ -883,8 +920,8 @@ impl EdgeFs {
         }
         let now = self.ring[self.idx(0)].capture_us;
         let before = self.ring[self.idx(1)].capture_us;
-        let dt_s = now.wrapping_sub(before) as f32 * 1e-6;
-        if self.frames < 2 || !(dt_s > 1e-4 && dt_s < 1.0) {
+        let dt_s = now.wrapping_sub(before) as f32 * S_PER_US;
+        if self.frames < 2 || !(dt_s > MIN_FRAME_GAP_S && dt_s < MAX_FRAME_GAP_S) {
             // First frame, a gap or a clock jump: the track is lost.
             self.filter = [AxisFilter::new(), AxisFilter::new(), AxisFilter::new()];
         }
@@ -1035,7 +1072,8 @@ impl EdgeFs {
         for (r, pt) in res.iter_mut().zip(rows.iter()) {
             *r = (pt.1 - (a0 * pt.0 + b0)).abs();
         }
-        let scale = (fit::MAD_TO_SIGMA * median(res.get_mut(..nr).unwrap_or(&mut []))).max(1e-6);
+        let scale =
+            (fit::MAD_TO_SIGMA * median(res.get_mut(..nr).unwrap_or(&mut []))).max(fit::MIN_SCALE);
         let (cut, reject) = (p.huber_k * scale, fit::REJECT_SCALES * scale);
         for pt in rows.iter_mut() {
             let r = (pt.1 - (a0 * pt.0 + b0)).abs();
@@ -1058,10 +1096,10 @@ impl EdgeFs {
             y_lo = y_lo.min(pt.0);
             y_hi = y_hi.max(pt.0);
         }
-        let y_mean = sy / sw.max(1e-6);
+        let y_mean = sy / sw.max(MIN_WEIGHT_SUM);
         let row_var = scale * scale;
         let var_ar = row_var / (syy - sy * y_mean).max(1.0);
-        let var_a = (slope_sigma * slope_sigma).max(1e-12);
+        let var_a = (slope_sigma * slope_sigma).max(MIN_SLOPE_VARIANCE);
         // The shared slope and both intercepts through their blocks' centroids.
         let x_mean = cols.iter().map(|pt| pt.0).sum::<f32>() / cols.len().max(1) as f32;
         let var_f = 1.0 / (1.0 / var_a + 1.0 / var_ar);
@@ -1075,7 +1113,7 @@ impl EdgeFs {
             (Some((rc, tc)), Some((rr, tr))) => 1.0 - (rc + rr) / (tc + tr),
             _ => 0.0,
         };
-        let up_sigma = libm::sqrtf(row_var / sw.max(1e-6) + y_mean * y_mean * var_f) / f;
+        let up_sigma = libm::sqrtf(row_var / sw.max(MIN_WEIGHT_SUM) + y_mean * y_mean * var_f) / f;
         if !(forward.is_finite() && bc.is_finite() && brc.is_finite() && up_sigma.is_finite()) {
             return columns_only(EstimateFlags::POOR_FIT);
         }
@@ -1097,14 +1135,14 @@ impl EdgeFs {
     fn flow_prior(&self) -> Option<FlowPrior> {
         let now = self.ring[self.idx(0)].capture_us;
         let before = self.ring[self.idx(1)].capture_us;
-        let gap_s = now.wrapping_sub(before) as f32 * 1e-6;
+        let gap_s = now.wrapping_sub(before) as f32 * S_PER_US;
         let [fw, sw, _] = &self.filter;
         let usable = self.params.prior_window_px > 0.0
             && self.params.filter_accel_mps2 > 0.0
             && !self.prior_doubted
             && self.frames >= 2
-            && gap_s > 1e-4
-            && gap_s < 1.0
+            && gap_s > MIN_FRAME_GAP_S
+            && gap_s < MAX_FRAME_GAP_S
             && fw.is_confirmed()
             && sw.is_confirmed();
         usable.then(|| FlowPrior {
@@ -1124,7 +1162,7 @@ impl EdgeFs {
         let mut prev = 0.0f32;
         // A run of at least 5 columns ended: keep its mean if it is the nearest so far.
         let end_run = |run: usize, sum: f32, best: &mut Option<f32>| {
-            if run >= 5 {
+            if run >= OBSTACLE_RUN_COLUMNS {
                 let mean = sum / run as f32;
                 if best.is_none_or(|b| mean < b) {
                     *best = Some(mean);
@@ -1132,7 +1170,8 @@ impl EdgeFs {
             }
         };
         for &z in depth.iter() {
-            let continues = z > 0.0 && run > 0 && (z - prev).abs() < 0.3 * prev.max(z);
+            let continues =
+                z > 0.0 && run > 0 && (z - prev).abs() < OBSTACLE_DEPTH_STEP * prev.max(z);
             if z > 0.0 && (run == 0 || continues) {
                 run += 1;
                 sum += z;

@@ -11,6 +11,13 @@
 //! changed: the filter restarts at the newer one, so a genuine step costs one frame, not a
 //! lock-out. f32 only, a few dozen flops per axis and frame; no heap.
 
+/// Floor of a measurement's noise variance, (m/s)²: a perfect fit still leaves the filter its
+/// own say.
+const MIN_NOISE_VARIANCE: f32 = 1e-8;
+/// Noise variance of a measurement whose variance is not finite, (m/s)²: large enough that
+/// the measurement barely moves the estimate.
+const UNKNOWN_NOISE_VARIANCE: f32 = 1e6;
+
 /// Outcome of one measurement update.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Update {
@@ -115,7 +122,11 @@ impl AxisFilter {
     /// threshold in innovation standard deviations (0 or less: never reject).
     /// `accel`: the acceleration noise, which sets the initial acceleration uncertainty.
     pub fn update(&mut self, z: f32, r: f32, gate: f32, accel: f32) -> Update {
-        let r = if r.is_finite() { r.max(1e-8) } else { 1e6 };
+        let r = if r.is_finite() {
+            r.max(MIN_NOISE_VARIANCE)
+        } else {
+            UNKNOWN_NOISE_VARIANCE
+        };
         if !z.is_finite() {
             return Update::Rejected;
         }

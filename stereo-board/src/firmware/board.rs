@@ -1,8 +1,10 @@
 //! The firmware side of the board definition ([`stereo_board::board`], which holds every pin,
-//! peripheral, clock and rate): the clock configuration, and the link UART, which QEMU's machine
-//! has elsewhere.
+//! peripheral, clock and rate): the clock configuration, the UARTs the link can run on (the
+//! flavour picks one, `flavour::LinkUart`: QEMU's machine has it elsewhere) and the host link's
+//! receive DMA stream.
 
 use board_support::log;
+use board_support::uart_dma::{Controller, RxStream};
 use stm32f4xx_hal::gpio::{PA0, PA1, PA10, PA9};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::prelude::*;
@@ -17,46 +19,46 @@ pub fn clocks() -> Config {
     board_support::clocks::config(stereo_board::board::HSE_HZ)
 }
 
-/// The link UART: UART4 on the camera board ([`stereo_board::board::LINK_UART`]).
-#[cfg(not(feature = "qemu"))]
-pub type LinkUart = pac::UART4;
-/// The link UART: USART1 on QEMU's netduinoplus2 (its first `-serial` port).
-#[cfg(feature = "qemu")]
-pub type LinkUart = pac::USART1;
-/// The link UART's interrupt.
-#[cfg(not(feature = "qemu"))]
-pub const LINK_IRQ: pac::Interrupt = pac::Interrupt::UART4;
-/// The link UART's interrupt (QEMU).
-#[cfg(feature = "qemu")]
-pub const LINK_IRQ: pac::Interrupt = pac::Interrupt::USART1;
+/// The candidates for the link UART, each with its pins: the board's UART4 on PA0/PA1
+/// ([`stereo_board::board::LINK_UART`]) and USART1 on PA9/PA10, QEMU's netduinoplus2's first
+/// `-serial` port. The flavour's link UART takes its own; the other is left at reset.
+pub type LinkCandidates = ((pac::UART4, (PA0, PA1)), (pac::USART1, (PA9, PA10)));
 
-/// The link UART at [`stereo_board::board::LINK_BAUD`]: UART4 on PA0/PA1 (the first pair);
-/// USART1 on PA9/PA10 (the second) is left at reset.
-#[cfg(not(feature = "qemu"))]
-pub fn link_serial(
-    (uart4, pins): (pac::UART4, (PA0, PA1)),
-    _qemu: (pac::USART1, (PA9, PA10)),
-    rcc: &mut Rcc,
-) -> Serial<LinkUart> {
-    uart4
-        .serial::<u8>(pins, link_config(), rcc)
-        .unwrap_or_else(|_| log::fatal("UART4 configuration"))
+/// A UART the link can run on.
+pub trait LinkPort: serial::Instance + Sized {
+    /// Its interrupt.
+    const IRQ: pac::Interrupt;
+    /// Configures it at [`stereo_board::board::LINK_BAUD`], taken from `candidates`.
+    fn open(candidates: LinkCandidates, rcc: &mut Rcc) -> Serial<Self>;
 }
 
-/// The link UART at [`stereo_board::board::LINK_BAUD`] in QEMU: USART1 on PA9/PA10 (the second
-/// pair); UART4 on PA0/PA1 (the first) is left at reset.
-#[cfg(feature = "qemu")]
-pub fn link_serial(
-    _board: (pac::UART4, (PA0, PA1)),
-    (usart1, pins): (pac::USART1, (PA9, PA10)),
-    rcc: &mut Rcc,
-) -> Serial<LinkUart> {
-    usart1
-        .serial::<u8>(pins, link_config(), rcc)
-        .unwrap_or_else(|_| log::fatal("USART1 configuration"))
+impl LinkPort for pac::UART4 {
+    const IRQ: pac::Interrupt = pac::Interrupt::UART4;
+    fn open(((uart4, pins), _): LinkCandidates, rcc: &mut Rcc) -> Serial<Self> {
+        uart4
+            .serial::<u8>(pins, link_config(), rcc)
+            .unwrap_or_else(|_| log::fatal("UART4 configuration"))
+    }
+}
+
+impl LinkPort for pac::USART1 {
+    const IRQ: pac::Interrupt = pac::Interrupt::USART1;
+    fn open((_, (usart1, pins)): LinkCandidates, rcc: &mut Rcc) -> Serial<Self> {
+        usart1
+            .serial::<u8>(pins, link_config(), rcc)
+            .unwrap_or_else(|_| log::fatal("USART1 configuration"))
+    }
 }
 
 /// The link's line settings: 8N1 at the baud rate both boards share.
 fn link_config() -> serial::Config {
     serial::Config::default().baudrate(stereo_board::board::LINK_BAUD.bps())
 }
+
+/// The DMA stream that takes the host link's received bytes in the `hil` flavour (921,600 Bd;
+/// see `board_support::uart_dma`): USART2_RX is DMA1 stream 5, channel 4 (RM0090 table 42).
+pub const HOST_RX_DMA: RxStream = RxStream {
+    controller: Controller::Dma1,
+    stream: 5,
+    channel: 4,
+};

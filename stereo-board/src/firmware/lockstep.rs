@@ -13,11 +13,11 @@
 //!   interrupts never fire ([`on_dcmi_interrupt`], [`on_dma_interrupt`]) and the capture path
 //!   has nothing to report ([`check_camera`]).
 //! * Pins: `hil` configures the board's link and host UART pins, the camera reset and the LED
-//!   ([`stereo_board::board::HIL_PINS`]); `qemu` the LED only.
+//!   ([`stereo_board::board::HIL_PINS`]); `qemu` the LED only. The link UART ([`LinkUart`]) is
+//!   the board's UART4 in `hil`, USART1 on QEMU's machine.
 
 use super::{log, pins, HostLink, HostStore};
 use board_support::flavour::host_receiver;
-use board_support::uart_dma::{Controller, RxStream};
 use core::sync::atomic::AtomicU32;
 use protocol::{CaptureCounts, STEREO_FRAME_BYTES};
 use stereo_board::app::{FrameAssembler, StereoBoardApp};
@@ -73,20 +73,24 @@ pub fn on_link_bytes(board: &StereoBoardApp) {
 /// Bytes of the host link's receive and transmit queues.
 pub const HOST_QUEUE: (usize, usize) = (super::RX_QUEUE, super::TX_QUEUE);
 
-/// The DMA stream that takes the host link's received bytes in the `hil` flavour (921,600 Bd;
-/// see `board_support::uart_dma`): USART2_RX is DMA1 stream 5, channel 4 (RM0090 table 42).
-pub const HOST_RX_DMA: RxStream = RxStream {
-    controller: Controller::Dma1,
-    stream: 5,
-    channel: 4,
-};
-
-/// The pins this flavour configures.
+/// The link UART: the board's UART4 (`hil`); USART1 on QEMU's machine (`qemu`), its first
+/// `-serial` port.
 #[cfg(not(feature = "qemu"))]
-const PINS: &[PinAssignment] = &stereo_board::board::HIL_PINS;
-/// The pins this flavour configures: QEMU's machine has the LED only.
+pub type LinkUart = pac::UART4;
+/// The link UART (see the `hil` flavour's).
 #[cfg(feature = "qemu")]
-const PINS: &[PinAssignment] = &[stereo_board::board::LED];
+pub type LinkUart = pac::USART1;
+
+/// Whether this is the `qemu` flavour (QEMU's netduinoplus2 rather than the board).
+const QEMU: bool = cfg!(feature = "qemu");
+
+/// The pins this flavour configures: the board's link and host UART pins, the camera reset and
+/// the LED (`hil`); QEMU's machine has the LED only.
+const PINS: &[PinAssignment] = if QEMU {
+    &[stereo_board::board::LED]
+} else {
+    &stereo_board::board::HIL_PINS
+};
 
 /// A frame handed from the host-link task to the frame task: the buffer and its exposure time
 /// (`None`: empty).
@@ -122,7 +126,7 @@ impl super::FrameSource for &'static mut FrameSlot {
         Some((&self.buf, capture))
     }
     // The slot is written only by `host_rx`, under the same lock as the frame task's.
-    fn intact(&self, _: &()) -> bool {
+    fn intact(_: &()) -> bool {
         true
     }
     fn release(_: &()) {}
@@ -144,20 +148,15 @@ impl HostFrames {
         bytes: &[u8],
     ) -> Option<FrameReady> {
         let mut ready = false;
-        let mut overwritten = 0u32;
         board.on_host_bytes(bytes, self.assembler, |frame, capture| {
             let capture_us = capture.as_micros();
-            if slot.capture_us.is_some() {
-                overwritten += 1;
-            }
+            let replaced = slot.capture_us.is_some();
             slot.buf.copy_from_slice(frame);
             slot.capture_us = Some(capture_us);
             observe_world_us(capture_us);
             ready = true;
+            replaced
         });
-        for _ in 0..overwritten {
-            board.frame_dropped();
-        }
         ready.then_some(())
     }
 }
@@ -180,7 +179,7 @@ pub fn host_link(
         )
         .unwrap_or_else(|_| log::fatal("USART2 configuration"))
         .split();
-    let rx = host_receiver(rx, HOST_RX_DMA);
+    let rx = host_receiver(rx, super::board::HOST_RX_DMA);
     let (writer, interrupt, reader) = store.split(pac::Interrupt::USART2, tx, rx, lost);
     // SAFETY: `init` calls this once; this is the only reference ever made to ASSEMBLER.
     #[allow(static_mut_refs)]

@@ -7,18 +7,19 @@
 //! frames from the host, world time), selected as `flavour`; each fulfils the contract both
 //! boards share ([`board_support::flavour::Flavour`]). Every task exists in every flavour;
 //! one whose source a flavour lacks is never woken there (the DCMI's interrupts without a
-//! camera, the host link's tasks without a host link).
+//! camera, the host link's tasks without a host link, the link UART the flavour does not use).
+//! So the app has no `cfg` but the flavour's selection.
 //!
 //! | RTIC task | prio | binds / trigger | body |
 //! |---|---|---|---|
-//! | `link_irq` | 4 | link UART (UART4; USART1 in QEMU): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]); one [`board_support::uart_link`] |
+//! | `link_irq` / `link_irq_usart1` | 4 | link UART (UART4; USART1 in QEMU, `flavour::LinkUart`): RXNE, TXE | bytes into a lock-free queue (a full queue pauses the interrupt, see [`board_support::uart_rx`]); queued frames out ([`board_support::uart_tx`]); one [`board_support::uart_link`] |
 //! | `uart_rx` | 3 | woken by `link_irq` | [`StereoBoardApp::on_rx_bytes`] (with the parameter sector on the real board) |
 //! | `host_irq` / `host_rx` | 4 / 3 | USART2 RXNE (qemu) or IDLE (hil: received by DMA, [`board_support::uart_dma`]), TXE | [`StereoBoardApp::on_host_bytes`] (lockstep flavours; the real board has no host link); queued frames out |
 //! | `host_dma` | 4 | DMA1 stream 5 (hil) | half/full buffer: pends `host_irq` |
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
 //! | `dma_irq` | 4 | DMA2 stream 1 transfer / direct-mode error (real) | counts, re-arms |
-//! | `frame` | 2 | spawned per frame | [`StereoBoardApp::process_frame`] + `send_estimate` (or `discard_processed_frame` when the buffer was refilled meanwhile) |
-//! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state in, [`StereoBoardApp::status_tick`], host heartbeat, LED, watchdog |
+//! | `frame` | 2 | spawned per frame | [`StereoBoardApp::on_frame`] (the frame's buffer checked for a refill when processing ends) |
+//! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state into [`StereoBoardApp::status_tick`], LED, watchdog |
 //! | `idle` | 0 | nothing else to run | `WFI` (sleep until an interrupt) |
 //!
 //! Edge-FS runs inside a lock of the board state, whose ceiling is the receive tasks'
@@ -47,7 +48,7 @@
 //!
 //! Flavours: `real` (the original board: camera on the DCMI, link on UART4), `hil` (the same
 //! board, frames from a host on USART2) and `qemu` (`-M netduinoplus2`: no camera, link on
-//! USART1 and host on USART2, the first two `-serial` ports; [`board`] has the link UART).
+//! USART1 and host on USART2, the first two `-serial` ports; the flavour picks the link UART).
 
 mod board;
 mod clock;
@@ -100,6 +101,13 @@ fn queue_frame(tx: &mut TxWriter, frame: &[u8]) {
     let _ = tx.send(frame);
 }
 
+/// Queues whole frames on the host link's transmit queue, if the flavour has a host link.
+fn queue_host(tx: &mut Option<TxWriter>, frame: &[u8]) {
+    if let Some(tx) = tx {
+        queue_frame(tx, frame);
+    }
+}
+
 /// The host link's storage: its queues' sizes are the flavour's.
 pub type HostStore = UartLink<{ flavour::HOST_QUEUE.0 }, { flavour::HOST_QUEUE.1 }>;
 
@@ -121,16 +129,16 @@ trait FrameSource {
         ready: &flavour::FrameReady,
     ) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)>;
     /// True if the frame was not touched while it was being processed.
-    fn intact(&self, ready: &flavour::FrameReady) -> bool;
+    fn intact(ready: &flavour::FrameReady) -> bool;
     /// Done with the frame (also one the frame task never took).
     fn release(ready: &flavour::FrameReady);
 }
 
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3, UART5])]
 mod app {
-    use super::board::{self, LinkUart};
-    use super::flavour::{self, Current as Flavour, FrameReady, Frames, HOST_QUEUE};
-    use super::{clock, log, queue_frame, FrameSource, HostInterrupt, Mono, APP};
+    use super::board::{self, LinkPort as _};
+    use super::flavour::{self, Current as Flavour, FrameReady, Frames, LinkUart, HOST_QUEUE};
+    use super::{clock, log, queue_frame, queue_host, FrameSource, HostInterrupt, Mono, APP};
     use super::{RX_LOST, RX_QUEUE, TX_QUEUE};
     use board_support::flavour::{Flavour as _, PARAM_STORAGE};
     use board_support::uart_link::{LinkInterrupt, LinkReader, UartLink};
@@ -142,12 +150,13 @@ mod app {
     use stm32f4xx_hal::{prelude::*, serial::Rx, watchdog::IndependentWatchdog};
 
     use board_support::param_flash::{ParamSector, WatchedSector};
-    use protocol::BoardToHost;
-    use rtic::mutex::prelude::*;
-    use stereo_board::app::send_to_host;
+    use stereo_board::app::{FrameOutcome, StereoFrame};
     use stereo_board::camera::CaptureMonitor;
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
+
+    /// Microseconds per tick of `Mono` (1 kHz).
+    const US_PER_TICK: u32 = 1_000;
 
     #[shared]
     struct Shared {
@@ -160,8 +169,8 @@ mod app {
         frames: Frames,
         /// The capture path's state (real flavour; idle in the others).
         capture: CaptureMonitor,
-        /// The link's interrupt end (shared only because the flavours bind different
-        /// interrupts; one task uses it).
+        /// The link's interrupt end (shared by the two link UART tasks, of which the
+        /// flavour's link wakes one).
         link: LinkInterrupt<LinkUart, Rx<LinkUart>>,
         /// The watchdog: fed by `status`, given the save's timeout by `uart_rx` for a save.
         iwdg: IndependentWatchdog,
@@ -205,17 +214,16 @@ mod app {
 
         // The HAL's port split resets the port: split before the pin table is applied.
         let gpioa = cx.device.GPIOA.split(&mut rcc);
-        let link = board::link_serial(
+        let candidates = (
             (cx.device.UART4, (gpioa.pa0, gpioa.pa1)),
             (cx.device.USART1, (gpioa.pa9, gpioa.pa10)),
-            &mut rcc,
         );
-        let (link_tx, mut link_rx) = link.split();
+        let (link_tx, mut link_rx) = LinkUart::open(candidates, &mut rcc).split();
         link_rx.listen();
         let (link_tx, link, link_reader) =
             cx.local
                 .link_store
-                .split(board::LINK_IRQ, link_tx, link_rx, &RX_LOST);
+                .split(LinkUart::IRQ, link_tx, link_rx, &RX_LOST);
 
         // The host link: HIL frames in, estimates mirrored out (lockstep flavours).
         let host = flavour::host_link(
@@ -271,18 +279,17 @@ mod app {
         }
     }
 
-    /// The link UART's interrupt (UART4; USART1 in QEMU): queued frames out, received bytes
-    /// into the queue.
-    #[cfg(not(feature = "qemu"))]
+    /// The link UART's interrupt, UART4 on the board: queued frames out, received bytes into
+    /// the queue. A binding names its interrupt literally, so both of the flavours' link UARTs
+    /// are bound (`link_irq_usart1`); the one the flavour's link does not use is never enabled.
     #[task(binds = UART4, priority = 4, shared = [link])]
     fn link_irq(mut cx: link_irq::Context) {
         cx.shared.link.lock(|link| link.serve());
     }
 
-    /// The link UART's interrupt (see the hardware flavours').
-    #[cfg(feature = "qemu")]
+    /// The link UART's interrupt, USART1 on QEMU's machine (see `link_irq`).
     #[task(binds = USART1, priority = 4, shared = [link])]
-    fn link_irq_qemu(mut cx: link_irq_qemu::Context) {
+    fn link_irq_usart1(mut cx: link_irq_usart1::Context) {
         cx.shared.link.lock(|link| link.serve());
     }
 
@@ -334,12 +341,11 @@ mod app {
         }
     }
 
-    /// DMA1 stream 5 (hil): the host link's receive buffer is half or wholly full; `host_irq`
-    /// hands the bytes on.
-    #[cfg(all(feature = "hil", not(feature = "qemu")))]
+    /// DMA1 stream 5 (hil; never enabled in the other flavours): the host link's receive
+    /// buffer is half or wholly full; `host_irq` hands the bytes on.
     #[task(binds = DMA1_STREAM5, priority = 4)]
     fn host_dma(_: host_dma::Context) {
-        flavour::HOST_RX_DMA.acknowledge();
+        board::HOST_RX_DMA.acknowledge();
         rtic::pend(stm32f4xx_hal::pac::Interrupt::USART2);
     }
 
@@ -397,51 +403,32 @@ mod app {
     /// processed sends nothing and clears the flow history.
     #[task(priority = 2, shared = [board, frames, link_tx, host_tx, capture])]
     async fn frame(mut cx: frame::Context, ready: FrameReady) {
-        match run_frame(
+        let start = timebase::Instant::from_micros(Flavour::lib_now_us());
+        let mut shared = (
             &mut cx.shared.board,
             &mut cx.shared.frames,
             &mut cx.shared.link_tx,
-            ready,
-        ) {
-            None => cx.shared.capture.lock(|m| m.on_frame_overwritten()),
-            Some(Some(est)) => cx.shared.host_tx.lock(|tx| {
-                if let Some(tx) = tx {
-                    send_to_host(&BoardToHost::Estimate(est), &mut |f| queue_frame(tx, f));
-                }
-            }),
-            Some(None) => {}
-        }
-    }
-
-    /// The frame task's body: `None` when the frame's buffer was refilled during processing,
-    /// `Some(None)` when there was no frame, `Some(Some(estimate))` when one was sent.
-    fn run_frame(
-        board: &mut impl Mutex<T = &'static mut StereoBoardApp>,
-        frames: &mut impl Mutex<T = Frames>,
-        link_tx: &mut impl Mutex<T = TxWriter>,
-        ready: FrameReady,
-    ) -> Option<Option<protocol::Estimate>> {
-        let start = timebase::Instant::from_micros(Flavour::lib_now_us());
-        (board, frames, link_tx).lock(|board, frames, tx| {
-            for _ in 0..super::FRAMES_LOST.swap(0, Ordering::Relaxed) {
-                board.frame_dropped();
-            }
-            let Some((buf, capture_us)) = frames.take(&ready) else {
-                return Some(None);
+            &mut cx.shared.host_tx,
+        );
+        let outcome = shared.lock(|board, frames, tx, host_tx| {
+            let lost = super::FRAMES_LOST.swap(0, Ordering::Relaxed);
+            let frame = frames.take(&ready).map(|(pixels, capture_us)| StereoFrame {
+                pixels,
+                capture: timebase::Instant::from_micros(capture_us),
+                start,
+            });
+            let finish = || {
+                let intact = Frames::intact(&ready);
+                Frames::release(&ready);
+                intact.then(|| timebase::Instant::from_micros(Flavour::lib_now_us()))
             };
-            let capture = timebase::Instant::from_micros(capture_us);
-            let out = board.process_frame(buf, capture, start);
-            let intact = frames.intact(&ready);
-            Frames::release(&ready);
-            if !intact {
-                board.discard_processed_frame();
-                return None;
-            }
-            let done = timebase::Instant::from_micros(Flavour::lib_now_us());
-            Some(Some(board.send_estimate(&out, capture, done, &mut |f| {
-                queue_frame(tx, f)
-            })))
-        })
+            board.on_frame(lost, frame, finish, &mut |f| queue_frame(tx, f), &mut |f| {
+                queue_host(host_tx, f)
+            })
+        });
+        if outcome == FrameOutcome::Discarded {
+            cx.shared.capture.lock(|m| m.on_frame_overwritten());
+        }
     }
 
     /// 1 Hz: capture state, status and heartbeat to the autopilot, LED, watchdog. A stopped
@@ -454,18 +441,15 @@ mod app {
                 .shared
                 .capture
                 .lock(|m| flavour::check_camera(m, now.as_micros()));
-            if let Some((counts, stopped)) = camera {
-                cx.shared.board.lock(|b| b.report_capture(counts, stopped));
-            }
-            let status = (&mut cx.shared.board, &mut cx.shared.link_tx)
-                .lock(|board, tx| board.status_tick(now, &mut |f| queue_frame(tx, f)));
-            // The host link gets a heartbeat too: a HIL host starts streaming once it sees one
-            // (bytes sent before the USART is enabled are lost).
-            let hb = protocol::Heartbeat::new(protocol::Node::StereoBoard, status.uptime_ms);
-            cx.shared.host_tx.lock(|tx| {
-                if let Some(tx) = tx {
-                    send_to_host(&BoardToHost::Heartbeat(hb), &mut |f| queue_frame(tx, f));
-                }
+            let mut shared = (
+                &mut cx.shared.board,
+                &mut cx.shared.link_tx,
+                &mut cx.shared.host_tx,
+            );
+            let status = shared.lock(|board, tx, host_tx| {
+                board.status_tick(now, camera, &mut |f| queue_frame(tx, f), &mut |f| {
+                    queue_host(host_tx, f)
+                })
             });
             super::pins::toggle(&stereo_board::board::LED);
             cx.shared.iwdg.lock(|w| w.feed());
@@ -502,7 +486,7 @@ mod app {
                 c.frames_overwritten,
                 board_support::stack::free_bytes()
             );
-            Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / 1_000)).await;
+            Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / US_PER_TICK)).await;
         }
     }
 }

@@ -40,6 +40,9 @@ impl board_support::flavour::Flavour for Current {
     }
 }
 
+/// The link UART: the board's UART4 ([`stereo_board::board::LINK_UART`]).
+pub type LinkUart = pac::UART4;
+
 /// Nothing to take from the autopilot's messages: the library runs on the board clock.
 pub fn on_link_bytes(_board: &StereoBoardApp) {}
 
@@ -85,7 +88,7 @@ impl super::FrameSource for Camera {
     fn take(&mut self, ready: &FrameReady) -> Option<(&[u8; STEREO_FRAME_BYTES], u64)> {
         dcmi::frame(ready).map(|f| (f, ready.capture_us))
     }
-    fn intact(&self, ready: &FrameReady) -> bool {
+    fn intact(ready: &FrameReady) -> bool {
         dcmi::intact(ready)
     }
     fn release(ready: &FrameReady) {
@@ -121,7 +124,9 @@ pub fn check_camera(m: &mut CaptureMonitor, now_us: u64) -> Option<(CaptureCount
 
 /// Busy-waits `us` microseconds on the core clock (start-up only).
 fn delay_us(us: u32) {
-    cortex_m::asm::delay(us.saturating_mul(stereo_board::board::SYSCLK_HZ / 1_000_000));
+    cortex_m::asm::delay(
+        us.saturating_mul(stereo_board::board::SYSCLK_HZ / stereo_board::board::HZ_PER_MHZ),
+    );
 }
 
 /// Brings the cameras up as the original board does: CPLD mode and reset are already set by

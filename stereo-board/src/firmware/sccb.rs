@@ -37,7 +37,7 @@ impl Sccb {
         rcc.apb1enr().modify(|_, w| w.i2c2en().set_bit());
         rcc.apb1rstr().modify(|_, w| w.i2c2rst().set_bit());
         rcc.apb1rstr().modify(|_, w| w.i2c2rst().clear_bit());
-        let pclk_mhz = board::APB1_HZ / 1_000_000;
+        let pclk_mhz = board::APB1_HZ / board::HZ_PER_MHZ;
         // Standard mode: SCL high and low each CCR periods of the APB1 clock.
         let ccr = board::APB1_HZ / (2 * board::SCCB_HZ);
         i2c.cr1().write(|w| w.pe().clear_bit());
