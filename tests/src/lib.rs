@@ -1,5 +1,6 @@
 //! Shared helpers for the cross-crate integration tests in `tests/tests/`.
 
+use autopilot::fsm::FsmVariant;
 use protocol::{GyroAttitude, WireTime, STEREO_FRAME_BYTES};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -88,4 +89,29 @@ pub fn fly_all(configs: &[FlightConfig]) -> Vec<FlightResult> {
             .map(|flight| flight.join().expect("a flight does not panic"))
             .collect()
     })
+}
+
+/// Flies `base(seed)` for every seed of `seeds` with each avoidance FSM (the paper's, then
+/// turn until clear), side by side ([`fly_all`]); returns each flight's FSM, seed and result.
+pub fn fly_both_fsms(
+    seeds: impl Iterator<Item = u64> + Clone,
+    base: impl Fn(u64) -> FlightConfig,
+) -> Vec<(FsmVariant, u64, FlightResult)> {
+    let flights: Vec<(FsmVariant, u64)> = [FsmVariant::Paper, FsmVariant::TurnUntilClear]
+        .into_iter()
+        .flat_map(|fsm| seeds.clone().map(move |seed| (fsm, seed)))
+        .collect();
+    let configs: Vec<FlightConfig> = flights
+        .iter()
+        .map(|&(fsm, seed)| {
+            let mut cfg = base(seed);
+            cfg.autopilot.fsm.variant = fsm;
+            cfg
+        })
+        .collect();
+    flights
+        .into_iter()
+        .zip(fly_all(&configs))
+        .map(|((fsm, seed), r)| (fsm, seed, r))
+        .collect()
 }

@@ -1,8 +1,7 @@
 //! Closed-loop simulation tests: both boards' real task logic in the loop, talking over the
 //! simulated UART (sim-host's `sim::flight`). Each test states the bound it checks.
 
-use autopilot::fsm::FsmVariant;
-use integration_tests::fly_all;
+use integration_tests::fly_both_fsms;
 use protocol::{FlightMode, FsmState};
 use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult, LogRow};
 use sim_host::sim::uart::LinkFaults;
@@ -118,22 +117,11 @@ const ROOM_SEEDS: std::ops::RangeInclusive<u64> = 1..=6;
 /// of 600 s per FSM) give the rate over long flights.
 #[test]
 fn room_flights_without_collision() {
-    let flights: Vec<(FsmVariant, u64)> = [FsmVariant::Paper, FsmVariant::TurnUntilClear]
-        .into_iter()
-        .flat_map(|fsm| ROOM_SEEDS.map(move |seed| (fsm, seed)))
-        .collect();
-    let configs: Vec<FlightConfig> = flights
-        .iter()
-        .map(|&(fsm, seed)| {
-            let mut cfg = FlightConfig {
-                seed,
-                ..FlightConfig::default()
-            };
-            cfg.autopilot.fsm.variant = fsm;
-            cfg
-        })
-        .collect();
-    for ((fsm, seed), r) in flights.iter().zip(fly_all(&configs)) {
+    let flights = fly_both_fsms(ROOM_SEEDS, |seed| FlightConfig {
+        seed,
+        ..FlightConfig::default()
+    });
+    for (fsm, seed, r) in flights {
         println!(
             "seed {seed} {fsm:?}: {} collisions, min clearance {:.3} m, {:.1} m flown",
             r.collisions, r.min_clearance_m, r.distance_m

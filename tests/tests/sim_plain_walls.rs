@@ -7,8 +7,7 @@
 //! a drone that never saw) were tuned on seeds 101-104 and 501-510; these tests fly seeds
 //! 701-703, which were not used for tuning.
 
-use autopilot::fsm::FsmVariant;
-use integration_tests::fly_all;
+use integration_tests::fly_both_fsms;
 use protocol::FlightMode;
 use sim_host::sim::flight::{run_flight, FlightConfig, FlightResult};
 use sim_host::sim::scene_spec::SceneSpec;
@@ -33,24 +32,13 @@ fn max_speed(r: &FlightResult) -> f32 {
 #[test]
 fn plain_room_flights_touch_no_wall() {
     let scene = SceneSpec::preset("plain-room").expect("plain-room preset");
-    let flights: Vec<(FsmVariant, u64)> = [FsmVariant::Paper, FsmVariant::TurnUntilClear]
-        .into_iter()
-        .flat_map(|fsm| SEEDS.map(move |seed| (fsm, seed)))
-        .collect();
-    let configs: Vec<FlightConfig> = flights
-        .iter()
-        .map(|&(fsm, seed)| {
-            let mut cfg = FlightConfig {
-                scene: scene.clone(),
-                seed,
-                duration_s: 120.0,
-                ..FlightConfig::default()
-            };
-            cfg.autopilot.fsm.variant = fsm;
-            cfg
-        })
-        .collect();
-    for ((fsm, seed), r) in flights.iter().zip(fly_all(&configs)) {
+    let flights = fly_both_fsms(SEEDS, |seed| FlightConfig {
+        scene: scene.clone(),
+        seed,
+        duration_s: 120.0,
+        ..FlightConfig::default()
+    });
+    for (fsm, seed, r) in flights {
         let v = max_speed(&r);
         let last = r.log.last().expect("a log");
         println!(
