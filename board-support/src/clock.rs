@@ -3,7 +3,7 @@
 //! (QEMU emulates SysTick faithfully, unlike the DWT cycle counter).
 //!
 //! The monotonic counts milliseconds in a `u32`, which wraps after 2^32 ms (49.7 days of
-//! uptime); [`TickExtender`] carries the count on in 64 bits, so the microseconds the flight
+//! uptime); [`TickExtender`] carries the count on in 64 bits, so the instants the flight
 //! libraries are handed never go back and an input's age stays its age across the wrap.
 
 /// Extends a wrapping 32-bit tick count onto 64 bits: a count below the previous one is a wrap.
@@ -36,9 +36,9 @@ impl TickExtender {
 static MS_EXTENDER: cortex_m::interrupt::Mutex<core::cell::Cell<TickExtender>> =
     cortex_m::interrupt::Mutex::new(core::cell::Cell::new(TickExtender::new()));
 
-/// Microseconds since boot, 64-bit (it does not wrap). `ms_ticks` reads the 1 kHz monotonic's
-/// tick count (RTIC's `systick_monotonic!` type is generated in each firmware); `systick_hz` is
-/// its input clock. Runs with interrupts masked for a few dozen cycles, so that callers at
+/// The board clock: the time since boot to the microsecond (it does not wrap). `ms_ticks` reads
+/// the 1 kHz monotonic's tick count (RTIC's `systick_monotonic!` type is generated in each
+/// firmware); `systick_hz` is its input clock. Runs with interrupts masked for a few dozen cycles, so that callers at
 /// every priority extend the tick count in the order they read it.
 ///
 /// The tick count never lags the SysTick counter read after it, even while the SysTick
@@ -48,7 +48,7 @@ static MS_EXTENDER: cortex_m::interrupt::Mutex<core::cell::Cell<TickExtender>> =
 /// pending SysTick as well counted such a wrap twice: a clock 1 ms ahead until the interrupt
 /// ran, seen as a 1 ms jump in the 512 Hz loop's period.)
 #[cfg(target_os = "none")]
-pub fn now_us(ms_ticks: impl Fn() -> u32, systick_hz: u32) -> u64 {
+pub fn now(ms_ticks: impl Fn() -> u32, systick_hz: u32) -> timebase::Instant {
     use cortex_m::peripheral::SYST;
     let ticks_per_ms = (systick_hz / 1_000).max(1);
     cortex_m::interrupt::free(|cs| loop {
@@ -63,7 +63,7 @@ pub fn now_us(ms_ticks: impl Fn() -> u32, systick_hz: u32) -> u64 {
         let mut extender = cell.get();
         let ms = extender.extend(ms);
         cell.set(extender);
-        return ms * 1_000 + sub_us;
+        return timebase::Instant::from_micros(ms * 1_000 + sub_us);
     })
 }
 

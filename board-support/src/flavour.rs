@@ -28,9 +28,10 @@ pub trait Flavour {
     /// The board's independent-watchdog timeout in this flavour (the boards' timeouts side by
     /// side: [`crate::watchdog`]).
     const WATCHDOG: Timeout;
-    /// The time the board's flight library sees, µs: the board clock, or in the lockstep
-    /// flavours the world time of the host's simulation, as the host's messages carry it.
-    fn lib_now_us() -> u64;
+    /// The time the board's flight library sees: the board clock, or in the lockstep flavours
+    /// the world time of the host's simulation (as the host's messages carry it) as the flight
+    /// clock.
+    fn lib_now() -> timebase::Instant;
 }
 
 /// Whether the board has its parameter flash ([`crate::param_flash`]): every flavour but

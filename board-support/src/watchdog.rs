@@ -22,6 +22,7 @@
 //! while the host computes, so a 1 Hz task on the board clock feeds those.
 
 use core::sync::atomic::{AtomicU32, Ordering};
+use timebase::{Duration, Instant};
 
 /// The slowest LSI of the datasheets, Hz (DS8626 table 41).
 pub const LSI_HZ_SLOWEST: u32 = 17_000;
@@ -106,32 +107,35 @@ pub const SAVE_MS: u32 = 6_000;
 /// [`SAVE_MS`] at the typical LSI.
 pub const SAVE: Timeout = Timeout::within_ms(SAVE_MS, LSI_HZ_TYPICAL);
 
-/// When a task last ran, on the board's microsecond clock (32 bits, wrapping: only ages much
-/// shorter than 2^31 µs are compared). Written by the task, read by the watchdog's feeder at
-/// any priority.
+/// When a task last ran, on the board's clock (kept as 32-bit wrapping microseconds: only ages
+/// much shorter than 2^31 µs are compared). Written by the task, read by the watchdog's feeder
+/// at any priority.
 #[derive(Debug)]
 pub struct Liveness {
     last_us: AtomicU32,
 }
 
 impl Liveness {
-    /// A task seen at 0 µs (boot): call [`Liveness::ran`] when the firmware starts the watchdog.
+    /// A task seen at boot: call [`Liveness::ran`] when the firmware starts the watchdog.
     pub const fn new() -> Self {
         Self {
             last_us: AtomicU32::new(0),
         }
     }
 
-    /// The task ran at `now_us`.
-    pub fn ran(&self, now_us: u64) {
-        self.last_us.store(now_us as u32, Ordering::Relaxed);
+    /// The task ran at `now`.
+    pub fn ran(&self, now: Instant) {
+        self.last_us
+            .store(now.as_micros() as u32, Ordering::Relaxed);
     }
 
-    /// Whether the task ran within `window_us` before `now_us` (a stamp after `now_us`, from a
-    /// task that ran since the caller read its clock, counts as recent).
-    pub fn within(&self, now_us: u64, window_us: u32) -> bool {
-        let age = (now_us as u32).wrapping_sub(self.last_us.load(Ordering::Relaxed)) as i32;
-        age <= window_us as i32
+    /// Whether the task ran within `window` before `now` (a stamp after `now`, from a task that
+    /// ran since the caller read its clock, counts as recent). `window` is, as the ages, much
+    /// shorter than 2^31 µs.
+    pub fn within(&self, now: Instant, window: Duration) -> bool {
+        let last = self.last_us.load(Ordering::Relaxed);
+        let age = (now.as_micros() as u32).wrapping_sub(last) as i32;
+        age <= window.as_micros() as u32 as i32
     }
 }
 
@@ -222,16 +226,18 @@ mod tests {
 
     #[test]
     fn liveness_ages_across_the_wrap_of_its_stamp() {
+        let at = Instant::from_micros;
+        let window = Duration::from_millis(25);
         let task = Liveness::new();
-        task.ran(1_000);
-        assert!(task.within(26_000, 25_000));
-        assert!(!task.within(26_001, 25_000));
+        task.ran(at(1_000));
+        assert!(task.within(at(26_000), window));
+        assert!(!task.within(at(26_001), window));
         // Stamped after the reader's clock: recent.
-        assert!(task.within(900, 25_000));
+        assert!(task.within(at(900), window));
         // Across the 32-bit wrap of the microsecond stamp.
         let before_wrap = (1u64 << 32) - 10_000;
-        task.ran(before_wrap);
-        assert!(task.within(before_wrap + 20_000, 25_000));
-        assert!(!task.within(before_wrap + 30_000, 25_000));
+        task.ran(at(before_wrap));
+        assert!(task.within(at(before_wrap + 20_000), window));
+        assert!(!task.within(at(before_wrap + 30_000), window));
     }
 }

@@ -30,8 +30,8 @@ impl board_support::flavour::Flavour for Current {
     const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::HEARTBEAT_FED;
 
     /// The host's world time, as its IMU samples carry it.
-    fn lib_now_us() -> u64 {
-        cortex_m::interrupt::free(|cs| WORLD.borrow(cs).get()).as_micros()
+    fn lib_now() -> Instant {
+        cortex_m::interrupt::free(|cs| WORLD.borrow(cs).get())
     }
 }
 

@@ -257,7 +257,7 @@ mod app {
 
         let mut iwdg = IndependentWatchdog::new(b.iwdg);
         board_support::watchdog::set(&mut iwdg, Flavour::WATCHDOG);
-        let started = clock::now().as_micros();
+        let started = clock::now();
         GUIDANCE_ALIVE.ran(started);
         HEARTBEAT_ALIVE.ran(started);
 
@@ -430,8 +430,8 @@ mod app {
             .clear_flags(stm32f4xx_hal::timer::Flag::Update);
         let now = clock::now();
         if let Some(last) = cx.local.last_start.replace(now) {
-            let period = 1_000_000 / u64::from(board::LOOP_RATE_HZ);
-            let jitter = now.since(last).as_micros().abs_diff(period) as u32;
+            let period = timebase::Duration::from_hz(board::LOOP_RATE_HZ);
+            let jitter = now.since(last).as_micros().abs_diff(period.as_micros()) as u32;
             LOOP_JITTER_MAX_US.fetch_max(jitter, Ordering::Relaxed);
         }
         let reads = cx
@@ -479,8 +479,8 @@ mod app {
             }
         }
         if flavour::FEED_WATCHDOG_IN_LOOP
-            && GUIDANCE_ALIVE.within(now.as_micros(), board::GUIDANCE_ALIVE.as_micros() as u32)
-            && HEARTBEAT_ALIVE.within(now.as_micros(), board::HEARTBEAT_ALIVE.as_micros() as u32)
+            && GUIDANCE_ALIVE.within(now, board::GUIDANCE_ALIVE)
+            && HEARTBEAT_ALIVE.within(now, board::HEARTBEAT_ALIVE)
         {
             cx.shared.iwdg.lock(|w| w.feed());
         }
@@ -555,7 +555,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = timebase::Instant::from_micros(Flavour::lib_now_us());
+                let now = Flavour::lib_now();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 let (decoded, answer) = cx
                     .shared
@@ -587,7 +587,7 @@ mod app {
                     let Some(msg) = cx.local.host_decoder.push(byte) else {
                         continue;
                     };
-                    let now = timebase::Instant::from_micros(Flavour::lib_now_us());
+                    let now = Flavour::lib_now();
                     // A save of this board's table (the camera board's is passed on): logged.
                     let saving = cx.local.param_sector.is_some()
                         && matches!(&msg, HostToBoard::Param(r)
@@ -657,7 +657,7 @@ mod app {
     fn program_watchdog(iwdg: &mut impl rtic::Mutex<T = IndependentWatchdog>, timeout: Timeout) {
         iwdg.lock(|w| board_support::watchdog::set(w, timeout));
         if timeout != board_support::watchdog::SAVE {
-            let now = clock::now().as_micros();
+            let now = clock::now();
             GUIDANCE_ALIVE.ran(now);
             HEARTBEAT_ALIVE.ran(now);
         }
@@ -697,7 +697,7 @@ mod app {
                 cx.shared.motors.lock(|m| m.set(throttle));
                 motors_to_host(&mut cx.shared.host_tx, now, throttle);
             }
-            GUIDANCE_ALIVE.ran(clock::now().as_micros());
+            GUIDANCE_ALIVE.ran(clock::now());
         }
     }
 
@@ -781,7 +781,7 @@ mod app {
             // A result of 0 is a conversion the chip did not finish (or a read too early).
             if d[0] != 0 && d[1] != 0 {
                 let reading = cal.compensate(d[0], d[1]);
-                let now = timebase::Instant::from_micros(Flavour::lib_now_us());
+                let now = Flavour::lib_now();
                 cx.shared.ap.lock(|ap| ap.on_baro(&reading, now));
             }
         }
@@ -813,7 +813,7 @@ mod app {
             send::<_, A2S>(&mut cx.shared.link_tx, &AutopilotToStereo::Heartbeat(hb));
             send::<_, B2H>(&mut cx.shared.host_tx, &BoardToHost::Heartbeat(hb));
             cx.local.led.toggle();
-            HEARTBEAT_ALIVE.ran(now.as_micros());
+            HEARTBEAT_ALIVE.ran(now);
             if !flavour::FEED_WATCHDOG_IN_LOOP {
                 cx.shared.iwdg.lock(|w| w.feed());
             }

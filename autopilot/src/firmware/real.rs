@@ -25,8 +25,8 @@ impl board_support::flavour::Flavour for Current {
     const WATCHDOG: board_support::watchdog::Timeout = autopilot::board::WATCHDOG;
 
     /// The board clock.
-    fn lib_now_us() -> u64 {
-        clock::now().as_micros()
+    fn lib_now() -> Instant {
+        clock::now()
     }
 }
 

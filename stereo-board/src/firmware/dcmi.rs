@@ -25,6 +25,7 @@ use protocol::STEREO_FRAME_BYTES;
 use stereo_board::board;
 use stereo_board::camera::{CaptureMonitor, DmaAtFrameEnd, FrameEnd, FRAME_WORDS};
 use stm32f4xx_hal::pac;
+use timebase::Instant;
 
 /// Two frame buffers in SRAM (DMA-reachable; CCM is not), word-aligned for the DMA.
 #[repr(C, align(4))]
@@ -44,8 +45,8 @@ static FRAME_ENDS: AtomicU32 = AtomicU32::new(0);
 pub struct Delivered {
     /// Buffer index, 0 or 1.
     pub index: usize,
-    /// End of the frame's read-out, µs.
-    pub capture_us: u64,
+    /// End of the frame's read-out, on the board clock.
+    pub capture: Instant,
     /// [`FRAME_ENDS`] when it was delivered.
     seq: u32,
 }
@@ -218,10 +219,10 @@ fn start_capture() {
     dcmi.cr().modify(|_, w| w.capture().set_bit());
 }
 
-/// Starts capture for the first time.
-pub fn start(monitor: &mut CaptureMonitor, now_us: u64) {
+/// Starts capture for the first time, at `now`.
+pub fn start(monitor: &mut CaptureMonitor, now: Instant) {
     start_capture();
-    monitor.on_capture_started(timebase::Instant::from_micros(now_us));
+    monitor.on_capture_started(now);
 }
 
 /// Stops and restarts capture (after a torn frame, an error, or a stopped camera).
@@ -234,8 +235,9 @@ pub fn rearm(monitor: &mut CaptureMonitor) {
     monitor.on_rearm();
 }
 
-/// DCMI interrupt: returns a whole frame to hand to the frame task, if one just ended.
-pub fn on_dcmi_interrupt(monitor: &mut CaptureMonitor, now_us: u64) -> Option<Delivered> {
+/// DCMI interrupt at `now`: returns a whole frame to hand to the frame task, if one just
+/// ended.
+pub fn on_dcmi_interrupt(monitor: &mut CaptureMonitor, now: Instant) -> Option<Delivered> {
     let dcmi = dcmi();
     let mis = dcmi.mis().read();
     dcmi.icr().write(|w| {
@@ -245,7 +247,7 @@ pub fn on_dcmi_interrupt(monitor: &mut CaptureMonitor, now_us: u64) -> Option<De
         w.vsync_isc().bit(mis.vsync_mis().bit_is_set())
     });
     if mis.vsync_mis().bit_is_set() {
-        monitor.on_vsync(timebase::Instant::from_micros(now_us));
+        monitor.on_vsync(now);
     }
     let mut lost = false;
     if mis.ovr_mis().bit_is_set() {
@@ -261,7 +263,7 @@ pub fn on_dcmi_interrupt(monitor: &mut CaptureMonitor, now_us: u64) -> Option<De
         let verdict = monitor.on_frame_end(dma_at_frame_end());
         dma().lifcr().write(|w| w.ctcif1().set_bit());
         if verdict == FrameEnd::Deliver && !lost {
-            return deliver(now_us);
+            return deliver(now);
         }
         lost = true;
     }
@@ -292,8 +294,8 @@ fn dma_at_frame_end() -> DmaAtFrameEnd {
     snapshot
 }
 
-/// Hands the buffer the DMA just left to the frame task.
-fn deliver(now_us: u64) -> Option<Delivered> {
+/// Hands the buffer the DMA just left to the frame task, its read-out ended at `capture`.
+fn deliver(capture: Instant) -> Option<Delivered> {
     let writing = usize::from(
         dma()
             .st(usize::from(board::DCMI_DMA_STREAM))
@@ -306,7 +308,7 @@ fn deliver(now_us: u64) -> Option<Delivered> {
     BUSY.get(index)?.store(true, Ordering::Release);
     Some(Delivered {
         index,
-        capture_us: now_us,
+        capture,
         seq: FRAME_ENDS.load(Ordering::Acquire),
     })
 }

@@ -26,6 +26,7 @@ use stereo_board::camera::CaptureMonitor;
 use stm32f4xx_hal::gpio::{PA2, PA3};
 use stm32f4xx_hal::rcc::Rcc;
 use stm32f4xx_hal::{pac, prelude::*, serial};
+use timebase::{Instant, WorldTime, WrapExtender};
 
 /// The flavour's side of the contract both boards' flavour modules fulfil.
 pub struct Current;
@@ -38,33 +39,36 @@ impl board_support::flavour::Flavour for Current {
 
     /// The world time, as the frames' exposure times and the autopilot's gyro timestamps
     /// carry it.
-    fn lib_now_us() -> u64 {
+    fn lib_now() -> Instant {
         cortex_m::interrupt::free(|cs| WORLD.borrow(cs).borrow().0)
     }
 }
 
-/// World time, µs, and the extender of the autopilot's `u32` gyro timestamps onto it.
-static WORLD: cortex_m::interrupt::Mutex<
-    core::cell::RefCell<(u64, timebase::WrapExtender<timebase::WorldTime>)>,
-> = cortex_m::interrupt::Mutex::new(core::cell::RefCell::new((0, timebase::WrapExtender::new())));
+/// The library clock (the world time as the flight clock), and the extender of the autopilot's
+/// wire gyro timestamps onto the world's timeline.
+static WORLD: cortex_m::interrupt::Mutex<core::cell::RefCell<(Instant, WrapExtender<WorldTime>)>> =
+    cortex_m::interrupt::Mutex::new(core::cell::RefCell::new((
+        Instant::ZERO,
+        WrapExtender::new(),
+    )));
 
-/// A world time seen on a link (a frame's exposure time, µs): the world clock moves forward to
-/// it (never back).
-fn observe_world_us(t: u64) {
+/// A world time seen on a link (a frame's exposure time, as the flight clock): the library
+/// clock moves forward to it (never back).
+fn observe_world(t: Instant) {
     cortex_m::interrupt::free(|cs| {
         let mut w = WORLD.borrow(cs).borrow_mut();
         w.0 = w.0.max(t);
     });
 }
 
-/// After a batch of the autopilot's bytes: the world clock moves to its latest gyro timestamp
-/// (its world time, wrapping `u32` µs).
+/// After a batch of the autopilot's bytes: the library clock moves to its latest gyro timestamp
+/// (its world time, a wire time).
 pub fn on_link_bytes(board: &StereoBoardApp) {
     if let Some(g) = board.latest_gyro() {
         let t = g.timestamp_us;
         cortex_m::interrupt::free(|cs| {
             let mut w = WORLD.borrow(cs).borrow_mut();
-            let t: u64 = w.1.extend(t).as_micros();
+            let t = w.1.extend(t).as_flight_clock();
             w.0 = w.0.max(t);
         });
     }
@@ -96,14 +100,14 @@ const PINS: &[PinAssignment] = if QEMU {
 /// (`None`: empty).
 pub struct FrameSlot {
     buf: [u8; STEREO_FRAME_BYTES],
-    capture_us: Option<u64>,
+    capture: Option<Instant>,
 }
 
 impl FrameSlot {
     const fn new() -> Self {
         Self {
             buf: [0; STEREO_FRAME_BYTES],
-            capture_us: None,
+            capture: None,
         }
     }
 }
@@ -121,8 +125,8 @@ pub type Frames = &'static mut FrameSlot;
 pub type FrameReady = ();
 
 impl super::FrameSource for &'static mut FrameSlot {
-    fn take(&mut self, _: &()) -> Option<(&[u8; STEREO_FRAME_BYTES], u64)> {
-        let capture = self.capture_us.take()?;
+    fn take(&mut self, _: &()) -> Option<(&[u8; STEREO_FRAME_BYTES], Instant)> {
+        let capture = self.capture.take()?;
         Some((&self.buf, capture))
     }
     // The slot is written only by `host_rx`, under the same lock as the frame task's.
@@ -149,11 +153,10 @@ impl HostFrames {
     ) -> Option<FrameReady> {
         let mut ready = false;
         board.on_host_bytes(bytes, self.assembler, |frame, capture| {
-            let capture_us = capture.as_micros();
-            let replaced = slot.capture_us.is_some();
+            let replaced = slot.capture.is_some();
             slot.buf.copy_from_slice(frame);
-            slot.capture_us = Some(capture_us);
-            observe_world_us(capture_us);
+            slot.capture = Some(capture);
+            observe_world(capture);
             ready = true;
             replaced
         });
@@ -197,7 +200,7 @@ pub fn start_frames(_i2c: pac::I2C2) -> (Frames, CaptureMonitor) {
 }
 
 /// The DCMI's interrupt: never enabled in these flavours (no camera), no frame.
-pub fn on_dcmi_interrupt(_m: &mut CaptureMonitor, _now_us: u64) -> Option<FrameReady> {
+pub fn on_dcmi_interrupt(_m: &mut CaptureMonitor, _now: Instant) -> Option<FrameReady> {
     None
 }
 
@@ -205,6 +208,6 @@ pub fn on_dcmi_interrupt(_m: &mut CaptureMonitor, _now_us: u64) -> Option<FrameR
 pub fn on_dma_interrupt(_m: &mut CaptureMonitor) {}
 
 /// The capture path: off, nothing to report.
-pub fn check_camera(_m: &mut CaptureMonitor, _now_us: u64) -> Option<(CaptureCounts, bool)> {
+pub fn check_camera(_m: &mut CaptureMonitor, _now: Instant) -> Option<(CaptureCounts, bool)> {
     None
 }

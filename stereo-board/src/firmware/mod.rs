@@ -123,11 +123,11 @@ type HostInterrupt = LinkInterrupt<
 
 /// The frame task's view of its frame source (the flavour's `Frames`).
 trait FrameSource {
-    /// The frame and its exposure time, µs.
+    /// The frame and its exposure time.
     fn take(
         &mut self,
         ready: &flavour::FrameReady,
-    ) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], u64)>;
+    ) -> Option<(&[u8; protocol::STEREO_FRAME_BYTES], timebase::Instant)>;
     /// True if the frame was not touched while it was being processed.
     fn intact(ready: &flavour::FrameReady) -> bool;
     /// Done with the frame (also one the frame task never took).
@@ -304,7 +304,7 @@ mod app {
                 if n == 0 {
                     break;
                 }
-                let now = timebase::Instant::from_micros(Flavour::lib_now_us());
+                let now = Flavour::lib_now();
                 let bytes = buf.get(..n).unwrap_or(&[]);
                 let sector = cx.local.param_sector.as_mut();
                 let mut shared = (
@@ -379,7 +379,7 @@ mod app {
     /// busy is dropped and counted.
     #[task(binds = DCMI, priority = 4, shared = [capture])]
     fn dcmi_irq(mut cx: dcmi_irq::Context) {
-        let now = clock::now_us();
+        let now = clock::now();
         let ready = cx
             .shared
             .capture
@@ -403,7 +403,7 @@ mod app {
     /// processed sends nothing and clears the flow history.
     #[task(priority = 2, shared = [board, frames, link_tx, host_tx, capture])]
     async fn frame(mut cx: frame::Context, ready: FrameReady) {
-        let start = timebase::Instant::from_micros(Flavour::lib_now_us());
+        let start = Flavour::lib_now();
         let mut shared = (
             &mut cx.shared.board,
             &mut cx.shared.frames,
@@ -412,15 +412,15 @@ mod app {
         );
         let outcome = shared.lock(|board, frames, tx, host_tx| {
             let lost = super::FRAMES_LOST.swap(0, Ordering::Relaxed);
-            let frame = frames.take(&ready).map(|(pixels, capture_us)| StereoFrame {
+            let frame = frames.take(&ready).map(|(pixels, capture)| StereoFrame {
                 pixels,
-                capture: timebase::Instant::from_micros(capture_us),
+                capture,
                 start,
             });
             let finish = || {
                 let intact = Frames::intact(&ready);
                 Frames::release(&ready);
-                intact.then(|| timebase::Instant::from_micros(Flavour::lib_now_us()))
+                intact.then(Flavour::lib_now)
             };
             board.on_frame(lost, frame, finish, &mut |f| queue_frame(tx, f), &mut |f| {
                 queue_host(host_tx, f)
@@ -436,11 +436,8 @@ mod app {
     #[task(priority = 1, shared = [board, link_tx, host_tx, capture, iwdg])]
     async fn status(mut cx: status::Context) {
         loop {
-            let now = timebase::Instant::from_micros(clock::now_us());
-            let camera = cx
-                .shared
-                .capture
-                .lock(|m| flavour::check_camera(m, now.as_micros()));
+            let now = clock::now();
+            let camera = cx.shared.capture.lock(|m| flavour::check_camera(m, now));
             let mut shared = (
                 &mut cx.shared.board,
                 &mut cx.shared.link_tx,
@@ -458,7 +455,7 @@ mod app {
                 (
                     b.link_frames_ok(),
                     b.host_link_errors(),
-                    b.gyro_age(timebase::Instant::from_micros(Flavour::lib_now_us()))
+                    b.gyro_age(Flavour::lib_now())
                         .map_or(u64::MAX, |d| d.as_micros()),
                 )
             });

@@ -24,6 +24,7 @@ use stereo_board::camera::CaptureMonitor;
 use stm32f4xx_hal::gpio::{PA2, PA3};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::Rcc;
+use timebase::Instant;
 
 /// The flavour's side of the contract both boards' flavour modules fulfil.
 pub struct Current;
@@ -35,8 +36,8 @@ impl board_support::flavour::Flavour for Current {
     const WATCHDOG: board_support::watchdog::Timeout = board_support::watchdog::HEARTBEAT_FED;
 
     /// The board clock.
-    fn lib_now_us() -> u64 {
-        clock::now_us()
+    fn lib_now() -> Instant {
+        clock::now()
     }
 }
 
@@ -85,8 +86,8 @@ pub type Frames = Camera;
 pub type FrameReady = dcmi::Delivered;
 
 impl super::FrameSource for Camera {
-    fn take(&mut self, ready: &FrameReady) -> Option<(&[u8; STEREO_FRAME_BYTES], u64)> {
-        dcmi::frame(ready).map(|f| (f, ready.capture_us))
+    fn take(&mut self, ready: &FrameReady) -> Option<(&[u8; STEREO_FRAME_BYTES], Instant)> {
+        dcmi::frame(ready).map(|f| (f, ready.capture))
     }
     fn intact(ready: &FrameReady) -> bool {
         dcmi::intact(ready)
@@ -108,14 +109,14 @@ pub fn start_frames(i2c: pac::I2C2) -> (Frames, CaptureMonitor) {
     }
     let mut capture = CaptureMonitor::new();
     dcmi::configure();
-    dcmi::start(&mut capture, clock::now_us());
+    dcmi::start(&mut capture, clock::now());
     (Camera, capture)
 }
 
-/// The status task's look at the capture path at board time `now_us`: its counts, and whether
-/// the camera stopped (then capture is re-armed).
-pub fn check_camera(m: &mut CaptureMonitor, now_us: u64) -> Option<(CaptureCounts, bool)> {
-    let stopped = m.camera_stopped(timebase::Instant::from_micros(now_us));
+/// The status task's look at the capture path at board time `now`: its counts, and whether the
+/// camera stopped (then capture is re-armed).
+pub fn check_camera(m: &mut CaptureMonitor, now: Instant) -> Option<(CaptureCounts, bool)> {
+    let stopped = m.camera_stopped(now);
     if stopped {
         dcmi::rearm(m);
     }
