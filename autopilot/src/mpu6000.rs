@@ -89,10 +89,10 @@ pub const PWR_MGMT_1_RESET: u8 = 0x80;
 pub const PWR_MGMT_1_RUN: u8 = 0x03;
 /// SLEEP bit of `PWR_MGMT_1`.
 pub const PWR_MGMT_1_SLEEP: u8 = 0x40;
-/// Wait after DEVICE_RESET before the next access, ms (register map section 4.28: 100 ms).
-pub const RESET_WAIT_MS: u32 = 100;
-/// Wait after SIGNAL_PATH_RESET, ms (register map section 4.26 recommends 100 ms over SPI).
-pub const SIGNAL_PATH_RESET_WAIT_MS: u32 = 100;
+/// Wait after DEVICE_RESET before the next access (register map section 4.28: 100 ms).
+pub const RESET_WAIT: Duration = Duration::from_millis(100);
+/// Wait after SIGNAL_PATH_RESET (register map section 4.26 recommends 100 ms over SPI).
+pub const SIGNAL_PATH_RESET_WAIT: Duration = Duration::from_millis(100);
 
 /// The register writes after the reset, in order (register, value).
 ///

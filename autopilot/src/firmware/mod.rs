@@ -236,7 +236,10 @@ mod app {
         let sysclk = b.rcc.clocks.sysclk().raw();
         let sensors = if Flavour::OWN_SENSORS {
             let mut bus = SensorBus::new(b.spi, b.imu_cs, b.baro_cs);
-            match bus.imu_init(|ms| cortex_m::asm::delay(ms.saturating_mul(sysclk / 1_000))) {
+            let busy_wait = |d: timebase::Duration| {
+                cortex_m::asm::delay((d.as_millis() as u32).saturating_mul(sysclk / 1_000))
+            };
+            match bus.imu_init(busy_wait) {
                 Ok(autopilot::mpu6000::WHO_AM_I_VALUE) => log::info!("MPU-6000 configured"),
                 Ok(who) => defmt::error!("MPU-6000 not found: WHO_AM_I = {=u8:#x}", who),
                 Err(_) => defmt::error!("MPU-6000: SPI transfer failed"),

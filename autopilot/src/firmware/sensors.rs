@@ -10,6 +10,7 @@
 use autopilot::board::hw::{BaroCs, ImuCs, SensorSpi};
 use autopilot::{mpu6000, ms5611};
 use embedded_hal::digital::OutputPin;
+use timebase::Duration;
 
 /// A transfer that did not complete.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,14 +68,14 @@ impl SensorBus {
         Ok(buf[1])
     }
 
-    /// Resets and configures the MPU-6000 ([`mpu6000::CONFIG_SEQUENCE`]); `delay_ms` busy-waits
+    /// Resets and configures the MPU-6000 ([`mpu6000::CONFIG_SEQUENCE`]); `delay` busy-waits
     /// (init only). Returns what `WHO_AM_I` reads afterwards.
-    pub fn imu_init(&mut self, mut delay_ms: impl FnMut(u32)) -> Result<u8, BusError> {
+    pub fn imu_init(&mut self, mut delay: impl FnMut(Duration)) -> Result<u8, BusError> {
         self.imu_write(mpu6000::PWR_MGMT_1, mpu6000::PWR_MGMT_1_RESET)?;
-        delay_ms(mpu6000::RESET_WAIT_MS);
+        delay(mpu6000::RESET_WAIT);
         // Over SPI the register map asks for a signal-path reset after the device reset.
         self.imu_write(mpu6000::SIGNAL_PATH_RESET, 0x07)?;
-        delay_ms(mpu6000::SIGNAL_PATH_RESET_WAIT_MS);
+        delay(mpu6000::SIGNAL_PATH_RESET_WAIT);
         self.imu_configure()?;
         self.imu_read_register(mpu6000::WHO_AM_I)
     }
