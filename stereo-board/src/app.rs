@@ -10,7 +10,7 @@
 //! | `uart_rx` | bytes from the autopilot link UART (RXNE interrupt, queued) | 3 | [`StereoBoardApp::on_rx_bytes`] |
 //! | `host_rx` | bytes from the host UART (RXNE interrupt, queued; HIL and QEMU flavours) | 3 | [`StereoBoardApp::on_host_bytes`] |
 //! | `frame` | camera frame complete (DCMI + DMA2) or a HIL frame assembled | 2 | [`StereoBoardApp::on_frame`] |
-//! | `status` | every [`STATUS_PERIOD_US`] | 1 | [`StereoBoardApp::status_tick`] |
+//! | `status` | every [`STATUS_PERIOD`] | 1 | [`StereoBoardApp::status_tick`] |
 //!
 //! Each task is one method, called alike by the firmware, the simulator and the software HIL
 //! board; it does the task's whole work and hands what the task sends to the caller's `tx`
@@ -33,11 +33,11 @@ use timebase::{Duration, Instant, WireTime, WorldTime, WrapExtender};
 
 pub use task_table::{TaskId, TaskSpec, Trigger};
 
-/// Period of the status task (Status + Heartbeat to the autopilot), µs.
-pub const STATUS_PERIOD_US: u32 = 1_000_000;
-/// Frame period of the camera (25 fps, [`crate::board::FRAME_PERIOD_US`]), µs: the frame
-/// task's deadline.
-pub const FRAME_PERIOD_US: u32 = crate::board::FRAME_PERIOD_US;
+/// Period of the status task (Status + Heartbeat to the autopilot).
+pub const STATUS_PERIOD: Duration = Duration::from_secs(1);
+/// Frame period of the camera (25 fps, [`crate::board::FRAME_PERIOD`]): the frame task's
+/// deadline.
+pub const FRAME_PERIOD: Duration = crate::board::FRAME_PERIOD;
 /// Microseconds per second: the status task's frame rate from its interval.
 const US_PER_S: f64 = 1e6;
 /// A gyro/attitude sample older than this is not used for derotation.
@@ -86,14 +86,14 @@ pub const TASKS: &[TaskSpec<Task>] = &[
         name: "frame",
         priority: 2,
         trigger: Trigger::Event("frame complete: DCMI + DMA2 stream 1, or HIL frame assembled"),
-        deadline: Duration::from_micros(FRAME_PERIOD_US as u64),
+        deadline: FRAME_PERIOD,
     },
     TaskSpec {
         id: Task::Status,
         name: "status",
         priority: 1,
         trigger: Trigger::Periodic {
-            period: Duration::from_micros(STATUS_PERIOD_US as u64),
+            period: STATUS_PERIOD,
         },
         deadline: Duration::from_millis(100),
     },

@@ -9,7 +9,7 @@
 //! Plain data, no HAL types, so that host tools (the virtual board, tests) can import it.
 //!
 //! Choices the sources leave open, each a one-line change here:
-//! * [`CAMERA_RESET_LOW_US`] and [`CAMERA_RESET_RECOVERY_US`]: the original waits with busy
+//! * [`CAMERA_RESET_LOW`] and [`CAMERA_RESET_RECOVERY`]: the original waits with busy
 //!   loops of unstated length; the TCM8230 needs at least 100 master-clock cycles in reset and
 //!   2,000 after release (the original's comments). 1 ms each is 200x and 10x that at 21 MHz.
 //! * [`SCCB_HZ`]: the original's 25 kHz (the TCM8230 allows more; the bus has 2.8 V pull-ups
@@ -19,6 +19,7 @@
 
 use board_support::pins::pin;
 pub use board_support::pins::{Drive, Function, Pin, PinAssignment, Port, Pull, Speed};
+use timebase::Duration;
 
 /// Alternate function of the DCMI pins.
 pub const AF_DCMI: u8 = 13;
@@ -230,14 +231,15 @@ pub const CAMERA_CLOCK_HZ: u32 =
     APB1_TIMER_HZ / (CAMERA_CLOCK_PSC as u32 + 1) / (CAMERA_CLOCK_ARR as u32 + 1);
 const _: () = assert!(CAMERA_CLOCK_HZ == 21_000_000);
 
-/// Time the cameras are held in reset with their clock running, µs (see the module docs).
-pub const CAMERA_RESET_LOW_US: u32 = 1_000;
-/// Time after releasing reset before the first SCCB access, µs (see the module docs).
-pub const CAMERA_RESET_RECOVERY_US: u32 = 1_000;
+/// Time the cameras are held in reset with their clock running (see the module docs).
+pub const CAMERA_RESET_LOW: Duration = Duration::from_millis(1);
+/// Time after releasing reset before the first SCCB access (see the module docs).
+pub const CAMERA_RESET_RECOVERY: Duration = Duration::from_millis(1);
 const _: () =
-    assert!(CAMERA_RESET_LOW_US as u64 * CAMERA_CLOCK_HZ as u64 >= 100 * HZ_PER_MHZ as u64);
-const _: () =
-    assert!(CAMERA_RESET_RECOVERY_US as u64 * CAMERA_CLOCK_HZ as u64 >= 2_000 * HZ_PER_MHZ as u64);
+    assert!(CAMERA_RESET_LOW.as_micros() * CAMERA_CLOCK_HZ as u64 >= 100 * HZ_PER_MHZ as u64);
+const _: () = assert!(
+    CAMERA_RESET_RECOVERY.as_micros() * CAMERA_CLOCK_HZ as u64 >= 2_000 * HZ_PER_MHZ as u64
+);
 
 // ---------------------------------------------------------------------------------------------
 // Frame timing, from the camera set-up.
@@ -248,11 +250,12 @@ pub const TCM8230_NOMINAL_CLOCK_HZ: u32 = 25_540_000;
 pub const TCM8230_NOMINAL_FPS: u32 = 30;
 /// One frame of the TCM8230 in master-clock cycles (its timing is counted in clock cycles).
 pub const FRAME_CLOCKS: u32 = TCM8230_NOMINAL_CLOCK_HZ / TCM8230_NOMINAL_FPS;
-/// Frame period of the cameras at [`CAMERA_CLOCK_HZ`], µs: 851,333 cycles at 21 MHz =
-/// 40,540 µs, i.e. **25 fps** (24.7). The frame task's deadline.
-pub const FRAME_PERIOD_US: u32 = ((FRAME_CLOCKS as u64 * 1_000_000 + CAMERA_CLOCK_HZ as u64 / 2)
-    / CAMERA_CLOCK_HZ as u64) as u32;
-const _: () = assert!(FRAME_PERIOD_US > 40_000 && FRAME_PERIOD_US < 41_000);
+/// Frame period of the cameras at [`CAMERA_CLOCK_HZ`] (to the nearest microsecond): 851,333
+/// cycles at 21 MHz = 40,540 µs, i.e. **25 fps** (24.7). The frame task's deadline.
+pub const FRAME_PERIOD: Duration = Duration::from_micros(
+    (FRAME_CLOCKS as u64 * 1_000_000 + CAMERA_CLOCK_HZ as u64 / 2) / CAMERA_CLOCK_HZ as u64,
+);
+const _: () = assert!(FRAME_PERIOD.as_micros() > 40_000 && FRAME_PERIOD.as_micros() < 41_000);
 
 /// Frame periods without a VSYNC after which the camera counts as stopped (200 ms).
 pub const CAMERA_STOPPED_FRAMES: u32 = 5;
@@ -363,7 +366,7 @@ mod tests {
 
     #[test]
     fn frame_rate_is_25_fps() {
-        let fps = 1e6 / f64::from(FRAME_PERIOD_US);
+        let fps = 1.0 / FRAME_PERIOD.as_secs_f64();
         assert!((fps - 24.67).abs() < 0.01, "{fps}");
     }
 }

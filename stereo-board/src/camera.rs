@@ -13,7 +13,7 @@
 
 use crate::board;
 use protocol::CaptureCounts;
-use timebase::{Duration, Instant};
+use timebase::Instant;
 
 pub mod tcm8230;
 
@@ -142,8 +142,7 @@ impl CaptureMonitor {
     /// True when no VSYNC came for [`board::CAMERA_STOPPED_FRAMES`] frame periods up to
     /// `now`.
     pub fn camera_stopped(&self, now: Instant) -> bool {
-        let limit = Duration::from_micros(u64::from(board::FRAME_PERIOD_US))
-            .saturating_mul(u64::from(board::CAMERA_STOPPED_FRAMES));
+        let limit = board::FRAME_PERIOD.saturating_mul(u64::from(board::CAMERA_STOPPED_FRAMES));
         now.since(self.last_vsync) > limit
     }
 
@@ -223,7 +222,7 @@ mod tests {
 
     #[test]
     fn the_camera_is_stopped_after_five_frame_periods_without_vsync() {
-        let period = u64::from(board::FRAME_PERIOD_US);
+        let period = board::FRAME_PERIOD.as_micros();
         let mut m = CaptureMonitor::new();
         m.on_capture_started(Instant::from_micros(1_000));
         assert!(!m.camera_stopped(Instant::from_micros(1_000 + 5 * period)));

@@ -73,9 +73,7 @@ mod tests {
             .find(|t| t.task == BoardTask::Stereo(Cam::Status));
         assert_eq!(
             status.and_then(|t| t.period),
-            Some(timebase::Duration::from_micros(u64::from(
-                stereo_board::app::STATUS_PERIOD_US
-            )))
+            Some(stereo_board::app::STATUS_PERIOD)
         );
     }
 }

@@ -93,7 +93,7 @@ fn task_table_is_consistent() {
     assert_eq!(
         Task::Status.spec().trigger,
         Trigger::Periodic {
-            period: Duration::from_micros(u64::from(STATUS_PERIOD_US))
+            period: STATUS_PERIOD
         }
     );
     assert!(TASKS

@@ -19,7 +19,7 @@
 //! | `dcmi_irq` | 4 | DCMI frame end, VSYNC, overrun, sync error (real) | checks the frame ([`stereo_board::camera::CaptureMonitor`]), hands a whole one on, re-arms after a torn one |
 //! | `dma_irq` | 4 | DMA2 stream 1 transfer / direct-mode error (real) | counts, re-arms |
 //! | `frame` | 2 | spawned per frame | [`StereoBoardApp::on_frame`] (the frame's buffer checked for a refill when processing ends) |
-//! | `status` | 1 | every `app::STATUS_PERIOD_US` | capture state into [`StereoBoardApp::status_tick`], LED, watchdog |
+//! | `status` | 1 | every `app::STATUS_PERIOD` | capture state into [`StereoBoardApp::status_tick`], LED, watchdog |
 //! | `idle` | 0 | nothing else to run | `WFI` (sleep until an interrupt) |
 //!
 //! Edge-FS runs inside a lock of the board state, whose ceiling is the receive tasks'
@@ -145,7 +145,7 @@ mod app {
     use board_support::uart_tx::TxWriter;
     use core::sync::atomic::Ordering;
     use rtic_monotonics::Timebase as _;
-    use stereo_board::app::{StereoBoardApp, STATUS_PERIOD_US};
+    use stereo_board::app::{StereoBoardApp, STATUS_PERIOD};
     use stereo_board::edge_fs::EdgeFsParams;
     use stm32f4xx_hal::{prelude::*, serial::Rx, watchdog::IndependentWatchdog};
 
@@ -155,8 +155,8 @@ mod app {
 
     type Duration = <Mono as rtic_monotonics::Timebase>::Duration;
 
-    /// Microseconds per tick of `Mono` (1 kHz).
-    const US_PER_TICK: u32 = 1_000;
+    /// The status task's period in ticks of `Mono` (1 kHz: a tick is a millisecond).
+    const STATUS_TICKS: u32 = STATUS_PERIOD.as_millis() as u32;
 
     #[shared]
     struct Shared {
@@ -483,7 +483,7 @@ mod app {
                 c.frames_overwritten,
                 board_support::stack::free_bytes()
             );
-            Mono::delay(Duration::from_ticks(STATUS_PERIOD_US / US_PER_TICK)).await;
+            Mono::delay(Duration::from_ticks(STATUS_TICKS)).await;
         }
     }
 }

@@ -24,7 +24,7 @@ use stereo_board::camera::CaptureMonitor;
 use stm32f4xx_hal::gpio::{PA2, PA3};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::Rcc;
-use timebase::Instant;
+use timebase::{Duration, Instant};
 
 /// The flavour's side of the contract both boards' flavour modules fulfil.
 pub struct Current;
@@ -123,8 +123,9 @@ pub fn check_camera(m: &mut CaptureMonitor, now: Instant) -> Option<(CaptureCoun
     Some((m.counts(), stopped))
 }
 
-/// Busy-waits `us` microseconds on the core clock (start-up only).
-fn delay_us(us: u32) {
+/// Busy-waits `d` on the core clock (start-up only; to the microsecond).
+fn busy_wait(d: Duration) {
+    let us = u32::try_from(d.as_micros()).unwrap_or(u32::MAX);
     cortex_m::asm::delay(
         us.saturating_mul(stereo_board::board::SYSCLK_HZ / stereo_board::board::HZ_PER_MHZ),
     );
@@ -132,16 +133,16 @@ fn delay_us(us: u32) {
 
 /// Brings the cameras up as the original board does: CPLD mode and reset are already set by
 /// the pin table (reset held low); clock on, reset released after
-/// [`stereo_board::board::CAMERA_RESET_LOW_US`], registers written after
-/// [`stereo_board::board::CAMERA_RESET_RECOVERY_US`] and each read back. Returns the first
+/// [`stereo_board::board::CAMERA_RESET_LOW`], registers written after
+/// [`stereo_board::board::CAMERA_RESET_RECOVERY`] and each read back. Returns the first
 /// register that failed, if any.
 fn bring_up_cameras(i2c: pac::I2C2) -> Result<(), (u8, sccb::SccbError)> {
     use stereo_board::board;
     use stereo_board::camera::tcm8230;
     dcmi::start_camera_clock();
-    delay_us(board::CAMERA_RESET_LOW_US);
+    busy_wait(board::CAMERA_RESET_LOW);
     pins::set(&board::CAMERA_RESET, true);
-    delay_us(board::CAMERA_RESET_RECOVERY_US);
+    busy_wait(board::CAMERA_RESET_RECOVERY);
     let mut bus = sccb::Sccb::new(i2c);
     for &(reg, value) in &tcm8230::SETUP {
         bus.write(reg, value).map_err(|e| (reg, e))?;
