@@ -10,7 +10,8 @@
 //! * [`WireTime`]: the wrapping 32-bit microsecond timestamp messages carry, and
 //!   [`WrapExtender`], the one way back from it to a 64-bit timeline.
 //!
-//! Arithmetic saturates: an instant never wraps and a duration is never negative.
+//! Arithmetic saturates: an instant never wraps and a duration is never negative. The one
+//! wrapping difference says so in its name (`wrapping_since`).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -129,6 +130,12 @@ macro_rules! instant_type {
             /// Time from `earlier` to `self` (zero if `earlier` is later).
             pub const fn since(self, earlier: Self) -> Duration {
                 Duration(self.0.saturating_sub(earlier.0))
+            }
+            /// Time from `earlier` to `self` as the unsigned difference of the two counts,
+            /// modulo 2^64 µs: an `earlier` that is later gives nearly the whole clock where
+            /// [`Self::since`] gives zero. For arithmetic that relies on that difference.
+            pub const fn wrapping_since(self, earlier: Self) -> Duration {
+                Duration(self.0.wrapping_sub(earlier.0))
             }
             /// `self + d`, or `None` past the end of the clock.
             pub const fn checked_add(self, d: Duration) -> Option<Self> {
@@ -309,6 +316,11 @@ mod tests {
         let t = Instant::from_micros(1_000);
         assert_eq!((t + Duration::from_micros(500)).as_micros(), 1_500);
         assert_eq!(t - Instant::from_micros(2_000), Duration::ZERO);
+        assert_eq!(t.wrapping_since(Instant::from_micros(1_001)), Duration::MAX);
+        assert_eq!(
+            t.wrapping_since(Instant::from_micros(400)),
+            Duration::from_micros(600)
+        );
         assert_eq!(
             Instant::from_micros(u64::MAX) + Duration::from_secs(1),
             Instant::from_micros(u64::MAX)

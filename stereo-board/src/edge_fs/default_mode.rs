@@ -52,9 +52,6 @@ const MAX_DIAG_CONFIDENCE: f32 = 100.0;
 /// make a line.
 const MIN_LINE_POINTS: usize = 2;
 
-/// Seconds per microsecond (capture times are in µs).
-const SECONDS_PER_US: f32 = 1e-6;
-
 /// Shortest time span of the flow horizon, s: at or below it the flow is not measured
 /// ([`EstimateFlags::NO_FLOW_MATCH`]).
 const MIN_FLOW_SPAN_S: f32 = 1e-4;
@@ -383,11 +380,10 @@ impl EdgeFs {
         let mut n = (self.horizon as usize).clamp(1, h).min(avail);
         if p.horizon_s > 0.0 {
             // Time-based horizon: the fewest frames spanning `horizon_s`, within the cap.
-            let now = self.ring[self.idx(0)].capture_us;
-            if let Some(k) = (1..=n).find(|&k| {
-                now.saturating_sub(self.ring[self.idx(k)].capture_us) as f32 * SECONDS_PER_US
-                    >= p.horizon_s
-            }) {
+            let now = self.ring[self.idx(0)].capture;
+            if let Some(k) = (1..=n)
+                .find(|&k| now.since(self.ring[self.idx(k)].capture).as_secs_f32() >= p.horizon_s)
+            {
                 n = k;
             }
         }
@@ -418,7 +414,7 @@ impl EdgeFs {
         }
         let older = &self.ring[self.idx(n)];
         let offset = libm::roundf(rot_px) as i32;
-        let dt_s = cur.capture_us.saturating_sub(older.capture_us) as f32 * SECONDS_PER_US;
+        let dt_s = cur.capture.since(older.capture).as_secs_f32();
         if dt_s.is_nan() || dt_s <= MIN_FLOW_SPAN_S {
             return Err(EstimateFlags::NO_FLOW_MATCH);
         }

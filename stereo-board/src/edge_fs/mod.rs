@@ -111,8 +111,6 @@ const FALLBACK_FOV_X_RAD: f32 = 1.0;
 const MAX_BASELINE_M: f32 = 10.0;
 /// The camera board's stereo baseline, m: the defaults' and the parameter check's fallback.
 const BOARD_BASELINE_M: f32 = 0.06;
-/// Seconds per microsecond: capture times are in µs.
-const S_PER_US: f32 = 1e-6;
 /// Microseconds per second: the paper mode's frame rate from its capture interval.
 const US_PER_S: f64 = 1e6;
 /// The shortest frame interval the velocity filter and the flow prior trust, s: a shorter one
@@ -608,8 +606,8 @@ struct Slot {
     rows: EdgeHistogram,
     /// Pitch, rad (body: positive nose up; 0 when unknown).
     pitch_rad: f32,
-    /// Exposure time, µs of the board clock (the flow's time steps are taken in µs).
-    capture_us: u64,
+    /// Exposure time, on the board clock.
+    capture: Instant,
     yaw_rad: f32,
     /// Body yaw rate, rad/s (0 when unknown).
     yaw_rate: f32,
@@ -621,7 +619,7 @@ impl Slot {
         hist: [0; IMG_W],
         rows: [0; IMG_W],
         pitch_rad: 0.0,
-        capture_us: 0,
+        capture: Instant::ZERO,
         yaw_rad: 0.0,
         yaw_rate: 0.0,
         has_yaw: false,
@@ -704,7 +702,7 @@ impl EdgeFs {
         self.head = (self.head + 1) % RING;
         let yaw = motion.map(|m| m.attitude_rad[2]).filter(|y| y.is_finite());
         if let Some(slot) = self.ring.get_mut(self.head) {
-            slot.capture_us = capture.as_micros();
+            slot.capture = capture;
             slot.yaw_rad = yaw.unwrap_or(0.0);
             slot.yaw_rate = motion
                 .map(|m| m.rates_radps[2])
@@ -845,7 +843,8 @@ impl EdgeFs {
         } else {
             0.0
         };
-        let dt_us = cur.capture_us.wrapping_sub(self.slot(1).capture_us);
+        // The unsigned difference: a capture time going back gives a frame rate of about zero.
+        let dt_us = cur.capture.wrapping_since(self.slot(1).capture).as_micros();
         let fr = US_PER_S / dt_us as f64;
         let border = w + d;
         let (vlo, vhi) = (d + w + 2, IMG_W - d - w - 2);
@@ -918,9 +917,11 @@ impl EdgeFs {
         if p.filter_accel_mps2 <= 0.0 {
             return out;
         }
-        let now = self.ring[self.idx(0)].capture_us;
-        let before = self.ring[self.idx(1)].capture_us;
-        let dt_s = now.wrapping_sub(before) as f32 * S_PER_US;
+        // The unsigned difference: a capture time going back reads as a gap far too long.
+        let now = self.ring[self.idx(0)].capture;
+        let dt_s = now
+            .wrapping_since(self.ring[self.idx(1)].capture)
+            .as_secs_f32();
         if self.frames < 2 || !(dt_s > MIN_FRAME_GAP_S && dt_s < MAX_FRAME_GAP_S) {
             // First frame, a gap or a clock jump: the track is lost.
             self.filter = [AxisFilter::new(), AxisFilter::new(), AxisFilter::new()];
@@ -1133,9 +1134,11 @@ impl EdgeFs {
     /// measurement, and the guide is on. A track started by one wild fit would otherwise
     /// guide the search to the matches it predicts and confirm itself.
     fn flow_prior(&self) -> Option<FlowPrior> {
-        let now = self.ring[self.idx(0)].capture_us;
-        let before = self.ring[self.idx(1)].capture_us;
-        let gap_s = now.wrapping_sub(before) as f32 * S_PER_US;
+        // As the filter's gap: a capture time going back reads as a gap far too long.
+        let now = self.ring[self.idx(0)].capture;
+        let gap_s = now
+            .wrapping_since(self.ring[self.idx(1)].capture)
+            .as_secs_f32();
         let [fw, sw, _] = &self.filter;
         let usable = self.params.prior_window_px > 0.0
             && self.params.filter_accel_mps2 > 0.0
