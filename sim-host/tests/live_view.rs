@@ -26,7 +26,7 @@ fn a_live_flight_is_served_to_a_foxglove_client() {
             .args([
                 "fly",
                 "--duration",
-                "20",
+                "120",
                 "--quiet",
                 "--live",
                 "--live-port",
@@ -69,7 +69,13 @@ fn a_live_flight_is_served_to_a_foxglove_client() {
     let mut channels: Vec<(u64, String, String)> = Vec::new();
     let mut subscribed = false;
     let mut received: Vec<(u32, Vec<u8>)> = Vec::new();
-    while Instant::now() < deadline && received.len() < 20 {
+    // Reads until five transforms and a state arrived: the two channels' messages interleave
+    // as the flight writes them, so a fixed message count can hold only one channel's.
+    let enough = |received: &[(u32, Vec<u8>)]| {
+        let count = |sub: u32| received.iter().filter(|(s, _)| *s == sub).count();
+        count(1) >= 5 && count(2) >= 1
+    };
+    while Instant::now() < deadline && !enough(&received) {
         match ws.read().expect("the live view stays up") {
             Message::Text(text) => {
                 let v: serde_json::Value = serde_json::from_str(&text).unwrap();
