@@ -38,8 +38,8 @@ static MS_EXTENDER: cortex_m::interrupt::Mutex<core::cell::Cell<TickExtender>> =
 
 /// The board clock: the time since boot to the microsecond (it does not wrap). `ms_ticks` reads
 /// the 1 kHz monotonic's tick count (RTIC's `systick_monotonic!` type is generated in each
-/// firmware); `systick_hz` is its input clock. Runs with interrupts masked for a few dozen cycles, so that callers at
-/// every priority extend the tick count in the order they read it.
+/// firmware); `systick_hz` is its input clock. Runs with interrupts masked for a few dozen
+/// cycles, so that callers at every priority extend the tick count in the order they read it.
 ///
 /// The tick count never lags the SysTick counter read after it, even while the SysTick
 /// interrupt is pending (masked here, or below the caller's priority): the monotonic's `now()`
