@@ -102,7 +102,8 @@ impl Median5 {
         if n % 2 == 1 {
             Some(s[mid])
         } else {
-            Some(0.5 * (s[mid - 1] + s[mid]))
+            // Halves first: the sum of two large samples would overflow to infinity.
+            Some(0.5 * s[mid - 1] + 0.5 * s[mid])
         }
     }
 }
