@@ -1,4 +1,4 @@
-//! Shared helpers for the cross-crate integration tests in `tests/tests/`.
+//! Shared helpers for the cross-crate integration tests in `tests/tests/integration/`.
 
 use autopilot::fsm::FsmVariant;
 use protocol::{GyroAttitude, WireTime, STEREO_FRAME_BYTES};

@@ -382,7 +382,7 @@ mod tests {
     //! The host side of the lockstep against two software boards on loopback TCP that run the
     //! boards' own libraries the way the lockstep firmwares do (world clock from the IMU
     //! timestamps, `autopilot::lockstep::WorldTimers` releasing the periodic tasks, Edge-FS
-    //! at the frames' exposure times). Fast, no firmware: `virtual-board/tests/hil.rs` flies
+    //! at the frames' exposure times). Fast, no firmware: `virtual-board/tests/vboard/hil.rs` flies
     //! the `hil` images on the virtual boards.
     use super::super::recorder::write_log_csv;
     use super::super::test_boards::software_boards;

@@ -67,7 +67,7 @@
 //! at 0.15x. The autopilot link needs about 70 B x 512 Hz = 36 kB/s of its 92 kB/s. Four frames
 //! per second is also the lowest rate at which one invalid estimate (a gap of two frame
 //! periods) stays within the autopilot's 0.5 s estimate timeout. Measured on the virtual boards
-//! (`virtual-board/tests/hil.rs`, 2-core machine): 8.5 s of world time at 4 fps in 9.4 s of
+//! (`virtual-board/tests/vboard/hil.rs`, 2-core machine): 8.5 s of world time at 4 fps in 9.4 s of
 //! virtual time (the autopilot's lockstep takes about 1 ms of virtual time per 1.95 ms IMU
 //! period; the frames set the pace) and 12 s of wall time. In QEMU 7.2, whose STM32 USART takes
 //! one received byte per main-loop iteration (about 11 kB/s into the firmware under `-icount

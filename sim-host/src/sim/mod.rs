@@ -72,7 +72,7 @@
 //!   oscillation grew as G2 was learnt, the yaw-rate gate kept the velocity estimates out of
 //!   the observer and the drone drifted into a wall; turning until clear suffered most.
 //! * Closed-loop results move with every change of the boards' code (the flights are
-//!   chaotic); the tests in `tests/tests/sim_flight.rs` state their bounds and seeds.
+//!   chaotic); the tests in `tests/tests/integration/sim_flight.rs` state their bounds and seeds.
 
 /// Microseconds per second: the virtual clock counts µs; configurations and logs, seconds.
 pub const US_PER_S: f64 = 1e6;

@@ -333,7 +333,7 @@ impl EdgeFsParams {
     /// with `--alignment paper` by the mean over those takes and both axes of
     /// `ln(MSE / min(published Edge-FS MSE, published Farnebäck MSE))`; the other takes (1/3,
     /// 1/7, 1/11, 1/15, 1/19, 2/3) were held out and only reported. Tool and procedure:
-    /// `tests/tests/eval_tune.rs`.
+    /// `tests/tests/integration/eval_tune.rs`.
     /// * Per-frame fit: a grid over W ∈ {5,6,7,8}, H ∈ {2,3,4,5}, minimum disparity ∈ {1, 1.5}
     ///   px, Huber k ∈ {1, 1.5} (scored then after a median of 5): W=6, H=2, 1 px, k=1.
     /// * Temporal filter, scored on the raw output (exactly what the board sends): a grid over

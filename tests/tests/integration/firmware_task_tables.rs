@@ -98,7 +98,7 @@ fn stereo_board_firmware_mirrors_its_task_table() {
         .collect();
     check(
         "stereo-board",
-        include_str!("../../stereo-board/src/firmware/mod.rs"),
+        include_str!("../../../stereo-board/src/firmware/mod.rs"),
         &table,
     );
 }
@@ -111,7 +111,7 @@ fn autopilot_firmware_mirrors_its_task_table() {
         .collect();
     check(
         "autopilot",
-        include_str!("../../autopilot/src/firmware/mod.rs"),
+        include_str!("../../../autopilot/src/firmware/mod.rs"),
         &table,
     );
 }

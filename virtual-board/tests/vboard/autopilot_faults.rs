@@ -765,7 +765,7 @@ fn a_cut_camera_link_lands_and_stops_the_motors() {
 /// The camera board reports its camera stopped: the autopilot hovers blind at
 /// once, without waiting out the estimate timeout, then lands and stops the motors on
 /// touchdown. The stand-in reports at the fault; the real camera board reports within 1.2 s of
-/// its camera's last VSYNC (`tests/link.rs`), which is the camera board's promise, not this one.
+/// its camera's last VSYNC (`tests/vboard/link.rs`), which is the camera board's promise, not this one.
 #[test]
 fn a_stopped_camera_reported_by_the_camera_board_lands_and_stops_the_motors() {
     let cfg = autopilot::AutopilotConfig::default();

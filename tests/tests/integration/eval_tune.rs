@@ -5,7 +5,7 @@
 //! objective is the mean over tuning takes and both axes of
 //! `ln(MSE / min(published Edge-FS MSE, published Farnebäck MSE))`. The held-out takes
 //! (1/3, 1/7, 1/11, 1/15, 1/19, 2/3) are only reported. Run with e.g.
-//! `EDGEFS_TUNE="w=6 fa=0.3" cargo test --release -p integration-tests --test eval_tune -- --ignored --nocapture`
+//! `EDGEFS_TUNE="w=6 fa=0.3" cargo test --release -p integration-tests --test integration eval_tune -- --ignored --nocapture`
 //! (keys: w d h mind sc fc tex hk rms minc ds hs med dw fa fg ff fs ft fov_deg; unset keys keep
 //! the default configuration). `EDGEFS_DUMP=DIR` writes each take's evaluated series as CSV;
 //! `EDGEFS_FLAGS=1` prints how often each flag was set.
