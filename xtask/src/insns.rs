@@ -38,6 +38,7 @@ const DEFAULT_FRAMES: usize = 16;
 /// Names measured, in print order.
 const REPORT_ORDER: &[&str] = &[
     "edge_fs_frame_default",
+    "edge_fs_frame_vertical",
     "edge_fs_frame_paper",
     "edge_histograms",
     "row_histogram",

@@ -39,6 +39,11 @@ mod bench {
     // Large state lives in statics, as on the board (not on the small QEMU stack).
     static mut EDGE_FS_DEFAULT: EdgeFs = EdgeFs::new(EdgeFsParams::default_config());
     static mut EDGE_FS_PAPER: EdgeFs = EdgeFs::new(EdgeFsParams::paper());
+    /// The default configuration with the vertical flow on (issue 34's candidate default).
+    static mut EDGE_FS_VERTICAL: EdgeFs = EdgeFs::new(EdgeFsParams {
+        vertical_search_px: EdgeFsParams::VERTICAL_SEARCH_PX,
+        ..EdgeFsParams::default_config()
+    });
 
     /// Marker: the plugin notes the instruction count when this runs.
     #[no_mangle]
@@ -166,10 +171,11 @@ mod bench {
         // Whole Edge-FS frames; the first frames fill the history, xtask takes the median of
         // the frames measured after it is full.
         // SAFETY: single-threaded benchmark, no interrupts touch these statics.
-        let (default, paper) = unsafe {
+        let (default, paper, vertical) = unsafe {
             (
                 &mut *core::ptr::addr_of_mut!(EDGE_FS_DEFAULT),
                 &mut *core::ptr::addr_of_mut!(EDGE_FS_PAPER),
+                &mut *core::ptr::addr_of_mut!(EDGE_FS_VERTICAL),
             )
         };
         for k in 0..frames {
@@ -178,6 +184,14 @@ mod bench {
             let g = gyro(k);
             measure("edge_fs_frame_default", || {
                 default.process(f, timebase::Instant::from_micros(t), Some(&g))
+            });
+        }
+        for k in 0..frames {
+            let Some(f) = frame(k) else { break };
+            let t = 40_000 * k as u64;
+            let g = gyro(k);
+            measure("edge_fs_frame_vertical", || {
+                vertical.process(f, timebase::Instant::from_micros(t), Some(&g))
             });
         }
         for k in 0..frames {
