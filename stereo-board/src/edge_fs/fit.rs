@@ -145,29 +145,11 @@ fn resistant_start<const COUNT: bool>(
     }
     let width = (hi - lo) / START_GROUPS as f32;
     let group_of = |x: f32| (((x - lo) / width) as usize).min(START_GROUPS - 1);
-    let mut centres = [(0.0f32, 0.0f32); START_GROUPS];
-    let mut n_centres = 0;
-    for g in 0..START_GROUPS {
-        let in_group = |p: &&(f32, f32, f32)| p.2 > 0.0 && group_of(p.0) == g;
-        let (Some(x), Some(v)) = (
-            select_median(
-                points.iter().filter(in_group).map(|p| p.0),
-                scratch,
-                order_key,
-            ),
-            select_median(
-                points.iter().filter(in_group).map(|p| p.1),
-                scratch,
-                order_key,
-            ),
-        ) else {
-            continue;
-        };
-        if let Some(c) = centres.get_mut(n_centres) {
-            *c = (x, v);
-            n_centres += 1;
-        }
-    }
+    let (centres, n_centres) = if points.len() <= GROUPED_MAX {
+        group_centres(points, scratch, group_of)
+    } else {
+        group_centres_filtered(points, scratch, group_of)
+    };
     if n_centres < 2 {
         return None;
     }
@@ -215,6 +197,110 @@ fn resistant_start<const COUNT: bool>(
         }
     }
     best.0.is_finite().then_some(best)
+}
+
+/// Longest point set whose groups [`group_centres`] sorts (its indices are bytes); longer ones
+/// take [`group_centres_filtered`].
+const GROUPED_MAX: usize = 256;
+
+/// The centres (median x, median v) of the non-empty groups of the weighted points, in group
+/// order, and their number: each point's group computed once and the points sorted by group
+/// (a counting sort of their indices), so that each median reads its group's points only.
+/// The same centres as [`group_centres_filtered`] bit for bit: a median is the element a sort
+/// under [`order_key`] puts in the middle, and elements of equal key have equal bits, so the
+/// order in which a group's points arrive does not matter (tests).
+fn group_centres(
+    points: &[(f32, f32, f32)],
+    scratch: &mut [f32],
+    group_of: impl Fn(f32) -> usize,
+) -> ([(f32, f32); START_GROUPS], usize) {
+    let mut centres = [(0.0f32, 0.0f32); START_GROUPS];
+    let mut n_centres = 0;
+    // Group of each point (START_GROUPS: no weight), then the indices in group order.
+    let mut group = [0u8; GROUPED_MAX];
+    let mut count = [0usize; START_GROUPS + 1];
+    for (g, p) in group.iter_mut().zip(points) {
+        let k = if p.2 > 0.0 {
+            group_of(p.0)
+        } else {
+            START_GROUPS
+        };
+        *g = k as u8;
+        if let Some(c) = count.get_mut(k) {
+            *c += 1;
+        }
+    }
+    let mut next = [0usize; START_GROUPS + 1];
+    let mut at = 0;
+    for (n, &c) in next.iter_mut().zip(count.iter()) {
+        *n = at;
+        at += c;
+    }
+    let starts = next;
+    let mut order = [0u8; GROUPED_MAX];
+    for (i, &g) in group.iter().take(points.len()).enumerate() {
+        if let Some(n) = next.get_mut(usize::from(g)) {
+            if let Some(o) = order.get_mut(*n) {
+                *o = i as u8;
+            }
+            *n += 1;
+        }
+    }
+    for (&start, &c) in starts.iter().zip(count.iter()).take(START_GROUPS) {
+        let members = order.get(start..start + c).unwrap_or(&[]);
+        let member = |i: &u8| points.get(usize::from(*i));
+        let (Some(x), Some(v)) = (
+            select_median(
+                members.iter().filter_map(member).map(|p| p.0),
+                scratch,
+                order_key,
+            ),
+            select_median(
+                members.iter().filter_map(member).map(|p| p.1),
+                scratch,
+                order_key,
+            ),
+        ) else {
+            continue;
+        };
+        if let Some(slot) = centres.get_mut(n_centres) {
+            *slot = (x, v);
+            n_centres += 1;
+        }
+    }
+    (centres, n_centres)
+}
+
+/// [`group_centres`] by filtering all points once per group and coordinate (any length).
+fn group_centres_filtered(
+    points: &[(f32, f32, f32)],
+    scratch: &mut [f32],
+    group_of: impl Fn(f32) -> usize,
+) -> ([(f32, f32); START_GROUPS], usize) {
+    let mut centres = [(0.0f32, 0.0f32); START_GROUPS];
+    let mut n_centres = 0;
+    for g in 0..START_GROUPS {
+        let in_group = |p: &&(f32, f32, f32)| p.2 > 0.0 && group_of(p.0) == g;
+        let (Some(x), Some(v)) = (
+            select_median(
+                points.iter().filter(in_group).map(|p| p.0),
+                scratch,
+                order_key,
+            ),
+            select_median(
+                points.iter().filter(in_group).map(|p| p.1),
+                scratch,
+                order_key,
+            ),
+        ) else {
+            continue;
+        };
+        if let Some(c) = centres.get_mut(n_centres) {
+            *c = (x, v);
+            n_centres += 1;
+        }
+    }
+    (centres, n_centres)
 }
 
 /// Residuals beyond this many robust scales get no weight: Huber weights alone bound each
@@ -437,6 +523,44 @@ mod tests {
                 for (a, b) in pts.iter().zip(before.iter()) {
                     prop_assert_eq!(a.2.to_bits(), b.2.to_bits());
                 }
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        /// The group centres from the counting sort equal those of filtering per group, bit
+        /// for bit (ties, zero weights, NaN and infinities included).
+        #[test]
+        fn sorted_group_centres_equal_filtered(
+            raw in proptest::collection::vec(
+                (
+                    prop_oneof![
+                        6 => (-64i32..64).prop_map(|x| x as f32 + 0.5),
+                        1 => Just(f32::NAN),
+                        1 => Just(f32::INFINITY),
+                    ],
+                    prop_oneof![
+                        4 => -50.0f32..50.0,
+                        2 => (-3i32..3).prop_map(|v| v as f32),
+                        1 => Just(f32::NAN),
+                        1 => Just(-0.0f32),
+                    ],
+                    prop_oneof![4 => Just(1.0f32), 1 => Just(0.0f32), 2 => 0.0f32..3.0],
+                ),
+                0..=GROUPED_MAX,
+            ),
+            lo in -70.0f32..0.0,
+            width in 0.5f32..30.0,
+        ) {
+            let group_of = |x: f32| (((x - lo) / width) as usize).min(START_GROUPS - 1);
+            let mut scratch = [0.0f32; GROUPED_MAX];
+            let (a, na) = group_centres(&raw, &mut scratch, group_of);
+            let (b, nb) = group_centres_filtered(&raw, &mut scratch, group_of);
+            prop_assert_eq!(na, nb);
+            for (p, q) in a.iter().zip(b.iter()).take(na) {
+                prop_assert_eq!((p.0.to_bits(), p.1.to_bits()), (q.0.to_bits(), q.1.to_bits()));
             }
         }
     }

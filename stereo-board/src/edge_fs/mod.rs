@@ -271,10 +271,11 @@ pub struct EdgeFsParams {
     /// rotation over the horizon); 0: no vertical flow (the vertical velocity is flagged
     /// [`EstimateFlags::NO_FLOW_MATCH`] and the fit is the columns' alone). Up to 20.
     /// [`Self::VERTICAL_SEARCH_PX`] turns it on. Off in [`EdgeFsParams::default_config`]: it
-    /// costs about 72,000 Cortex-M4 instructions a frame (row histograms 12,000, row search
-    /// 23,000, the rest per-row matches and the coupled fit), which the frame's budget of
-    /// 250,000 does not hold yet, and on the recorded takes (which barely move vertically)
-    /// its MSE is above a zero predictor's.
+    /// costs about 72,800 Cortex-M4 instructions a frame (`edge_fs_frame_vertical` against
+    /// `edge_fs_frame_default` in `cargo xtask insns`: row histograms 12,400, the row search
+    /// with its per-row sub-pixel and peak ratio 41,800, the rows' fits and the coupled fit
+    /// 14,200), which the frame's budget of 250,000 does not hold yet, and on the recorded
+    /// takes (which barely move vertically) its MSE is above a zero predictor's.
     pub vertical_search_px: u8,
 }
 
