@@ -11,9 +11,9 @@ use super::divergence::FlowSamples;
 use super::fit::MAD_TO_SIGMA;
 use super::histogram::NOISE_DIFF_PER_SIGMA;
 use super::{
-    coverage_u8, flow_row, histogram_steps, longest_run, median, pixel_noise_dn, robust_line_fit,
-    stereo_row, window_sums, wrap_pi, EdgeFs, EdgeFsOutput, LineFit, Slot, IMG_H, IMG_W,
-    MEDIAN_MAX,
+    coverage_u8, flow_row, fmax, fmin, histogram_steps, longest_run, median, pixel_noise_dn,
+    robust_line_fit, stereo_row, window_sums, wrap_pi, EdgeFs, EdgeFsOutput, LineFit, Slot, IMG_H,
+    IMG_W, MEDIAN_MAX,
 };
 use protocol::{EstimateFlags, STEREO_FRAME_BYTES};
 
@@ -316,7 +316,7 @@ impl EdgeFs {
             let confidence = m.confidence();
             if confidence >= p.min_stereo_confidence {
                 diag.depth_m[c] = f * p.baseline_m / disp;
-                diag.confidence[c] = confidence.min(MAX_DIAG_CONFIDENCE);
+                diag.confidence[c] = fmin(confidence, MAX_DIAG_CONFIDENCE);
                 stereo.ok[c] = true;
                 stereo.count += 1;
             }
@@ -489,8 +489,10 @@ impl EdgeFs {
                     let u = (pr.forward_mps * x - f * pr.sideways_mps) / z;
                     let k = rot_px + u * dt_s - offset as f32 + d as f32;
                     let spread = (x.abs() * pr.forward_sigma + f * pr.sideways_sigma) / z;
-                    let r = (p.prior_window_px + spread * dt_s)
-                        .min(PRIOR_WINDOW_CAP * p.prior_window_px);
+                    let r = fmin(
+                        p.prior_window_px + spread * dt_s,
+                        PRIOR_WINDOW_CAP * p.prior_window_px,
+                    );
                     let (lo, hi) = (libm::floorf(k - r), libm::ceilf(k + r));
                     if lo > 0.0 || hi < (2 * d) as f32 {
                         let lo = lo.clamp(0.0, (2 * d) as f32) as usize;
@@ -638,7 +640,7 @@ impl EdgeFs {
             out.flags.insert(EstimateFlags::POOR_FIT);
         }
         let (lo, hi) = pts.iter().fold((f32::MAX, f32::MIN), |(lo, hi), pt| {
-            (lo.min(pt.0), hi.max(pt.0))
+            (fmin(lo, pt.0), fmax(hi, pt.0))
         });
         if hi - lo < p.min_fit_spread_px {
             out.flags.insert(EstimateFlags::POOR_FIT);

@@ -138,7 +138,7 @@ fn resistant_start<const COUNT: bool>(
         .iter()
         .filter(|p| p.2 > 0.0)
         .fold((f32::MAX, f32::MIN), |(lo, hi), p| {
-            (lo.min(p.0), hi.max(p.0))
+            (super::fmin(lo, p.0), super::fmax(hi, p.0))
         });
     if hi <= lo {
         return None;

@@ -418,8 +418,30 @@ pub fn pixel_noise_dn(frame: &[u8; protocol::STEREO_FRAME_BYTES]) -> f32 {
             *o = (lanes(dx) * NOISE_BLOCK_W as u32 / columns).min(lanes(dy));
         }
     }
-    let k = NOISE_BLOCKS / 10;
-    *blocks.select_nth_unstable(k).1 as f32 / (NOISE_BLOCK_W as f32 * NOISE_DIFF_PER_SIGMA)
+    tenth_smallest(&blocks) as f32 / (NOISE_BLOCK_W as f32 * NOISE_DIFF_PER_SIGMA)
+}
+
+/// Which smallest block [`pixel_noise_dn`] takes (0-based): a tenth of the blocks.
+const NOISE_RANK: usize = NOISE_BLOCKS / 10;
+
+/// The [`NOISE_RANK`]-th smallest of `values` (0-based; `u32::MAX` with fewer values), the
+/// element `select_nth_unstable(NOISE_RANK)` finds: the `NOISE_RANK + 1` smallest so far kept
+/// sorted by insertion, so most values take one compare.
+fn tenth_smallest(values: &[u32]) -> u32 {
+    let mut low = [u32::MAX; NOISE_RANK + 1];
+    for &v in values {
+        if v >= low[NOISE_RANK] {
+            continue;
+        }
+        // Insert `v`; the largest kept leaves.
+        let mut i = NOISE_RANK;
+        while i > 0 && low[i - 1] > v {
+            low[i] = low[i - 1];
+            i -= 1;
+        }
+        low[i] = v;
+    }
+    low[NOISE_RANK]
 }
 
 /// Mean intensity of the left image (0..=255), for the too-dark / too-bright flags.
@@ -619,6 +641,22 @@ mod tests {
         // Neighbours two apart have equal values: no interior gradient.
         assert!(l[1..IMG_W - 1].iter().all(|&v| v == 0));
         assert_eq!(mean_intensity(&frame), 127);
+    }
+
+    proptest! {
+        /// The insertion selection equals `select_nth_unstable`'s element (ties included).
+        #[test]
+        fn tenth_smallest_equals_select_nth(
+            v in proptest::collection::vec(
+                prop_oneof![0u32..16, any::<u32>()],
+                NOISE_RANK + 1..=NOISE_BLOCKS,
+            ),
+        ) {
+            let mut sorted = [0u32; NOISE_BLOCKS];
+            sorted[..v.len()].copy_from_slice(&v);
+            let want = *sorted[..v.len()].select_nth_unstable(NOISE_RANK).1;
+            prop_assert_eq!(tenth_smallest(&v), want);
+        }
     }
 
     /// The row histogram equals its per-pixel definition, and a dead row blanks its

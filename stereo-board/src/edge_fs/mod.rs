@@ -271,10 +271,10 @@ pub struct EdgeFsParams {
     /// rotation over the horizon); 0: no vertical flow (the vertical velocity is flagged
     /// [`EstimateFlags::NO_FLOW_MATCH`] and the fit is the columns' alone). Up to 20.
     /// [`Self::VERTICAL_SEARCH_PX`] turns it on. Off in [`EdgeFsParams::default_config`]: it
-    /// costs about 72,800 Cortex-M4 instructions a frame (`edge_fs_frame_vertical` against
+    /// costs about 71,800 Cortex-M4 instructions a frame (`edge_fs_frame_vertical` against
     /// `edge_fs_frame_default` in `cargo xtask insns`: row histograms 12,400, the row search
-    /// with its per-row sub-pixel and peak ratio 41,800, the rows' fits and the coupled fit
-    /// 14,200), which the frame's budget of 250,000 does not hold yet, and on the recorded
+    /// with its per-row sub-pixel and peak ratio 42,900, the rows' fits and the coupled fit
+    /// 13,500), which the frame's budget of 250,000 does not hold yet, and on the recorded
     /// takes (which barely move vertically) its MSE is above a zero predictor's.
     pub vertical_search_px: u8,
 }
@@ -1095,8 +1095,8 @@ impl EdgeFs {
             sw += pt.2;
             sy += pt.2 * pt.0;
             syy += pt.2 * pt.0 * pt.0;
-            y_lo = y_lo.min(pt.0);
-            y_hi = y_hi.max(pt.0);
+            y_lo = fmin(y_lo, pt.0);
+            y_hi = fmax(y_hi, pt.0);
         }
         let y_mean = sy / sw.max(MIN_WEIGHT_SUM);
         let row_var = scale * scale;
@@ -1175,7 +1175,7 @@ impl EdgeFs {
         };
         for &z in depth.iter() {
             let continues =
-                z > 0.0 && run > 0 && (z - prev).abs() < OBSTACLE_DEPTH_STEP * prev.max(z);
+                z > 0.0 && run > 0 && (z - prev).abs() < OBSTACLE_DEPTH_STEP * fmax(prev, z);
             if z > 0.0 && (run == 0 || continues) {
                 run += 1;
                 sum += z;
@@ -1234,6 +1234,29 @@ struct FlowPrior {
     sideways_mps: f32,
     forward_sigma: f32,
     sideways_sigma: f32,
+}
+
+/// `a.max(b)` as the Cortex-M4's `fmaxf` computes it (`b` when `a < b` or `a` is NaN, else
+/// `a`), inline: without `VMAXNM` (FPv4) `f32::max` is a library call, about a dozen
+/// instructions with the call for two compares. For the per-column and per-point loops.
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a < b || a.is_nan() {
+        b
+    } else {
+        a
+    }
+}
+
+/// `a.min(b)` as the Cortex-M4's `fminf` computes it (`a` when `a < b` or `b` is NaN, else
+/// `b`), inline (see [`fmax`]).
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b || b.is_nan() {
+        a
+    } else {
+        b
+    }
 }
 
 /// `n` of `of` as a fraction 0..=255 (0 when `of` is 0).

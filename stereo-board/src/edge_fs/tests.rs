@@ -671,3 +671,30 @@ fn fly_2d_paper() -> EdgeFsOutput {
     }
     out
 }
+
+/// The inline `fmax`/`fmin` are `f32::max`/`min` (NaN gives the other argument), up to the
+/// sign of an equal zero, which `f32::max` leaves open.
+#[test]
+fn inline_min_max_equal_the_library_ones() {
+    let values = [
+        f32::NAN,
+        f32::NEG_INFINITY,
+        -3.5,
+        -1.0,
+        -f32::MIN_POSITIVE,
+        -0.0,
+        0.0,
+        1e-30,
+        1.0,
+        2.5,
+        f32::MAX,
+        f32::INFINITY,
+    ];
+    let same = |a: f32, b: f32| (a.is_nan() && b.is_nan()) || a == b;
+    for &a in &values {
+        for &b in &values {
+            assert!(same(fmax(a, b), a.max(b)), "max({a}, {b})");
+            assert!(same(fmin(a, b), a.min(b)), "min({a}, {b})");
+        }
+    }
+}
