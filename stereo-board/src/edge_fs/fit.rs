@@ -249,22 +249,9 @@ fn group_centres(
     for (&start, &c) in starts.iter().zip(count.iter()).take(START_GROUPS) {
         let members = order.get(start..start + c).unwrap_or(&[]);
         let member = |i: &u8| points.get(usize::from(*i));
-        let (Some(x), Some(v)) = (
-            select_median(
-                members.iter().filter_map(member).map(|p| p.0),
-                scratch,
-                order_key,
-            ),
-            select_median(
-                members.iter().filter_map(member).map(|p| p.1),
-                scratch,
-                order_key,
-            ),
-        ) else {
-            continue;
-        };
-        if let Some(slot) = centres.get_mut(n_centres) {
-            *slot = (x, v);
+        let centre = median_centre(members.iter().filter_map(member), scratch);
+        if let (Some(centre), Some(slot)) = (centre, centres.get_mut(n_centres)) {
+            *slot = centre;
             n_centres += 1;
         }
     }
@@ -281,26 +268,23 @@ fn group_centres_filtered(
     let mut n_centres = 0;
     for g in 0..START_GROUPS {
         let in_group = |p: &&(f32, f32, f32)| p.2 > 0.0 && group_of(p.0) == g;
-        let (Some(x), Some(v)) = (
-            select_median(
-                points.iter().filter(in_group).map(|p| p.0),
-                scratch,
-                order_key,
-            ),
-            select_median(
-                points.iter().filter(in_group).map(|p| p.1),
-                scratch,
-                order_key,
-            ),
-        ) else {
-            continue;
-        };
-        if let Some(c) = centres.get_mut(n_centres) {
-            *c = (x, v);
+        let centre = median_centre(points.iter().filter(in_group), scratch);
+        if let (Some(centre), Some(slot)) = (centre, centres.get_mut(n_centres)) {
+            *slot = centre;
             n_centres += 1;
         }
     }
     (centres, n_centres)
+}
+
+/// The median x and the median v of `members` (`None` when there are none).
+fn median_centre<'a>(
+    members: impl Iterator<Item = &'a (f32, f32, f32)> + Clone,
+    scratch: &mut [f32],
+) -> Option<(f32, f32)> {
+    let x = select_median(members.clone().map(|p| p.0), scratch, order_key)?;
+    let v = select_median(members.map(|p| p.1), scratch, order_key)?;
+    Some((x, v))
 }
 
 /// Residuals beyond this many robust scales get no weight: Huber weights alone bound each
