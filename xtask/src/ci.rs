@@ -445,4 +445,36 @@ mod tests {
             assert_eq!(table(manifest, &["lints"]), main, "{manifest}");
         }
     }
+
+    /// Each test directory is one binary whose `main.rs` declares the files as modules: a file
+    /// it does not declare would never be compiled or run, so every file must be declared.
+    #[test]
+    fn every_test_file_is_a_module_of_its_binary() {
+        for dir in [
+            "tests/tests/integration",
+            "sim-host/tests/commands",
+            "virtual-board/tests/vboard",
+        ] {
+            let dir = workspace_root().join(dir);
+            let main = std::fs::read_to_string(dir.join("main.rs")).unwrap();
+            let mut files = 0;
+            for entry in std::fs::read_dir(&dir).unwrap() {
+                let path = entry.unwrap().path();
+                let Some(name) = path.file_stem().and_then(|n| n.to_str()) else {
+                    continue;
+                };
+                if path.extension().is_some_and(|e| e == "rs") && name != "main" {
+                    let declared = format!("mod {name};");
+                    assert!(
+                        main.lines().any(|l| l == declared),
+                        "{}: {declared} missing, so {} never runs",
+                        dir.join("main.rs").display(),
+                        path.display()
+                    );
+                    files += 1;
+                }
+            }
+            assert!(files > 0, "{}: no test files", dir.display());
+        }
+    }
 }
