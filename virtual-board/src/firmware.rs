@@ -22,24 +22,18 @@ pub struct Firmware {
 }
 
 /// The directory the bench takes the `real` firmwares from: `VBOARD_FIRMWARE_DIR` if set, else
-/// the main workspace's `target/thumbv7em-none-eabihf/release` (what `cargo xtask fw` builds).
+/// the main workspace's `target/firmware/real` (where `cargo xtask fw` puts them).
 #[must_use]
 pub fn firmware_dir() -> PathBuf {
-    dir_from_env(
-        "VBOARD_FIRMWARE_DIR",
-        "../target/thumbv7em-none-eabihf/release",
-    )
+    dir_from_env("VBOARD_FIRMWARE_DIR", "../target/firmware/real")
 }
 
 /// The directory the bench takes the `hil`-flavour firmwares from: `VBOARD_HIL_FIRMWARE_DIR` if
-/// set, else the main workspace's `target/fw-hil/thumbv7em-none-eabihf/release` (what `cargo
-/// xtask fw --flavour hil` builds).
+/// set, else the main workspace's `target/firmware/hil` (where `cargo xtask fw --flavour hil`
+/// puts them).
 #[must_use]
 pub fn hil_firmware_dir() -> PathBuf {
-    dir_from_env(
-        "VBOARD_HIL_FIRMWARE_DIR",
-        "../target/fw-hil/thumbv7em-none-eabihf/release",
-    )
+    dir_from_env("VBOARD_HIL_FIRMWARE_DIR", "../target/firmware/hil")
 }
 
 fn dir_from_env(variable: &str, beside_the_bench: &str) -> PathBuf {

@@ -26,7 +26,7 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use crate::cargo::{cargo, cargo_test, run_checked, workspace_root, FIRMWARE_TARGET};
-use crate::size::{firmware_build_command, Flavour, FIRMWARES};
+use crate::size::{build_firmware, Flavour, FIRMWARES};
 
 /// The Python MCAP reader the flight-log test uses, and its protobuf decoder for Foxglove's
 /// well-known types (pip requirements).
@@ -173,8 +173,9 @@ pub fn run(args: &[String]) -> Result<()> {
 
 /// The virtual-board bench made ready to run: clippy and rustdoc (warnings denied) in its
 /// workspace, its tests built in release, and both firmwares in the `hil` flavour (which the
-/// bench flies) and the `qemu` one (which the size step checks). Every command's output goes
-/// to `log`.
+/// bench flies) and the `qemu` one (which the size step checks; the images build in the main
+/// workspace's target directory, sharing its release dependencies with the `real` images, see
+/// [`build_firmware`]). Every command's output goes to `log`.
 fn prepare_bench(log: &Path) -> Result<()> {
     let log = std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
     let bench = crate::vboard::bench_dir();
@@ -208,7 +209,7 @@ fn prepare_bench(log: &Path) -> Result<()> {
         .context("building the virtual-board tests failed")?;
     for flavour in [Flavour::Hil, Flavour::Qemu] {
         for name in FIRMWARES {
-            logged(&mut firmware_build_command(flavour, name))
+            build_firmware(flavour, name, logged)
                 .with_context(|| format!("firmware build failed ({flavour:?}: {name})"))?;
         }
     }

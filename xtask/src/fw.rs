@@ -9,7 +9,8 @@
 //! and so its own HAL chip feature. Cargo unifies features within one invocation, so the two
 //! firmwares cannot build in one `cargo build`: `fw` runs one invocation per board (release,
 //! thumbv7em-none-eabihf, both linked by flip-link, see `.cargo/config.toml`). Without a board
-//! it builds both.
+//! it builds both. The images land in `target/firmware/<flavour>/` (printed after the build);
+//! all flavours share the workspace's target directory, see [`crate::size::build_firmware`].
 //!
 //! `flash` builds the real flavour and runs `probe-rs run --chip <part>` on it: it flashes over
 //! SWD (ST-Link or CMSIS-DAP), resets the board and prints its defmt log over RTT. With

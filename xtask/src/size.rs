@@ -17,7 +17,7 @@
 //! measures (`xtask/budgets.toml`'s `[stack]`, which every clean bench run is checked against)
 //! and what it leaves of the reserve.
 
-use crate::cargo::workspace_root;
+use crate::cargo::{workspace_root, FIRMWARE_TARGET};
 use crate::elf::{sections, symbol};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
@@ -163,50 +163,92 @@ impl Flavour {
         }
     }
 
-    /// Cargo target directory of this flavour's builds: the workspace's for the real flavour,
-    /// a subdirectory for the others, so that switching flavours does not rebuild.
-    pub fn target_dir(self) -> PathBuf {
-        let base = std::env::var_os("CARGO_TARGET_DIR")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| workspace_root().join("target"));
-        match self.feature() {
-            None => base,
-            Some(f) => base.join(format!("fw-{f}")),
+    /// The flavour's name, as `--flavour` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Real => "real",
+            Self::Qemu => "qemu",
+            Self::Hil => "hil",
         }
     }
 }
 
+/// The workspace's target directory (`CARGO_TARGET_DIR` if set).
+fn target_base() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("target"))
+}
+
+/// The directory holding a flavour's firmware images after [`build_firmwares`]:
+/// `target/firmware/<flavour>`.
+pub fn firmware_dir(flavour: Flavour) -> PathBuf {
+    target_base().join("firmware").join(flavour.name())
+}
+
 /// Path of a firmware's ELF after [`build_firmwares`].
 pub fn firmware_elf(flavour: Flavour, name: &str) -> PathBuf {
-    flavour
-        .target_dir()
-        .join("thumbv7em-none-eabihf")
-        .join("release")
-        .join(name)
+    firmware_dir(flavour).join(name)
 }
 
 /// Builds the named firmwares of a flavour in release, one cargo invocation per firmware: each
 /// board selects its own part's HAL feature, and cargo unifies features within an invocation.
 pub fn build_firmwares(flavour: Flavour, names: &[&str]) -> Result<()> {
     for name in names {
-        let status = firmware_build_command(flavour, name)
-            .status()
-            .context("running cargo build")?;
-        if !status.success() {
-            bail!("firmware build failed ({flavour:?}: {name})");
-        }
+        build_firmware(flavour, name, |cmd| {
+            let status = cmd.status().context("running cargo build")?;
+            if !status.success() {
+                bail!("firmware build failed ({flavour:?}: {name})");
+            }
+            Ok(())
+        })?;
     }
     Ok(())
 }
 
-/// The `cargo build` of one firmware in `flavour` (release, its own target directory).
-pub fn firmware_build_command(flavour: Flavour, name: &str) -> Command {
+/// Builds one firmware of `flavour` in release, running the `cargo build` with `run`, and puts
+/// its ELF at [`firmware_elf`].
+///
+/// Every flavour builds in the workspace's target directory, so the dependencies (the HAL, its
+/// device crate, RTIC, defmt) are built once for all of them and a change of flavour rebuilds
+/// only the board's own crates. Cargo writes every flavour's image to the same path, so the
+/// build and the copy out of it hold a lock file (`target/firmware/.lock`): a build of another
+/// flavour, in this process or another, cannot replace the image in between.
+pub fn build_firmware(
+    flavour: Flavour,
+    name: &str,
+    run: impl FnOnce(&mut Command) -> Result<()>,
+) -> Result<()> {
+    let dir = firmware_dir(flavour);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let lock_path = target_base().join("firmware").join(".lock");
+    let lock = std::fs::File::create(&lock_path)
+        .with_context(|| format!("creating {}", lock_path.display()))?;
+    lock.lock()
+        .with_context(|| format!("locking {}", lock_path.display()))?;
+    run(&mut firmware_build_command(flavour, name))?;
+    let built = target_base()
+        .join(FIRMWARE_TARGET)
+        .join("release")
+        .join(name);
+    // Copied under a temporary name and renamed: a reader never sees half an image.
+    let elf = firmware_elf(flavour, name);
+    let partial = dir.join(format!(".{name}.partial"));
+    std::fs::copy(&built, &partial)
+        .with_context(|| format!("copying {} to {}", built.display(), partial.display()))?;
+    std::fs::rename(&partial, &elf)
+        .with_context(|| format!("renaming {} to {}", partial.display(), elf.display()))?;
+    Ok(())
+}
+
+/// The `cargo build` of one firmware in `flavour` (release, the workspace's target directory).
+fn firmware_build_command(flavour: Flavour, name: &str) -> Command {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut cmd = Command::new(cargo);
     cmd.current_dir(workspace_root())
-        .args(["build", "--release", "--target", "thumbv7em-none-eabihf"])
+        .args(["build", "--release", "--target", FIRMWARE_TARGET])
         .arg("--target-dir")
-        .arg(flavour.target_dir())
+        .arg(target_base())
         .args(["-p", name]);
     if let Some(feature) = flavour.feature() {
         cmd.args(["--features", &format!("{name}/{feature}")]);

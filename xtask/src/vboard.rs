@@ -13,8 +13,8 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
-use crate::cargo::{cargo, cargo_test_with, FIRMWARE_TARGET};
-use crate::size::{build_firmwares, Flavour, FIRMWARES};
+use crate::cargo::{cargo, cargo_test_with};
+use crate::size::{build_firmwares, firmware_dir, Flavour, FIRMWARES};
 
 fn workspace_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -32,11 +32,6 @@ pub fn bench_dir() -> PathBuf {
 fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR")
         .map_or_else(|| workspace_root().join("target"), PathBuf::from)
-}
-
-/// Where `cargo xtask fw` puts the firmwares of `flavour`.
-fn firmware_dir(flavour: Flavour) -> PathBuf {
-    flavour.target_dir().join(FIRMWARE_TARGET).join("release")
 }
 
 /// Runs `cargo xtask vboard [ARGS]`.

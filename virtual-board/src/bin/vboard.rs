@@ -7,13 +7,13 @@
 //! ```
 //!
 //! `serve autopilot` runs the real autopilot image (`VBOARD_FIRMWARE_DIR`, default the main
-//! workspace's `target/thumbv7em-none-eabihf/release`: `cargo xtask fw` builds it) on the
+//! workspace's `target/firmware/real`: `cargo xtask fw` builds it) on the
 //! virtual autopilot board, level and still on the bench, and serves its telemetry UART
 //! (USART1) to one TCP client: `sim-host monitor --port tcp:127.0.0.1:4010`. It runs at `--pace`
 //! virtual seconds per wall second (default 1).
 //!
 //! `serve hil` runs both `hil`-flavour images (`VBOARD_HIL_FIRMWARE_DIR`, default
-//! `target/fw-hil/thumbv7em-none-eabihf/release`: `cargo xtask fw --flavour hil` builds them)
+//! `target/firmware/hil`: `cargo xtask fw --flavour hil` builds them)
 //! on the two virtual boards, their link UARTs joined, and serves the camera board's host UART
 //! (USART2) on `--stereo-listen` and the autopilot's (USART1) on `--autopilot-listen`, for
 //! `sim-host hil --stereo tcp:ADDR --autopilot tcp:ADDR`. The boards run on the host's world
