@@ -223,9 +223,17 @@ pub fn column_costs(
     if w > MAX_W {
         return column_costs_scalar(reference, target, delta0, n, w, lo, hi, f);
     }
-    packed_rows::<false>(reference, target, delta0, n, w, lo, hi, |c, costs, _, _| {
-        f(c, costs)
-    });
+    packed_rows::<false, false>(
+        reference,
+        target,
+        delta0,
+        n,
+        w,
+        lo,
+        hi,
+        &mut [],
+        |c, costs, _, _, _| f(c, costs),
+    );
 }
 
 /// Valid reference columns `lo..=hi` of a whole-row search (see [`column_costs`]), `None` when
@@ -252,12 +260,15 @@ fn valid_columns_in(
 }
 
 /// The packed running-sum kernel of [`column_costs`] (`w <= MAX_W`, `1 <= n <=
-/// MAX_CANDIDATES`, `lo..=hi` from [`valid_columns`]): calls `f(c, costs, c0, best)` per column.
-/// With `MIN`, `(c0, best)` is the first minimum of `costs` (value, index), found while the
-/// costs are updated; without, it is `(0, 0)`.
+/// MAX_CANDIDATES`, `lo..=hi` from [`valid_columns`]): calls `f(c, costs, c0, best, kept)` per
+/// column. With `MIN`, `(c0, best)` is the first minimum of `costs` (value, index), found while
+/// the costs are updated; without, it is `(0, 0)`. With `MIN` and `KEEP`, column `c`'s cost
+/// pairs are also written to row `c % rows` of `keep` (rows of `n.div_ceil(2)` pairs, `rows =
+/// keep.len() / n.div_ceil(2)`, at least 1) before `f` is called, and `kept` is `keep`;
+/// otherwise `kept` is empty.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn packed_rows<const MIN: bool>(
+fn packed_rows<const MIN: bool, const KEEP: bool>(
     reference: &EdgeHistogram,
     target: &EdgeHistogram,
     delta0: isize,
@@ -265,9 +276,15 @@ fn packed_rows<const MIN: bool>(
     w: usize,
     lo: usize,
     hi: usize,
-    mut f: impl FnMut(usize, &[u32], u32, usize),
+    keep: &mut [[u32; 2]],
+    mut f: impl FnMut(usize, &[u32], u32, usize, &[[u32; 2]]),
 ) {
     let pairs = n.div_ceil(2);
+    let rows = keep.len() / pairs.max(1);
+    if KEEP && rows == 0 {
+        return;
+    }
+    let mut row = if KEEP { lo % rows } else { 0 };
     // The target as word pairs starting at even (`even[m] = t[2m] | t[2m+1] << 16`) and odd
     // (`odd[m] = t[2m+1] | t[2m+2] << 16`, `t[IMG_W] = 0`) bins: candidates `k`, `k+1` of a
     // bin are one aligned word of either.
@@ -321,28 +338,65 @@ fn packed_rows<const MIN: bool>(
             let (of, ot) = old.split_at_mut(full);
             let (wf, wt) = words.split_at(full);
             let mut k = 0;
-            for ((c, old), &t) in cf.iter_mut().zip(of.iter_mut()).zip(wf) {
-                let d = absdiff_u16x2(t, rr);
-                accumulate_u16x2(c, d, *old);
-                *old = d;
-                let [a, b] = *c;
-                if a < c0 {
-                    c0 = a;
-                    best = k;
+            if KEEP {
+                // The same update, each pair also stored into the column's kept row.
+                let Some(kept) = keep.get_mut(row * pairs..row * pairs + pairs) else {
+                    return;
+                };
+                let (kf, kt) = kept.split_at_mut(full);
+                for (((c, old), &t), kc) in cf.iter_mut().zip(of.iter_mut()).zip(wf).zip(kf) {
+                    let d = absdiff_u16x2(t, rr);
+                    accumulate_u16x2(c, d, *old);
+                    *old = d;
+                    let [a, b] = *c;
+                    *kc = *c;
+                    if a < c0 {
+                        c0 = a;
+                        best = k;
+                    }
+                    if b < c0 {
+                        c0 = b;
+                        best = k + 1;
+                    }
+                    k += 2;
                 }
-                if b < c0 {
-                    c0 = b;
-                    best = k + 1;
+                if let (Some(c), Some(old), Some(&t), Some(kc)) =
+                    (ct.first_mut(), ot.first_mut(), wt.first(), kt.first_mut())
+                {
+                    let d = absdiff_u16x2(t, rr);
+                    accumulate_u16x2(c, d, *old);
+                    *old = d;
+                    *kc = *c;
+                    if c[0] < c0 {
+                        c0 = c[0];
+                        best = k;
+                    }
                 }
-                k += 2;
-            }
-            if let (Some(c), Some(old), Some(&t)) = (ct.first_mut(), ot.first_mut(), wt.first()) {
-                let d = absdiff_u16x2(t, rr);
-                accumulate_u16x2(c, d, *old);
-                *old = d;
-                if c[0] < c0 {
-                    c0 = c[0];
-                    best = k;
+            } else {
+                for ((c, old), &t) in cf.iter_mut().zip(of.iter_mut()).zip(wf) {
+                    let d = absdiff_u16x2(t, rr);
+                    accumulate_u16x2(c, d, *old);
+                    *old = d;
+                    let [a, b] = *c;
+                    if a < c0 {
+                        c0 = a;
+                        best = k;
+                    }
+                    if b < c0 {
+                        c0 = b;
+                        best = k + 1;
+                    }
+                    k += 2;
+                }
+                if let (Some(c), Some(old), Some(&t)) = (ct.first_mut(), ot.first_mut(), wt.first())
+                {
+                    let d = absdiff_u16x2(t, rr);
+                    accumulate_u16x2(c, d, *old);
+                    *old = d;
+                    if c[0] < c0 {
+                        c0 = c[0];
+                        best = k;
+                    }
                 }
             }
         } else {
@@ -354,7 +408,13 @@ fn packed_rows<const MIN: bool>(
         }
         if emit {
             if let Some(costs) = costs_p.as_flattened().get(..n) {
-                f(j - w, costs, c0, best);
+                f(j - w, costs, c0, best, if KEEP { keep } else { &[] });
+            }
+            if KEEP {
+                row += 1;
+                if row == rows {
+                    row = 0;
+                }
             }
         }
     }
@@ -526,7 +586,7 @@ fn column_matches_in(
             );
         });
     }
-    packed_rows::<true>(
+    packed_rows::<true, false>(
         reference,
         target,
         delta0,
@@ -534,7 +594,8 @@ fn column_matches_in(
         w,
         lo,
         hi,
-        |c, costs, c0, best| {
+        &mut [],
+        |c, costs, c0, best, _| {
             f(
                 c,
                 RowMatch {
@@ -565,6 +626,155 @@ pub fn stereo_row(
         w,
         f,
     );
+}
+
+/// Cost words [`stereo_row_checked`] keeps for the left-right check (2 KiB): the last
+/// `2n - 1` columns' costs of a search of `n` candidates, `n.div_ceil(2)` pairs each, fit up to
+/// `n = 16` (the default 15 px stereo range); wider searches recompute the reverse costs.
+pub const LR_KEEP_PAIRS: usize = 256;
+
+/// [`stereo_row`] with a left-right consistency check of the columns `f` keeps.
+///
+/// `f(c, match)` is called for each right-image column as by [`stereo_row`]; it returns whether
+/// the column is used (then it is checked). The check searches the other way: the left-image
+/// content matched at disparity `d` (left bin `c + d - shift`) against the right-image columns
+/// `c + d - d'` for every candidate `d'` of the search whose own search is valid, and the first
+/// minimum `d'` of those costs must lie within ±1 px of `d`. The right-to-left costs are not
+/// searched again: candidate `d'` of left bin `c + d - shift` is candidate `d'` of right column
+/// `c + d - d'`, a cost the search computed, so they are the diagonal of the kept cost rows
+/// (`keep`, a ring of the last `2n - 1` columns' costs, see [`LR_KEEP_PAIRS`]). A column is
+/// checked once the columns up to `c + n - 1` are searched (so all of its diagonal is kept),
+/// and `dropped(c)` is called, in increasing `c`, for each used column that fails. When `keep`
+/// cannot hold the ring (or the window is wider than the packed kernel's), the diagonal costs
+/// are recomputed by [`sad`] instead, with the same result.
+#[allow(clippy::too_many_arguments)]
+pub fn stereo_row_checked(
+    left: &EdgeHistogram,
+    right: &EdgeHistogram,
+    max_d: usize,
+    shift: i32,
+    w: usize,
+    keep: &mut [[u32; 2]],
+    mut f: impl FnMut(usize, RowMatch<'_>) -> bool,
+    mut dropped: impl FnMut(usize),
+) {
+    let n = max_d.saturating_add(1).min(MAX_CANDIDATES);
+    let delta0 = -(shift as isize);
+    let Some((lo, hi)) = valid_columns(delta0, n, w) else {
+        return;
+    };
+    // Best candidate of each used column awaiting its check (`NONE`: not used).
+    const NONE: u8 = u8::MAX;
+    let mut pending = [NONE; IMG_W];
+    let pairs = n.div_ceil(2);
+    let rows = 2 * n - 1;
+    let stride = 2 * pairs;
+    match keep.get_mut(..rows * pairs) {
+        Some(keep) if w <= MAX_W => {
+            packed_rows::<true, true>(
+                right,
+                left,
+                delta0,
+                n,
+                w,
+                lo,
+                hi,
+                keep,
+                |c, costs, c0, best, kept| {
+                    let m = RowMatch {
+                        best,
+                        cost: c0,
+                        costs,
+                    };
+                    if f(c, m) {
+                        if let Some(p) = pending.get_mut(c) {
+                            *p = best as u8;
+                        }
+                    }
+                    // Column `c - (n - 1)` now has its whole diagonal.
+                    if let Some(x) = (c + 1).checked_sub(n).filter(|&x| x >= lo) {
+                        if lr_failed(&pending, x, n, lo, hi, kept.as_flattened(), rows, stride) {
+                            dropped(x);
+                        }
+                    }
+                },
+            );
+            let kept = keep.as_flattened();
+            for x in (hi + 2).saturating_sub(n).max(lo)..=hi {
+                if lr_failed(&pending, x, n, lo, hi, kept, rows, stride) {
+                    dropped(x);
+                }
+            }
+        }
+        _ => {
+            column_matches(right, left, delta0, n, w, |c, m| {
+                if f(c, m) {
+                    if let Some(p) = pending.get_mut(c) {
+                        *p = m.best as u8;
+                    }
+                }
+            });
+            for (x, &d) in pending.iter().enumerate() {
+                if d == NONE {
+                    continue;
+                }
+                let target = |r: usize, k: usize| {
+                    sad(right, r as isize, left, r as isize + delta0 + k as isize, w)
+                };
+                if !lr_consistent(x, usize::from(d), n, lo, hi, target) {
+                    dropped(x);
+                }
+            }
+        }
+    }
+}
+
+/// Whether pending column `x` fails the left-right check, from the kept ring of cost rows
+/// (row `r` at `(r % rows) * stride`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn lr_failed(
+    pending: &[u8; IMG_W],
+    x: usize,
+    n: usize,
+    lo: usize,
+    hi: usize,
+    kept: &[u32],
+    rows: usize,
+    stride: usize,
+) -> bool {
+    match pending.get(x) {
+        Some(&d) if d != u8::MAX => !lr_consistent(x, usize::from(d), n, lo, hi, |r, k| {
+            kept.get((r % rows) * stride + k).copied().unwrap_or(0)
+        }),
+        _ => false,
+    }
+}
+
+/// The left-right check of column `x` (in `lo..=hi`) whose best candidate is `d` (`< n`):
+/// over the candidates `k` of the reverse search, the diagonal `cost(x + d - k, k)` of the
+/// rows `lo..=hi`, the first minimum lies within ±1 of `d`. That is: no earlier candidate
+/// reaches the near candidates' minimum and no later one goes below it.
+#[inline(always)]
+fn lr_consistent(
+    x: usize,
+    d: usize,
+    n: usize,
+    lo: usize,
+    hi: usize,
+    cost: impl Fn(usize, usize) -> u32,
+) -> bool {
+    let l = x + d;
+    // Candidates whose row `l - k` is a searched column.
+    let k_lo = l.saturating_sub(hi);
+    let k_hi = (l - lo).min(n - 1);
+    let near_lo = d.saturating_sub(1).max(k_lo);
+    let near_hi = (d + 1).min(k_hi);
+    let mut m = u32::MAX;
+    for k in near_lo..=near_hi {
+        m = m.min(cost(l - k, k));
+    }
+    (k_lo..near_lo).all(|k| cost(l - k, k) > m) && (near_hi + 1..=k_hi).all(|k| cost(l - k, k) >= m)
 }
 
 /// Flow matches of every column of `older` at once (same candidates and results as
@@ -796,6 +1006,176 @@ mod tests {
                 prop_assert_eq!(row[c], want, "flow row col {}", c);
             }
         }
+    }
+
+    /// Columns `stereo_row_checked` drops when every column is used, with `keep` words kept.
+    fn lr_dropped(
+        left: &EdgeHistogram,
+        right: &EdgeHistogram,
+        d: usize,
+        shift: i32,
+        w: usize,
+        keep: &mut [[u32; 2]],
+    ) -> heapless::Vec<usize, IMG_W> {
+        let mut out = heapless::Vec::new();
+        stereo_row_checked(
+            left,
+            right,
+            d,
+            shift,
+            w,
+            keep,
+            |_, _| true,
+            |c| out.push(c).unwrap(),
+        );
+        out
+    }
+
+    /// Plain reference of the left-right check (spec form): each column's best disparity
+    /// `d` from the per-column search; the left bin it matched searched against every right
+    /// column whose own search is valid, by explicit SADs; dropped when that search's first
+    /// minimum is more than 1 px from `d`.
+    fn reference_lr_dropped(
+        left: &EdgeHistogram,
+        right: &EdgeHistogram,
+        max_d: usize,
+        shift: i32,
+        w: usize,
+    ) -> heapless::Vec<usize, IMG_W> {
+        let n = max_d + 1;
+        let valid = |c: usize| stereo_match(left, right, c, max_d, shift, w).is_some();
+        let mut out = heapless::Vec::new();
+        for x in 0..IMG_W {
+            let Some(m) = stereo_match(left, right, x, max_d, shift, w) else {
+                continue;
+            };
+            let lb = (x + m.best) as isize - shift as isize;
+            let mut best: Option<(usize, u32)> = None;
+            for k in 0..n {
+                let Some(r) = (x + m.best).checked_sub(k).filter(|&r| valid(r)) else {
+                    continue;
+                };
+                let cost = reference_match(right, r as isize, left, lb, 1, w)
+                    .unwrap()
+                    .cost;
+                if best.is_none_or(|(_, b)| cost < b) {
+                    best = Some((k, cost));
+                }
+            }
+            let (k, _) = best.unwrap();
+            if k.abs_diff(m.best) > 1 {
+                out.push(x).unwrap();
+            }
+        }
+        out
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// The left-right check from the kept cost rows equals the one that recomputes the
+        /// reverse costs, and both equal the plain reference; the matches `f` sees are
+        /// `stereo_row`'s.
+        #[test]
+        fn lr_check_equals_reference(
+            a in hist_strategy(),
+            b in hist_strategy(),
+            w in 1usize..=12,
+            d in 0usize..=20,
+            shift in -20i32..=20,
+        ) {
+            let mut keep = [[0u32; 2]; LR_KEEP_PAIRS];
+            let want = reference_lr_dropped(&a, &b, d, shift, w);
+            let kept = lr_dropped(&a, &b, d, shift, w, &mut keep);
+            let recomputed = lr_dropped(&a, &b, d, shift, w, &mut []);
+            prop_assert_eq!(&kept, &want);
+            prop_assert_eq!(&recomputed, &want);
+            let mut row: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
+            stereo_row(&a, &b, d, shift, w, |c, m| row[c] = Some(m.finish()));
+            let mut checked: [Option<ColumnMatch>; IMG_W] = [None; IMG_W];
+            stereo_row_checked(&a, &b, d, shift, w, &mut keep, |c, m| {
+                checked[c] = Some(finished(&m));
+                c % 2 == 0
+            }, |c| assert!(c % 2 == 0, "column {c} was not used"));
+            prop_assert_eq!(checked, row);
+        }
+    }
+
+    #[test]
+    fn lr_check_keeps_a_fronto_parallel_wall() {
+        // A textured wall at one distance: disparity 7 everywhere (shift 0).
+        let (right, left) = (texture(0), texture(7));
+        let mut keep = [[0u32; 2]; LR_KEEP_PAIRS];
+        let mut used = 0;
+        let mut dropped = 0;
+        stereo_row_checked(
+            &left,
+            &right,
+            15,
+            0,
+            6,
+            &mut keep,
+            |_, m| {
+                used += 1;
+                assert_eq!(m.best, 7);
+                true
+            },
+            |_| dropped += 1,
+        );
+        assert!(used > 90, "{used}");
+        assert_eq!(dropped, 0);
+    }
+
+    #[test]
+    fn lr_check_drops_the_columns_occluded_in_the_left_image() {
+        // A textured background at disparity 2 and a near object at disparity 10 in front of
+        // it in the right image's columns 60..80. The left image sees the object at 70..90,
+        // so the background the right image sees at 80..88 is hidden in the left one.
+        let (bg, obj) = (texture(0), texture(-30));
+        let mut right = [0u16; IMG_W];
+        let mut left = [0u16; IMG_W];
+        for x in 0..IMG_W {
+            right[x] = if (60..80).contains(&x) { obj[x] } else { bg[x] };
+            left[x] = if (70..90).contains(&x) {
+                obj[x - 10]
+            } else {
+                bg[x.saturating_sub(2)]
+            };
+        }
+        let w = 2;
+        let mut keep = [[0u32; 2]; LR_KEEP_PAIRS];
+        let mut best = [usize::MAX; IMG_W];
+        let mut dropped = heapless::Vec::<usize, IMG_W>::new();
+        stereo_row_checked(
+            &left,
+            &right,
+            15,
+            0,
+            w,
+            &mut keep,
+            |c, m| {
+                best[c] = m.best;
+                true
+            },
+            |c| dropped.push(c).unwrap(),
+        );
+        // Away from the edges both surfaces match at their disparity and are kept.
+        for c in (20..56).chain(64..76).chain(95..110) {
+            let want = if (60..80).contains(&c) { 10 } else { 2 };
+            assert_eq!(best[c], want, "column {c}");
+            assert!(!dropped.contains(&c), "column {c} dropped");
+        }
+        // The columns that see background hidden in the left image match something else,
+        // and the check drops them.
+        let occluded: heapless::Vec<usize, IMG_W> = (80 + w..88 - w).collect();
+        for &c in &occluded {
+            assert!(
+                dropped.contains(&c),
+                "occluded column {c} kept, best {}",
+                best[c]
+            );
+        }
+        assert_eq!(lr_dropped(&left, &right, 15, 0, w, &mut []), dropped);
     }
 
     #[test]

@@ -90,6 +90,33 @@ fn stereo_depth_of_a_wall_is_recovered_per_column() {
 }
 
 #[test]
+fn the_left_right_check_keeps_a_wall_and_changes_nothing_else() {
+    // A fronto-parallel textured wall: every confident column comes back the other way, and
+    // the check's stage gives the stage without it's disparities, depths and confidences.
+    let mut params = EdgeFsParams::default_config();
+    params.stereo_shift_px = 3;
+    assert!(!params.lr_check && !EdgeFsParams::paper().lr_check);
+    let (_, off) = fly(params, 1.2, 0.3, 0.1, 0.0, 12);
+    params.lr_check = true;
+    let (_, on) = fly(params, 1.2, 0.3, 0.1, 0.0, 12);
+    let (a, b) = (off.diagnostics(), on.diagnostics());
+    let kept = b.depth_m.iter().filter(|&&z| z > 0.0).count();
+    assert!(kept > 60, "{kept}");
+    assert!(
+        usize::from(b.lr_dropped) * 50 <= kept,
+        "dropped {}",
+        b.lr_dropped
+    );
+    assert_eq!(a.disparity_px, b.disparity_px);
+    for c in 0..IMG_W {
+        if b.depth_m[c] > 0.0 || a.depth_m[c] == 0.0 {
+            assert_eq!(a.depth_m[c], b.depth_m[c], "column {c}");
+            assert_eq!(a.confidence[c], b.confidence[c], "column {c}");
+        }
+    }
+}
+
+#[test]
 fn forward_motion_towards_a_wall() {
     let (out, fs) = fly(EdgeFsParams::default_config(), 1.5, 0.5, 0.0, 0.0, 12);
     assert!(out.flags.is_valid(), "{:?}", out.flags);
