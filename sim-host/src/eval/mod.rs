@@ -86,6 +86,10 @@ pub struct EvalArgs {
     /// estimate.
     #[arg(long)]
     pub vertical_search_px: Option<u8>,
+    /// Default configuration only: check every stereo match both ways and drop the columns
+    /// that disagree (`EdgeFsParams::lr_check`, off on the board).
+    #[arg(long)]
+    pub lr_check: bool,
 }
 
 /// Estimates and ground truth of one take for images `1..=N-1` (index 0 = image 1).
@@ -303,6 +307,12 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         args.vertical_search_px.is_none() || args.config == Config::Default,
         "--vertical-search-px applies to --config default only"
     );
+    ensure!(
+        !args.lr_check || args.config == Config::Default,
+        "--lr-check applies to --config default only"
+    );
+    let tuned =
+        args.config == Config::Default && (args.vertical_search_px.is_some() || args.lr_check);
     let takes = select_takes(discover_takes(&args.dataset)?, args.takes.as_deref())?;
     let total: usize = takes
         .iter()
@@ -317,12 +327,16 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let results: Vec<(Take, Result<TakeResult>)> = takes
         .par_iter()
         .map(|t| {
-            let r = match (args.config, args.vertical_search_px) {
-                (Config::Default, Some(d)) => params_for(args.config, t).and_then(|mut p| {
-                    p.vertical_search_px = d;
+            let r = if tuned {
+                params_for(args.config, t).and_then(|mut p| {
+                    if let Some(d) = args.vertical_search_px {
+                        p.vertical_search_px = d;
+                    }
+                    p.lr_check = args.lr_check;
                     evaluate_take_with(t, p, false, args.alignment, &tick)
-                }),
-                _ => evaluate_take(t, args.config, args.alignment, &tick),
+                })
+            } else {
+                evaluate_take(t, args.config, args.alignment, &tick)
             };
             (t.clone(), r)
         })

@@ -290,7 +290,7 @@ pub struct EdgeFsParams {
     /// kept cost rows ([`stereo_row_checked`]; 2 KiB of them on the stack, [`LR_KEEP_PAIRS`]).
     ///
     /// Off in [`EdgeFsParams::default_config`]. On the recorded takes (`sim-host eval
-    /// --config default`, paper alignment) it drops 3.1 % of the columns that pass every other
+    /// --config default --lr-check`, paper alignment) it drops 3.1 % of the columns that pass every other
     /// stereo test (0.7 % on take 1/9 to 8.1 % on 1/1) and the velocity gets worse, not
     /// better: forward MSE +94 % on take 1/3, +28 % on 1/7, +9 % on 1/15, -9 % to -12 % on
     /// 1/1, 1/13 and 1/17, within ±5 % on the other six (geometric mean +5 %); sideways within
