@@ -338,66 +338,39 @@ fn packed_rows<const MIN: bool, const KEEP: bool>(
             let (of, ot) = old.split_at_mut(full);
             let (wf, wt) = words.split_at(full);
             let mut k = 0;
+            for ((c, old), &t) in cf.iter_mut().zip(of.iter_mut()).zip(wf) {
+                let d = absdiff_u16x2(t, rr);
+                accumulate_u16x2(c, d, *old);
+                *old = d;
+                let [a, b] = *c;
+                if a < c0 {
+                    c0 = a;
+                    best = k;
+                }
+                if b < c0 {
+                    c0 = b;
+                    best = k + 1;
+                }
+                k += 2;
+            }
+            if let (Some(c), Some(old), Some(&t)) = (ct.first_mut(), ot.first_mut(), wt.first()) {
+                let d = absdiff_u16x2(t, rr);
+                accumulate_u16x2(c, d, *old);
+                *old = d;
+                if c[0] < c0 {
+                    c0 = c[0];
+                    best = k;
+                }
+            }
             if KEEP {
-                // The same update, each pair also stored into the column's kept row.
-                let Some(kept) = keep.get_mut(row * pairs..row * pairs + pairs) else {
+                // The column's costs, also kept for the left-right check.
+                let (Some(kept), Some(costs)) = (
+                    keep.get_mut(row * pairs..row * pairs + pairs),
+                    costs_p.get(..pairs),
+                ) else {
                     return;
                 };
-                let (kf, kt) = kept.split_at_mut(full);
-                for (((c, old), &t), kc) in cf.iter_mut().zip(of.iter_mut()).zip(wf).zip(kf) {
-                    let d = absdiff_u16x2(t, rr);
-                    accumulate_u16x2(c, d, *old);
-                    *old = d;
-                    let [a, b] = *c;
-                    *kc = *c;
-                    if a < c0 {
-                        c0 = a;
-                        best = k;
-                    }
-                    if b < c0 {
-                        c0 = b;
-                        best = k + 1;
-                    }
-                    k += 2;
-                }
-                if let (Some(c), Some(old), Some(&t), Some(kc)) =
-                    (ct.first_mut(), ot.first_mut(), wt.first(), kt.first_mut())
-                {
-                    let d = absdiff_u16x2(t, rr);
-                    accumulate_u16x2(c, d, *old);
-                    *old = d;
-                    *kc = *c;
-                    if c[0] < c0 {
-                        c0 = c[0];
-                        best = k;
-                    }
-                }
-            } else {
-                for ((c, old), &t) in cf.iter_mut().zip(of.iter_mut()).zip(wf) {
-                    let d = absdiff_u16x2(t, rr);
-                    accumulate_u16x2(c, d, *old);
-                    *old = d;
-                    let [a, b] = *c;
-                    if a < c0 {
-                        c0 = a;
-                        best = k;
-                    }
-                    if b < c0 {
-                        c0 = b;
-                        best = k + 1;
-                    }
-                    k += 2;
-                }
-                if let (Some(c), Some(old), Some(&t)) = (ct.first_mut(), ot.first_mut(), wt.first())
-                {
-                    let d = absdiff_u16x2(t, rr);
-                    accumulate_u16x2(c, d, *old);
-                    *old = d;
-                    if c[0] < c0 {
-                        c0 = c[0];
-                        best = k;
-                    }
-                }
+                kept.copy_from_slice(costs);
             }
         } else {
             for ((c, old), &t) in costs_p.iter_mut().zip(old.iter_mut()).zip(words) {
