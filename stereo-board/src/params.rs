@@ -13,7 +13,7 @@
 //! the values, CRC-32) and boots on it; a blank, corrupt, older or other-table record means the
 //! defaults, reported ([`crate::app::StereoBoardApp::load_params`]).
 
-use crate::edge_fs::EdgeFsParams;
+use crate::edge_fs::{EdgeFsParams, MAX_VERTICAL_SEARCH};
 use protocol::params::ParamTable;
 use protocol::{EdgeFsConfig, ParamEntry, ParamValue};
 
@@ -51,6 +51,8 @@ protocol::param_table! {
         "min_depth_coverage": F32 ["-"] 0.0, 1.0, true => |p| p.min_depth_coverage;
         "min_fit_spread": F32 ["px"] 0.0, 128.0, true => |p| p.min_fit_spread_px;
         "min_near_run": U32 ["px"] 0, 128, true => |p| p.min_near_run;
+        "vertical_search": U32 ["px"] 0, MAX_VERTICAL_SEARCH as u32, true => |p| p.vertical_search_px;
+        "lr_check": Bool ["-"] false, true, true => |p| p.lr_check;
     }
 }
 

@@ -103,7 +103,7 @@ const MEDIAN_MAX: usize = 5;
 /// Largest rotation the flow search is centred on, px.
 const MAX_ROTATION_PX: f32 = 40.0;
 /// Largest vertical flow search range, px.
-const MAX_VERTICAL_SEARCH: u8 = 20;
+pub const MAX_VERTICAL_SEARCH: u8 = 20;
 /// Largest stereo shift (either way) the parameter check keeps, px.
 const MAX_STEREO_SHIFT_PX: i32 = 20;
 /// The horizontal field of view the parameter check accepts lies strictly between these, rad.
