@@ -11,8 +11,8 @@
 //!   estimate goes to [`VelocityEstimation`] (with a [`VisionContext`]: gates, then the
 //!   velocity Kalman filter, or the paper's median-5 and observer) and to [`Avoidance`]
 //!   (obstacle readings).
-//! * Height: barometer, accelerometer and external height fixes -> vertical estimator ->
-//!   height loop.
+//! * Height: barometer, accelerometer, external height fixes and (with `vert_camera_climb`)
+//!   the camera's climb rate -> vertical estimator -> height loop.
 //! * 50 Hz ([`Autopilot::guidance_step`]): failsafe -> [`Guidance`]'s height setpoint ->
 //!   [`Avoidance`] ([`AvoidanceInput`] -> avoidance FSM and wall force field ->
 //!   [`AvoidanceOutput`](crate::avoidance::AvoidanceOutput)) -> [`Guidance`]'s velocity loop on
@@ -48,7 +48,7 @@ use protocol::{
     ParamError, ParamOp, ParamReply, ParamRequest, ParamResponse, PilotCommand, StereoStatus,
     StereoToAutopilot, Telemetry,
 };
-use timebase::Instant;
+use timebase::{Duration, Instant};
 
 /// Ground signature: the low-passed squared body rate stays below this, rad/s.
 pub const GROUND_MAX_RATE_RADPS: f32 = 0.5;
@@ -510,9 +510,18 @@ impl Autopilot {
 
     /// An Edge-FS estimate from the camera board, received at `now`: its obstacle reading
     /// goes to avoidance ([`Avoidance::on_estimate`]), its velocity through estimation's gates
-    /// ([`VelocityEstimation::on_estimate`]) with the height and climb rate of now.
+    /// ([`VelocityEstimation::on_estimate`]) with the height and climb rate of now, and (with
+    /// [`VerticalConfig::camera_climb`](crate::vertical::VerticalConfig::camera_climb)) its
+    /// valid vertical velocity, turned to the world's climb rate ([`camera_climb_mps`]), to
+    /// the vertical estimator, gated there as every measurement.
     pub fn on_estimate(&mut self, est: &Estimate, now: Instant) {
         self.avoidance.on_estimate(est, self.att.euler()[2], now);
+        if self.cfg.vertical.camera_climb {
+            if let Some(climb) = camera_climb_mps(est, self.att.quat()) {
+                self.vertical
+                    .on_climb_rate(climb, self.cfg.vertical.climb_noise_mps);
+            }
+        }
         let ctx = VisionContext {
             now,
             height_m: self.height.height_m(),
@@ -888,6 +897,40 @@ fn vertical_acceleration(accel_mps2: [f32; 3], q: Quat) -> f32 {
     let d = q.down_in_body();
     let down = d[0] * accel_mps2[0] + d[1] * accel_mps2[1] + d[2] * accel_mps2[2];
     -(down + GRAVITY)
+}
+
+/// A camera climb rate older than this at its arrival (capture to sending,
+/// `Estimate::processing_us`, which saturates at 65.5 ms) is not used: the filter takes it
+/// as the climb rate of now.
+pub const CLIMB_MAX_AGE: Duration = Duration::from_millis(60);
+
+/// Without a valid forward and sideways velocity the camera's vertical velocity alone is the
+/// climb rate only up to this tilt, `cos(0.1 rad)`: at 0.1 rad a horizontal speed of 0.3 m/s
+/// adds at most 3 cm/s.
+const CLIMB_LEVEL_MIN_COS_TILT: f32 = 0.995;
+
+/// The world climb rate (m/s, up) from an estimate's camera-frame velocity and the attitude
+/// `q`, when its vertical velocity is valid (`up_flags` empty) and recent
+/// ([`CLIMB_MAX_AGE`]). The camera looks along the body x axis: its velocity in body axes (x
+/// forward, y right, z down) is `(forward, sideways, -up)`, and the climb rate is minus its
+/// projection on world down. The forward and sideways components count only when the
+/// estimate's `flags` say they are valid; otherwise the vertical velocity alone is taken, and
+/// only near level ([`CLIMB_LEVEL_MIN_COS_TILT`]).
+pub fn camera_climb_mps(est: &Estimate, q: Quat) -> Option<f32> {
+    let age = Duration::from_micros(u64::from(est.processing_us));
+    if !est.up_flags.is_valid() || age > CLIMB_MAX_AGE || !est.up_mps.is_finite() {
+        return None;
+    }
+    let d = q.down_in_body();
+    let horizontal = [est.forward_mps, est.sideways_mps];
+    let along = if est.is_valid() && horizontal.iter().all(|v| v.is_finite()) {
+        d[0] * horizontal[0] + d[1] * horizontal[1]
+    } else if d[2] >= CLIMB_LEVEL_MIN_COS_TILT {
+        0.0
+    } else {
+        return None;
+    };
+    Some(d[2] * est.up_mps - along)
 }
 
 #[cfg(test)]

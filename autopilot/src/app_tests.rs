@@ -1762,3 +1762,69 @@ fn a_fix_stream_that_pauses_must_build_up_again() {
     assert_eq!(ap.height.last_measurement(), Some(at(t)));
     assert_eq!(ap.fixes_refused(), 0);
 }
+
+#[test]
+fn a_valid_camera_climb_rate_moves_the_climb_rate_and_an_invalid_one_does_not() {
+    let mut cfg = AutopilotConfig::default();
+    cfg.vertical.camera_climb = true;
+    let mut ap = Autopilot::new(cfg);
+    let mut est = forward_estimate(0.0);
+    est.up_mps = 0.3;
+    assert!(!est.up_flags.is_valid());
+    for k in 1..=10 {
+        ap.on_estimate(&est, at(k * 40_000));
+    }
+    assert_eq!(ap.vertical.climb_mps(), 0.0, "up_flags invalid: not used");
+
+    est.up_flags = EstimateFlags::NONE;
+    est.processing_us = u16::MAX;
+    ap.on_estimate(&est, at(440_000));
+    assert_eq!(ap.vertical.climb_mps(), 0.0, "65 ms or older: not used");
+
+    est.processing_us = 20_000;
+    for k in 12..=20 {
+        ap.on_estimate(&est, at(k * 40_000));
+    }
+    let climb = ap.vertical.climb_mps();
+    assert!(climb > 0.1 && climb <= 0.3, "{climb}");
+    assert_eq!(ap.vertical.rejected(), 0);
+
+    let mut ap = Autopilot::new(AutopilotConfig::default());
+    ap.on_estimate(&est, at(40_000));
+    assert_eq!(ap.vertical.climb_mps(), 0.0, "off by default");
+}
+
+/// The camera's velocity (forward, sideways, up in its body axes) to the world's climb rate:
+/// level it is the up velocity; pitched nose-up a forward velocity climbs, banked right a
+/// rightward one sinks; without a valid forward and sideways velocity only near level.
+#[test]
+fn the_cameras_velocity_turns_to_the_climb_rate_with_the_attitude() {
+    let mut est = forward_estimate(1.0);
+    est.up_mps = 0.2;
+    est.up_flags = EstimateFlags::NONE;
+    let level = camera_climb_mps(&est, Quat::IDENTITY).unwrap();
+    assert!((level - 0.2).abs() < 1e-6, "{level}");
+    let pitch = 0.2f32;
+    let nose_up = camera_climb_mps(&est, Quat::from_euler(0.0, pitch, 0.0)).unwrap();
+    let expected = 1.0 * libm::sinf(pitch) + 0.2 * libm::cosf(pitch);
+    assert!((nose_up - expected).abs() < 1e-4, "{nose_up} vs {expected}");
+    est.forward_mps = 0.0;
+    est.sideways_mps = 1.0;
+    let roll = 0.2f32;
+    let banked = camera_climb_mps(&est, Quat::from_euler(roll, 0.0, 0.0)).unwrap();
+    let expected = -libm::sinf(roll) + 0.2 * libm::cosf(roll);
+    assert!((banked - expected).abs() < 1e-4, "{banked} vs {expected}");
+
+    est.flags = EstimateFlags::NO_STEREO_MATCH;
+    assert_eq!(
+        camera_climb_mps(&est, Quat::from_euler(roll, 0.0, 0.0)),
+        None
+    );
+    let near_level = camera_climb_mps(&est, Quat::from_euler(0.05, 0.0, 0.0)).unwrap();
+    assert!(
+        (near_level - 0.2 * libm::cosf(0.05)).abs() < 1e-4,
+        "{near_level}"
+    );
+    est.up_mps = f32::NAN;
+    assert_eq!(camera_climb_mps(&est, Quat::IDENTITY), None);
+}

@@ -236,6 +236,8 @@ protocol::param_table! {
     "bat_resistance": F32 ["ohm"] 0.0, 2.0, true => |c| c.battery.resistance_ohm;
     "bat_full_current": F32 ["A"] 0.0, 100.0, true => |c| c.battery.full_throttle_current_a;
     "bat_filter_tau_us": U32 ["us"] 0, 30_000_000, true => |c| c.battery.filter_tau;
+    "vert_camera_climb": Bool ["-"] false, true, true => |c| c.vertical.camera_climb;
+    "vert_climb_noise": F32 ["m/s"] 0.001, 10.0, true => |c| c.vertical.climb_noise_mps;
     }
 }
 
