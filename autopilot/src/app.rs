@@ -907,7 +907,7 @@ pub const CLIMB_MAX_AGE: Duration = Duration::from_millis(60);
 /// Without a valid forward and sideways velocity the camera's vertical velocity alone is the
 /// climb rate only up to this tilt, `cos(0.1 rad)`: at 0.1 rad a horizontal speed of 0.3 m/s
 /// adds at most 3 cm/s.
-const CLIMB_LEVEL_MIN_COS_TILT: f32 = 0.995;
+pub const CLIMB_LEVEL_MIN_COS_TILT: f32 = 0.995;
 
 /// The world climb rate (m/s, up) from an estimate's camera-frame velocity and the attitude
 /// `q`, when its vertical velocity is valid (`up_flags` empty) and recent
