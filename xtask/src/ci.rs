@@ -10,10 +10,10 @@
 //!    virtual-board bench, its own workspace) and on thumbv7em, builds the docs of both
 //!    workspaces with rustdoc's warnings denied (a link to a renamed item fails), runs all host
 //!    tests, builds both firmwares in release, runs them (and their `hil` images) on the virtual
-//!    boards (what `cargo xtask vboard` runs), and, beside the virtual boards, fuzzes the
-//!    protocol decoder and encoder briefly (after fmt and clippy in `fuzz/`, its own
-//!    workspace). The bench's lints, docs and build run beside the main workspace's steps: they
-//!    use their own target directory, and the release build leaves a core idle much of the time.
+//!    boards (what `cargo xtask vboard` runs), and fuzzes the protocol decoder and encoder
+//!    briefly (after fmt and clippy in `fuzz/`, its own workspace). The bench's lints, docs and
+//!    build, then the fuzz run, go beside the main workspace's steps: they use their own target
+//!    directories, and the main workspace's steps leave a core idle part of the time.
 //! 3. Prints a one-line summary, each step's wall time and a closing `N passed, N failed`
 //!    line.
 //!
@@ -67,14 +67,22 @@ pub fn run(args: &[String]) -> Result<()> {
     steps.done("fmt(workspace, virtual-board)");
 
     // The virtual-board bench is its own workspace and target directory: its lints, its docs,
-    // its release build (about 6 minutes, mostly on one core) and the `hil` and `qemu` firmware
-    // images are made beside the main workspace's steps, into a log printed when they are joined.
+    // its release build and the `hil` and `qemu` firmware images are made beside the main
+    // workspace's steps, into a log printed when they are joined. Then, on the same thread, the
+    // fuzz targets (their own workspace and toolchain, one libFuzzer process at a time): the
+    // main workspace's last steps (the tail of its tests, the firmwares' single-threaded LTO)
+    // leave a core idle, while the virtual boards after them keep both busy.
     let bench_log = workspace_root().join("target").join("ci-bench.log");
     let bench = {
         let log = bench_log.clone();
         std::thread::spawn(move || {
             let start = Instant::now();
-            prepare_bench(&log).map(|()| start.elapsed().as_secs_f64())
+            let built = prepare_bench(&log).map(|()| start.elapsed().as_secs_f64());
+            let fuzzed = (built.is_ok() && fuzz_seconds > 0).then(|| {
+                let start = Instant::now();
+                fuzz_run(fuzz_seconds).map(|name| (name, start.elapsed().as_secs_f64()))
+            });
+            (built, fuzzed)
         })
     };
 
@@ -120,13 +128,7 @@ pub fn run(args: &[String]) -> Result<()> {
 
     cargo(&["xtask", "fw"]).context("firmware build (cargo xtask fw) failed")?;
     steps.done("firmware(stereo-board, autopilot)");
-    for flavour in ["real", "qemu"] {
-        run_checked(Command::new("cargo").args(["xtask", "size", "--flavour", flavour]))
-            .with_context(|| format!("firmware layout or size check ({flavour}) failed"))?;
-    }
-    steps.done("size and start-up layout (real, qemu)");
-
-    let bench_built = bench.join().expect("the bench thread does not panic");
+    let (bench_built, fuzzed) = bench.join().expect("the bench thread does not panic");
     let bench_output = std::fs::read_to_string(&bench_log)
         .with_context(|| format!("reading {}", bench_log.display()))?;
     eprintln!(
@@ -140,25 +142,29 @@ pub fn run(args: &[String]) -> Result<()> {
         bench_seconds,
         "the main workspace",
     );
-    steps.done("waiting for the virtual-board build");
-
-    // The fuzz targets (their own workspace and toolchain, one libFuzzer process at a time)
-    // run beside the virtual boards, whose emulators leave a core idle for much of their run.
-    let fuzz = (fuzz_seconds > 0).then(|| {
-        std::thread::spawn(move || {
-            let start = Instant::now();
-            fuzz_run(fuzz_seconds).map(|name| (name, start.elapsed().as_secs_f64()))
-        })
-    });
-    // The virtual boards run the real images just built, and `sim-host` as the tests built it.
-    let vboard = crate::vboard::run_built_tests(&[]);
-    let fuzzed = fuzz.map(|handle| handle.join().expect("the fuzz thread does not panic"));
-    let (vb_passed, vb_failed) = vboard?;
-    steps.done(format!("vboard({vb_passed} passed)"));
     if let Some(fuzzed) = fuzzed {
         let (name, seconds) = fuzzed?;
-        steps.push_beside(name, seconds, "vboard");
+        steps.push_beside(name, seconds, "the main workspace, after the bench");
     }
+    steps.done("waiting for the virtual-board build and the fuzz run");
+    // The images are built: the real ones by `xtask fw` above, the qemu ones by the bench's
+    // thread. Checking them without a build keeps the shared target directory from switching
+    // flavour and rebuilding the boards' crates.
+    for flavour in ["real", "qemu"] {
+        run_checked(Command::new("cargo").args([
+            "xtask",
+            "size",
+            "--no-build",
+            "--flavour",
+            flavour,
+        ]))
+        .with_context(|| format!("firmware layout or size check ({flavour}) failed"))?;
+    }
+    steps.done("size and start-up layout (real, qemu)");
+
+    // The virtual boards run the real images just built, and `sim-host` as the tests built it.
+    let (vb_passed, vb_failed) = crate::vboard::run_built_tests(&[])?;
+    steps.done(format!("vboard({vb_passed} passed)"));
     let (passed, failed) = (passed + vb_passed, failed + vb_failed);
 
     println!(
