@@ -311,8 +311,6 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         !args.lr_check || args.config == Config::Default,
         "--lr-check applies to --config default only"
     );
-    let tuned =
-        args.config == Config::Default && (args.vertical_search_px.is_some() || args.lr_check);
     let takes = select_takes(discover_takes(&args.dataset)?, args.takes.as_deref())?;
     let total: usize = takes
         .iter()
@@ -327,17 +325,15 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let results: Vec<(Take, Result<TakeResult>)> = takes
         .par_iter()
         .map(|t| {
-            let r = if tuned {
-                params_for(args.config, t).and_then(|mut p| {
-                    if let Some(d) = args.vertical_search_px {
-                        p.vertical_search_px = d;
-                    }
-                    p.lr_check = args.lr_check;
-                    evaluate_take_with(t, p, false, args.alignment, &tick)
-                })
-            } else {
-                evaluate_take(t, args.config, args.alignment, &tick)
-            };
+            // The flags apply to the default configuration only (checked above).
+            let r = params_for(args.config, t).and_then(|mut p| {
+                if let Some(d) = args.vertical_search_px {
+                    p.vertical_search_px = d;
+                }
+                p.lr_check |= args.lr_check;
+                let paper = args.config == Config::Paper;
+                evaluate_take_with(t, p, paper, args.alignment, &tick)
+            });
             (t.clone(), r)
         })
         .collect();

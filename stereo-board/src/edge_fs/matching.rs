@@ -636,9 +636,8 @@ pub fn stereo_row_checked(
     let Some((lo, hi)) = valid_columns(delta0, n, w) else {
         return;
     };
-    // Best candidate of each used column awaiting its check (`NONE`: not used).
-    const NONE: u8 = u8::MAX;
-    let mut pending = [NONE; IMG_W];
+    // Best candidate of each used column awaiting its check.
+    let mut pending = [UNUSED_COLUMN; IMG_W];
     let pairs = n.div_ceil(2);
     let rows = 2 * n - 1;
     let stride = 2 * pairs;
@@ -688,7 +687,7 @@ pub fn stereo_row_checked(
                 }
             });
             for (x, &d) in pending.iter().enumerate() {
-                if d == NONE {
+                if d == UNUSED_COLUMN {
                     continue;
                 }
                 let target = |r: usize, k: usize| {
@@ -701,6 +700,9 @@ pub fn stereo_row_checked(
         }
     }
 }
+
+/// A column [`stereo_row_checked`] does not check: its `f` did not use it.
+const UNUSED_COLUMN: u8 = u8::MAX;
 
 /// Whether pending column `x` fails the left-right check, from the kept ring of cost rows
 /// (row `r` at `(r % rows) * stride`).
@@ -717,7 +719,7 @@ fn lr_failed(
     stride: usize,
 ) -> bool {
     match pending.get(x) {
-        Some(&d) if d != u8::MAX => !lr_consistent(x, usize::from(d), n, lo, hi, |r, k| {
+        Some(&d) if d != UNUSED_COLUMN => !lr_consistent(x, usize::from(d), n, lo, hi, |r, k| {
             kept.get((r % rows) * stride + k).copied().unwrap_or(0)
         }),
         _ => false,
