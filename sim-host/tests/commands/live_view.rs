@@ -87,6 +87,15 @@ fn a_live_flight_is_served_to_a_foxglove_client() {
                             c["schemaName"].as_str().unwrap_or("").to_string(),
                         ));
                     }
+                } else if v["op"] == "status"
+                    && v["message"]
+                        .as_str()
+                        .is_some_and(|m| m.starts_with("Unknown channel ID"))
+                {
+                    // The foxglove server sends a channel's advertisement before it records the
+                    // channel as advertised to this client, so a subscription that follows the
+                    // advertisement closely can be refused; a client subscribes again.
+                    subscribed = false;
                 }
             }
             Message::Binary(data) => {
