@@ -197,6 +197,105 @@ fn valid_rows(frames: &[Frame]) -> Vec<usize> {
         .collect()
 }
 
+/// One frame's image motion against its stereo disparity over the columns that have both:
+/// `u = a d + b d x + c + e x` (`u` the column's flow, px/s, `d` its disparity, px, `x` the
+/// column from the image centre, px). A translating camera sees `u = d_true (p + q x)` plus a
+/// rotation's constant; a disparity error `d - d_true = offset + slope x` (a calibration shift
+/// off by a fraction of a pixel, cameras of different scale) puts `e = -offset b - slope a`.
+#[derive(Debug, Clone, Copy)]
+pub struct FlowOnDisparity {
+    /// Coefficient of `d`, 1/s.
+    pub a: f64,
+    /// Coefficient of `d x`, 1/(px s).
+    pub b: f64,
+    /// Coefficient of `x`, 1/s.
+    pub e: f64,
+}
+
+/// Least columns with both a disparity and a flow for a frame's [`FlowOnDisparity`].
+const MIN_FLOW_DISPARITY_COLUMNS: usize = 16;
+
+/// Least squares `y = X beta` by the normal equations (Gauss-Jordan with partial pivoting);
+/// `None` when they are singular.
+fn least_squares<const K: usize>(rows: &[([f64; K], f64)]) -> Option<[f64; K]> {
+    // The normal equations as an augmented matrix [X'X | X'y].
+    let mut m = [[0.0; K]; K];
+    let mut v = [0.0; K];
+    for (x, y) in rows {
+        for ((mi, vi), xi) in m.iter_mut().zip(&mut v).zip(x) {
+            *vi += xi * y;
+            for (mij, xj) in mi.iter_mut().zip(x) {
+                *mij += xi * xj;
+            }
+        }
+    }
+    let scale = m.iter().flatten().fold(0.0f64, |a, b| a.max(b.abs()));
+    for col in 0..K {
+        let piv = (col..K).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
+        if m[piv][col].abs() <= 1e-12 * scale {
+            return None;
+        }
+        m.swap(col, piv);
+        v.swap(col, piv);
+        let (pivot_row, pivot_v) = (m[col], v[col]);
+        for (r, (mr, vr)) in m.iter_mut().zip(&mut v).enumerate() {
+            if r != col {
+                let k = mr[col] / pivot_row[col];
+                for (a, p) in mr.iter_mut().zip(pivot_row) {
+                    *a -= k * p;
+                }
+                *vr -= k * pivot_v;
+            }
+        }
+    }
+    let mut out = [0.0; K];
+    for ((o, vi), mi) in out.iter_mut().zip(v).zip(m.iter().enumerate()) {
+        *o = vi / mi.1[mi.0];
+    }
+    Some(out)
+}
+
+/// Per frame, [`FlowOnDisparity`] over the columns with a confident disparity and a flow
+/// (Edge-FS default configuration with the take's stereo shift, no rotation given).
+pub fn flow_on_disparity(frames: &[Frame], shift: i32, times: &[f64]) -> Vec<FlowOnDisparity> {
+    let mut p = EdgeFsParams::default_config();
+    p.stereo_shift_px = shift;
+    let mut fs = EdgeFs::new(p);
+    let centre = (IMG_W as f64 - 1.0) * 0.5;
+    let mut out = Vec::new();
+    for (f, &t) in frames.iter().zip(times) {
+        fs.process(f, timebase::Instant::from_micros((t * 1e6) as u64), None);
+        let dg = fs.diagnostics();
+        let rows: Vec<([f64; 4], f64)> = (0..IMG_W)
+            .filter(|&c| {
+                dg.confidence[c] > 0.0 && dg.disparity_px[c] > 0.0 && dg.flow_pxps[c] != 0.0
+            })
+            .map(|c| {
+                let (d, x) = (f64::from(dg.disparity_px[c]), c as f64 - centre);
+                ([d, d * x, 1.0, x], f64::from(dg.flow_pxps[c]))
+            })
+            .collect();
+        if rows.len() < MIN_FLOW_DISPARITY_COLUMNS {
+            continue;
+        }
+        if let Some([a, b, _, e]) = least_squares(&rows) {
+            out.push(FlowOnDisparity { a, b, e });
+        }
+    }
+    out
+}
+
+/// The disparity error `d - d_true = offset + slope x` that frames' [`FlowOnDisparity`] show
+/// (least squares of `e` on `a` and `b` over the frames): `(offset px, slope px/px)`.
+///
+/// The estimate is biased (noise in the disparities, the flow's horizon, the scene), so it
+/// means something only against the same estimate on frames of a known error: `replay`
+/// reports it for the recorded frames and for their rendering, whose error is zero.
+pub fn disparity_error(fits: &[FlowOnDisparity]) -> (f64, f64) {
+    let rows: Vec<([f64; 3], f64)> = fits.iter().map(|g| ([g.a, g.b, 1.0], g.e)).collect();
+    least_squares(&rows).map_or((f64::NAN, f64::NAN), |k| (-k[1], -k[0]))
+}
+
 /// Measures one take (see the module docs).
 pub fn measure_take(take: &Take) -> Result<TakeCalib> {
     let n = take.image_count();
@@ -580,4 +679,49 @@ pub fn run(args: &CameraCalibArgs) -> Result<()> {
         .collect::<Result<_>>()?;
     print!("{}", report(&calibs));
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn least_squares_recovers_a_plane_and_refuses_a_singular_one() {
+        let rows: Vec<([f64; 3], f64)> = (0..40)
+            .map(|i| {
+                let (x, z) = (f64::from(i % 7) - 3.0, f64::from(i % 5) * 0.5);
+                ([x, z, 1.0], 2.0 * x - 0.75 * z + 4.0)
+            })
+            .collect();
+        let k = least_squares(&rows).unwrap();
+        for (got, want) in k.iter().zip([2.0, -0.75, 4.0]) {
+            assert!((got - want).abs() < 1e-9, "{k:?}");
+        }
+        let collinear: Vec<([f64; 2], f64)> = (0..10)
+            .map(|i| ([f64::from(i), 2.0 * f64::from(i)], 1.0))
+            .collect();
+        assert!(least_squares(&collinear).is_none());
+    }
+
+    #[test]
+    fn a_disparity_error_shows_in_the_x_term_of_the_image_motion() {
+        // Frames whose fits carry e = -offset b - slope a (lateral and forward motion varying).
+        let (offset, slope) = (0.4, 0.006);
+        let fits: Vec<FlowOnDisparity> = (0..50)
+            .map(|i| {
+                let a = (f64::from(i) * 0.7).sin() * 3.0;
+                let b = (f64::from(i) * 1.3).cos() * 0.02;
+                FlowOnDisparity {
+                    a,
+                    b,
+                    e: -offset * b - slope * a,
+                }
+            })
+            .collect();
+        let (o, s) = disparity_error(&fits);
+        assert!(
+            (o - offset).abs() < 1e-9 && (s - slope).abs() < 1e-9,
+            "{o} {s}"
+        );
+    }
 }

@@ -22,6 +22,7 @@
 //! convention): simulator roll = `s·roll`, pitch = `-s·pitch`, `s = ±1` the board's forward
 //! sign.
 
+use super::camera_calib::{disparity_error, flow_on_disparity};
 use super::dataset::{discover_takes, load_frame, stereo_shift, Take};
 use super::frame_stats::{FrameStats, TakeStats};
 use super::metrics::{metrics, Metrics};
@@ -171,6 +172,12 @@ pub struct ReplayResult {
     pub ratio_y_range: (f64, f64),
     /// The scene.
     pub scene: SceneChoice,
+    /// The disparity error (offset px, slope px/px) the recorded frames' image motion shows
+    /// ([`disparity_error`]).
+    pub real_disparity_error: (f64, f64),
+    /// The same on the rendered frames (mean over the renderings), whose disparity error is
+    /// zero: the estimator's bias on this trajectory and scene.
+    pub rendered_disparity_error: (f64, f64),
 }
 
 impl ReplayResult {
@@ -826,6 +833,9 @@ pub fn replay_take(
         ))
     };
     let (real_x, real_y) = score(&real)?;
+    let times = image_times(take, n)?;
+    let real_disparity_error = disparity_error(&flow_on_disparity(&real, shift, &times));
+    let mut rendered_disparity_error = (0.0, 0.0);
     // Several renderings (textures and noise drawn from their own seeds) of the same scene.
     let mut ren_st = TakeStats::default();
     let (mut depths, mut xs, mut ys) = (Vec::new(), Vec::new(), Vec::new());
@@ -836,6 +846,9 @@ pub fn replay_take(
             ren_st.add(f);
         }
         depths.push(real_depth_m(&rendered, shift));
+        let (offset, slope) = disparity_error(&flow_on_disparity(&rendered, shift, &times));
+        rendered_disparity_error.0 += offset / renders.max(1) as f64;
+        rendered_disparity_error.1 += slope / renders.max(1) as f64;
         let (x, y) = score(&rendered)?;
         xs.push(x);
         ys.push(y);
@@ -874,6 +887,8 @@ pub fn replay_take(
         ratio_x_range,
         ratio_y_range,
         scene: scene_choice,
+        real_disparity_error,
+        rendered_disparity_error,
     })
 }
 
@@ -963,7 +978,7 @@ pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
         );
         let c = &r.scene;
         s += &format!(
-            "           ratio    | {:>7.2} {:>7.2} | per rendering x {:.2}..{:.2}, y {:.2}..{:.2} ({})\n                     scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m, {} obstacle(s) (distance {:.3})\n",
+            "           ratio    | {:>7.2} {:>7.2} | per rendering x {:.2}..{:.2}, y {:.2}..{:.2} ({})\n                     scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m, {} obstacle(s) (distance {:.3})\n                     disparity error from the image motion: recorded {:+.2} px {:+.4} px/px, rendered {:+.2} px {:+.4} px/px\n",
             r.ratio_x(),
             r.ratio_y(),
             r.ratio_x_range.0,
@@ -979,7 +994,11 @@ pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
             c.size_m[0],
             c.size_m[1],
             c.obstacles.len(),
-            c.distance
+            c.distance,
+            r.real_disparity_error.0,
+            r.real_disparity_error.1,
+            r.rendered_disparity_error.0,
+            r.rendered_disparity_error.1,
         );
         let band = |v: f64| (0.5..=2.0).contains(&v);
         if band(r.ratio_x()) && band(r.ratio_y()) {
@@ -1020,7 +1039,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
             s += &format!(",{src}_hist_{b}");
         }
     }
-    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,obstacles,fit_distance\n";
+    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,obstacles,fit_distance,real_disparity_offset_px,real_disparity_slope,rendered_disparity_offset_px,rendered_disparity_slope\n";
     let stats = |st: &FrameStats, depth: f64| {
         let mut v = vec![
             st.mean_edge_density(),
@@ -1042,7 +1061,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
     for r in results {
         let c = &r.scene;
         s += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             r.board,
             r.take,
             r.frames,
@@ -1067,7 +1086,11 @@ pub fn csv(results: &[ReplayResult]) -> String {
             c.size_m[0],
             c.size_m[1],
             c.obstacles.len(),
-            c.distance
+            c.distance,
+            r.real_disparity_error.0,
+            r.real_disparity_error.1,
+            r.rendered_disparity_error.0,
+            r.rendered_disparity_error.1,
         );
     }
     s
