@@ -296,6 +296,25 @@ pub fn disparity_error(fits: &[FlowOnDisparity]) -> (f64, f64) {
     least_squares(&rows).map_or((f64::NAN, f64::NAN), |k| (-k[1], -k[0]))
 }
 
+/// The left-right shear: median over frames of the left-right shift (the right image's
+/// column edge histogram against the left's, px) of the bottom half of the valid rows minus
+/// that of the top half. The cameras' relative roll shows in it, and so does the depth
+/// structure (a nearer floor in the bottom half): `replay` compares it with the same
+/// statistic of the take's rendering.
+pub fn lr_shear(frames: &[Frame]) -> f64 {
+    let rows = valid_rows(frames);
+    let (top, bottom) = rows.split_at(rows.len() / 2);
+    let mut dif: Vec<f64> = frames
+        .iter()
+        .map(|f| {
+            let st = histogram_shift(&column_edges(f, 0, top), &column_edges(f, 1, top), 24);
+            let sb = histogram_shift(&column_edges(f, 0, bottom), &column_edges(f, 1, bottom), 24);
+            sb - st
+        })
+        .collect();
+    quantile(&mut dif, 0.5)
+}
+
 /// Measures one take (see the module docs).
 pub fn measure_take(take: &Take) -> Result<TakeCalib> {
     let n = take.image_count();

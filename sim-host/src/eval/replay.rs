@@ -22,7 +22,7 @@
 //! convention): simulator roll = `s·roll`, pitch = `-s·pitch`, `s = ±1` the board's forward
 //! sign.
 
-use super::camera_calib::{disparity_error, flow_on_disparity};
+use super::camera_calib::{disparity_error, flow_on_disparity, lr_shear};
 use super::dataset::{discover_takes, load_frame, stereo_shift, Take};
 use super::frame_stats::{FrameStats, TakeStats};
 use super::metrics::{metrics, Metrics};
@@ -100,18 +100,21 @@ pub enum Effect {
     Vignetting,
     /// Rolling shutter.
     RollingShutter,
+    /// The right camera's roll against the left.
+    StereoRoll,
     /// The recorder's latency ([`RECORDER_LATENCY_S`]).
     Latency,
 }
 
 impl Effect {
     /// Every effect: the calibrated camera.
-    pub const ALL: [Effect; 6] = [
+    pub const ALL: [Effect; 7] = [
         Effect::ColumnFpn,
         Effect::RowFpn,
         Effect::PixelFpn,
         Effect::Vignetting,
         Effect::RollingShutter,
+        Effect::StereoRoll,
         Effect::Latency,
     ];
 }
@@ -178,6 +181,10 @@ pub struct ReplayResult {
     /// The same on the rendered frames (mean over the renderings), whose disparity error is
     /// zero: the estimator's bias on this trajectory and scene.
     pub rendered_disparity_error: (f64, f64),
+    /// The left-right shear of the recorded frames ([`lr_shear`]), px.
+    pub real_lr_shear_px: f64,
+    /// The same on the rendered frames (mean over the renderings), px.
+    pub rendered_lr_shear_px: f64,
 }
 
 impl ReplayResult {
@@ -343,6 +350,7 @@ pub fn camera_for(take: &Take, real: &FrameStats, effects: &[Effect]) -> Result<
             Effect::PixelFpn => d.pixel_fpn_dn = calibrated.pixel_fpn_dn,
             Effect::Vignetting => d.vignetting_k = calibrated.vignetting_k,
             Effect::RollingShutter => d.rolling_shutter_s = calibrated.rolling_shutter_s,
+            Effect::StereoRoll => d.stereo_roll_rad = calibrated.stereo_roll_rad,
             Effect::Latency => {}
         }
     }
@@ -836,6 +844,8 @@ pub fn replay_take(
     let times = image_times(take, n)?;
     let real_disparity_error = disparity_error(&flow_on_disparity(&real, shift, &times));
     let mut rendered_disparity_error = (0.0, 0.0);
+    let real_lr_shear_px = lr_shear(&real);
+    let mut rendered_lr_shear_px = 0.0;
     // Several renderings (textures and noise drawn from their own seeds) of the same scene.
     let mut ren_st = TakeStats::default();
     let (mut depths, mut xs, mut ys) = (Vec::new(), Vec::new(), Vec::new());
@@ -849,6 +859,7 @@ pub fn replay_take(
         let (offset, slope) = disparity_error(&flow_on_disparity(&rendered, shift, &times));
         rendered_disparity_error.0 += offset / renders.max(1) as f64;
         rendered_disparity_error.1 += slope / renders.max(1) as f64;
+        rendered_lr_shear_px += lr_shear(&rendered) / renders.max(1) as f64;
         let (x, y) = score(&rendered)?;
         xs.push(x);
         ys.push(y);
@@ -889,6 +900,8 @@ pub fn replay_take(
         scene: scene_choice,
         real_disparity_error,
         rendered_disparity_error,
+        real_lr_shear_px,
+        rendered_lr_shear_px,
     })
 }
 
@@ -978,7 +991,7 @@ pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
         );
         let c = &r.scene;
         s += &format!(
-            "           ratio    | {:>7.2} {:>7.2} | per rendering x {:.2}..{:.2}, y {:.2}..{:.2} ({})\n                     scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m, {} obstacle(s) (distance {:.3})\n                     disparity error from the image motion: recorded {:+.2} px {:+.4} px/px, rendered {:+.2} px {:+.4} px/px\n",
+            "           ratio    | {:>7.2} {:>7.2} | per rendering x {:.2}..{:.2}, y {:.2}..{:.2} ({})\n                     scene: walls {} contrast {} albedo {:.2}, floor {}, light {:.2}, room {:.1} x {:.1} m, {} obstacle(s) (distance {:.3})\n                     disparity error from the image motion: recorded {:+.2} px {:+.4} px/px, rendered {:+.2} px {:+.4} px/px\n                     left-right shear (bottom minus top half): recorded {:+.2} px, rendered {:+.2} px\n",
             r.ratio_x(),
             r.ratio_y(),
             r.ratio_x_range.0,
@@ -999,6 +1012,8 @@ pub fn table(results: &[ReplayResult], alignment: Alignment) -> String {
             r.real_disparity_error.1,
             r.rendered_disparity_error.0,
             r.rendered_disparity_error.1,
+            r.real_lr_shear_px,
+            r.rendered_lr_shear_px,
         );
         let band = |v: f64| (0.5..=2.0).contains(&v);
         if band(r.ratio_x()) && band(r.ratio_y()) {
@@ -1039,7 +1054,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
             s += &format!(",{src}_hist_{b}");
         }
     }
-    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,obstacles,fit_distance,real_disparity_offset_px,real_disparity_slope,rendered_disparity_offset_px,rendered_disparity_slope\n";
+    s += ",wall_texture,wall_contrast,wall_albedo,floor_texture,light,room_x_m,room_y_m,obstacles,fit_distance,real_disparity_offset_px,real_disparity_slope,rendered_disparity_offset_px,rendered_disparity_slope,real_lr_shear_px,rendered_lr_shear_px\n";
     let stats = |st: &FrameStats, depth: f64| {
         let mut v = vec![
             st.mean_edge_density(),
@@ -1061,7 +1076,7 @@ pub fn csv(results: &[ReplayResult]) -> String {
     for r in results {
         let c = &r.scene;
         s += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}{}{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             r.board,
             r.take,
             r.frames,
@@ -1091,6 +1106,8 @@ pub fn csv(results: &[ReplayResult]) -> String {
             r.real_disparity_error.1,
             r.rendered_disparity_error.0,
             r.rendered_disparity_error.1,
+            r.real_lr_shear_px,
+            r.rendered_lr_shear_px,
         );
     }
     s

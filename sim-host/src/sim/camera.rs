@@ -40,6 +40,11 @@ pub const CALIBRATED_VIGNETTING_K: f32 = -6.0e-5;
 /// Rolling-shutter readout of the calibrated camera, s: the bottom half's column edges shift
 /// against the top half's by 2.97 +- 1.19 px per rad/s of yaw (46 +- 19 ms top to bottom).
 pub const CALIBRATED_ROLLING_SHUTTER_S: f32 = 0.046;
+/// The right camera's roll against the left of the calibrated camera, rad (0.5 degrees): the
+/// angle at which the renderings of board 1's takes show the recorded frames' left-right
+/// shear (`replay`'s bottom-minus-top-half left-right shift; recorded minus rendered, median
+/// over the 11 takes: -0.22 px without the roll, -0.02 to +0.08 px with it over seeds 1-4).
+pub const CALIBRATED_STEREO_ROLL_RAD: f32 = -0.009;
 
 /// Camera parameters.
 #[derive(Debug, Clone, PartialEq)]
@@ -87,6 +92,11 @@ pub struct CameraParams {
     pub misalign_px: f32,
     /// Vertical misalignment of the right image, px (rows, positive: feature lower in right).
     pub misalign_v_px: f32,
+    /// The right camera's roll about its optical axis relative to the left camera, rad:
+    /// positive puts a feature further right in the right image's bottom rows than in its top
+    /// rows (by the angle times the rows between them, px), so a column's disparity differs
+    /// from the top of the image to the bottom.
+    pub stereo_roll_rad: f32,
     /// Column fixed-pattern offset of the left and the right camera: standard deviation of a
     /// per-column offset that does not move with the scene, DN (each camera its own pattern,
     /// drawn from [`pattern_seed`](Self::pattern_seed)).
@@ -116,6 +126,7 @@ impl Default for CameraParams {
             pixel_fpn_dn: CALIBRATED_PIXEL_FPN_DN,
             vignetting_k: CALIBRATED_VIGNETTING_K,
             rolling_shutter_s: CALIBRATED_ROLLING_SHUTTER_S,
+            stereo_roll_rad: CALIBRATED_STEREO_ROLL_RAD,
             ..Self::ideal()
         }
     }
@@ -148,6 +159,7 @@ impl CameraParams {
             offset_right_dn: -3.0,
             misalign_px: 0.0,
             misalign_v_px: 0.0,
+            stereo_roll_rad: 0.0,
             column_fpn_dn: [0.0; 2],
             row_fpn_dn: 0.0,
             pixel_fpn_dn: 0.0,
@@ -207,7 +219,7 @@ pub struct Exposure {
 }
 
 /// The pose at one time slot of an exposure: world-from-body rotation and each eye's origin.
-type SlotPose = ([[f32; 3]; 3], [[f32; 3]; 2]);
+type SlotPose = ([[[f32; 3]; 3]; 2], [[f32; 3]; 2]);
 
 /// Most time samples per pixel over one exposure (motion blur).
 const MAX_TIME_SAMPLES: usize = 16;
@@ -408,11 +420,15 @@ impl StereoCamera {
                 .normalized();
             let c = pos + motion.vel * tau;
             let m = a.to_matrix();
-            let r: [[f32; 3]; 3] = [
-                [m[0][0] as f32, m[0][1] as f32, m[0][2] as f32],
-                [m[1][0] as f32, m[1][1] as f32, m[1][2] as f32],
-                [m[2][0] as f32, m[2][1] as f32, m[2][2] as f32],
-            ];
+            let to_f32 = |m: [[f64; 3]; 3]| m.map(|row| row.map(|x| x as f32));
+            // The right camera turned about its optical axis (the ray's first axis).
+            let right = if p.stereo_roll_rad == 0.0 {
+                m
+            } else {
+                let (s, c) = f64::from(p.stereo_roll_rad).sin_cos();
+                m.map(|row| [row[0], row[1] * c + row[2] * s, row[2] * c - row[1] * s])
+            };
+            let r = [to_f32(m), to_f32(right)];
             let mut o = [[0.0f32; 3]; 2];
             for (eye, oe) in o.iter_mut().enumerate() {
                 let side = if eye == 0 { -0.5 } else { 0.5 } * p.baseline_m as f64;
@@ -529,7 +545,8 @@ fn accumulate(
         let mut sums = [0.0f32; WIDTH];
         for pass in 0..passes {
             for j in 0..n_sub {
-                let (r, o) = &poses[pose_row * n_slots + pass * n_sub + j];
+                let (rs, o) = &poses[pose_row * n_slots + pass * n_sub + j];
+                let r = &rs[eye];
                 let phase = &phase_rays[(j + n_sub - y * WIDTH % n_sub) % n_sub];
                 let vs = &row_v[y * ss..(y + 1) * ss];
                 for (x, (&u, &sub_row)) in phase.u.iter().zip(&phase.sub_row).enumerate() {
@@ -585,7 +602,8 @@ fn accumulate_reference(
                 // Decorrelate subsample position and time from pixel to pixel.
                 let slot = pass * n_sub + (k + px) % n_sub;
                 let row = if pose_rows > 1 { px / WIDTH } else { 0 };
-                let (r, o) = &poses[row * n_slots + slot];
+                let (rs, o) = &poses[row * n_slots + slot];
+                let r = &rs[eye];
                 let d = [
                     r[0][0] * b[0] + r[0][1] * b[1] + r[0][2] * b[2],
                     r[1][0] * b[0] + r[1][1] * b[1] + r[1][2] * b[2],
@@ -803,6 +821,51 @@ mod tests {
             assert!(
                 (d - expect).abs() < 0.35,
                 "z {z}: disparity {d} vs f*b/Z {expect}"
+            );
+        }
+    }
+
+    /// The right camera's roll turns the right image about its centre against the left: facing
+    /// a wall, the disparity of the bottom half differs from the top half's by the angle times
+    /// the 48 rows between the halves' centres (the sign as documented on the parameter).
+    #[test]
+    fn stereo_roll_turns_the_right_image() {
+        let scene = Scene::preset("room", 3).unwrap();
+        let shear = |roll: f32| {
+            let mut cam = StereoCamera::new(CameraParams {
+                noise: false,
+                stereo_roll_rad: roll,
+                ..CameraParams::ideal()
+            });
+            let mut frame = Box::new([0u8; STEREO_FRAME_BYTES]);
+            let mut rng = ChaCha8Rng::seed_from_u64(0);
+            let x = 4.0 - 1.5 - f64::from(cam.params.forward_offset_m);
+            cam.render(
+                &scene,
+                V3::new(x, 2.0, -1.0),
+                Quat::IDENTITY,
+                &mut rng,
+                &mut frame,
+            );
+            let (l, r) = deinterleave(&frame);
+            let half = |img: &[u8], top: bool| {
+                let rows = if top {
+                    0..HEIGHT / 2
+                } else {
+                    HEIGHT / 2..HEIGHT
+                };
+                edge_hist(&img[rows.start * WIDTH..rows.end * WIDTH].repeat(2))
+            };
+            global_disparity(&half(&l, false), &half(&r, false), 12)
+                - global_disparity(&half(&l, true), &half(&r, true), 12)
+        };
+        assert!(shear(0.0).abs() < 0.08, "no roll: {}", shear(0.0));
+        for roll in [0.01f32, -0.01] {
+            let want = -roll * (HEIGHT / 2) as f32;
+            let got = shear(roll);
+            assert!(
+                (got - want).abs() < 0.2,
+                "roll {roll}: {got} px, want {want}"
             );
         }
     }
