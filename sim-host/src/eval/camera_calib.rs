@@ -19,13 +19,17 @@
 //!   `sum |I(x+1) - I(x-1)| / sum |I(x+2) - I(x-2)|` (blur lowers it);
 //! * **frame timing**: intervals of the images' recorded times (`%i.bmp.tme` or timing.dat):
 //!   mean, standard deviation (jitter) and largest;
+//! * **the two cameras' relative timing**: the whole image's left-right shift against the
+//!   motion-capture yaw rate, both high-passed over the frames (a running median of 7 removes
+//!   the scene's slow depth changes; frames whose shift jumps by over a pixel are left out): a
+//!   right camera exposed `t` after the left shifts by `f t` px per rad/s;
 //! * **depth structure**: the 10th / 50th / 90th percentiles of the frames' median Edge-FS
 //!   stereo depth, and the median over frames of each frame's spread of column depths
 //!   (90th / 10th percentile ratio).
 
 use super::dataset::{discover_takes, load_frame, stereo_shift, Take};
 use super::frame_stats::FrameStats;
-use super::replay::Frame;
+use super::replay::{Frame, RECORDER_LATENCY_S};
 use super::select_takes;
 use super::truth::{image_times, MocapTrack};
 use anyhow::{Context, Result};
@@ -87,6 +91,9 @@ pub struct TakeCalib {
     /// Per lag of [`LAGS_S`], per consecutive frame pair: the yaw change between the image
     /// times moved by the lag, rad.
     pub yaw_step: Vec<Vec<f64>>,
+    /// Per frame: (yaw rate at the image's motion time, rad/s; the whole image's left-right
+    /// column-edge shift, px), both high-passed over the frames ([`high_pass_series`]).
+    pub lr_on_yaw: Vec<(f64, f64)>,
 }
 
 /// Lags tried between the image times and the motion-capture times, s.
@@ -172,6 +179,25 @@ fn high_pass(p: &[f64]) -> Vec<f64> {
             let lo = i.saturating_sub(PROFILE_HALF_WINDOW);
             let hi = (i + PROFILE_HALF_WINDOW + 1).min(n);
             p[i] - p[lo..hi].iter().sum::<f64>() / (hi - lo) as f64
+        })
+        .collect()
+}
+
+/// Largest high-passed left-right shift of a frame the timing measurement uses, px.
+const MAX_TIMING_SHIFT_PX: f64 = 1.0;
+
+/// Half-width of the running median a frame series is high-passed with, frames.
+const SERIES_HALF_WINDOW: usize = 3;
+
+/// A series minus its running median over `2 SERIES_HALF_WINDOW + 1` frames: what changes
+/// from frame to frame, without the slow drift (the scene's depth over a take).
+fn high_pass_series(v: &[f64]) -> Vec<f64> {
+    (0..v.len())
+        .map(|i| {
+            let lo = i.saturating_sub(SERIES_HALF_WINDOW);
+            let hi = (i + SERIES_HALF_WINDOW + 1).min(v.len());
+            let mut w = v[lo..hi].to_vec();
+            v[i] - quantile(&mut w, 0.5)
         })
         .collect()
 }
@@ -424,6 +450,19 @@ pub fn measure_take(take: &Take) -> Result<TakeCalib> {
                 .collect()
         })
         .collect();
+    let motion_rate = |t: f64| {
+        let t = t - RECORDER_LATENCY_S;
+        (yaw_rad(t + 0.05) - yaw_rad(t - 0.05)) / 0.1
+    };
+    let lr: Vec<f64> = frames
+        .iter()
+        .map(|f| histogram_shift(&column_edges(f, 0, &rows), &column_edges(f, 1, &rows), 24))
+        .collect();
+    let rates: Vec<f64> = times.iter().map(|&t| motion_rate(t)).collect();
+    let lr_on_yaw = high_pass_series(&rates)
+        .into_iter()
+        .zip(high_pass_series(&lr))
+        .collect();
     let mut d = depths.clone();
     let mut s = spread;
     Ok(TakeCalib {
@@ -448,6 +487,7 @@ pub fn measure_take(take: &Take) -> Result<TakeCalib> {
         skew,
         global_shift,
         yaw_step,
+        lr_on_yaw,
     })
 }
 
@@ -600,6 +640,13 @@ pub fn report(takes: &[TakeCalib]) -> String {
             .map(|(l, c)| format!("{l:+.2}:{c:.2}"))
             .collect();
         let _ = writeln!(s, "    correlation by lag: {}", curve.join(" "));
+        let _ = writeln!(
+            s,
+            "  right camera after the left: {:+.2} +- {:.2} ms (left-right shift on the yaw rate; yaw rate rms {:.3} rad/s)",
+            1e3 * c.right_delay_s[0],
+            1e3 * c.right_delay_s[1],
+            c.timing_yaw_rate_rms
+        );
     }
     s
 }
@@ -625,6 +672,11 @@ pub struct BoardCalib {
     pub readout_s: [f64; 2],
     /// Correlation of the images' global shift with the yaw step at each lag of [`LAGS_S`].
     pub lag_corr: Vec<f64>,
+    /// The right camera's exposure after the left's and its standard error, s: the whole
+    /// image's left-right shift on the yaw rate (both high-passed) over the focal length.
+    pub right_delay_s: [f64; 2],
+    /// The rms of the high-passed yaw rate that measurement had, rad/s (its sensitivity).
+    pub timing_yaw_rate_rms: f64,
 }
 
 /// Pools a board's takes (at least two for the fixed patterns).
@@ -639,6 +691,8 @@ pub fn board_calib(bt: &[&TakeCalib]) -> BoardCalib {
         vignetting_k: [0.0; 2],
         readout_s: [0.0; 2],
         lag_corr: Vec::new(),
+        right_delay_s: [f64::NAN; 2],
+        timing_yaw_rate_rms: f64::NAN,
     };
     for eye in 0..2 {
         let cols: Vec<&[f64]> = bt.iter().map(|t| t.col_profile[eye].as_slice()).collect();
@@ -681,6 +735,17 @@ pub fn board_calib(bt: &[&TakeCalib]) -> BoardCalib {
             correlation(&shifts, &steps)
         })
         .collect();
+    // A frame whose shift jumps by over a pixel changed its view (an object came close), not
+    // its timing.
+    let lr_on_yaw: Vec<(f64, f64)> = bt
+        .iter()
+        .flat_map(|t| t.lr_on_yaw.iter().copied())
+        .filter(|p| p.1.abs() <= MAX_TIMING_SHIFT_PX)
+        .collect();
+    let (k, k_se) = slope(&lr_on_yaw);
+    c.right_delay_s = [k / f, k_se / f];
+    c.timing_yaw_rate_rms =
+        (lr_on_yaw.iter().map(|p| p.0 * p.0).sum::<f64>() / lr_on_yaw.len().max(1) as f64).sqrt();
     c
 }
 
