@@ -27,11 +27,10 @@
 //!   stereo depth, and the median over frames of each frame's spread of column depths
 //!   (90th / 10th percentile ratio).
 
-use super::dataset::{discover_takes, load_frame, stereo_shift, Take};
+use super::dataset::{discover_takes, load_frame, stereo_shift, Frame, Take};
 use super::frame_stats::FrameStats;
-use super::replay::{Frame, RECORDER_LATENCY_S};
 use super::select_takes;
-use super::truth::{image_times, MocapTrack};
+use super::truth::{image_times, MocapTrack, RECORDER_LATENCY_S};
 use anyhow::{Context, Result};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -92,7 +91,7 @@ pub struct TakeCalib {
     /// times moved by the lag, rad.
     pub yaw_step: Vec<Vec<f64>>,
     /// Per frame: (yaw rate at the image's motion time, rad/s; the whole image's left-right
-    /// column-edge shift, px), both high-passed over the frames ([`high_pass_series`]).
+    /// column-edge shift, px), both less their running median over 7 frames.
     pub lr_on_yaw: Vec<(f64, f64)>,
 }
 

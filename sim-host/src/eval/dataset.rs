@@ -93,10 +93,13 @@ pub const IMAGE_WIDTH: u32 = 256;
 /// Height of a data-set image, px.
 pub const IMAGE_HEIGHT: u32 = 96;
 
+/// A recorded (or rendered) stereo frame, interleaved as the camera board receives it.
+pub type Frame = Box<[u8; STEREO_FRAME_BYTES]>;
+
 /// Reads an image of the data set (BMP or PNG, 256x96, gray; left half = right camera) into an
 /// interleaved stereo frame `[L0 R0 L1 R1 ...]`, top row first. Errors name the file and the
 /// problem.
-pub fn load_frame(path: &Path) -> Result<Box<[u8; STEREO_FRAME_BYTES]>> {
+pub fn load_frame(path: &Path) -> Result<Frame> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     decode_frame(&bytes).with_context(|| format!("bad image {}", path.display()))
 }

@@ -23,10 +23,10 @@
 //! sign.
 
 use super::camera_calib::{disparity_error, flow_on_disparity, lr_shear};
-use super::dataset::{discover_takes, load_frame, stereo_shift, Take};
+use super::dataset::{discover_takes, load_frame, stereo_shift, Frame, Take};
 use super::frame_stats::{FrameStats, TakeStats};
 use super::metrics::{metrics, Metrics};
-use super::truth::{ground_truth, image_times, Alignment, MocapTrack};
+use super::truth::{ground_truth, image_times, Alignment, MocapTrack, RECORDER_LATENCY_S};
 use super::{estimate_series, params_for, select_takes, Config};
 use crate::sim::camera::{CameraModel, CameraParams, Motion, StereoCamera};
 use crate::sim::math::{Quat, V3};
@@ -39,9 +39,6 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::path::PathBuf;
 use stereo_board::edge_fs::{EdgeFs, IMG_H, IMG_W};
-
-/// A stereo frame.
-pub type Frame = Box<[u8; STEREO_FRAME_BYTES]>;
 
 /// Output format of `sim-host replay`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -209,12 +206,6 @@ pub struct Pose {
     /// Velocity and body rates over the exposure.
     pub motion: Motion,
 }
-
-/// The recorder's latency: an image shows the scene this long before its recorded time, s.
-/// Measured by `sim-host camera-calib` (the lag at which the images' global horizontal shift
-/// correlates best with the motion capture's yaw change: 0.16 to 0.22 s on the takes where
-/// that correlation is at least 0.45, 1/3, 1/5, 1/9, 1/19, 1/21 and 2/3; docs/replay.md).
-pub const RECORDER_LATENCY_S: f64 = 0.19;
 
 /// The camera poses of images `1..=N-1` from the take's motion capture, interpolated at the
 /// images' exposure times: their recorded times minus `latency_s` (see the module docs for

@@ -138,6 +138,12 @@ fn interp(ts: &[f64], v: &[f64], t: f64) -> f64 {
     v[k - 1] + a * (v[k] - v[k - 1])
 }
 
+/// The recorder's latency: an image shows the scene this long before its recorded time, s.
+/// Measured by `sim-host camera-calib` (the lag at which the images' global horizontal shift
+/// correlates best with the motion capture's yaw change: 0.16 to 0.22 s on the takes where
+/// that correlation is at least 0.45, 1/3, 1/5, 1/9, 1/19, 1/21 and 2/3; docs/replay.md).
+pub const RECORDER_LATENCY_S: f64 = 0.19;
+
 /// Image times of images `1..=n_images-1`, s (logging clock): the `%i.bmp.tme` file, or
 /// where there is none the (k+1)-th recorded-frame row of timing.dat for image k.
 pub fn image_times(take: &Take, n_images: usize) -> Result<Vec<f64>> {
