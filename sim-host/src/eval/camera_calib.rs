@@ -455,7 +455,8 @@ pub fn measure_take(take: &Take) -> Result<TakeCalib> {
     };
     let lr: Vec<f64> = frames
         .iter()
-        .map(|f| histogram_shift(&column_edges(f, 0, &rows), &column_edges(f, 1, &rows), 24))
+        .zip(&hists)
+        .map(|(f, left)| histogram_shift(left, &column_edges(f, 1, &rows), 24))
         .collect();
     let rates: Vec<f64> = times.iter().map(|&t| motion_rate(t)).collect();
     let lr_on_yaw = high_pass_series(&rates)

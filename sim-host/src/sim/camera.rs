@@ -218,7 +218,8 @@ pub struct Exposure {
     pub gain: f32,
 }
 
-/// The pose at one time slot of an exposure: world-from-body rotation and each eye's origin.
+/// The pose at one time slot of an exposure: each eye's world-from-camera rotation (the right
+/// one rolled by [`CameraParams::stereo_roll_rad`]) and each eye's origin.
 type SlotPose = ([[[f32; 3]; 3]; 2], [[f32; 3]; 2]);
 
 /// Most time samples per pixel over one exposure (motion blur).
@@ -400,6 +401,8 @@ impl StereoCamera {
         } else {
             1
         };
+        // The right camera's roll about its optical axis, as (sin, cos).
+        let roll = (p.stereo_roll_rad != 0.0).then(|| f64::from(p.stereo_roll_rad).sin_cos());
         // Pose (rotation matrix, per-eye origin) at each row and time slot.
         let mut poses: Vec<SlotPose> = Vec::with_capacity(pose_rows * n_slots);
         for k in 0..pose_rows * n_slots {
@@ -422,11 +425,11 @@ impl StereoCamera {
             let m = a.to_matrix();
             let to_f32 = |m: [[f64; 3]; 3]| m.map(|row| row.map(|x| x as f32));
             // The right camera turned about its optical axis (the ray's first axis).
-            let right = if p.stereo_roll_rad == 0.0 {
-                m
-            } else {
-                let (s, c) = f64::from(p.stereo_roll_rad).sin_cos();
-                m.map(|row| [row[0], row[1] * c + row[2] * s, row[2] * c - row[1] * s])
+            let right = match roll {
+                None => m,
+                Some((s, c)) => {
+                    m.map(|row| [row[0], row[1] * c + row[2] * s, row[2] * c - row[1] * s])
+                }
             };
             let r = [to_f32(m), to_f32(right)];
             let mut o = [[0.0f32; 3]; 2];
